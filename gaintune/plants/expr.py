@@ -1,0 +1,206 @@
+"""Safe parsing of user expressions (plant right-hand sides, coefficients).
+
+Expressions are parsed with :mod:`ast` and walked node by node against a
+whitelist: numbers, names, + - * / ** ^ (power), unary minus, and calls to the
+functions in :data:`FUNCTIONS`. Attribute access, subscripts, keywords,
+lambdas, comprehensions and every other node are rejected. Nothing is ever
+passed to ``eval``/``exec``.
+
+The same parsed tree can be evaluated with casadi (symbolic ODEs), with plain
+floats, or with :class:`numpy.polynomial.Polynomial` (transfer functions in s).
+"""
+
+from __future__ import annotations
+
+import ast
+import math
+from collections.abc import Callable, Mapping
+from functools import lru_cache
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from gaintune.errors import SpecError
+
+__all__ = ["FUNCTIONS", "CONSTANTS", "parse", "names_in", "to_casadi", "to_float", "to_polynomial"]
+
+MAX_LENGTH = 2000
+MAX_DEPTH = 60
+
+#: Whitelisted functions: name -> (casadi implementation, float implementation).
+FUNCTIONS: dict[str, tuple[Callable[..., Any], Callable[..., Any]]] = {
+    "sin": (ca.sin, math.sin),
+    "cos": (ca.cos, math.cos),
+    "tan": (ca.tan, math.tan),
+    "asin": (ca.asin, math.asin),
+    "acos": (ca.acos, math.acos),
+    "atan": (ca.atan, math.atan),
+    "atan2": (ca.atan2, math.atan2),
+    "sinh": (ca.sinh, math.sinh),
+    "cosh": (ca.cosh, math.cosh),
+    "tanh": (ca.tanh, math.tanh),
+    "exp": (ca.exp, math.exp),
+    "log": (ca.log, math.log),
+    "sqrt": (ca.sqrt, math.sqrt),
+    "abs": (ca.fabs, abs),
+    "sign": (ca.sign, lambda x: float(np.sign(x))),
+    "min": (ca.fmin, min),
+    "max": (ca.fmax, max),
+    "if_else": (ca.if_else, lambda c, a, b: a if c else b),
+}
+CONSTANTS = {"pi": math.pi, "e": math.e}
+
+_BINOPS = (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow, ast.BitXor)
+_CMPOPS = (ast.Lt, ast.LtE, ast.Gt, ast.GtE)
+
+
+@lru_cache(maxsize=4096)
+def parse(text: str, field: str = "expression") -> ast.expr:
+    """Parse and validate ``text``; raise :class:`SpecError` naming ``field`` if it is not allowed."""
+    if not isinstance(text, str) or not text.strip():
+        raise SpecError(field, "empty expression")
+    if len(text) > MAX_LENGTH:
+        raise SpecError(field, f"expression longer than {MAX_LENGTH} characters")
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except SyntaxError as exc:
+        raise SpecError(field, f"cannot parse {text!r}: {exc.msg}") from None
+    _check(tree.body, field, 0)
+    return tree.body
+
+
+def _check(node: ast.AST, field: str, depth: int) -> None:
+    if depth > MAX_DEPTH:
+        raise SpecError(field, "expression nested too deeply")
+    if isinstance(node, ast.Constant):
+        if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
+            raise SpecError(field, f"only numeric constants are allowed, got {node.value!r}")
+        return
+    if isinstance(node, ast.Name):
+        if node.id.startswith("_"):
+            raise SpecError(field, f"name {node.id!r} is not allowed (leading underscore)")
+        return
+    if isinstance(node, ast.BinOp) and isinstance(node.op, _BINOPS):
+        _check(node.left, field, depth + 1)
+        _check(node.right, field, depth + 1)
+        return
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
+        _check(node.operand, field, depth + 1)
+        return
+    if isinstance(node, ast.Compare) and len(node.ops) == 1 and isinstance(node.ops[0], _CMPOPS):
+        _check(node.left, field, depth + 1)
+        _check(node.comparators[0], field, depth + 1)
+        return
+    if isinstance(node, ast.Call):
+        if not isinstance(node.func, ast.Name) or node.func.id not in FUNCTIONS:
+            what = ast.unparse(node.func)
+            raise SpecError(
+                field, f"call to {what!r} is not allowed; allowed functions: {', '.join(sorted(FUNCTIONS))}"
+            )
+        if node.keywords:
+            raise SpecError(field, "keyword arguments are not allowed")
+        for arg in node.args:
+            _check(arg, field, depth + 1)
+        return
+    if isinstance(node, ast.Attribute):
+        raise SpecError(field, "attribute access ('.') is not allowed")
+    raise SpecError(field, f"{type(node).__name__} is not allowed in expressions")
+
+
+def names_in(text: str, field: str = "expression") -> set[str]:
+    """Free variable names used by an expression (constants and functions excluded)."""
+    tree = parse(text, field)
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Name) and node.id not in FUNCTIONS and node.id not in CONSTANTS:
+            out.add(node.id)
+    return out
+
+
+def _evaluate(node: ast.expr, env: Mapping[str, Any], funcs: Mapping[str, Callable[..., Any]], field: str) -> Any:
+    if isinstance(node, ast.Constant):
+        return float(node.value)
+    if isinstance(node, ast.Name):
+        if node.id in env:
+            return env[node.id]
+        if node.id in CONSTANTS:
+            return CONSTANTS[node.id]
+        raise SpecError(field, f"unknown name {node.id!r}; known: {', '.join(sorted(env)) or 'none'}")
+    if isinstance(node, ast.UnaryOp):
+        val = _evaluate(node.operand, env, funcs, field)
+        return -val if isinstance(node.op, ast.USub) else val
+    if isinstance(node, ast.BinOp):
+        a = _evaluate(node.left, env, funcs, field)
+        b = _evaluate(node.right, env, funcs, field)
+        op = node.op
+        if isinstance(op, ast.Add):
+            return a + b
+        if isinstance(op, ast.Sub):
+            return a - b
+        if isinstance(op, ast.Mult):
+            return a * b
+        if isinstance(op, ast.Div):
+            return a / b
+        return _power(a, b, field)
+    if isinstance(node, ast.Compare):
+        a = _evaluate(node.left, env, funcs, field)
+        b = _evaluate(node.comparators[0], env, funcs, field)
+        op = node.ops[0]
+        if isinstance(op, ast.Lt):
+            return a < b
+        if isinstance(op, ast.LtE):
+            return a <= b
+        if isinstance(op, ast.Gt):
+            return a > b
+        return a >= b
+    assert isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+    args = [_evaluate(a, env, funcs, field) for a in node.args]
+    try:
+        return funcs[node.func.id](*args)
+    except (TypeError, ValueError) as exc:
+        raise SpecError(field, f"bad call {node.func.id}(...): {exc}") from None
+
+
+def _power(a: Any, b: Any, field: str) -> Any:
+    if isinstance(a, np.polynomial.Polynomial):
+        if isinstance(b, float) and b.is_integer() and 0 <= b <= 40:
+            return a ** int(b)
+        raise SpecError(field, "a polynomial in s can only be raised to a whole power 0..40")
+    return a**b
+
+
+def to_casadi(text: str, symbols: Mapping[str, Any], field: str = "expression") -> ca.SX:
+    """Evaluate an expression into a casadi SX over the given symbols."""
+    funcs = {k: v[0] for k, v in FUNCTIONS.items()}
+    return ca.SX(_evaluate(parse(text, field), symbols, funcs, field))
+
+
+def to_float(value: float | str, env: Mapping[str, float], field: str = "expression") -> float:
+    """A number as is, or an expression evaluated over numeric parameters."""
+    if not isinstance(value, str):
+        return float(value)
+    funcs = {k: v[1] for k, v in FUNCTIONS.items()}
+    try:
+        out = _evaluate(parse(value, field), env, funcs, field)
+    except (ZeroDivisionError, OverflowError, ValueError) as exc:
+        raise SpecError(field, f"cannot evaluate {value!r}: {exc}") from None
+    return float(out)
+
+
+def to_polynomial(text: str, env: Mapping[str, float], field: str = "expression") -> np.ndarray:
+    """Evaluate a polynomial expression in ``s``; return coefficients in descending powers."""
+    funcs = {k: v[1] for k, v in FUNCTIONS.items()}
+    scope = dict(env)
+    scope["s"] = np.polynomial.Polynomial([0.0, 1.0])
+    try:
+        out = _evaluate(parse(text, field), scope, funcs, field)
+    except (ZeroDivisionError, OverflowError) as exc:
+        raise SpecError(field, f"cannot evaluate {text!r}: {exc}") from None
+    except TypeError:
+        raise SpecError(field, f"{text!r} is not a polynomial in s (no division by s, no functions of s)") from None
+    if isinstance(out, np.polynomial.Polynomial):
+        coefs = out.coef[::-1].astype(float)
+    else:
+        coefs = np.array([float(out)])
+    return np.trim_zeros(coefs, "f") if np.any(coefs) else np.array([0.0])
