@@ -21,8 +21,9 @@ by :mod:`gaintune.sim.kernel`, the C export and the tests:
 
 from __future__ import annotations
 
-import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -33,42 +34,44 @@ __all__ = ["PidParams", "pid_params", "pid_tf_coeffs"]
 
 @dataclass(frozen=True)
 class PidParams:
-    """Parallel-form PID parameters of one loop."""
+    """Parallel-form PID parameters of one loop (floats, or arrays over a batch)."""
 
-    Kp: float
-    Ki: float
-    Kd: float
-    Tf: float
+    Kp: Any
+    Ki: Any
+    Kd: Any
+    Tf: Any
     b: float
     c: float
-    Tt: float  # back-calculation tracking time (inf when unused)
+    Tt: Any  # back-calculation tracking time (inf when unused)
 
 
-def pid_params(loop: LoopSpec, gains: dict[str, float]) -> PidParams:
-    """Resolve one loop's gains (by name) to parallel-form parameters."""
+def pid_params(loop: LoopSpec, gains: Mapping[str, Any]) -> PidParams:
+    """Resolve one loop's gains (by name; floats or equal-shape arrays) to parallel-form parameters."""
     t = loop.type
-    kp = gains.get("Kp", 0.0)
-    if loop.form == "ideal":
-        ti = gains.get("Ti", math.inf)
-        td = gains.get("Td", 0.0)
-        ki = kp / ti if "i" in t[1:] and ti > 0 else 0.0
-        kd = kp * td if "d" in t[1:] else 0.0
-    else:
-        ki = gains.get("Ki", 0.0) if "i" in t[1:] else 0.0
-        kd = gains.get("Kd", 0.0) if "d" in t[1:] else 0.0
-    if kd > 0:
-        tf = loop.filter.Tf if loop.filter.Tf is not None else (kd / kp / (loop.filter.N or 10.0) if kp > 0 else 0.0)
-    else:
-        tf = 0.0
-    tt = math.inf
-    if loop.anti_windup == "back_calculation" and ki > 0:
-        if loop.tracking_time is not None:
-            tt = loop.tracking_time
+    has_i, has_d = "i" in t[1:], "d" in t[1:]
+    kp = np.asarray(gains.get("Kp", 0.0), dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if loop.form == "ideal":
+            ki = kp / np.asarray(gains["Ti"], dtype=float) if has_i else np.zeros_like(kp)
+            kd = kp * np.asarray(gains["Td"], dtype=float) if has_d else np.zeros_like(kp)
         else:
-            ti = kp / ki if kp > 0 else 1.0
-            td = kd / kp if kp > 0 and kd > 0 else 0.0
-            tt = math.sqrt(ti * td) if td > 0 else ti
-    return PidParams(kp, ki, kd, tf, loop.b, loop.c, tt)
+            ki = np.asarray(gains["Ki"], dtype=float) if has_i else np.zeros_like(kp)
+            kd = np.asarray(gains["Kd"], dtype=float) if has_d else np.zeros_like(kp)
+        if loop.filter.Tf is not None:
+            tf = np.where(kd > 0, loop.filter.Tf, 0.0)
+        else:
+            tf = np.where((kd > 0) & (kp > 0), kd / np.where(kp > 0, kp, 1.0) / (loop.filter.N or 10.0), 0.0)
+        tt = np.full_like(kp, np.inf)
+        if loop.anti_windup == "back_calculation" and has_i:
+            if loop.tracking_time is not None:
+                tt = np.full_like(kp, loop.tracking_time)
+            else:
+                ti = np.where(ki > 0, kp / ki, 1.0)
+                td = np.where(kp > 0, kd / np.where(kp > 0, kp, 1.0), 0.0)
+                tt = np.where(td > 0, np.sqrt(ti * td), ti)
+    scalar = np.ndim(kp) == 0
+    conv = (lambda a: float(a)) if scalar else (lambda a: a)
+    return PidParams(conv(kp), conv(ki), conv(kd), conv(tf), loop.b, loop.c, conv(tt))
 
 
 def pid_tf_coeffs(p: PidParams) -> tuple[np.ndarray, np.ndarray]:
