@@ -1,7 +1,7 @@
 """Safe parsing of user expressions (plant right-hand sides, coefficients).
 
 Expressions are parsed with :mod:`ast` and walked node by node against a
-whitelist: numbers, names, + - * / ** ^ (power), unary minus, and calls to the
+whitelist: numbers, names, + - * / ** ^ (power, same precedence as **), unary minus, and calls to the
 functions in :data:`FUNCTIONS`. Attribute access, subscripts, keywords,
 lambdas, comprehensions and every other node are rejected. Nothing is ever
 passed to ``eval``/``exec``.
@@ -63,7 +63,8 @@ def parse(text: str, field: str = "expression") -> ast.expr:
     if len(text) > MAX_LENGTH:
         raise SpecError(field, f"expression longer than {MAX_LENGTH} characters")
     try:
-        tree = ast.parse(text.strip(), mode="eval")
+        # '^' means power with the precedence of '**' (s^2 + 1 is s**2 + 1), not Python's XOR.
+        tree = ast.parse(text.strip().replace("^", "**"), mode="eval")
     except SyntaxError as exc:
         raise SpecError(field, f"cannot parse {text!r}: {exc.msg}") from None
     _check(tree.body, field, 0)
