@@ -1,0 +1,197 @@
+"""Apply a classical rule to every loop of a spec, innermost loop first.
+
+The innermost loop sees the plant path from the actuator to its measured
+output (exact delay). Once tuned, it is closed (2-DOF PID with the loop's
+b, c weights and derivative filter, the plant delay as a Pade approximation
+of order :data:`PADE_ORDER`), and the next loop out sees the path from the
+inner setpoint to its own measured output; an FOTD model is fitted to that
+path (step-response fit, as its poles are rarely all real), and so on.
+
+Half the sample time of the fastest scenario is added to every loop's
+apparent delay: a sampled controller with zero-order hold delays by about
+dt/2 (Skogestad 2003); it also keeps the rules finite for delay-free plants.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gaintune.baselines.fotd import Fotd, NoModelError, fit_fotd, siso_minreal
+from gaintune.baselines.rules import FOTD_RULES, IdealPid, to_loop_gains, ultimate_gain, zn_ultimate
+from gaintune.spec import TuningSpec
+
+__all__ = ["ClassicalResult", "tune_classical", "auto_bounds", "PADE_ORDER", "BOUNDS_FACTOR", "CLASSICAL_METHODS"]
+
+#: Pade order used to close loops around a delayed plant.
+PADE_ORDER = 6
+#: auto_bounds span: [g/BOUNDS_FACTOR, g*BOUNDS_FACTOR] around the rule's gain g.
+BOUNDS_FACTOR = 30.0
+CLASSICAL_METHODS = ("zn_step", "zn_ultimate", "simc", "amigo", "imc")
+
+
+@dataclass
+class ClassicalResult:
+    """Gains per loop plus the models the rule used."""
+
+    gains: dict[str, dict[str, float]]
+    fotd: dict[str, Fotd] = field(default_factory=dict)
+    ultimate: dict[str, tuple[float, float]] = field(default_factory=dict)
+    pid: dict[str, IdealPid] = field(default_factory=dict)
+
+
+def _ss(A, B, C, D):
+    import control
+
+    return control.ss(np.asarray(A, float), np.asarray(B, float), np.asarray(C, float), np.asarray(D, float))
+
+
+def _with_input_delay(sys, delay: float):
+    """Series of a Pade approximation of e^{-delay s} and ``sys`` (single input, any outputs)."""
+    import control
+
+    if delay <= 0:
+        return sys
+    num, den = control.pade(delay, PADE_ORDER)
+    return control.series(control.ss(control.tf(num, den)), sys)
+
+
+def _pid_ss(loop, gains: dict[str, float]):
+    """2-DOF controller u = Kp (b r - y) + Ki/s (r - y) + Kd s/(Tf s + 1) (c r - y); inputs [r, y]."""
+    import control
+
+    from gaintune.controllers.pid import pid_params
+
+    p = pid_params(loop, gains)
+    # States: integral of r - y (when Ki > 0) and the derivative filter (when Kd > 0).
+    A, B, C = [], [], []
+    D = [p.b * p.Kp, -p.Kp]
+    if p.Ki > 0:
+        A.append([0.0])
+        B.append([1.0, -1.0])
+        C.append(p.Ki)
+    if p.Kd > 0:
+        if not p.Tf > 0:
+            raise NoModelError(f"{loop.name}", "a derivative term needs a filter time constant Tf > 0")
+        A.append([-1.0 / p.Tf])
+        B.append([p.c / p.Tf, -1.0 / p.Tf])
+        C.append(-p.Kd / p.Tf)
+        D = [D[0] + p.c * p.Kd / p.Tf, D[1] - p.Kd / p.Tf]
+    n = len(A)
+    Am = np.diag([row[0] for row in A]) if n else np.zeros((0, 0))
+    Bm = np.array(B, float).reshape(n, 2)
+    Cm = np.array(C, float).reshape(1, n)
+    return control.ss(Am, Bm, Cm, np.array([D], float))
+
+
+def _close(sys, m: int, K):
+    """Close u = K [r; y_m] around ``sys`` (u -> all outputs); returns r -> all outputs."""
+    A, B, C, D = (np.asarray(x, float) for x in (sys.A, sys.B, sys.C, sys.D))
+    Ak, Bk, Ck, Dk = (np.asarray(x, float) for x in (K.A, K.B, K.C, K.D))
+    n, nk = A.shape[0], Ak.shape[0]
+    Bkr, Bky = Bk[:, :1], Bk[:, 1:2]
+    dkr, dky = Dk[0, 0], Dk[0, 1]
+    Cm, dm = C[m : m + 1, :], D[m, 0]
+    s = 1.0 - dky * dm
+    if abs(s) < 1e-12:
+        raise NoModelError("loops", "the loop is algebraically ill-posed (direct feedthrough)")
+    # u = (Ck xc + dkr r + dky Cm x) / s
+    Ux, Uc, Ur = dky * Cm / s, Ck / s, dkr / s
+    if nk:
+        Acl = np.block([[A + B @ Ux, B @ Uc], [Bky @ (Cm + dm * Ux), Ak + dm * Bky @ Uc]])
+    else:
+        Acl = A + B @ Ux
+    Bcl = np.vstack([B * Ur, Bkr + Bky * dm * Ur]) if nk else B * Ur
+    Ccl = np.hstack([C + D @ Ux, D @ Uc]) if nk else C + D @ Ux
+    Dcl = D * Ur
+    return _ss(Acl, Bcl, Ccl, Dcl)
+
+
+def _fixed_overrides(loop, gains: dict[str, float]) -> dict[str, float]:
+    out = dict(gains)
+    for name, g in loop.gains.items():
+        if not g.tune and g.value is not None and name in out:
+            out[name] = float(g.value)
+    return out
+
+
+def sample_time(spec: TuningSpec) -> float:
+    return min(sc.dt for sc in spec.scenarios)
+
+
+def tune_classical(spec: TuningSpec, plant, method: str, params: dict[str, float] | None = None) -> ClassicalResult:
+    """Gains from rule ``method`` for every loop (innermost first), at nominal (or given) parameters.
+
+    Fixed gains (``tune: false``) keep their spec value, also when closing inner loops.
+
+    Raises
+    ------
+    NoModelError
+        When a loop is LQ, or no FOTD model / rule applies to some loop (the message says which and why).
+    """
+    if method not in CLASSICAL_METHODS:
+        raise ValueError(f"unknown classical method {method!r}; choose from {CLASSICAL_METHODS}")
+    lin = plant.linearize(params)
+    h2 = 0.5 * sample_time(spec)
+    sys = _ss(lin.A, lin.B, lin.C, lin.D)
+    delay = float(lin.delay)
+    res = ClassicalResult(gains={})
+    for j in range(len(spec.loops) - 1, -1, -1):
+        loop = spec.loops[j]
+        name = loop.name or f"loop{j}"
+        if loop.is_lq:
+            raise NoModelError(f"loops[{j}]", f"{loop.type} loop {name!r}: no classical rule (LQ loops are tuned by Riccati)")
+        m = lin.output_index(loop.measure) if loop.measure else 0
+        siso = siso_minreal(_ss(sys.A, sys.B, sys.C[m : m + 1, :], sys.D[m : m + 1, :]))
+        if method == "zn_ultimate":
+            try:
+                Ku, Pu = ultimate_gain(siso, delay + h2)
+            except NoModelError as exc:
+                raise NoModelError(f"loops[{j}] ({name})", exc.message) from None
+            res.ultimate[name] = (Ku, Pu)
+            pid = zn_ultimate(Ku, Pu, loop.type)
+        else:
+            try:
+                model = fit_fotd(siso, delay).with_extra_delay(h2)
+                res.fotd[name] = model
+                pid = FOTD_RULES[method](model, loop.type)
+            except NoModelError as exc:
+                raise NoModelError(f"loops[{j}] ({name})", exc.message) from None
+        res.pid[name] = pid
+        gains = _fixed_overrides(loop, to_loop_gains(pid, loop))
+        res.gains[name] = gains
+        if j > 0:
+            sys = _close(_with_input_delay(sys, delay), m, _pid_ss(loop, gains))
+            delay = 0.0
+    res.gains = {(lp.name or f"loop{i}"): res.gains[lp.name or f"loop{i}"] for i, lp in enumerate(spec.loops)}
+    return res
+
+
+def auto_bounds(spec: TuningSpec, plant, factor: float = BOUNDS_FACTOR) -> dict[tuple[str, str], tuple[float, float]]:
+    """Default log-scale search bounds ``{(loop, gain): (g/factor, g*factor)}`` around a robust rule.
+
+    SIMC (tau_c = theta) is tried first, then AMIGO; the bounds are centred
+    geometrically on that rule's gains, a factor ``factor`` (default 30, i.e.
+    about three decades in all) each way - wide enough to contain the
+    cost-optimal gains of every benchmark process we checked and narrow enough
+    to keep random gains mostly stable. Returns ``{}`` when no rule applies
+    (LQ loops, unstable or oscillatory paths, ...): the layout then falls back
+    to its fixed defaults. Fixed gains are skipped.
+    """
+    for method in ("simc", "amigo"):
+        try:
+            res = tune_classical(spec, plant, method)
+        except (NoModelError, ValueError, np.linalg.LinAlgError):
+            continue
+        out: dict[tuple[str, str], tuple[float, float]] = {}
+        for loop in spec.loops:
+            for gname, v in res.gains[loop.name].items():
+                g = loop.gains.get(gname)
+                if g is not None and not g.tune:
+                    continue
+                if math.isfinite(v) and v > 0:
+                    out[(loop.name, gname)] = (v / factor, v * factor)
+        return out
+    return {}

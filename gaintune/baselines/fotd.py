@@ -1,0 +1,383 @@
+"""First-order-plus-dead-time (FOTD) models of a loop's plant path.
+
+Classical tuning rules need a model ``K e^{-Ls}/(Ts + 1)`` (self-regulating) or
+``Kv e^{-Ls}/s`` (integrating). :func:`fit_fotd` obtains one from a SISO
+linear path (python-control state space of the delay-free part, plus a
+delay in seconds):
+
+* **Half rule** (Skogestad 2003) when every pole is real (and stable),
+  there are no left-half-plane zeros and no direct feedthrough: with the
+  lags sorted ``tau_1 >= tau_2 >= ...`` and the right-half-plane zeros
+  ``(-T_j s + 1)``::
+
+      T = tau_1 + tau_2/2
+      L = delay + tau_2/2 + sum_{i>=3} tau_i + sum_j T_j
+
+  The second-order model used by SIMC PID keeps ``tau_1``, takes
+  ``T2 = tau_2 + tau_3/2`` and ``L2 = delay + tau_3/2 + sum_{i>=4} tau_i + sum_j T_j``.
+  For an integrating path the integrator is the dominant lag (``tau_1 = inf``),
+  so ``Kv = lim s G(s)``, ``L = delay + tau_2/2 + sum_{i>=3} tau_i + sum_j T_j``
+  and, for PID, ``T2 = tau_2`` (model ``Kv e^{-L2 s}/(s (T2 s + 1))``).
+* **Step-response least squares** otherwise (the general method): ``K`` is the
+  exact static gain; ``T`` and ``L`` minimise the squared error between the
+  delay-free step response (sampled on 2,000 points over five times the sum of
+  the plant's time constants) and the FOTD step response, started from the
+  28 %/63 % two-point estimate ``T = 1.5 (t63 - t28)``, ``L = t63 - T``. The
+  plant delay is added to ``L``. The second-order model is fitted the same way.
+  Integrating paths fit the path without the integrator, ``Kv e^{-Lr s}/(Tr s+1)``,
+  and use ``L = Lr + Tr/2`` (the half rule with the integrator as dominant lag).
+
+No FOTD model applies (and :class:`NoModelError` is raised, naming why) to
+unstable paths, double integrators, paths with zero static gain, and
+oscillatory paths (step-response overshoot above :data:`OSCILLATION_LIMIT`).
+
+Examples
+--------
+>>> import control
+>>> s = control.tf("s")
+>>> m = fit_fotd(control.ss(1 / (s + 1) ** 3), method="half_rule")
+>>> round(m.K, 6), round(m.T, 6), round(m.L, 6)
+(1.0, 1.5, 1.5)
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import asdict, dataclass
+from typing import Literal
+
+import numpy as np
+
+from gaintune.errors import GaintuneError
+
+__all__ = ["Fotd", "NoModelError", "fit_fotd", "path_poles_zeros", "siso_minreal", "OSCILLATION_LIMIT"]
+
+#: Largest relative step-response overshoot for which an FOTD model is still fitted.
+OSCILLATION_LIMIT = 0.10
+
+FitMethod = Literal["auto", "half_rule", "step_fit", "two_point"]
+
+
+class NoModelError(GaintuneError):
+    """No FOTD model (or no classical rule) applies to this loop; the message says why."""
+
+
+@dataclass(frozen=True)
+class Fotd:
+    """``K e^{-Ls}/(Ts+1)``, or ``K e^{-Ls}/s`` when ``integrating`` (then K is the velocity gain)."""
+
+    K: float
+    T: float
+    L: float
+    integrating: bool = False
+    method: str = ""
+    #: Second-order model for SIMC PID: K e^{-L2 s}/((T1 s+1)(T2 s+1)), or Kv e^{-L2 s}/(s (T2 s+1)).
+    T1: float = 0.0
+    T2: float = 0.0
+    L2: float = 0.0
+    #: RMS step-response error of the FOTD model relative to |K| (step fits only).
+    fit_error: float | None = None
+
+    def with_extra_delay(self, dl: float) -> "Fotd":
+        """The same model with ``dl`` seconds more apparent delay (e.g. half a sample)."""
+        d = asdict(self)
+        d["L"] += dl
+        d["L2"] += dl
+        return Fotd(**d)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def tf(self, pade: int | None = None):
+        """python-control TF of the model (delay as a Pade approximation of order ``pade``, or omitted)."""
+        import control
+
+        s = control.tf("s")
+        g = self.K / s if self.integrating else self.K / (self.T * s + 1)
+        if pade and self.L > 0:
+            num, den = control.pade(self.L, pade)
+            g = g * control.tf(num, den)
+        return g
+
+
+# ---------------------------------------------------------------- helpers
+
+
+def _siso_ss(sys):
+    import control
+
+    sys = control.ss(sys)
+    if sys.ninputs != 1 or sys.noutputs != 1:
+        raise ValueError(f"need a SISO path, got {sys.noutputs}x{sys.ninputs}")
+    return sys
+
+
+def siso_minreal(sys, tol: float = 1e-6):
+    """Minimal SISO state space: cancels (near-)coincident pole/zero pairs via the transfer function.
+
+    Paths cut from a multi-output plant carry unobservable modes (e.g. the
+    position integrator seen from a velocity output); they must go before poles
+    are classified.
+    """
+    import control
+
+    sys = control.ss(sys)
+    if sys.nstates == 0:
+        return sys
+    g = control.tf(sys)
+    num = np.atleast_1d(np.squeeze(np.asarray(g.num[0][0], dtype=float)))
+    den = np.atleast_1d(np.squeeze(np.asarray(g.den[0][0], dtype=float)))
+    # Round-off in the ss -> tf conversion leaves tiny leading numerator terms
+    # (spurious zeros near infinity): drop them relative to the coefficient scale.
+    scale = max(np.abs(num).max(initial=0.0), 1e-300)
+    num = np.where(np.abs(num) < 1e-10 * scale, 0.0, num)
+    if np.any(num):
+        num = np.trim_zeros(num, "f")
+    g = control.minreal(control.tf(num, den), tol=tol, verbose=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return control.ss(g)
+
+
+def path_poles_zeros(sys) -> tuple[np.ndarray, np.ndarray]:
+    """Poles and (finite) transmission zeros of a SISO state-space path."""
+    import control
+
+    sys = _siso_ss(sys)
+    p = np.linalg.eigvals(sys.A) if sys.nstates else np.zeros(0)
+    try:
+        z = np.asarray(control.zeros(sys)) if sys.nstates else np.zeros(0)
+    except Exception:  # pragma: no cover - slycot-free fallbacks may raise on degenerate systems
+        z = np.zeros(0)
+    z = z[np.isfinite(z)]
+    return p, z
+
+
+def _scale(p: np.ndarray) -> float:
+    return max(1.0, float(np.max(np.abs(p)))) if p.size else 1.0
+
+
+def _is_real(v: complex, rel: float = 0.05) -> bool:
+    # Repeated real roots come out of eig() with a small imaginary scatter
+    # (about eps^(1/n) for n-fold roots): accept that as real.
+    return abs(v.imag) <= rel * max(abs(v), 1e-12)
+
+
+def _dc_gain(sys) -> float:
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (sys.A, sys.B, sys.C, sys.D))
+    if A.size == 0:
+        return float(D[0, 0])
+    return float((D - C @ np.linalg.solve(A, B))[0, 0])
+
+
+def _remove_integrator(sys):
+    """(Kv, rest) with rest = s*G(s)/Kv ... returned as state space of s*G(s)."""
+    import control
+
+    num, den = control.tfdata(control.tf(sys))
+    num = np.atleast_1d(np.squeeze(np.asarray(num[0][0], dtype=float)))
+    den = np.atleast_1d(np.squeeze(np.asarray(den[0][0], dtype=float)))
+    den = den / den[0]
+    num = num / 1.0
+    rest_den = den[:-1]  # drop the root at the origin (last coefficient ~ 0)
+    if rest_den.size == 1:
+        rest = control.ss([], [], [], [[num[-1] / rest_den[0]]])
+        return float(num[-1] / rest_den[-1]), rest
+    rest = control.ss(control.tf(num, rest_den))
+    return float(num[-1] / rest_den[-1]), rest
+
+
+# -------------------------------------------------------------- half rule
+
+
+def _merge_clusters(v: np.ndarray, rel: float = 0.1) -> np.ndarray:
+    """Replace clusters of scattered roots (a multiple root computed by eig()) by their mean.
+
+    Only clusters that contain a complex member are merged: genuinely distinct real
+    roots stay as they are. The mean of the scattered copies of an n-fold root is
+    accurate to rounding, while each copy is off by about eps^(1/n).
+    """
+    v = np.asarray(v, dtype=complex).copy()
+    n = v.size
+    label = list(range(n))
+
+    def find(i: int) -> int:
+        while label[i] != i:
+            label[i] = label[label[i]]
+            i = label[i]
+        return i
+
+    for i in range(n):
+        for j in range(i + 1, n):
+            if abs(v[i] - v[j]) <= rel * max(abs(v[i]), abs(v[j]), 1e-300):
+                label[find(i)] = find(j)
+    groups: dict[int, list[int]] = {}
+    for i in range(n):
+        groups.setdefault(find(i), []).append(i)
+    for members in groups.values():
+        if len(members) > 1 and any(abs(v[i].imag) > 0 for i in members):
+            v[members] = np.mean(v[members])
+    return v
+
+
+def _half_rule_parts(p: np.ndarray, z: np.ndarray, D: float):
+    """Time constants and inverse-response times, or None when the half rule does not apply."""
+    if abs(D) > 0:
+        return None
+    p, z = _merge_clusters(p), _merge_clusters(z)
+    if not all(_is_real(v) for v in p) or not all(_is_real(v) for v in z):
+        return None
+    if np.any(z.real < 0):  # left-half-plane zeros: no half-rule approximation here
+        return None
+    taus = sorted((float(-1.0 / v.real) for v in p), reverse=True)
+    inv = float(sum(1.0 / v.real for v in z if v.real > 0))
+    return taus, inv
+
+
+def _half_rule(taus: list[float], inv: float, delay: float, K: float, integrating: bool) -> Fotd:
+    t = list(taus) + [0.0, 0.0, 0.0]
+    if integrating:
+        L = delay + t[0] / 2 + sum(taus[1:]) + inv
+        L2 = delay + t[1] / 2 + sum(taus[2:]) + inv
+        return Fotd(K, 0.0, L, True, "half_rule", T1=0.0, T2=t[0], L2=L2)
+    T = t[0] + t[1] / 2
+    L = delay + t[1] / 2 + sum(taus[2:]) + inv
+    T1, T2 = t[0], t[1] + t[2] / 2
+    L2 = delay + t[2] / 2 + sum(taus[3:]) + inv
+    return Fotd(K, T, L, False, "half_rule", T1=T1, T2=T2, L2=L2)
+
+
+# ------------------------------------------------------ step-response fit
+
+
+def _step(sys, horizon: float, n: int = 2000) -> tuple[np.ndarray, np.ndarray]:
+    import control
+
+    t = np.linspace(0.0, horizon, n)
+    r = control.step_response(sys, T=t)
+    return t, np.asarray(r.outputs, dtype=float).ravel()
+
+
+def _fotd_step(t: np.ndarray, K: float, T: float, L: float) -> np.ndarray:
+    tt = np.maximum(t - L, 0.0)
+    return K * (1.0 - np.exp(-tt / max(T, 1e-12)))
+
+
+def _sotd_step(t: np.ndarray, K: float, T1: float, T2: float, L: float) -> np.ndarray:
+    tt = np.maximum(t - L, 0.0)
+    T1 = max(T1, 1e-12)
+    if abs(T1 - T2) < 1e-6 * T1:
+        return K * (1.0 - (1.0 + tt / T1) * np.exp(-tt / T1))
+    return K * (1.0 - (T1 * np.exp(-tt / T1) - T2 * np.exp(-tt / max(T2, 1e-12))) / (T1 - T2))
+
+
+def _crossing(t: np.ndarray, y: np.ndarray, level: float) -> float:
+    k = int(np.argmax(y >= level))
+    if k == 0:
+        return float(t[0])
+    return float(t[k - 1] + (level - y[k - 1]) * (t[k] - t[k - 1]) / (y[k] - y[k - 1]))
+
+
+def _step_fit(sys, K: float, method: str) -> Fotd:
+    """Fit (T, L) (and the SOPDT model) to the delay-free unit step response."""
+    from scipy.optimize import least_squares
+
+    p, _ = path_poles_zeros(sys)
+    slow = [1.0 / abs(v.real) for v in p if abs(v.real) > 1e-12]
+    horizon = 5.0 * sum(slow) if slow else 1.0
+    t, y = _step(sys, horizon)
+    yn = y / K
+    overshoot = float(np.max(yn) - 1.0)
+    if overshoot > OSCILLATION_LIMIT:
+        raise NoModelError(
+            "fotd",
+            f"the step response overshoots by {100 * overshoot:.0f} % (oscillatory path); "
+            "an FOTD model does not apply: use an optimiser baseline instead",
+        )
+    t28, t63 = _crossing(t, yn, 0.283), _crossing(t, yn, 0.632)
+    T0 = max(1.5 * (t63 - t28), 1e-6 * horizon)
+    L0 = max(t63 - T0, 0.0)
+    if method == "two_point":
+        err = float(np.sqrt(np.mean((_fotd_step(t, 1.0, T0, L0) - yn) ** 2)))
+        return Fotd(K, T0, L0, method="two_point", T1=T0, T2=0.0, L2=L0, fit_error=err)
+    lo_t = 1e-9 * horizon
+    r1 = least_squares(
+        lambda v: _fotd_step(t, 1.0, v[0], v[1]) - yn,
+        x0=[T0, min(L0, horizon)],
+        bounds=([lo_t, 0.0], [10 * horizon, horizon]),
+        x_scale=[horizon, horizon],
+    )
+    T, L = (float(v) for v in r1.x)
+    err = float(np.sqrt(np.mean(r1.fun**2)))
+    r2 = least_squares(
+        lambda v: _sotd_step(t, 1.0, v[0], v[0] * v[1], v[2]) - yn,
+        x0=[T, 0.1, L],
+        bounds=([lo_t, 0.0, 0.0], [10 * horizon, 1.0, horizon]),
+        x_scale=[horizon, 1.0, horizon],
+    )
+    T1, ratio, L2 = (float(v) for v in r2.x)
+    return Fotd(K, T, L, method="step_fit", T1=T1, T2=T1 * ratio, L2=L2, fit_error=err)
+
+
+# ------------------------------------------------------------------ public
+
+
+def fit_fotd(sys, delay: float = 0.0, method: FitMethod = "auto") -> Fotd:
+    """FOTD model of a SISO path ``sys`` (delay-free state space) with ``delay`` seconds of dead time.
+
+    Parameters
+    ----------
+    sys
+        Anything ``control.ss`` accepts (StateSpace, TransferFunction), SISO.
+    delay
+        Pure time delay of the path in seconds (added to the model's L).
+    method
+        ``"auto"`` (half rule when it applies, else the step-response fit),
+        ``"half_rule"`` (raises NoModelError when it does not apply),
+        ``"step_fit"`` (least squares) or ``"two_point"`` (28 %/63 %).
+
+    Raises
+    ------
+    NoModelError
+        For unstable, oscillatory, double-integrating or zero-gain paths, or when
+        ``method="half_rule"`` is requested for a path it does not cover.
+    """
+    sys = siso_minreal(_siso_ss(sys))
+    p, z = path_poles_zeros(sys)
+    sc = _scale(p)
+    at_origin = np.abs(p) <= 1e-9 * sc
+    n_int = int(np.sum(at_origin))
+    if np.any(p[~at_origin].real > 0) or np.any(np.abs(p[~at_origin].real) <= 1e-12 * sc):
+        raise NoModelError(
+            "fotd",
+            "the path is unstable (a pole in the right half plane or on the imaginary axis); "
+            "classical FOTD rules do not apply: use an optimiser baseline",
+        )
+    if n_int > 1:
+        raise NoModelError("fotd", f"the path has {n_int} integrators; FOTD rules cover at most one")
+    D = float(np.asarray(sys.D)[0, 0])
+    if n_int == 1:
+        Kv, rest = _remove_integrator(sys)
+        if not math.isfinite(Kv) or abs(Kv) < 1e-300:
+            raise NoModelError("fotd", "the integrating path has zero velocity gain")
+        rp, rz = path_poles_zeros(rest)
+        parts = _half_rule_parts(rp, rz, float(np.asarray(rest.D)[0, 0])) if rest.nstates else ([], 0.0)
+        if method in ("auto", "half_rule") and parts is not None:
+            return _half_rule(parts[0], parts[1], delay, Kv, True)
+        if method == "half_rule":
+            raise NoModelError("fotd", "half rule needs real poles, no left-half-plane zeros and no feedthrough")
+        if rest.nstates == 0:
+            return Fotd(Kv, 0.0, delay, True, method, T2=0.0, L2=delay)
+        m = _step_fit(rest, _dc_gain(rest), "step_fit" if method == "auto" else method)
+        return Fotd(Kv, 0.0, delay + m.L + m.T / 2, True, m.method, T2=m.T, L2=delay + m.L, fit_error=m.fit_error)
+    K = _dc_gain(sys)
+    if not math.isfinite(K) or abs(K) < 1e-12 * max(1.0, float(np.abs(np.asarray(sys.D)).max(initial=0.0))):
+        raise NoModelError("fotd", "the path has zero static gain; an FOTD model does not apply")
+    parts = _half_rule_parts(p, z, D)
+    if method in ("auto", "half_rule") and parts is not None:
+        return _half_rule(parts[0], parts[1], delay, K, False)
+    if method == "half_rule":
+        raise NoModelError("fotd", "half rule needs real poles, no left-half-plane zeros and no feedthrough")
+    m = _step_fit(sys, K, "step_fit" if method == "auto" else method)
+    return Fotd(m.K, m.T, m.L + delay, False, m.method, T1=m.T1, T2=m.T2, L2=m.L2 + delay, fit_error=m.fit_error)

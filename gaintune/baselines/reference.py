@@ -1,0 +1,317 @@
+"""Reference optimum: the best cost we can find with a large budget, to measure search gaps against.
+
+Built in up to three parts, each scored by the evaluator (the same cost the
+RL search sees); the best one is the reference:
+
+1. **Multistart CMA-ES**: ``restarts`` runs (default 4) of ``sims_per_restart``
+   simulations (default 5,000), the first from the layout's initial point
+   (the classical rule when auto bounds are in use), the others from random
+   points, sigma0 = 0.3, population 32.
+2. **Gradient polish** (only when the problem is differentiable: LTI plant,
+   one PID loop, no saturation, rate limit, noise, randomisation, safety
+   monitor or non-smooth penalties, no direct feedthrough): single shooting
+   with casadi + IPOPT (L-BFGS Hessian) over the log-gains, from the CMA-ES
+   best, through a casadi model of the SAME discrete closed loop the simulator
+   runs (matrices, delay buffer, signals and metric sums are taken from
+   :class:`gaintune.sim.build.Problem`): exact ZOH with fractional delay
+   ``x[k+1] = Ad x[k] + G0 u[k-d] + G1 u[k-d-1]``, backward-Euler PID
+   ``I[k] = I[k-1] + Ki dt e[k]``,
+   ``D[k] = (Tf D[k-1] + Kd (ed[k] - ed[k-1]))/(Tf + dt)``, ``u = Kp (b r - y) + I + D``.
+   |e| and |du| are smoothed as ``sqrt(x^2 + eps^2)`` for the gradient phase;
+   the result is re-scored with the evaluator.
+3. **Riccati candidate** for an LQ loop in ``weights`` mode: Q = C'C/effort_weight
+   (diagonal part), R = 1 - the exact LQR optimum of the regulation problem
+   with the objective's quadratic weights; exact for ``measure: ise`` only in
+   that sense, and scored like the rest.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from gaintune.baselines.optimizers import BAD_COST, OptResult, cmaes_search
+from gaintune.spec import TuningSpec
+
+__all__ = ["reference_optimum", "differentiable_reason", "casadi_closed_loop", "casadi_polish", "riccati_candidate"]
+
+
+def differentiable_reason(spec: TuningSpec, plant) -> str | None:
+    """None when the gradient polish applies, else why not."""
+    if plant.kind != "lti":
+        return "nonlinear plant"
+    if len(spec.loops) != 1:
+        return "cascade (gradient polish covers one loop)"
+    loop = spec.loops[0]
+    if loop.is_lq:
+        return "LQ loop"
+    if spec.actuator.limits is not None or spec.actuator.rate_limit is not None or loop.output_limits is not None:
+        return "saturation or rate limit"
+    if any(sc.noise_std > 0 for sc in spec.scenarios):
+        return "measurement noise"
+    if spec.randomize.active or spec.search.robust.samples > 1:
+        return "randomised plant or scenarios"
+    ob = spec.objective
+    if ob.overshoot_weight > 0 or ob.settling_weight > 0:
+        return "non-smooth overshoot/settling penalties"
+    sf = spec.safety
+    if sf.max_abs_error is not None or sf.max_abs_output is not None or sf.state_bounds:
+        return "safety monitor"
+    lin = plant.linearize()
+    m = lin.output_index(loop.measure) if loop.measure else 0
+    if np.any(lin.D[m] != 0):
+        return "direct feedthrough"
+    return None
+
+
+def _signals(sg: dict[str, np.ndarray], n_steps: int, dt: float) -> np.ndarray:
+    """(3, n_steps) reference, input and output disturbance, as the kernel's ``_signal`` builds them."""
+    k = np.arange(n_steps)
+    out = np.zeros((3, n_steps))
+    for s in range(3):
+        for p in range(sg["sk0"].shape[1]):
+            k0, k1 = sg["sk0"][s, p, 0], sg["sk1"][s, p, 0]
+            on = (k >= k0) & (k < k1)
+            out[s] += on * (sg["soff"][s, p, 0] + sg["sslope"][s, p, 0] * (k - k0) * dt)
+    return out
+
+
+def casadi_closed_loop(
+    spec: TuningSpec, plant, layout, scenario: int = 0, eps: float | None = None, rel_eps: float = 1e-4
+):
+    """casadi Function ``J(log_tuned) -> [iae, ise, itae, effort, tv]`` (smoothed |.|) for one scenario.
+
+    Mirrors :func:`gaintune.sim.kernel.simulate_kernel` for one LTI PID loop on
+    the nominal draw. |x| is smoothed as sqrt(x^2 + eps^2) with ``eps`` (default
+    ``rel_eps`` times the largest signal value); ``eps=0`` gives the exact sums.
+    """
+    import casadi as ca
+
+    from gaintune.sim import draws as draws_mod
+    from gaintune.sim.build import Problem
+
+    sc = spec.scenarios[scenario]
+    loop = spec.loops[0]
+    pb = Problem.build(spec, plant, layout)
+    d0 = draws_mod.nominal(spec, plant, 1, seed=spec.search.seed)
+    pa = pb.plant_arrays(d0, sc)
+    sg = pb.signal_arrays(d0, sc)
+    N, dt = sc.n_steps, sc.dt
+    Ad, G0, G1 = pa["Ad"][:, :, 0], pa["G0"][:, 0], pa["G1"][:, 0]
+    Cm = pa["Cm"][0, :, 0]
+    dly = int(pa["dsteps"][0])
+    n = Ad.shape[0]
+    sig = _signals(sg, N, dt)
+    if eps is None:
+        eps = rel_eps * max(float(np.max(np.abs(sig[0]))), float(np.max(np.abs(sig[1:]))), 1e-9)
+
+    w = ca.MX.sym("w", layout.n_tuned)
+    full: list[Any] = [float(v) if not np.isnan(v) else 0.0 for v in layout.fixed]
+    for j, k in enumerate(layout.tuned_idx):
+        full[k] = ca.exp(w[j])
+    g = {s.name: full[k] for k, s in enumerate(layout.slots)}
+    t = loop.type
+    kp = g.get("Kp", 0.0)
+    if loop.form == "ideal":
+        ki = kp / g["Ti"] if "i" in t[1:] else 0.0
+        kd = kp * g["Td"] if "d" in t[1:] else 0.0
+    else:
+        ki = g["Ki"] if "i" in t[1:] else 0.0
+        kd = g["Kd"] if "d" in t[1:] else 0.0
+    if "d" in t[1:]:
+        tf = loop.filter.Tf if loop.filter.Tf is not None else kd / kp / (loop.filter.N or 10.0)
+    else:
+        tf = 0.0
+    b, c = loop.b, loop.c
+    par = ca.vertcat(kp, ki, kd, tf)
+
+    # One step: state [x (n), ubuf (dly+1), I, D, edp, uprev, J (5)], input [r, din, dout, t, tvflag].
+    nb = dly + 1
+    ns = n + nb + 4 + 5
+    s = ca.SX.sym("s", ns)
+    u_in = ca.SX.sym("in", 5)
+    p = ca.SX.sym("p", 4)
+    x, ubuf = s[:n], s[n : n + nb]
+    I, D, edp, uprev = s[n + nb], s[n + nb + 1], s[n + nb + 2], s[n + nb + 3]
+    J = s[n + nb + 4 :]
+    r, din, dout, tk, tvf = (u_in[i] for i in range(5))
+    Kp, Ki, Kd, Tf = (p[i] for i in range(4))
+    y = ca.dot(ca.DM(Cm), x) + dout
+    e = r - y
+    ed = c * r - y
+    Dn = (Tf * D + Kd * (ed - edp)) / (Tf + dt)
+    In = I + Ki * dt * e
+    u = Kp * (b * r - y) + In + Dn
+    ua = u if dly == 0 else ubuf[dly - 1]
+    ub = ubuf[dly]
+    xn = ca.mtimes(ca.DM(Ad), x) + ca.DM(G0) * (ua + din) + ca.DM(G1) * (ub + din)
+    ubn = ca.vertcat(u, ubuf[: nb - 1]) if nb > 1 else u
+    ae = ca.sqrt(e**2 + eps**2) if eps > 0 else ca.fabs(e)
+    du = u - uprev
+    adu = ca.sqrt(du**2 + eps**2) if eps > 0 else ca.fabs(du)
+    Jn = J + ca.vertcat(ae * dt, e**2 * dt, tk * ae * dt, u**2 * dt, tvf * adu)
+    step = ca.Function("step", [s, u_in, p], [ca.vertcat(xn, ubn, In, Dn, ed, u, Jn)])
+    roll = step.mapaccum("roll", N)
+    inputs = np.vstack([sig, np.arange(N) * dt, np.ones(N)])  # TV counts the first move from u0 too
+    s0 = np.zeros(ns)
+    s0[n + nb + 2] = c * sig[0, 0] - sig[2, 0]  # ed at k = 0: no derivative kick
+    traj = roll(ca.DM(s0), ca.DM(inputs), par)
+    Jend = traj[n + nb + 4 :, N - 1]
+    return ca.Function("J", [w], [Jend], ["w"], ["J"])
+
+
+def _scalar_cost(spec: TuningSpec, plant, layout, rel_eps: float):
+    import casadi as ca
+
+    ob = spec.objective
+    w = ca.MX.sym("w", layout.n_tuned)
+    idx = {"iae": 0, "ise": 1, "itae": 2}[ob.measure]
+    total = 0
+    for i, sc in enumerate(spec.scenarios):
+        if sc.weight == 0:
+            continue
+        Jf = casadi_closed_loop(spec, plant, layout, i, rel_eps=rel_eps)
+        J = Jf(w)
+        total = total + sc.weight * (J[idx] + ob.effort_weight * J[3] + ob.tv_weight * J[4])
+    return w, total
+
+
+#: Smoothing continuation for |.|: eps relative to the largest signal, warm-started stage by stage.
+EPS_STAGES = (1e-3, 1e-5, 1e-7)
+
+
+def casadi_polish(
+    spec: TuningSpec, plant, layout, tuned0: np.ndarray, max_iter: int = 150, eps_stages: tuple[float, ...] = EPS_STAGES
+) -> tuple[np.ndarray, dict]:
+    """IPOPT single shooting from ``tuned0`` over the log-gains; returns (tuned, info).
+
+    |e| is smoothed as sqrt(e^2 + eps^2) with eps shrinking over ``eps_stages``
+    (relative to the largest reference/disturbance value), each stage started
+    from the previous answer.
+    """
+    import casadi as ca
+
+    t0 = time.perf_counter()
+    x = np.clip(np.log(np.asarray(tuned0, float)), layout.log_lo, layout.log_hi)
+    stats: dict = {}
+    for rel in eps_stages:
+        w, J = _scalar_cost(spec, plant, layout, rel)
+        solver = ca.nlpsol(
+            "polish",
+            "ipopt",
+            {"x": w, "f": J},
+            {
+                "ipopt.print_level": 0,
+                "print_time": False,
+                "ipopt.max_iter": max_iter,
+                "ipopt.hessian_approximation": "limited-memory",
+                "ipopt.tol": 1e-10,
+                "ipopt.acceptable_tol": 1e-7,
+                "ipopt.sb": "yes",
+            },
+        )
+        sol = solver(x0=x, lbx=layout.log_lo, ubx=layout.log_hi)
+        stats = solver.stats()
+        xn = np.asarray(sol["x"], float).ravel()
+        if np.all(np.isfinite(xn)):
+            x = xn
+    return np.exp(x), {
+        "status": stats.get("return_status"),
+        "iterations": stats.get("iter_count"),
+        "smoothed_cost": float(sol["f"]),
+        "wall_time": time.perf_counter() - t0,
+    }
+
+
+def riccati_candidate(spec: TuningSpec, plant, layout) -> np.ndarray | None:
+    """Tuned vector of the LQR weights Q = diag(C'C)/effort_weight, R = 1, or None when not applicable."""
+    loop = spec.loops[-1]
+    if not loop.is_lq or loop.lq_mode != "weights" or plant.kind != "lti" or len(spec.loops) != 1:
+        return None
+    lin = plant.linearize()
+    m = lin.output_index(loop.measure) if loop.measure else 0
+    ew = max(spec.objective.effort_weight, 1e-9)
+    q = np.diag(lin.C[m : m + 1].T @ lin.C[m : m + 1]) / ew
+    vals = {f"q_{s}": max(float(v), 1e-12) for s, v in zip(lin.states, q)}
+    vals["q_int"] = 1.0 / ew
+    vals["r"] = 1.0
+    out = []
+    for slot in layout.tuned_slots:
+        lo, hi = slot.bounds
+        out.append(min(max(vals.get(slot.name, math.sqrt(lo * hi)), lo), hi))
+    return np.array(out)
+
+
+def reference_optimum(
+    spec: TuningSpec,
+    evaluator=None,
+    *,
+    restarts: int = 4,
+    sims_per_restart: int = 5000,
+    seed: int = 0,
+    popsize: int = 32,
+    polish: bool = True,
+) -> OptResult:
+    """Best cost found by multistart CMA-ES, a casadi/IPOPT polish and (LQ) the Riccati candidate.
+
+    ``evaluator`` defaults to ``gaintune.objective.Evaluator(spec)``. The result's
+    ``details`` list every part's cost and which one won.
+    """
+    t0 = time.perf_counter()
+    ev = evaluator
+    if ev is None:
+        from gaintune.objective import Evaluator
+
+        ev = Evaluator(spec)
+    start = int(getattr(ev, "n_sims", 0))
+    rng = np.random.default_rng(seed)
+    layout = ev.layout
+    parts: dict[str, Any] = {}
+    best_t, best_c, best_src = None, math.inf, None
+    history: list[tuple[int, float]] = []
+    for i in range(restarts):
+        x0 = None
+        if i > 0:
+            z = rng.uniform(size=layout.n_tuned)
+            x0 = np.exp(layout.log_lo + z * (layout.log_hi - layout.log_lo))
+        r = cmaes_search(ev, sims_per_restart, seed=seed + i, popsize=popsize, sigma0=0.3, x0=x0, restarts=False)
+        parts[f"cmaes_{i}"] = r.cost
+        offset = history[-1][0] if history else 0
+        history.extend((offset + u, min(c, best_c)) for u, c in r.history)
+        if r.cost < best_c:
+            best_t, best_c, best_src = r.tuned, r.cost, f"cmaes_{i}"
+    plant = getattr(ev, "plant", None)
+    if plant is None:
+        from gaintune.plants import build_plant
+
+        plant = build_plant(spec.plant)
+    cand = riccati_candidate(spec, plant, layout)
+    if cand is not None:
+        c = float(np.asarray(ev(cand[None, :])).ravel()[0])
+        parts["riccati"] = c
+        if c < best_c:
+            best_t, best_c, best_src = cand, c, "riccati"
+    why = differentiable_reason(spec, plant)
+    if polish and why is None and best_t is not None:
+        try:
+            tuned, info = casadi_polish(spec, plant, layout, best_t)
+            c = float(np.asarray(ev(tuned[None, :])).ravel()[0])
+            c = c if math.isfinite(c) else BAD_COST
+            info["cost"] = c
+            parts["casadi_polish"] = info
+            if c < best_c:
+                best_t, best_c, best_src = tuned, c, "casadi_polish"
+        except Exception as exc:  # IPOPT/casadi failures must not lose the CMA-ES answer
+            parts["casadi_polish"] = {"error": f"{type(exc).__name__}: {exc}"}
+    elif polish:
+        parts["casadi_polish"] = {"skipped": why or "no finite CMA-ES result"}
+    used = int(getattr(ev, "n_sims", 0)) - start
+    if best_t is None:
+        best_t = layout.initial_tuned()
+    return OptResult(
+        "reference", np.asarray(best_t, float), float(best_c), used, used, time.perf_counter() - t0, history,
+        {"parts": parts, "winner": best_src, "restarts": restarts, "sims_per_restart": sims_per_restart},
+    )

@@ -1,0 +1,156 @@
+"""One entry point for every baseline: :func:`run_baseline(spec, method) <run_baseline>`."""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from gaintune.baselines.classical import CLASSICAL_METHODS, tune_classical
+from gaintune.baselines.fotd import NoModelError
+from gaintune.baselines.optimizers import optimize
+from gaintune.spec import TuningSpec
+
+__all__ = ["METHODS", "BaselineResult", "run_baseline", "make_evaluator"]
+
+#: Every baseline name accepted by :func:`run_baseline`.
+METHODS: tuple[str, ...] = (*CLASSICAL_METHODS, "random", "cmaes", "de", "nelder_mead", "reference")
+
+
+class BaselineResult(BaseModel):
+    """Outcome of one baseline on one spec (JSON-serialisable)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    method: str
+    gains: dict[str, dict[str, float]] | None = Field(None, description="{loop: {gain: value}}; None when the method does not apply.")
+    reason: str | None = Field(None, description="Why gains is None.")
+    fotd: dict[str, dict[str, Any]] = Field(default_factory=dict, description="FOTD model per loop (rule methods).")
+    ultimate: dict[str, dict[str, float]] = Field(default_factory=dict, description="Ku, Pu per loop (zn_ultimate).")
+    n_sims: int = Field(0, description="Simulations spent (search and scoring).")
+    wall_time: float = 0.0
+    cost: float | None = Field(None, description="Evaluator cost of the gains (lower is better); None without evaluator.")
+    history: list[tuple[int, float]] = Field(default_factory=list, description="(simulations, best cost) for optimisers.")
+    details: dict[str, Any] = Field(default_factory=dict)
+
+
+def make_evaluator(spec: TuningSpec):
+    """``gaintune.objective.Evaluator(spec)``, or None when that module is not available."""
+    try:
+        from gaintune.objective import Evaluator
+    except ImportError:
+        return None
+    return Evaluator(spec)
+
+
+def _tuned_from_gains(layout, gains: dict[str, dict[str, float]]) -> np.ndarray:
+    full = layout.from_dict(gains)
+    return np.asarray(full)[layout.tuned_idx]
+
+
+def _diverged_cost() -> float:
+    try:
+        from gaintune.objective import DIVERGED_COST
+    except ImportError:
+        return math.inf
+    return float(DIVERGED_COST)
+
+
+def _finite(c: float) -> float | None:
+    return float(c) if c is not None and math.isfinite(c) else None
+
+
+def run_baseline(
+    spec: TuningSpec,
+    method: str,
+    *,
+    budget: int | None = None,
+    seed: int | None = None,
+    evaluator=None,
+    **options: Any,
+) -> BaselineResult:
+    """Run baseline ``method`` (one of :data:`METHODS`) on ``spec``.
+
+    Parameters
+    ----------
+    budget
+        Simulation budget of the optimisers (default ``spec.search.budget``);
+        ignored by rules. ``reference`` uses its own (``restarts`` x ``sims_per_restart``).
+    seed
+        Default ``spec.search.seed``.
+    evaluator
+        Cost function (default ``gaintune.objective.Evaluator(spec)``). Rules are
+        scored with it when available; optimisers need it.
+    options
+        Passed to the optimiser (e.g. ``popsize``) or :func:`reference_optimum`.
+
+    A rule that does not apply (LQ loop, unstable or oscillatory path, negative
+    gain, ...) gives ``gains=None`` and a ``reason``; it never raises.
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown baseline {method!r}; choose from {', '.join(METHODS)}")
+    t0 = time.perf_counter()
+    seed = spec.search.seed if seed is None else seed
+    if method in CLASSICAL_METHODS:
+        from gaintune.plants import build_plant
+
+        ev = evaluator if evaluator is not None else make_evaluator(spec)
+        plant = getattr(ev, "plant", None) or build_plant(spec.plant)
+        try:
+            res = tune_classical(spec, plant, method)
+        except NoModelError as exc:
+            return BaselineResult(method=method, reason=str(exc), wall_time=time.perf_counter() - t0)
+        out = BaselineResult(
+            method=method,
+            gains=res.gains,
+            fotd={k: m.to_dict() for k, m in res.fotd.items()},
+            ultimate={k: {"Ku": v[0], "Pu": v[1]} for k, v in res.ultimate.items()},
+            details={"pid_ideal": {k: {"Kc": p.Kc, "Ti": p.Ti, "Td": p.Td} for k, p in res.pid.items()}},
+        )
+        if ev is not None:
+            before = int(getattr(ev, "n_sims", 0))
+            tuned = _tuned_from_gains(ev.layout, res.gains)
+            out.cost = _finite(float(np.asarray(ev(tuned[None, :])).ravel()[0]))
+            out.n_sims = int(getattr(ev, "n_sims", 0)) - before
+            if out.cost is None or out.cost >= _diverged_cost():
+                out.details["diverged"] = True
+        out.wall_time = time.perf_counter() - t0
+        return out
+
+    ev = evaluator if evaluator is not None else make_evaluator(spec)
+    if ev is None:
+        raise RuntimeError("optimiser baselines need an evaluator: gaintune.objective is not available; pass evaluator=")
+    if method == "reference":
+        from gaintune.baselines.reference import reference_optimum
+
+        r = reference_optimum(spec, ev, seed=seed, **options)
+    else:
+        r = optimize(ev, method, budget or spec.search.budget, seed, **options)
+    layout = ev.layout
+    gains = layout.to_dict(layout.full(r.tuned))
+    return BaselineResult(
+        method=method,
+        gains=gains,
+        n_sims=r.n_sims,
+        wall_time=time.perf_counter() - t0,
+        cost=_finite(r.cost),
+        history=[(int(a), float(b)) for a, b in r.history if math.isfinite(b)],
+        details={**_jsonable(r.details), "n_evals": r.n_evals, "seed": seed},
+    )
+
+
+def _jsonable(d: Any) -> Any:
+    if isinstance(d, dict):
+        return {str(k): _jsonable(v) for k, v in d.items()}
+    if isinstance(d, (list, tuple)):
+        return [_jsonable(v) for v in d]
+    if isinstance(d, (np.floating, np.integer)):
+        return d.item()
+    if isinstance(d, np.ndarray):
+        return d.tolist()
+    return d
+
+
