@@ -1,0 +1,447 @@
+"""Cascade loop algebra, vectorised over a leading batch axis of gain sets.
+
+Structure (loops listed outer first; loop ``k`` has reference ``r_k`` and output ``v_k``)::
+
+    r_0 = 0 (external reference),  r_k = v_{k-1},  u = v_{n-1}
+    PID loop:  v_k = F_k(s) r_k - C_k(s) y_k
+               C_k = Kp + Ki/s + Kd s/(Tf s + 1)          (feedback path)
+               F_k = b Kp + Ki/s + c Kd s/(Tf s + 1)      (setpoint path)
+    LQ loop:   v = -K x + Kint/s (r - y_m) + Nr r       (innermost only)
+    plant:     y = (C (sI - A)^-1 B + D) e^{-sT} u,    T = plant delay + sampling delay
+
+Every loop's feedback signal is linear in ``u``: ``v_k = F_k r_k + m_k u`` with
+``m_k = -C_k p_k`` (``p_k`` = u -> y_k) or ``m = -(K X + Kint/s p_m)`` for LQ
+(``X`` = u -> x). From that, per frequency:
+
+* ``g_k`` (v_k per unit u with the loops 0..k closed around it):
+  ``g_{-1} = 0``, ``g_k = F_k g_{k-1} + m_k``;
+* ``H_k`` (r_k -> u with loops k..n-1 closed): ``H_n = 1``,
+  ``H_k = H_{k+1} F_k / (1 - H_{k+1} m_k)``;
+* loop ``i`` broken at its controller output (others closed): ``L_i = -g_i H_{i+1}``;
+* loop broken at the plant input (every loop passes through u): ``L_u = -g_{n-1}``.
+
+The same structure gives the delay-free (or Padé) closed-loop state matrix whose
+eigenvalues are the closed-loop poles, and the open-loop poles of the system cut
+at the plant input (needed by the argument-principle stability test).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+
+from gaintune.controllers.layout import GainLayout
+from gaintune.errors import GainError, SpecError
+from gaintune.plants.plant import LinearModel
+from gaintune.spec import TuningSpec
+
+__all__ = ["LoopCtl", "Cascade", "build_cascade", "observable_part", "sampling_delay", "pade_coeffs", "pade_response", "pade_poles", "pade_ss"]
+
+
+def sampling_delay(spec: TuningSpec) -> float:
+    """Sample-and-hold approximation: dt/2 of extra input delay (largest scenario dt)."""
+    return 0.5 * max(sc.dt for sc in spec.scenarios)
+
+
+@lru_cache(maxsize=32)
+def _pade_unit(order: int) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """Padé (order, order) of e^{-p} (unit delay) and a state-space realisation of it."""
+    import control
+    import scipy.signal
+
+    num, den = control.pade(1.0, order)
+    num, den = np.asarray(num, dtype=float), np.asarray(den, dtype=float)
+    Ad, Bd, Cd, Dd = scipy.signal.tf2ss(num, den)
+    return num, den, (Ad, Bd, Cd, float(Dd[0, 0]))
+
+
+def pade_coeffs(T: float, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """(num, den) of the (order, order) Padé approximant of e^{-sT} (descending powers of s)."""
+    if T <= 0:
+        return np.array([1.0]), np.array([1.0])
+    num, den, _ = _pade_unit(order)
+    k = np.arange(num.size - 1, -1, -1)
+    return num * T**k, den * T**k
+
+
+def pade_response(s: np.ndarray, T: float, order: int) -> np.ndarray:
+    """Padé approximant of e^{-sT} at s, evaluated in the well-conditioned variable p = sT."""
+    num, den, _ = _pade_unit(order)
+    p = s * T
+    return np.polyval(num, p) / np.polyval(den, p)
+
+
+def pade_poles(T: float, order: int) -> np.ndarray:
+    return np.roots(_pade_unit(order)[1]) / T
+
+
+def pade_ss(T: float, order: int):
+    """(Ad, Bd, Cd, Dd) of the Padé delay: the unit-delay realisation with time scaled by T."""
+    Ad, Bd, Cd, Dd = _pade_unit(order)[2]
+    return Ad / T, Bd / T, Cd, Dd
+
+
+@dataclass
+class LoopCtl:
+    """One loop's controller, batched: every array has a leading axis B."""
+
+    name: str
+    kind: str  # "pid" | "lq"
+    out_idx: int
+    has_i: bool = False
+    has_d: bool = False
+    Kp: np.ndarray | None = None
+    Ki: np.ndarray | None = None
+    Kd: np.ndarray | None = None
+    Tf: np.ndarray | None = None
+    b: float = 1.0
+    c: float = 0.0
+    K: np.ndarray | None = None  # (B, n)
+    Kint: np.ndarray | None = None
+    Nr: np.ndarray | None = None
+
+    def n_states(self) -> int:
+        return int(self.has_i) + int(self.has_d)
+
+
+@dataclass
+class Cascade:
+    """Controllers of a spec for a batch of gain sets, plus the loop names."""
+
+    loops: list[LoopCtl]
+    batch: int
+    names: list[str] = field(default_factory=list)
+
+    @property
+    def measured(self) -> tuple[int, ...] | None:
+        """Measured output indices, or None when an LQ loop feeds back the full state."""
+        if any(lp.kind == "lq" for lp in self.loops):
+            return None
+        return tuple(sorted({lp.out_idx for lp in self.loops}))
+
+    @property
+    def break_names(self) -> list[tuple[str, str]]:
+        """(loop, break point) per row of :meth:`loop_responses`."""
+        return [(lp.name, "controller_output") for lp in self.loops] + [("plant", "plant_input")]
+
+    # ------------------------------------------------------------ frequency
+    def controller_responses(self, s: np.ndarray, lin: LinearModel, X: np.ndarray, P: np.ndarray):
+        """Per loop (F_k, m_k), each (B, W), given X = u->x (W, n) and P = u->y (W, q) incl. delay."""
+        out = []
+        inv_s = 1.0 / s
+        for lp in self.loops:
+            if lp.kind == "pid":
+                Kp, Ki, Kd, Tf = (a[:, None] for a in (lp.Kp, lp.Ki, lp.Kd, lp.Tf))
+                I = Ki * inv_s if lp.has_i else 0.0
+                Dd = Kd * s / (Tf * s + 1.0) if lp.has_d else 0.0
+                C = Kp + I + Dd
+                F = lp.b * Kp + I + lp.c * Dd
+                m = -C * P[None, :, lp.out_idx]
+            else:
+                KX = lp.K @ X.T  # (B, W)
+                I = lp.Kint[:, None] * inv_s if lp.has_i else 0.0
+                m = -(KX + I * P[None, :, lp.out_idx])
+                F = lp.Nr[:, None] + I
+            out.append((np.broadcast_to(F, (self.batch, s.size)), m))
+        return out
+
+    def loop_responses(self, s: np.ndarray, lin: LinearModel, delay: np.ndarray | complex) -> np.ndarray:
+        """Open-loop responses at complex frequencies ``s``: (n_loops + 1, B, W).
+
+        ``delay`` is the delay factor at ``s`` (e^{-sT} or its Padé approximant), shape (W,).
+        Rows: each loop broken at its controller output, then the plant input.
+        """
+        X = plant_state_response(lin, s) * np.asarray(delay)[:, None]  # (W, n)
+        P = X @ lin.C.T + (lin.D[:, 0][None, :] * np.asarray(delay)[:, None])  # (W, q)
+        resp = self.controller_responses(s, lin, X, P)
+        n = len(self.loops)
+        g = []
+        prev = np.zeros((self.batch, s.size), dtype=complex)
+        for F, m in resp:
+            prev = F * prev + m
+            g.append(prev)
+        H = [None] * (n + 1)
+        H[n] = np.ones((self.batch, s.size), dtype=complex)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for k in range(n - 1, -1, -1):
+                F, m = resp[k]
+                H[k] = H[k + 1] * F / (1.0 - H[k + 1] * m)
+            L = np.empty((n + 1, self.batch, s.size), dtype=complex)
+            for i in range(n):
+                L[i] = -g[i] * H[i + 1]
+        L[n] = -g[n - 1]
+        return L
+
+    # -------------------------------------------------------- state space
+    def open_loop_poles(self, lin: LinearModel, pade: tuple[float, int] | None) -> np.ndarray:
+        """Poles of the system cut at the plant input (same for every batch member): plant,
+        Padé, controller integrators (0) and derivative filters (-1/Tf, per batch)."""
+        base = list(np.linalg.eigvals(lin.A)) if lin.A.size else []
+        if pade is not None:
+            base += list(pade_poles(*pade))
+        poles = np.tile(np.array(base, dtype=complex), (self.batch, 1))
+        extra = []
+        for lp in self.loops:
+            if lp.has_i:
+                extra.append(np.zeros(self.batch, dtype=complex))
+            if lp.kind == "pid" and lp.has_d:
+                extra.append(-1.0 / lp.Tf + 0j)
+        if extra:
+            poles = np.concatenate([poles, np.stack(extra, axis=1)], axis=1)
+        return poles
+
+    def closed_loop_A(self, lin: LinearModel, pade: tuple[float, int] | None) -> np.ndarray:
+        """Closed-loop state matrices (B, N, N): plant, Padé delay states, controller states.
+
+        Signals are rows over [states, u]; the algebraic loop through u is solved at the end.
+        """
+        Bsz = self.batch
+        n = lin.A.shape[0]
+        if pade is not None and pade[0] > 0:
+            Ad, Bd, Cd, Dd = pade_ss(*pade)
+        else:
+            Ad = np.zeros((0, 0))
+            Bd = np.zeros((0, 1))
+            Cd = np.zeros((1, 0))
+            Dd = 1.0
+        npd = Ad.shape[0]
+        idx = n + npd
+        ctl_idx = []
+        for lp in self.loops:
+            ii = idx if lp.has_i else None
+            idx += int(lp.has_i)
+            di = idx if (lp.kind == "pid" and lp.has_d) else None
+            idx += int(lp.kind == "pid" and lp.has_d)
+            ctl_idx.append((ii, di))
+        N = idx
+
+        def zero():
+            return np.zeros((Bsz, N)), np.zeros(Bsz)
+
+        def unit(j):
+            r = np.zeros((Bsz, N))
+            r[:, j] = 1.0
+            return r, np.zeros(Bsz)
+
+        # Delayed plant input u_p = Cd x_pade + Dd u
+        up_x = np.zeros((Bsz, N))
+        up_x[:, n : n + npd] = Cd[0]
+        up = (up_x, np.full(Bsz, Dd))
+
+        def output(j):
+            rx = np.zeros((Bsz, N))
+            rx[:, :n] = lin.C[j]
+            d = lin.D[j, 0]
+            return rx + d * up[0], d * up[1]
+
+        def lin_comb(*terms):
+            rx, ru = zero()
+            for coef, (tx, tu) in terms:
+                coef = np.asarray(coef, dtype=float)
+                cx = coef[:, None] if coef.ndim else coef
+                rx = rx + cx * tx
+                ru = ru + coef * tu
+            return rx, ru
+
+        derivs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        r = zero()
+        for lp, (ii, di) in zip(self.loops, ctl_idx):
+            if lp.kind == "pid":
+                y = output(lp.out_idx)
+                e = lin_comb((1.0, r), (-1.0, y))
+                terms = [(lp.Kp * lp.b, r), (-lp.Kp, y)]
+                if ii is not None:
+                    derivs[ii] = e
+                    terms.append((lp.Ki, unit(ii)))
+                if di is not None:
+                    ed = lin_comb((lp.c, r), (-1.0, y), (-1.0, unit(di)))  # c r - y - xd
+                    derivs[di] = lin_comb((1.0 / lp.Tf, ed))
+                    terms.append((lp.Kd / lp.Tf, ed))
+                v = lin_comb(*terms)
+            else:
+                y = output(lp.out_idx)
+                fx = np.zeros((Bsz, N))
+                fx[:, :n] = -lp.K
+                terms = [(1.0, (fx, np.zeros(Bsz))), (lp.Nr, r)]
+                if ii is not None:
+                    derivs[ii] = lin_comb((1.0, r), (-1.0, y))
+                    terms.append((lp.Kint, unit(ii)))
+                v = lin_comb(*terms)
+            r = v
+        ux, uu = r
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u_row = ux / (1.0 - uu)[:, None]  # u = u_row @ X
+
+        def resolve(sig):
+            sx, su = sig
+            return sx + su[:, None] * u_row
+
+        Acl = np.zeros((Bsz, N, N))
+        upr = resolve(up)
+        Acl[:, :n, :n] += lin.A
+        Acl[:, :n, :] += lin.B[:, 0][None, :, None] * upr[:, None, :]
+        if npd:
+            Acl[:, n : n + npd, n : n + npd] += Ad
+            Acl[:, n : n + npd, :] += Bd[:, 0][None, :, None] * u_row[:, None, :]
+        for j, sig in derivs.items():
+            Acl[:, j, :] = resolve(sig)
+        return Acl
+
+
+_SCHUR_CACHE: dict[int, tuple[LinearModel, np.ndarray, np.ndarray, np.ndarray]] = {}
+
+
+def _schur(lin: LinearModel):
+    hit = _SCHUR_CACHE.get(id(lin))
+    if hit is not None and hit[0] is lin:
+        return hit[1:]
+    import scipy.linalg
+
+    T, Z = scipy.linalg.schur(lin.A.astype(complex), output="complex")
+    zb = Z.conj().T @ lin.B[:, 0].astype(complex)
+    if len(_SCHUR_CACHE) > 512:
+        _SCHUR_CACHE.clear()
+    _SCHUR_CACHE[id(lin)] = (lin, T, Z, zb)
+    return T, Z, zb
+
+
+def plant_state_response(lin: LinearModel, s: np.ndarray) -> np.ndarray:
+    """X(s) = (sI - A)^-1 B for each s: (W, n).
+
+    Uses the complex Schur form A = Z T Z^H (unitary, so robust for defective A):
+    a vectorised back-substitution over the frequencies, O(n^2) numpy operations.
+    """
+    T, Z, zb = _schur(lin)
+    n = T.shape[0]
+    x = np.empty((n, s.size), dtype=complex)
+    with np.errstate(all="ignore"):
+        for i in range(n - 1, -1, -1):
+            acc = np.full(s.size, zb[i])
+            if i + 1 < n:
+                acc = acc + T[i, i + 1 :] @ x[i + 1 :]
+            x[i] = acc / (s - T[i, i])
+    return (Z @ x).T
+_OBS_CACHE: dict[tuple, tuple[LinearModel, LinearModel, np.ndarray]] = {}
+
+
+def _orth(M: np.ndarray, tol: float) -> np.ndarray:
+    if M.size == 0:
+        return M
+    U, sv, _ = np.linalg.svd(M, full_matrices=False)
+    r = int(np.sum(sv > tol * max(1.0, sv[0] if sv.size else 1.0)))
+    return U[:, :r]
+
+
+def observable_part(lin: LinearModel, measured: tuple[int, ...], tol: float = 1e-9) -> tuple[LinearModel, np.ndarray]:
+    """Restrict ``lin`` to the modes observable from the measured outputs.
+
+    Modes no loop measures are not moved by feedback: they are open-loop poles of
+    the closed loop too. Returns (reduced model, eigenvalues of the unobservable part).
+    Only valid for PID cascades (LQ state feedback sees every state).
+    """
+    key = (id(lin), measured)
+    hit = _OBS_CACHE.get(key)
+    if hit is not None and hit[0] is lin:
+        return hit[1], hit[2]
+    A = lin.A
+    n = A.shape[0]
+    scale = max(np.linalg.norm(A), 1e-300)
+    Ah = A / scale
+    V = _orth(lin.C[list(measured)].T, tol)
+    for _ in range(n):
+        W = _orth(np.hstack([V, Ah.T @ V]), tol)
+        if W.shape[1] == V.shape[1]:
+            break
+        V = W
+    r = V.shape[1]
+    if r == n:
+        red, un = lin, np.zeros(0, dtype=complex)
+    else:
+        U, _, _ = np.linalg.svd(V, full_matrices=True)
+        V1, V2 = U[:, :r], U[:, r:]
+        red = LinearModel(V1.T @ A @ V1, V1.T @ lin.B, lin.C @ V1, lin.D, lin.delay, [f"z{i}" for i in range(r)],
+                          lin.outputs, np.zeros(r), lin.u0, lin.y0)
+        un = np.linalg.eigvals(V2.T @ A @ V2)
+    if len(_OBS_CACHE) > 256:
+        _OBS_CACHE.clear()
+    _OBS_CACHE[key] = (lin, red, un)
+    return red, un
+
+
+def _out_index(spec: TuningSpec, lin: LinearModel, i: int) -> int:
+    loop = spec.loops[i]
+    name = loop.measure or lin.outputs[0]
+    if name not in lin.outputs:
+        raise SpecError(f"loops[{i}].measure", f"unknown output {name!r}; plant outputs are {lin.outputs}")
+    return lin.outputs.index(name)
+
+
+def pid_arrays(loop, G: np.ndarray, names: list[str]) -> dict[str, np.ndarray]:
+    """Vectorised :func:`gaintune.controllers.pid.pid_params` (G: (B, n_loop_gains))."""
+    col = {nm: G[:, j] for j, nm in enumerate(names)}
+    Bsz = G.shape[0]
+    t = loop.type
+    zeros = np.zeros(Bsz)
+    kp = col.get("Kp", zeros)
+    if loop.form == "ideal":
+        ti = col.get("Ti")
+        td = col.get("Td")
+        ki = kp / ti if ("i" in t[1:] and ti is not None) else zeros
+        kd = kp * td if ("d" in t[1:] and td is not None) else zeros
+    else:
+        ki = col.get("Ki", zeros) if "i" in t[1:] else zeros
+        kd = col.get("Kd", zeros) if "d" in t[1:] else zeros
+    if "d" in t[1:]:
+        if loop.filter.Tf is not None:
+            tf = np.full(Bsz, float(loop.filter.Tf))
+        else:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                tf = np.where(kp > 0, kd / kp / (loop.filter.N or 10.0), 0.0)
+    else:
+        tf = zeros
+    return {"Kp": kp, "Ki": ki, "Kd": kd, "Tf": tf}
+
+
+def build_cascade(
+    spec: TuningSpec, layout: GainLayout, full: np.ndarray, lin: LinearModel, lq_cache: dict | None = None
+) -> Cascade:
+    """Controllers for a batch of full gain vectors ``full`` (B, n_gains) on the linear model ``lin``.
+
+    LQ gains in ``weights`` mode are computed once per gain set with :func:`control.lqr` on
+    ``lin`` (pass the nominal model: gains are frozen for robustness analysis).
+    """
+    from gaintune.controllers.lq import lq_gains
+
+    full = np.atleast_2d(np.asarray(full, dtype=float))
+    Bsz = full.shape[0]
+    loops: list[LoopCtl] = []
+    for i, loop in enumerate(spec.loops):
+        cols = [k for k, sl in enumerate(layout.slots) if sl.loop == i]
+        names = [layout.slots[k].name for k in cols]
+        G = full[:, cols]
+        out_idx = _out_index(spec, lin, i)
+        name = loop.name or f"loop{i}"
+        if loop.is_lq:
+            Ks, Kis, Nrs = [], [], []
+            for b in range(Bsz):
+                gd = dict(zip(names, G[b]))
+                lg = lq_gains(loop, gd, lin, out_idx)
+                Ks.append(lg.K)
+                Kis.append(lg.Kint)
+                Nrs.append(lg.Nr)
+            loops.append(
+                LoopCtl(name, "lq", out_idx, has_i=loop.type == "lqi", K=np.array(Ks, dtype=float).reshape(Bsz, -1),
+                        Kint=np.array(Kis, dtype=float), Nr=np.array(Nrs, dtype=float))
+            )
+        else:
+            pa = pid_arrays(loop, G, names)
+            has_d = "d" in loop.type[1:]
+            if has_d and np.any(pa["Tf"] <= 0):
+                raise GainError(f"gains.{name}", "derivative filter time constant is zero; give Kp > 0")
+            loops.append(
+                LoopCtl(name, "pid", out_idx, has_i="i" in loop.type[1:], has_d=has_d, Kp=pa["Kp"], Ki=pa["Ki"],
+                        Kd=pa["Kd"], Tf=pa["Tf"], b=loop.b, c=loop.c)
+            )
+    return Cascade(loops, Bsz, [lp.name for lp in loops])

@@ -1,0 +1,223 @@
+"""The verification report: pydantic models (JSON-serialisable) and a plain-text table.
+
+Infinite figures (no phase crossover -> GM = inf, no gain crossover -> PM and
+delay margin = inf) are kept as floats in Python and serialise to JSON as the
+strings ``"Infinity"`` / ``"-Infinity"`` (pydantic ``ser_json_inf_nan='strings'``);
+``VerificationReport.model_validate_json`` reads them back as floats. Figures that
+do not exist (e.g. the frequency of a GM that is infinite) are ``null``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+__all__ = [
+    "CrossingModel",
+    "LoopFigures",
+    "StabilityReport",
+    "PadeCheck",
+    "WorstCase",
+    "RobustReport",
+    "NonlinearReport",
+    "RequirementLine",
+    "VerificationReport",
+    "format_table",
+]
+
+
+class _Out(BaseModel):
+    model_config = ConfigDict(ser_json_inf_nan="strings", extra="forbid")
+
+
+class CrossingModel(_Out):
+    """One crossing of a loop's Nyquist curve."""
+
+    kind: Literal["gain", "phase"] = Field(description="gain: |L| = 1; phase: L on the negative real axis.")
+    omega: float = Field(description="Frequency in rad/s.")
+    value: float = Field(description="gain crossing: phase margin (deg); phase crossing: gain margin (dB, >0 upper, <0 lower).")
+    delay_margin: float | None = Field(None, description="Gain crossings: extra delay (s) that reaches -1 at this crossing.")
+    binding: bool = Field(False, description="This crossing gives the reported PM or GM.")
+
+
+class LoopFigures(_Out):
+    """Loop-at-a-time figures of one break point."""
+
+    loop: str
+    break_point: Literal["controller_output", "plant_input"]
+    gm_db: float = Field(description="Binding gain margin in dB: min(upper, lower).")
+    gm_upper_db: float = Field(description="dB by which the loop gain may be increased.")
+    gm_lower_db: float = Field(description="dB by which the loop gain may be decreased (conditionally stable loops); inf if none.")
+    gm_freq: float | None = Field(description="Phase-crossover frequency of the binding GM (rad/s).")
+    pm_deg: float = Field(description="Phase margin in degrees at the binding gain crossover.")
+    pm_freq: float | None = Field(description="Gain-crossover frequency of the binding PM (rad/s).")
+    delay_margin: float = Field(description="Extra input delay (s) the loop tolerates.")
+    ms: float = Field(description="Sensitivity peak max|1/(1+L)|.")
+    ms_freq: float | None = None
+    mt: float = Field(description="Complementary-sensitivity peak max|L/(1+L)|.")
+    mt_freq: float | None = None
+    disk_alpha: float = Field(description="Balanced (skew 0) disk margin alpha.")
+    disk_gm_db: float = Field(description="Disk-based gain margin in dB.")
+    disk_pm_deg: float = Field(description="Disk-based phase margin in degrees.")
+    disk_freq: float | None = None
+    gain_crossovers: list[float] = Field(default_factory=list, description="All gain-crossover frequencies (rad/s).")
+    phase_crossovers: list[float] = Field(default_factory=list, description="All phase-crossover frequencies (rad/s).")
+    crossings: list[CrossingModel] = Field(default_factory=list)
+    crossings_omitted: int = Field(0, description="Phase crossings not listed (only the 20 of smallest |GM| are kept).")
+
+
+class StabilityReport(_Out):
+    stable: bool
+    method: Literal["poles", "nyquist"] = Field(description="What decided: closed-loop eigenvalues (rational loop) or the argument principle (exact delay).")
+    rhp_count: int = Field(description="Closed-loop poles with Re >= 0 (counted by the deciding method).")
+    nyquist_rhp: int | None = Field(None, description="Argument-principle count (cross-check).")
+    poles: list[tuple[float, float]] = Field(default_factory=list, description="Closed-loop poles (re, im) of the delay-free or Padé loop.")
+    poles_method: str = Field("exact", description="exact, or padeN when delay is Padé-approximated for the pole list.")
+    max_real_pole: float
+    notes: list[str] = Field(default_factory=list)
+
+
+class PadeCheck(_Out):
+    """Adequacy of the Padé approximation, when ``verify.pade_order`` is set."""
+
+    order: int
+    adequate: bool
+    max_pm_err_deg: float
+    max_gm_err_db: float
+    max_ms_rel_err: float
+    same_stability: bool
+
+
+class WorstCase(_Out):
+    """Worst figure over the robust sample set, per break point, with the sample attaining it."""
+
+    loop: str
+    break_point: Literal["controller_output", "plant_input"]
+    gm_db: float
+    pm_deg: float
+    delay_margin: float
+    ms: float
+    mt: float
+    disk_alpha: float
+    where: dict[str, dict[str, float]] = Field(default_factory=dict, description="figure -> sample (parameter values, delay) attaining it.")
+
+
+class RobustReport(_Out):
+    n_samples: int
+    n_corners: int
+    n_monte_carlo: int
+    seed: int
+    n_unstable: int
+    unstable_samples: list[dict[str, float]] = Field(default_factory=list)
+    worst: list[WorstCase] = Field(default_factory=list)
+
+
+class NonlinearReport(_Out):
+    ran: bool
+    passed: bool | None = None
+    tripped: bool | None = None
+    diverged: bool | None = None
+    metrics: dict[str, float] = Field(default_factory=dict)
+    note: str = ""
+
+
+class RequirementLine(_Out):
+    """One requirement, at its binding loop/break point/case."""
+
+    requirement: str
+    figure: str
+    limit: float
+    value: float
+    margin: float = Field(description="Distance to the limit, positive when met (value - limit for minima, limit - value for maxima).")
+    passed: bool
+    loop: str | None = None
+    break_point: str | None = None
+    case: Literal["nominal", "worst"] = "nominal"
+
+
+class VerificationReport(_Out):
+    """Result of :func:`gaintune.verify.verify`."""
+
+    spec_name: str
+    spec_hash: str
+    gains: dict[str, dict[str, float]]
+    verdict: Literal["pass", "fail"]
+    reasons: list[str] = Field(default_factory=list, description="Why the verdict is fail (binding requirement first).")
+    delay: float = Field(description="Nominal plant input delay (s).")
+    sampling_delay: float = Field(description="dt/2 added to the loop delay for sample-and-hold (largest scenario dt).")
+    delay_method: Literal["exact", "pade", "none"]
+    pade: PadeCheck | None = None
+    operating_point: dict[str, float] = Field(default_factory=dict, description="x0 and u0 of the linearisation.")
+    stability: StabilityReport
+    loops: list[LoopFigures]
+    robust: RobustReport | None = None
+    nonlinear: NonlinearReport | None = None
+    requirements: list[RequirementLine] = Field(default_factory=list)
+    notes: list[str] = Field(default_factory=list)
+    elapsed_s: float = 0.0
+
+    @property
+    def passed(self) -> bool:
+        return self.verdict == "pass"
+
+    @property
+    def accepted_gains(self) -> dict[str, dict[str, float]] | None:
+        """The gains, only when the verdict is ``pass``; else None."""
+        return self.gains if self.verdict == "pass" else None
+
+
+# ------------------------------------------------------------------ table
+
+
+def _f(x: float | None, fmt: str = "{:.3g}") -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, float) and math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    return fmt.format(x)
+
+
+def format_table(report: VerificationReport) -> str:
+    """Plain-text summary used by ``gaintune verify``."""
+    lines = [f"verification of {report.spec_name!r}: {report.verdict.upper()}"]
+    st = report.stability
+    lines.append(
+        f"closed loop: {'stable' if st.stable else 'UNSTABLE'} ({st.method}; max Re pole {_f(st.max_real_pole)})"
+        f"; delay {_f(report.delay)} s + sampling {_f(report.sampling_delay)} s ({report.delay_method})"
+    )
+    hdr = f"{'loop':<12} {'break':<8} {'GM dB':>7} {'GMlo dB':>7} {'PM deg':>7} {'wc':>8} {'DM s':>8} {'Ms':>6} {'Mt':>6} {'disk a':>6}"
+    lines += ["", hdr, "-" * len(hdr)]
+    for f in report.loops:
+        brk = "ctrl" if f.break_point == "controller_output" else "u"
+        lines.append(
+            f"{f.loop:<12} {brk:<8} {_f(f.gm_upper_db, '{:.2f}'):>7} {_f(f.gm_lower_db, '{:.2f}'):>7} {_f(f.pm_deg, '{:.1f}'):>7} "
+            f"{_f(f.pm_freq):>8} {_f(f.delay_margin):>8} {_f(f.ms, '{:.2f}'):>6} {_f(f.mt, '{:.2f}'):>6} {_f(f.disk_alpha, '{:.2f}'):>6}"
+        )
+    if report.robust is not None:
+        r = report.robust
+        lines += ["", f"robust: {r.n_samples} samples ({r.n_corners} corners + {r.n_monte_carlo} draws), {r.n_unstable} unstable"]
+        for w in r.worst:
+            brk = "ctrl" if w.break_point == "controller_output" else "u"
+            lines.append(
+                f"{w.loop:<12} {brk:<8} worst GM {_f(w.gm_db, '{:.2f}')} dB, PM {_f(w.pm_deg, '{:.1f}')} deg, "
+                f"DM {_f(w.delay_margin)} s, Ms {_f(w.ms, '{:.2f}')}, Mt {_f(w.mt, '{:.2f}')}"
+            )
+    if report.nonlinear is not None:
+        n = report.nonlinear
+        state = "not run" if not n.ran else ("ok" if n.passed else "FAILED")
+        lines += ["", f"nonlinear check: {state}" + (f" ({n.note})" if n.note else "")]
+    if report.requirements:
+        lines += ["", "requirements:"]
+        for q in report.requirements:
+            where = f"{q.loop}/{q.break_point}/{q.case}" if q.loop else q.case
+            lines.append(
+                f"  {'PASS' if q.passed else 'FAIL'} {q.requirement:<11} {q.figure}={_f(q.value, '{:.4g}')} limit {_f(q.limit, '{:.4g}')} "
+                f"margin {_f(q.margin, '{:+.4g}')} at {where}"
+            )
+    if report.reasons:
+        lines += ["", "reasons:"] + [f"  - {r}" for r in report.reasons]
+    for n in report.notes:
+        lines.append(f"note: {n}")
+    return "\n".join(lines)
