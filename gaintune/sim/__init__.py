@@ -13,6 +13,7 @@ True
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,9 +55,23 @@ class Simulator:
         self.plant = plant or build_plant(spec.plant)
         self.layout = layout or GainLayout(spec, self.plant.states)
         self.problem = Problem.build(spec, self.plant, self.layout)
+        self._memo: dict = {}
 
     def nominal_draws(self, n: int = 1) -> Draws:
         return draws_mod.nominal(self.spec, self.plant, n, seed=self.spec.search.seed)
+
+    def _draw_arrays(self, d: Draws, sc: ScenarioSpec):
+        """Plant and signal arrays for a draw set, memoised: optimisers re-use the same draws every call."""
+        h = hashlib.blake2b(digest_size=16)
+        for name in Draws.__dataclass_fields__:
+            h.update(np.ascontiguousarray(getattr(d, name)).tobytes())
+        key = (h.hexdigest(), sc.model_dump_json())
+        hit = self._memo.get(key)
+        if hit is None:
+            if len(self._memo) > 64:
+                self._memo.clear()
+            hit = self._memo[key] = (self.problem.plant_arrays(d, sc), self.problem.signal_arrays(d, sc))
+        return hit
 
     def run(
         self,
@@ -77,10 +92,9 @@ class Simulator:
         if len(d) != B:
             raise ValueError(f"draws has {len(d)} rows for {B} gain sets")
         pb = self.problem
-        pa = pb.plant_arrays(d, sc)
+        pa, sg = self._draw_arrays(d, sc)
         ca = pb.controller_arrays(full, pa)
         fb = pb.fallback_arrays(B, ca, pa)
-        sg = pb.signal_arrays(d, sc)
         spec = self.spec
         L = len(spec.loops)
         T = sc.n_steps

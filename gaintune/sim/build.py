@@ -139,7 +139,7 @@ class Problem:
         A = np.stack([lins[int(k)].A for k in ukeys[:, 0]])
         Bm = np.stack([lins[int(k)].B for k in ukeys[:, 0]])
         if self.plant.kind == "lti":
-            Ad, G0, G1, d = discretize(A, Bm, sc.dt, ukeys[:, 1])
+            Ad, G0, G1, d = self._discretize_cached(A, Bm, sc.dt, ukeys[:, 1])
             Cm = np.stack([lins[int(k)].C[self.meas] for k in ukeys[:, 0]])  # (U, L, n)
             Dm = np.stack([lins[int(k)].D[self.meas, 0] for k in ukeys[:, 0]])  # (U, L)
             if np.any(Dm != 0) and np.any(ukeys[:, 1] < sc.dt):
@@ -162,6 +162,21 @@ class Problem:
         out.update(x_op=x_op, u_op=u_op, y_op=y_op)
         _ = (B, L, n)
         return out
+
+    def _discretize_cached(self, A: np.ndarray, Bm: np.ndarray, dt: float, delay: np.ndarray):
+        """:func:`discretize`, memoised per (A, B, dt, delay): repeated batches skip the matrix exponentials."""
+        cache = self.__dict__.setdefault("_disc_cache", {})
+        keys = [(A[i].tobytes(), Bm[i].tobytes(), dt, float(delay[i])) for i in range(A.shape[0])]
+        missing = [i for i, key in enumerate(keys) if key not in cache]
+        if missing:
+            if len(cache) > 20000:
+                cache.clear()
+            Ad, G0, G1, d = discretize(A[missing], Bm[missing], dt, delay[missing])
+            for r, i in enumerate(missing):
+                cache[keys[i]] = (Ad[r], G0[r], G1[r], d[r])
+        parts = [cache[key] for key in keys]
+        return (np.stack([p[0] for p in parts]), np.stack([p[1] for p in parts]),
+                np.stack([p[2] for p in parts]), np.array([p[3] for p in parts], dtype=np.int64))
 
     # ------------------------------------------------------- controllers
     def controller_arrays(self, full: np.ndarray, plant_arr: dict[str, Any]) -> dict[str, np.ndarray]:

@@ -2,10 +2,16 @@
 
 One call simulates B candidates (gain sets, each with its own plant sample and
 scenario draw). Arrays carry the batch on their LAST axis; the batch is cut
-into chunks of ``CHUNK`` candidates that run in parallel (``prange``). Inside a
-chunk every stage of a time step is a short loop over the chunk, so LLVM can
-vectorise it, and all state lives in small chunk-local arrays: memory is O(B)
-unless traces are requested.
+into chunks of ``CHUNK`` candidates that run in parallel (``prange``). All
+state lives in small chunk-local arrays, so memory is O(B) unless traces are
+requested.
+
+Each stage of a time step (signals, measurement, monitor, controllers,
+actuator, metrics, plant update) is one short loop over the chunk. LLVM does
+not vectorise these loops (numba arrays carry no no-alias information), but
+the independent candidates give the CPU instruction-level parallelism: this
+measured about 3.4x faster per candidate than one fused pass per candidate,
+whose long dependent chain leaves the core waiting on latency.
 
 The discrete-time controller law is documented in :mod:`gaintune.controllers.pid`;
 the plant update is exact ZOH with a fractional input delay for LTI plants,
@@ -15,6 +21,7 @@ and RK4 over a casadi instruction tape for nonlinear ones.
 from __future__ import annotations
 
 import math
+import types
 
 import numba as nb
 import numpy as np
@@ -23,7 +30,7 @@ from gaintune.sim import tape as T
 
 __all__ = ["simulate_kernel", "METRICS", "CHUNK"]
 
-CHUNK = 16
+CHUNK = 64
 
 #: Metric rows of the kernel's output, in order.
 METRICS = (
@@ -36,7 +43,7 @@ METRICS = (
 AW_NONE, AW_CLAMP, AW_BACKCALC = 0, 1, 2
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _normal(seed: np.int64, k: np.int64, lane: np.int64) -> float:
     """Counter-based standard normal (splitmix64 hash + Box-Muller): reproducible per candidate."""
     z = np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(k) * np.uint64(0xBF58476D1CE4E5B9)
@@ -176,43 +183,41 @@ def _run_tape(op, ta, tb, to, tc, inp, w, out, m):
                 w[o, j] = w[a, j]
 
 
-@nb.njit(cache=True, inline="always")
+
+# Per-candidate scalar fields of the chunk state ``ls[field, lane]``.
+(F_UPREV, F_ALIVE, F_TRIP, F_Z, F_Y0, F_SPAN, F_INVSPAN, F_PEAK, F_T10, F_T90, F_LAST, F_ULO, F_UHI,
+ F_UOP, F_KST, F_KLD, F_R, F_DIN, F_DOUT, F_UA, F_UB) = range(21)
+N_F = 21
+# Per-loop fields ``lp[field, loop, lane]``.
+(P_YM, P_YT, P_I, P_D, P_EDP, P_AWE, P_VOUT, P_SP, P_KP, P_KI, P_KD, P_KB, P_AL, P_BE, P_BW, P_CW,
+ P_LO, P_HI) = range(18)
+N_P = 18
+
+
+@nb.njit(cache=True)
 def _signal(s, k, b, sk0, sk1, soff, sslope, dt):
-    """Sum of additive pieces of signal ``s`` at step k: offset + slope*(t - t_start) on [k0, k1)."""
+    """Sum of the additive pieces of signal ``s`` active at step k for candidate b."""
     v = 0.0
     for p in range(sk0.shape[1]):
         k0 = sk0[s, p, b]
         if k >= k0 and k < sk1[s, p, b]:
-            v += soff[s, p, b] + sslope[s, p, b] * (k - k0) * dt
+            v += soff[s, p, b] + sslope[s, p, b] * ((k - k0) * dt)
     return v
 
 
-@nb.njit(cache=True, parallel=True)
-def simulate_kernel(
-    n_steps, dt, nonlinear,
-    # LTI plant (batch last): Ad (n,n,B), G0/G1 (n,B), Cm (L,n,B), Dm (L,B)
+def _kernel(
+    CHUNK, n_steps, dt, nonlinear,
     Ad, G0, G1, Cm, Dm,
-    # nonlinear plant: tapes for f and h, parameters (P,B), measured output index per loop
     f_op, f_a, f_b, f_o, f_c, f_nw, h_op, h_a, h_b, h_o, h_c, h_nw, h_nout, P, meas_idx,
-    # operating point: x_op (n,B), u_op (B,), y_op (L,B)
     x_op, u_op, y_op,
-    # delay: integer samples d (B,)
     dsteps,
-    # controllers (L,B) parallel PID + per-loop anti-windup mode (L,)
     kp, ki, kd, tf, bw, cw, kb, lo, hi, aw,
-    # state feedback on the innermost loop: sf flag, K (n,B), Kint (B,), Nr (B,)
     sf, K, kint, nr,
-    # actuator: limits (B,), rate (scalar, inf = none)
     u_lo, u_hi, rate,
-    # signals: 0 reference, 1 input disturbance, 2 output disturbance; pieces (3,S,B)
     sk0, sk1, soff, sslope, dist_out_loops,
-    # noise
     noise_std, noise_seed,
-    # safety monitor: limits (scalars, inf = off), state bounds (n,), action, fallback gains (L,B) x5
     max_err, max_out, xbound, div_bound, safe_mode, u_safe, fb_kp, fb_ki, fb_kd, fb_tf, fb_kb,
-    # metric helpers: target (B,), step start step index (B,), load start index (B,)
     target, k_step, k_load,
-    # traces: flag and outputs (L,T,B), (L,T,B), (T,B) - shape (…,0,…) when off
     want_traces, tr_y, tr_sp, tr_u,
 ):
     n = x_op.shape[0]
@@ -221,51 +226,44 @@ def simulate_kernel(
     nchunks = (B + CHUNK - 1) // CHUNK
     out = np.zeros((len(METRICS), B))
     dmax = 0
-    for b in range(B):
-        dmax = max(dmax, dsteps[b])
-    M = dmax + 2  # delay ring buffer length
     any_noise = False
     for b in range(B):
-        if noise_std[b] > 0:
-            any_noise = True
-    has_xbound = False
+        dmax = max(dmax, dsteps[b])
+        any_noise = any_noise or noise_std[b] > 0
+    M = dmax + 2  # delay ring-buffer length
+    has_D = False
+    for l in range(Dm.shape[0]):
+        for b in range(Dm.shape[1]):
+            has_D = has_D or Dm[l, b] != 0.0
+    has_sig = np.zeros(3, dtype=np.bool_)
+    for sg in range(3):
+        for p in range(sk0.shape[1]):
+            for b in range(B):
+                if sk0[sg, p, b] <= n_steps:
+                    has_sig[sg] = True
+    monitor = max_err < np.inf or max_out < np.inf
     for i in range(n):
-        if xbound[i] < np.inf:
-            has_xbound = True
+        monitor = monitor or xbound[i] < np.inf
+    has_rate = rate < np.inf
     n_in = n + 1 + P.shape[0]
     for c in nb.prange(nchunks):
         b0 = c * CHUNK
         m = min(CHUNK, B - b0)
-        x = np.empty((n, CHUNK))
-        xn = np.empty((n, CHUNK))
-        ym = np.empty((L, CHUNK))
-        yt = np.empty((L, CHUNK))
-        I = np.zeros((L, CHUNK))
-        D = np.zeros((L, CHUNK))
-        edp = np.zeros((L, CHUNK))
-        awe = np.zeros((L, CHUNK))  # back-calculation error of the previous step
-        g_kp = np.empty((L, CHUNK))
-        g_ki = np.empty((L, CHUNK))
-        g_kd = np.empty((L, CHUNK))
-        g_tf = np.empty((L, CHUNK))
-        g_kb = np.empty((L, CHUNK))
-        buf = np.empty((M, CHUNK))
-        uprev = np.empty(CHUNK)
-        r = np.empty(CHUNK)
-        din = np.empty(CHUNK)
-        dout = np.empty(CHUNK)
-        alive = np.ones(CHUNK, dtype=np.bool_)
-        tripped = np.zeros(CHUNK, dtype=np.bool_)
-        z = np.zeros(CHUNK)  # LQI integrator
+        # Signals identical across the chunk (no randomised references) are evaluated once per step.
+        shared = True
+        for sg in range(3):
+            for p in range(sk0.shape[1]):
+                for j in range(m):
+                    b = b0 + j
+                    if (sk0[sg, p, b] != sk0[sg, p, b0] or sk1[sg, p, b] != sk1[sg, p, b0]
+                            or soff[sg, p, b] != soff[sg, p, b0] or sslope[sg, p, b] != sslope[sg, p, b0]):
+                        shared = False
+        x = np.zeros((n, CHUNK))
+        xn = np.zeros((n, CHUNK))
+        ls = np.zeros((N_F, CHUNK))
+        lp = np.zeros((N_P, L, CHUNK))
         acc = np.zeros((len(METRICS), CHUNK))
-        vout = np.zeros((L, CHUNK))
-        spl = np.zeros((L, CHUNK))
-        y0s = np.empty(CHUNK)
-        peak = np.zeros(CHUNK)
-        t10 = np.full(CHUNK, -1.0)
-        t90 = np.full(CHUNK, -1.0)
-        last_out = np.full(CHUNK, -1)
-        # nonlinear scratch
+        buf = np.zeros((M, CHUNK))
         inp = np.zeros((n_in, CHUNK))
         wf = np.zeros((max(f_nw, 1), CHUNK))
         wh = np.zeros((max(h_nw, 1), CHUNK))
@@ -274,273 +272,323 @@ def simulate_kernel(
         k3 = np.zeros((n, CHUNK))
         k4 = np.zeros((n, CHUNK))
         hout = np.zeros((max(h_nout, 1), CHUNK))
-
         for j in range(m):
             b = b0 + j
             for i in range(n):
                 x[i, j] = x_op[i, b]
             for q in range(M):
                 buf[q, j] = u_op[b]
-            uprev[j] = u_op[b]
+            ls[F_UPREV, j] = u_op[b]
+            ls[F_ALIVE, j] = 1.0
+            ls[F_T10, j] = -1.0
+            ls[F_T90, j] = -1.0
+            ls[F_LAST, j] = -1.0
+            ls[F_ULO, j] = u_lo[b]
+            ls[F_UHI, j] = u_hi[b]
+            ls[F_UOP, j] = u_op[b]
+            ls[F_KST, j] = k_step[b]
+            ls[F_KLD, j] = k_load[b]
             for l in range(L):
-                g_kp[l, j] = kp[l, b]
-                g_ki[l, j] = ki[l, b]
-                g_kd[l, j] = kd[l, b]
-                g_tf[l, j] = tf[l, b]
-                g_kb[l, j] = kb[l, b]
-                # Bumpless start at the operating point: integrators hold the next setpoint / u0.
-                I[l, j] = y_op[l + 1, b] if l + 1 < L else u_op[b]
+                lp[P_KP, l, j] = kp[l, b]
+                lp[P_KI, l, j] = ki[l, b]
+                lp[P_KD, l, j] = kd[l, b]
+                lp[P_KB, l, j] = kb[l, b]
+                lp[P_AL, l, j] = tf[l, b] / (tf[l, b] + dt)
+                lp[P_BE, l, j] = kd[l, b] / (tf[l, b] + dt)
+                lp[P_BW, l, j] = bw[l, b]
+                lp[P_CW, l, j] = cw[l, b]
+                lp[P_LO, l, j] = u_lo[b] if l == L - 1 else lo[l, b]
+                lp[P_HI, l, j] = u_hi[b] if l == L - 1 else hi[l, b]
+                # bumpless start at the operating point: integrators hold the next setpoint / u0
+                lp[P_I, l, j] = y_op[l + 1, b] if l + 1 < L else u_op[b]
             if nonlinear:
-                for pi in range(P.shape[0]):
-                    inp[n + 1 + pi, j] = P[pi, b]
+                for q in range(P.shape[0]):
+                    inp[n + 1 + q, j] = P[q, b]
 
         for k in range(n_steps):
             t = k * dt
+            pos = k % M
+            check_div = (k & 7) == 0 or k == n_steps - 1
+            rs = dins = douts = 0.0
+            if shared:
+                rs = _signal(0, k, b0, sk0, sk1, soff, sslope, dt)
+                dins = _signal(1, k, b0, sk0, sk1, soff, sslope, dt) if has_sig[1] else 0.0
+                douts = _signal(2, k, b0, sk0, sk1, soff, sslope, dt) if has_sig[2] else 0.0
+            # ---- plant input seen by the outputs (only the delayed u[k-1-d] is known before u[k])
             for j in range(m):
                 b = b0 + j
-                r[j] = y_op[0, b] + _signal(0, k, b, sk0, sk1, soff, sslope, dt)
-                din[j] = _signal(1, k, b, sk0, sk1, soff, sslope, dt)
-                dout[j] = _signal(2, k, b, sk0, sk1, soff, sslope, dt)
-
-            # ---- measure the true outputs
+                idd = pos - 1 - dsteps[b]
+                ls[F_UB, j] = buf[idd + M if idd < 0 else idd, j]
+            # ---- signals
+            if shared:
+                for j in range(m):
+                    ls[F_R, j] = rs + y_op[0, b0 + j]
+                    ls[F_DIN, j] = dins
+                    ls[F_DOUT, j] = douts
+            else:
+                for j in range(m):
+                    b = b0 + j
+                    ls[F_R, j] = _signal(0, k, b, sk0, sk1, soff, sslope, dt) + y_op[0, b]
+                    ls[F_DIN, j] = _signal(1, k, b, sk0, sk1, soff, sslope, dt) if has_sig[1] else 0.0
+                    ls[F_DOUT, j] = _signal(2, k, b, sk0, sk1, soff, sslope, dt) if has_sig[2] else 0.0
+            # ---- true outputs
             if nonlinear:
                 for j in range(m):
                     for i in range(n):
                         inp[i, j] = x[i, j]
-                    inp[n, j] = buf[(k - dsteps[b0 + j]) % M, j] + din[j]
+                    inp[n, j] = ls[F_UB, j] + ls[F_DIN, j]
                 _run_tape(h_op, h_a, h_b, h_o, h_c, inp, wh, hout, m)
                 for l in range(L):
+                    mi = meas_idx[l]
+                    dl = dist_out_loops[l]
                     for j in range(m):
-                        yt[l, j] = hout[meas_idx[l], j] + dist_out_loops[l] * dout[j]
+                        lp[P_YT, l, j] = hout[mi, j] + dl * ls[F_DOUT, j]
             else:
                 for l in range(L):
+                    dl = dist_out_loops[l]
                     for j in range(m):
-                        b = b0 + j
-                        s = Dm[l, b] * (buf[(k - dsteps[b]) % M, j] + din[j])
-                        for i in range(n):
-                            s += Cm[l, i, b] * x[i, j]
-                        yt[l, j] = s + dist_out_loops[l] * dout[j]
+                        lp[P_YT, l, j] = dl * ls[F_DOUT, j]
+                    for i in range(n):
+                        for j in range(m):
+                            lp[P_YT, l, j] += Cm[l, i, b0 + j] * x[i, j]
+                    if has_D:  # feedthrough sees only delayed inputs (d >= 1 is enforced)
+                        for j in range(m):
+                            b = b0 + j
+                            idd = pos - dsteps[b]
+                            lp[P_YT, l, j] += Dm[l, b] * (buf[idd + M if idd < 0 else idd, j] + ls[F_DIN, j])
             for l in range(L):
                 for j in range(m):
-                    ym[l, j] = yt[l, j]
+                    lp[P_YM, l, j] = lp[P_YT, l, j]
             if any_noise:
                 for l in range(L):
                     for j in range(m):
                         b = b0 + j
                         if noise_std[b] > 0:
-                            ym[l, j] += noise_std[b] * _normal(noise_seed[b], k, l)
-
-            # ---- divergence and safety monitor
-            for j in range(m):
-                if not alive[j]:
-                    continue
-                b = b0 + j
-                bad = False
-                for i in range(n):
-                    xi = x[i, j]
-                    if not (abs(xi) <= div_bound):  # also catches NaN
-                        bad = True
-                for l in range(L):
-                    if not (abs(yt[l, j]) <= div_bound):
-                        bad = True
-                if bad:
-                    alive[j] = False
-                    acc[M_DIV, j] = 1.0
-                    continue
-                if not tripped[j]:
-                    trip = abs(r[j] - yt[0, j]) > max_err
+                            lp[P_YM, l, j] += noise_std[b] * _normal(noise_seed[b], k, l)
+            # ---- divergence (NaN/inf or beyond the bound), every 8 steps: NaN and inf propagate
+            if check_div:
+                for j in range(m):
+                    ok = 1.0
+                    for i in range(n):
+                        ok = ok if abs(x[i, j]) <= div_bound else 0.0
                     for l in range(L):
-                        if abs(yt[l, j]) > max_out:
-                            trip = True
-                    if has_xbound:
-                        for i in range(n):
-                            if abs(x[i, j]) > xbound[i]:
-                                trip = True
+                        ok = ok if abs(lp[P_YT, l, j]) <= div_bound else 0.0
+                    ls[F_ALIVE, j] *= ok
+            # ---- safety monitor
+            if monitor:
+                for j in range(m):
+                    if ls[F_TRIP, j] != 0.0 or ls[F_ALIVE, j] == 0.0:
+                        continue
+                    b = b0 + j
+                    trip = abs(ls[F_R, j] - lp[P_YT, 0, j]) > max_err
+                    for l in range(L):
+                        trip = trip or abs(lp[P_YT, l, j]) > max_out
+                    for i in range(n):
+                        trip = trip or abs(x[i, j]) > xbound[i]
                     if trip:
-                        tripped[j] = True
+                        ls[F_TRIP, j] = 1.0
                         acc[M_TRIP, j] = 1.0
                         acc[M_TRIPT, j] = t
                         if safe_mode == 1:
                             for l in range(L):
-                                g_kp[l, j] = fb_kp[l, b]
-                                g_ki[l, j] = fb_ki[l, b]
-                                g_kd[l, j] = fb_kd[l, b]
-                                g_tf[l, j] = fb_tf[l, b]
-                                g_kb[l, j] = fb_kb[l, b]
-
+                                lp[P_KP, l, j] = fb_kp[l, b]
+                                lp[P_KI, l, j] = fb_ki[l, b]
+                                lp[P_KB, l, j] = fb_kb[l, b]
+                                lp[P_AL, l, j] = fb_tf[l, b] / (fb_tf[l, b] + dt)
+                                lp[P_BE, l, j] = fb_kd[l, b] / (fb_tf[l, b] + dt)
             # ---- controllers, outer loop first; each output is the next loop's setpoint
+            if k == 0:
+                for l in range(L):
+                    for j in range(m):
+                        sp0 = ls[F_R, j] if l == 0 else lp[P_VOUT, l - 1, j]
+                        lp[P_EDP, l, j] = lp[P_CW, l, j] * sp0 - lp[P_YM, l, j]  # no derivative kick
             for l in range(L):
-                inner = l == L - 1
-                mode = aw[l]
-                if inner and sf:
+                if l == L - 1 and sf:
                     for j in range(m):
                         b = b0 + j
-                        sp = r[j] if l == 0 else vout[l - 1, j]
-                        e = sp - ym[l, j]
-                        v = u_op[b] + nr[b] * (sp - y_op[l, b])
+                        sp = ls[F_R, j] if l == 0 else lp[P_VOUT, l - 1, j]
+                        e = sp - lp[P_YM, l, j]
+                        v = ls[F_UOP, j] + nr[b] * (sp - y_op[l, b])
                         for i in range(n):
                             v -= K[i, b] * (x[i, j] - x_op[i, b])
-                        ztrial = z[j] + dt * e
-                        vu = v + kint[b] * ztrial
-                        vs = min(max(vu, u_lo[b]), u_hi[b])
+                        zt = ls[F_Z, j] + dt * e
+                        vu = v + kint[b] * zt
+                        vs = min(max(vu, ls[F_ULO, j]), ls[F_UHI, j])
                         if vs != vu and e * kint[b] * (vu - vs) > 0:
-                            vs = min(max(v + kint[b] * z[j], u_lo[b]), u_hi[b])
+                            vs = min(max(v + kint[b] * ls[F_Z, j], ls[F_ULO, j]), ls[F_UHI, j])
                         else:
-                            z[j] = ztrial
-                        spl[l, j] = sp
-                        vout[l, j] = vs
-                else:
-                    for j in range(m):
-                        b = b0 + j
-                        sp = r[j] if l == 0 else vout[l - 1, j]
-                        e = sp - ym[l, j]
-                        ed = cw[l, b] * sp - ym[l, j]
-                        if k == 0:
-                            edp[l, j] = ed  # no derivative kick at start
-                        tfl = g_tf[l, j]
-                        dterm = (tfl * D[l, j] + g_kd[l, j] * (ed - edp[l, j])) / (tfl + dt)
-                        edp[l, j] = ed
-                        D[l, j] = dterm
-                        pterm = g_kp[l, j] * (bw[l, b] * sp - ym[l, j])
-                        itrial = I[l, j] + g_ki[l, j] * dt * e
-                        if mode == AW_BACKCALC:
-                            itrial += g_kb[l, j] * dt * awe[l, j]
-                        vu = pterm + itrial + dterm
-                        vlo = u_lo[b] if inner else lo[l, b]
-                        vhi = u_hi[b] if inner else hi[l, b]
+                            ls[F_Z, j] = zt
+                        lp[P_SP, l, j] = sp
+                        lp[P_VOUT, l, j] = vs
+                    continue
+                mode = aw[l]
+                for j in range(m):
+                    sp = ls[F_R, j] if l == 0 else lp[P_VOUT, l - 1, j]
+                    y = lp[P_YM, l, j]
+                    e = sp - y
+                    ed = lp[P_CW, l, j] * sp - y
+                    dterm = lp[P_AL, l, j] * lp[P_D, l, j] + lp[P_BE, l, j] * (ed - lp[P_EDP, l, j])
+                    lp[P_EDP, l, j] = ed
+                    lp[P_D, l, j] = dterm
+                    pterm = lp[P_KP, l, j] * (lp[P_BW, l, j] * sp - y)
+                    iold = lp[P_I, l, j]
+                    it = iold + lp[P_KI, l, j] * dt * e
+                    if mode == AW_BACKCALC:
+                        it += lp[P_KB, l, j] * dt * lp[P_AWE, l, j]
+                    vu = pterm + it + dterm
+                    vlo = lp[P_LO, l, j]
+                    vhi = lp[P_HI, l, j]
+                    vs = min(max(vu, vlo), vhi)
+                    if mode == AW_CLAMP:
+                        # conditional integration: do not integrate further into saturation
+                        hold = (vs != vu) and (e * (vu - vs) * lp[P_KI, l, j] > 0)
+                        it = iold if hold else it
+                        vu = pterm + it + dterm
                         vs = min(max(vu, vlo), vhi)
-                        if mode == AW_CLAMP and vs != vu and e * (vu - vs) * g_ki[l, j] > 0:
-                            # Conditional integration: do not integrate further into saturation.
-                            itrial = I[l, j]
-                            vu = pterm + itrial + dterm
-                            vs = min(max(vu, vlo), vhi)
-                        I[l, j] = itrial
-                        awe[l, j] = vs - vu
-                        spl[l, j] = sp
-                        vout[l, j] = vs
-
-            # ---- actuator: rate limit, safety hold, delay buffer
+                    lp[P_I, l, j] = it
+                    lp[P_AWE, l, j] = vs - vu
+                    lp[P_SP, l, j] = sp
+                    lp[P_VOUT, l, j] = vs
+            # ---- actuator: rate limit, safety hold, dead candidates at rest
+            for j in range(m):
+                uprev = ls[F_UPREV, j]
+                u = lp[P_VOUT, L - 1, j]
+                if has_rate:
+                    u = min(max(u, uprev - rate * dt), uprev + rate * dt)
+                u = u_safe if (ls[F_TRIP, j] > 0.0 and safe_mode == 0) else u
+                u = u if ls[F_ALIVE, j] > 0.0 else ls[F_UOP, j]
+                buf[pos, j] = u
+            if aw[L - 1] == AW_BACKCALC:
+                for j in range(m):
+                    lp[P_AWE, L - 1, j] += buf[pos, j] - lp[P_VOUT, L - 1, j]  # track what was applied
+            # ---- metrics, masked by alive (streaming: no trace kept)
+            if k == 0:
+                for j in range(m):
+                    ls[F_Y0, j] = lp[P_YT, 0, j]
+                    span = target[b0 + j] - ls[F_Y0, j]
+                    ls[F_INVSPAN, j] = 1.0 / span if span != 0.0 else 0.0
+            for j in range(m):
+                a = ls[F_ALIVE, j]
+                u = buf[pos, j]
+                y0 = lp[P_YT, 0, j]
+                e0 = ls[F_R, j] - y0
+                ae = abs(e0)
+                du = u - ls[F_UOP, j]
+                acc[M_IAE, j] += a * ae * dt
+                acc[M_ISE, j] += a * e0 * e0 * dt
+                acc[M_ITAE, j] += a * t * ae * dt
+                acc[M_EFFORT, j] += a * du * du * dt
+                acc[M_TV, j] += a * abs(u - ls[F_UPREV, j])
+                acc[M_PEAKU, j] = max(acc[M_PEAKU, j], a * abs(du))
+                acc[M_SAT, j] += a * ((u <= ls[F_ULO, j]) or (u >= ls[F_UHI, j]))
+                acc[M_LOAD, j] += a * (k >= ls[F_KLD, j]) * ae * dt
+                acc[M_YFIN, j] = y0
+                ls[F_UPREV, j] = u
+                # step metrics relative to the final reference value
+                dev = (y0 - ls[F_Y0, j]) * ls[F_INVSPAN, j]
+                act = (k >= ls[F_KST, j]) and (ls[F_INVSPAN, j] != 0.0) and (a > 0.0)
+                ls[F_PEAK, j] = max(ls[F_PEAK, j], dev) if act else ls[F_PEAK, j]
+                ls[F_T10, j] = t if (act and ls[F_T10, j] < 0 and dev >= 0.1) else ls[F_T10, j]
+                ls[F_T90, j] = t if (act and ls[F_T90, j] < 0 and dev >= 0.9) else ls[F_T90, j]
+                ls[F_LAST, j] = k if (act and abs(dev - 1.0) >= 0.02) else ls[F_LAST, j]
+            # ---- plant input held over this sample: ua = u[k-d], ub = u[k-d-1] (+ input disturbance)
             for j in range(m):
                 b = b0 + j
-                u = vout[L - 1, j]
-                if rate < np.inf:
-                    u = min(max(u, uprev[j] - rate * dt), uprev[j] + rate * dt)
-                if tripped[j] and safe_mode == 0:
-                    u = u_safe
-                if not alive[j]:
-                    u = u_op[b]
-                if L > 0 and aw[L - 1] == AW_BACKCALC:
-                    awe[L - 1, j] += u - vout[L - 1, j]  # track what was really applied
-                buf[k % M, j] = u
-                # metrics
-                if alive[j]:
-                    e0 = r[j] - yt[0, j]
-                    ae = abs(e0)
-                    acc[M_IAE, j] += ae * dt
-                    acc[M_ISE, j] += e0 * e0 * dt
-                    acc[M_ITAE, j] += t * ae * dt
-                    du = u - u_op[b]
-                    acc[M_EFFORT, j] += du * du * dt
-                    if k > 0:
-                        acc[M_TV, j] += abs(u - uprev[j])
-                    if abs(du) > acc[M_PEAKU, j]:
-                        acc[M_PEAKU, j] = abs(du)
-                    if u <= u_lo[b] or u >= u_hi[b]:
-                        acc[M_SAT, j] += 1.0
-                    if k >= k_load[b]:
-                        acc[M_LOAD, j] += ae * dt
-                    # step metrics relative to the final reference value (streaming, no trace)
-                    if k == 0:
-                        y0s[j] = yt[0, j]
-                    span = target[b] - y0s[j]
-                    if span != 0.0 and k >= k_step[b]:
-                        dev = (yt[0, j] - y0s[j]) / span
-                        if dev > peak[j]:
-                            peak[j] = dev
-                        if t10[j] < 0 and dev >= 0.1:
-                            t10[j] = t
-                        if t90[j] < 0 and dev >= 0.9:
-                            t90[j] = t
-                        if abs(dev - 1.0) >= 0.02:
-                            last_out[j] = k
-                    acc[M_YFIN, j] = yt[0, j]
-                uprev[j] = u
-            if want_traces:
-                for j in range(m):
-                    b = b0 + j
-                    tr_u[k, b] = buf[k % M, j]
-                    for l in range(L):
-                        tr_y[l, k, b] = yt[l, j]
-                        tr_sp[l, k, b] = spl[l, j]
-
+                ia = pos - dsteps[b]
+                ia = ia + M if ia < 0 else ia
+                ib = ia - 1 if ia > 0 else M - 1
+                ls[F_UA, j] = buf[ia, j] + ls[F_DIN, j]
+                ls[F_UB, j] = buf[ib, j] + ls[F_DIN, j]
             # ---- plant update
             if nonlinear:
+                # RK4 with the input held over the sample (whole-sample delays)
                 for j in range(m):
-                    b = b0 + j
-                    inp[n, j] = buf[(k - dsteps[b]) % M, j] + din[j]
+                    inp[n, j] = ls[F_UA, j]
                     for i in range(n):
                         inp[i, j] = x[i, j]
                 _run_tape(f_op, f_a, f_b, f_o, f_c, inp, wf, k1, m)
-                for j in range(m):
-                    for i in range(n):
+                for i in range(n):
+                    for j in range(m):
                         inp[i, j] = x[i, j] + 0.5 * dt * k1[i, j]
                 _run_tape(f_op, f_a, f_b, f_o, f_c, inp, wf, k2, m)
-                for j in range(m):
-                    for i in range(n):
+                for i in range(n):
+                    for j in range(m):
                         inp[i, j] = x[i, j] + 0.5 * dt * k2[i, j]
                 _run_tape(f_op, f_a, f_b, f_o, f_c, inp, wf, k3, m)
-                for j in range(m):
-                    for i in range(n):
+                for i in range(n):
+                    for j in range(m):
                         inp[i, j] = x[i, j] + dt * k3[i, j]
                 _run_tape(f_op, f_a, f_b, f_o, f_c, inp, wf, k4, m)
-                for j in range(m):
-                    if alive[j]:
-                        for i in range(n):
-                            x[i, j] += dt / 6.0 * (k1[i, j] + 2.0 * k2[i, j] + 2.0 * k3[i, j] + k4[i, j])
+                for i in range(n):
+                    for j in range(m):
+                        xn[i, j] = x[i, j] + dt / 6.0 * (k1[i, j] + 2.0 * k2[i, j] + 2.0 * k3[i, j] + k4[i, j])
             else:
+                for i in range(n):
+                    for j in range(m):
+                        xn[i, j] = G0[i, b0 + j] * ls[F_UA, j] + G1[i, b0 + j] * ls[F_UB, j]
+                    for q in range(n):
+                        for j in range(m):
+                            xn[i, j] += Ad[i, q, b0 + j] * x[q, j]
+            for i in range(n):
+                for j in range(m):
+                    x[i, j] = xn[i, j] * ls[F_ALIVE, j]  # dead candidates are frozen at 0
+            if want_traces:
                 for j in range(m):
                     b = b0 + j
-                    ua = buf[(k - dsteps[b]) % M, j] + din[j]
-                    ub = buf[(k - dsteps[b] - 1) % M, j] + din[j]
-                    for i in range(n):
-                        s = G0[i, b] * ua + G1[i, b] * ub
-                        for q in range(n):
-                            s += Ad[i, q, b] * x[q, j]
-                        xn[i, j] = s
-                for j in range(m):
-                    if alive[j]:
-                        for i in range(n):
-                            x[i, j] = xn[i, j]
-                    else:
-                        for i in range(n):
-                            x[i, j] = 0.0
+                    tr_u[k, b] = buf[pos, j]
+                    for l in range(L):
+                        tr_y[l, k, b] = lp[P_YT, l, j]
+                        tr_sp[l, k, b] = lp[P_SP, l, j]
 
-        # ---- finish metrics
+        # finish metrics
         for j in range(m):
             b = b0 + j
             for q in range(len(METRICS)):
                 out[q, b] = acc[q, j]
-            span = target[b] - y0s[j]
+            span = target[b] - ls[F_Y0, j]
             out[M_SAT, b] = acc[M_SAT, j] / n_steps
             out[M_SSE, b] = abs(target[b] - acc[M_YFIN, j])
-            tstep = k_step[b] * dt
             if span != 0.0:
-                out[M_OVERSHOOT, b] = max(0.0, peak[j] - 1.0) * 100.0
-                out[M_RISE, b] = (t90[j] - t10[j]) if (t10[j] >= 0 and t90[j] >= 0) else np.nan
-                if last_out[j] < n_steps - 1:
-                    out[M_SETTLE, b] = (last_out[j] + 1) * dt - tstep if last_out[j] >= 0 else 0.0
+                out[M_OVERSHOOT, b] = max(0.0, ls[F_PEAK, j] - 1.0) * 100.0
+                t10 = ls[F_T10, j]
+                t90 = ls[F_T90, j]
+                out[M_RISE, b] = (t90 - t10) if (t10 >= 0 and t90 >= 0) else np.nan
+                last = ls[F_LAST, j]
+                if last < n_steps - 1:
+                    out[M_SETTLE, b] = (last + 1) * dt - k_step[b] * dt if last >= 0 else 0.0
                 else:
                     out[M_SETTLE, b] = np.nan
             else:
                 out[M_OVERSHOOT, b] = 0.0
                 out[M_RISE, b] = np.nan
                 out[M_SETTLE, b] = np.nan
-            if not alive[j]:
-                for q in (M_IAE, M_ISE, M_ITAE, M_EFFORT, M_TV, M_LOAD, M_PEAKU):
+            if ls[F_ALIVE, j] == 0.0:
+                out[M_DIV, b] = 1.0
+                for q in (M_IAE, M_ISE, M_ITAE, M_EFFORT, M_TV, M_LOAD, M_PEAKU, M_SSE):
                     out[q, b] = np.inf
                 out[M_OVERSHOOT, b] = np.nan
                 out[M_YFIN, b] = np.nan
-                out[M_SSE, b] = np.inf
-            if not tripped[j]:
+            if ls[F_TRIP, j] == 0.0:
                 out[M_TRIPT, b] = np.nan
     return out
+
+
+def _compile(parallel: bool):
+    # A distinct function object and qualname per variant keeps numba's on-disk caches apart.
+    fn = types.FunctionType(_kernel.__code__, _kernel.__globals__, "_kernel")
+    fn.__qualname__ = "simulate_kernel_parallel" if parallel else "simulate_kernel_serial"
+    return nb.njit(cache=True, parallel=parallel, error_model="numpy", fastmath={"contract"})(fn)
+
+
+#: Parallel over chunks (large batches) and serial (small batches: no thread start-up cost).
+simulate_kernel_parallel = _compile(True)
+simulate_kernel_serial = _compile(False)
+
+
+def simulate_kernel(*args, chunk: int | None = None):
+    """Run the kernel: serially on one chunk for small batches, else in parallel over chunks."""
+    B = args[24].shape[0]  # u_op
+    if chunk is None:
+        chunk = B if B <= CHUNK else CHUNK
+    fn = simulate_kernel_parallel if B > chunk else simulate_kernel_serial
+    return fn(chunk, *args)
