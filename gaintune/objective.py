@@ -34,13 +34,14 @@ DIVERGED_COST = 1e6
 def scenario_cost(m: dict[str, np.ndarray], obj: ObjectiveSpec, sc: ScenarioSpec) -> np.ndarray:
     """Cost of one scenario's metrics (each (B,)); diverged runs get DIVERGED_COST."""
     settle = np.where(np.isnan(m["settling_time"]), sc.horizon, m["settling_time"])
-    cost = (
-        m[obj.measure]
-        + obj.effort_weight * m["effort"]
-        + obj.tv_weight * m["tv"]
-        + obj.overshoot_weight * np.maximum(0.0, np.nan_to_num(m["overshoot"]) - obj.overshoot_limit)
-        + obj.settling_weight * settle
-    )
+    with np.errstate(invalid="ignore"):  # inf * 0 weight on diverged rows; those rows are replaced below
+        cost = (
+            m[obj.measure]
+            + obj.effort_weight * m["effort"]
+            + obj.tv_weight * m["tv"]
+            + obj.overshoot_weight * np.maximum(0.0, np.nan_to_num(m["overshoot"]) - obj.overshoot_limit)
+            + obj.settling_weight * settle
+        )
     bad = m["diverged"] | ~np.isfinite(cost)
     return np.where(bad, DIVERGED_COST, np.minimum(cost, DIVERGED_COST))
 

@@ -1,0 +1,76 @@
+"""Iterative gain-tuning environment: the agent refines the gains over a few steps.
+
+The observation is the current gains (as actions in [-1, 1]) plus their
+normalised cost, margin penalty and the episode context; the action is a
+bounded multiplicative change of every tuned gain (at most a factor
+``exp(max_step * log-range / 2)`` per step). The reward is the cost
+improvement of each step, so an episode's return is the total improvement
+from the starting gains (the classical-rule centre of the bounds).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from gaintune.envs.problem import COST_CAP, GainProblem
+from gaintune.spec import TuningSpec
+
+__all__ = ["IterativeGainTuningEnv"]
+
+
+class IterativeGainTuningEnv(gym.Env):
+    """Refine gains step by step; see the module docstring for the spaces and reward."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(
+        self, spec: TuningSpec | dict, problem: GainProblem | None = None, horizon: int = 5, max_step: float = 0.25
+    ) -> None:
+        if isinstance(spec, dict):
+            spec = TuningSpec.model_validate(spec)
+        self.problem = problem or GainProblem(spec)
+        self.horizon = horizon
+        self.max_step = max_step
+        d, c = self.problem.dim, self.problem.obs_size
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (d,), dtype=np.float32)
+        self.observation_space = gym.spaces.Box(-5.0, 5.0, (d + 2 + c,), dtype=np.float32)
+        self._a = np.zeros(d)
+        self._t = 0
+        self._value = 0.0
+        self._draw = None
+        self._ctx = np.zeros(c, dtype=np.float32)
+        self._margin = 0.0
+
+    def _obs(self) -> np.ndarray:
+        return np.clip(np.concatenate([self._a, [-self._value, self._margin], self._ctx]), -5, 5).astype(np.float32)
+
+    def _evaluate(self, a: np.ndarray) -> tuple[float, dict[str, Any]]:
+        tuned = self.problem.layout.action_to_tuned(a[None])
+        s = self.problem.score(tuned, self._draw)
+        self._margin = float(s.margin_penalty[0])
+        info = {"cost": float(s.cost[0]), "diverged": bool(s.diverged[0]), "tripped": bool(s.tripped[0]),
+                "gains": self.problem.layout.to_dict(self.problem.layout.full(tuned[0]))}
+        return float(s.reward[0]), info
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        self._draw = self.problem.draws_for(self.problem.draw(self.np_random, 1))
+        self._ctx = self.problem.context(self._draw)[0]
+        self._a = np.zeros(self.problem.dim)  # the classical-rule centre of the bounds
+        self._t = 0
+        self._value, info = self._evaluate(self._a)
+        return self._obs(), info
+
+    def step(self, action: np.ndarray):
+        if self._draw is None:
+            raise RuntimeError("call reset() before step()")
+        step = self.max_step * np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
+        self._a = np.clip(self._a + step, -1.0, 1.0)
+        value, info = self._evaluate(self._a)
+        reward = float(np.clip(value - self._value, -COST_CAP, COST_CAP))
+        self._value = value
+        self._t += 1
+        return self._obs(), reward, False, self._t >= self.horizon, info

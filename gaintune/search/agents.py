@@ -1,0 +1,81 @@
+"""stable-baselines3 agents with defaults tuned for gain search.
+
+Gain search with one-step episodes is a contextual bandit: each episode is
+one gain set scored once. The defaults below follow from that:
+
+* updates after every batched call (``n_steps=1`` per env, so one rollout is
+  ``n_envs`` episodes) and several epochs on it - sample efficiency matters,
+  simulations are the budget;
+* ``gamma`` is irrelevant (episodes are one step) and the value function is a
+  baseline of the context only;
+* the policy mean starts at action 0, the classical-rule centre of the
+  log-gain bounds, with a moderate exploration std that the policy gradient
+  then shrinks (PPO), or with entropy tuning (SAC);
+* small tanh networks: with no randomisation the observation is constant and
+  the policy mean is effectively a free vector; with randomisation it is a
+  smooth function of the context.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.vec_env import VecEnv
+
+__all__ = ["ALGOS", "agent_defaults", "make_agent", "load_agent"]
+
+ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3, "a2c": A2C, "ddpg": DDPG}
+
+
+def agent_defaults(algo: str, n_envs: int, dim: int, budget_steps: int) -> dict[str, Any]:
+    """Documented default hyper-parameters per algorithm (see docs/search.md)."""
+    net = [64, 64]
+    if algo == "ppo":
+        return dict(
+            n_steps=1, batch_size=n_envs, n_epochs=10, learning_rate=1e-3, gamma=0.0, gae_lambda=1.0,
+            clip_range=0.2, ent_coef=0.0, vf_coef=0.5, max_grad_norm=0.5, normalize_advantage=True,
+            policy_kwargs=dict(net_arch=dict(pi=net, vf=net), log_std_init=-1.0, ortho_init=True),
+        )
+    if algo == "a2c":
+        return dict(
+            n_steps=1, learning_rate=3e-3, gamma=0.0, gae_lambda=1.0, ent_coef=0.0, normalize_advantage=True,
+            policy_kwargs=dict(net_arch=dict(pi=net, vf=net), log_std_init=-1.0),
+        )
+    off = dict(
+        learning_rate=1e-3, buffer_size=max(budget_steps, 1000), learning_starts=min(4 * n_envs, 256),
+        batch_size=256, gamma=0.0, tau=0.05, train_freq=1, gradient_steps=max(1, n_envs // 4),
+        policy_kwargs=dict(net_arch=net),
+    )
+    if algo == "sac":
+        off.update(ent_coef="auto", target_entropy=-float(dim) * 2.0)
+        return off
+    noise = NormalActionNoise(np.zeros(dim), 0.2 * np.ones(dim))
+    off.update(action_noise=noise)
+    if algo == "td3":
+        off.update(target_policy_noise=0.05, target_noise_clip=0.1, policy_delay=2)
+    return off
+
+
+def make_agent(algo: str, env: VecEnv, seed: int, budget_steps: int, overrides: dict[str, Any] | None = None) -> BaseAlgorithm:
+    """Build an SB3 agent on the batched env with gain-search defaults (plus ``overrides``)."""
+    cls = ALGOS[algo]
+    kw = agent_defaults(algo, env.num_envs, env.action_space.shape[0], budget_steps)
+    kw.update(overrides or {})
+    return cls("MlpPolicy", env, seed=seed, verbose=0, device="cpu", **kw)
+
+
+def load_agent(path: str | Path, env: VecEnv | None = None) -> BaseAlgorithm:
+    """Load a saved agent zip; the algorithm is read from the file name prefix or tried in turn."""
+    path = Path(path)
+    errors = []
+    for name, cls in ALGOS.items():
+        try:
+            return cls.load(path, env=env, device="cpu")
+        except Exception as exc:  # SB3 raises various errors for a mismatched algorithm class
+            errors.append(f"{name}: {type(exc).__name__}")
+    raise ValueError(f"cannot load agent {path}: " + "; ".join(errors))

@@ -1,0 +1,280 @@
+"""``tune(spec) -> TuneResult``: RL gain search with budgets, progress, early stop and a verified answer.
+
+Flow: build the :class:`~gaintune.envs.GainProblem`; train an SB3 agent on the
+batched VecEnv (every call scores ``n_envs`` gain sets in one simulator call);
+freeze the gains (deterministic policy output for the nominal context, and the
+best gains seen during training); optionally polish them with a short local
+CMA-ES (reported separately: ``rl_cost`` is the agent's own figure); verify.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+from gaintune.envs.problem import GainProblem, Scored
+from gaintune.envs.vec import BatchedGainVecEnv
+from gaintune.objective import DIVERGED_COST
+from gaintune.search.agents import load_agent, make_agent
+from gaintune.search.result import CurvePoint, Progress, Provenance, TuneResult
+from gaintune.spec import TuningSpec
+
+__all__ = ["tune", "versions", "SearchMonitor"]
+
+
+class Cancel(Protocol):
+    def is_set(self) -> bool: ...
+
+
+def versions() -> dict[str, str]:
+    """Versions of gaintune and the packages that shape its numbers."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {}
+    for pkg in ("gaintune", "numpy", "scipy", "numba", "control", "casadi", "torch", "stable-baselines3", "gymnasium"):
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            out[pkg] = "unknown"
+    return out
+
+
+class SearchMonitor:
+    """Tracks best gains, the training curve and every stop condition of a search."""
+
+    def __init__(
+        self,
+        problem: GainProblem,
+        budget: int,
+        wall_time: float | None,
+        progress: Callable[[Progress], bool | None] | None,
+        cancel: Cancel | None,
+        patience: int | None,
+    ) -> None:
+        self.problem = problem
+        self.budget = budget
+        self.wall_time = wall_time
+        self.progress = progress
+        self.cancel = cancel
+        self.patience = patience
+        self.t0 = time.perf_counter()
+        self.sims0 = problem.n_sims
+        self.best_cost = np.inf
+        self.best_tuned: np.ndarray | None = None
+        self.best_at = 0
+        self.curve: list[CurvePoint] = []
+        self.stopped = "budget"
+        self._last_report = 0.0
+
+    @property
+    def sims(self) -> int:
+        return self.problem.n_sims - self.sims0
+
+    @property
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.t0
+
+    def on_batch(self, tuned: np.ndarray, s: Scored) -> None:
+        """Record the batch's best *nominal-objective* cost (diverged/tripped runs never count as best)."""
+        ok = ~(s.diverged | s.tripped)
+        if ok.any():
+            i = int(np.argmin(np.where(ok, s.cost, np.inf)))
+            if s.cost[i] < self.best_cost * (1 - 1e-3):
+                self.best_at = self.sims
+            if s.cost[i] < self.best_cost:
+                self.best_cost = float(s.cost[i])
+                self.best_tuned = tuned[i].copy()
+        self.curve.append(CurvePoint(sims=self.sims, best_cost=float(min(self.best_cost, DIVERGED_COST)), wall_time=self.elapsed))
+        self.report()
+
+    def report(self, force: bool = False, phase: str = "search") -> None:
+        if self.progress is None:
+            return
+        now = self.elapsed
+        if not force and now - self._last_report < 0.2:
+            return
+        self._last_report = now
+        rate = self.sims / now if now > 0 else 0.0
+        eta = (self.budget - self.sims) / rate if rate > 0 else None
+        keep = self.progress(
+            Progress(sims=self.sims, budget=self.budget, best_cost=None if not np.isfinite(self.best_cost) else self.best_cost,
+                     elapsed=now, eta=eta, phase=phase)
+        )
+        if keep is False:
+            self.stopped = "cancelled"
+
+    def keep_going(self, next_batch: int) -> bool:
+        if self.stopped == "cancelled" or (self.cancel is not None and self.cancel.is_set()):
+            self.stopped = "cancelled"
+            return False
+        if self.sims + next_batch > self.budget:
+            self.stopped = "budget"
+            return False
+        if self.wall_time is not None and self.elapsed > self.wall_time:
+            self.stopped = "wall_time"
+            return False
+        if self.patience is not None and self.sims - self.best_at > self.patience:
+            self.stopped = "converged"
+            return False
+        return True
+
+
+class _StopCallback(BaseCallback):
+    def __init__(self, monitor: SearchMonitor, batch: int) -> None:
+        super().__init__()
+        self.monitor = monitor
+        self.batch = batch
+
+    def _on_step(self) -> bool:
+        return self.monitor.keep_going(self.batch)
+
+
+def _nominal_obs(problem: GainProblem) -> np.ndarray:
+    from gaintune.sim import draws as draws_mod
+
+    return problem.context(draws_mod.nominal(problem.spec, problem.plant, 1))
+
+
+def _refine(problem: GainProblem, start: np.ndarray, sims: int, seed: int) -> tuple[np.ndarray, float, int]:
+    """Local CMA-ES polish in action space around ``start``; returns (action, cost, sims used)."""
+    from cmaes import CMA
+
+    d = problem.dim
+    opt = CMA(mean=np.clip(start, -1, 1), sigma=0.05, bounds=np.tile([-1.0, 1.0], (d, 1)), seed=seed,
+              population_size=max(8, 4 + int(3 * np.log(d))))
+    ev = problem.evaluator
+    n0 = ev.n_sims
+    best_a, best_c = start, float(ev.cost_of_action(start[None])[0])
+    while ev.n_sims - n0 + opt.population_size <= sims and not opt.should_stop():
+        xs = np.array([opt.ask() for _ in range(opt.population_size)])
+        cs = ev.cost_of_action(xs)
+        opt.tell(list(zip(xs, cs)))
+        i = int(np.argmin(cs))
+        if cs[i] < best_c:
+            best_a, best_c = xs[i], float(cs[i])
+    return best_a, best_c, ev.n_sims - n0
+
+
+def tune(
+    spec: TuningSpec,
+    *,
+    progress: Callable[[Progress], bool | None] | None = None,
+    out_dir: str | Path | None = None,
+    verify: bool = True,
+    baselines: bool = False,
+    cancel: Cancel | None = None,
+    warm_start: str | Path | None = None,
+    agent_overrides: dict[str, Any] | None = None,
+    command: str = "",
+) -> TuneResult:
+    """Search the gains of ``spec`` with a stable-baselines3 agent and return the frozen, verified result.
+
+    Parameters
+    ----------
+    spec
+        The tuning problem; ``spec.search`` sets algorithm, budget, seed, parallel envs.
+    progress
+        Called with a :class:`Progress` a few times per second; return False to stop.
+    out_dir
+        When given, the agent is saved there as ``agent.zip``.
+    verify
+        Run :func:`gaintune.verify.verify` on the frozen gains (the gate).
+    baselines
+        Also score the classical rules for the report's comparison table.
+    cancel
+        An object with ``is_set()`` (e.g. ``threading.Event``) that stops the search.
+    warm_start
+        A saved agent zip: training continues from it ("learning on"). With a zero
+        budget its policy is used as is ("learning off").
+    agent_overrides
+        SB3 hyper-parameters replacing the defaults of :mod:`gaintune.search.agents`.
+    """
+    t0 = time.perf_counter()
+    s = spec.search
+    problem = GainProblem(spec)
+    per_candidate = problem.k * len(spec.scenarios)
+    n_envs = s.n_envs
+    batch = n_envs * per_candidate
+    reserve = min(int(0.1 * s.budget), 1000) if s.refine else 0
+    rl_budget = max(s.budget - reserve - 2 * per_candidate, 0)
+    monitor = SearchMonitor(problem, rl_budget, s.wall_time, progress, cancel, s.early_stop_patience)
+    env = BatchedGainVecEnv(problem, n_envs, seed=s.seed)
+    env.on_batch = monitor.on_batch
+    steps = max(rl_budget // per_candidate, n_envs)
+    if warm_start is not None:
+        agent = load_agent(warm_start, env=env)
+        agent.set_random_seed(s.seed)
+    else:
+        agent = make_agent(s.algo, env, s.seed, steps, agent_overrides)
+    if rl_budget >= batch:
+        agent.learn(total_timesteps=steps, callback=_StopCallback(monitor, batch), reset_num_timesteps=warm_start is None)
+    rl_sims = monitor.sims
+
+    # Freeze: deterministic policy output for the nominal context, and the best gains seen.
+    layout = problem.layout
+    ev = problem.evaluator
+    obs = _nominal_obs(problem)
+    policy_action = np.asarray(agent.predict(obs, deterministic=True)[0], dtype=float).reshape(-1)
+    cand = {"policy": policy_action}
+    if monitor.best_tuned is not None:
+        cand["best_seen"] = layout.tuned_to_action(monitor.best_tuned)
+    costs = {k: float(ev.cost_of_action(a[None])[0]) for k, a in cand.items()}
+    source = min(costs, key=costs.get)
+    action, rl_cost = cand[source], costs[source]
+    final_cost = rl_cost
+    refine_sims = 0
+    if s.refine and monitor.stopped != "cancelled" and reserve > 0:
+        monitor.report(force=True, phase="refine")
+        ra, rc, refine_sims = _refine(problem, action, reserve, s.seed)
+        if rc < final_cost:
+            action, final_cost, source = ra, rc, "refined"
+    full = layout.full(layout.action_to_tuned(action))
+    gains = layout.to_dict(full)
+    _, results = ev.run(layout.action_to_tuned(action)[None])
+    metrics = {
+        r.scenario: {k: (float(v[0]) if np.isfinite(v[0]) else None) for k, v in r.metrics.items()} for r in results
+    }
+    agent_path = None
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        agent.save(out / "agent.zip")
+        agent_path = str(out / "agent.zip")
+    result = TuneResult(
+        spec=spec.model_dump(mode="json"),
+        algo=s.algo,
+        gains=gains,
+        gains_source=source,
+        policy_gains=layout.to_dict(layout.full(layout.action_to_tuned(policy_action))),
+        best_seen_gains=layout.to_dict(layout.full(monitor.best_tuned)) if monitor.best_tuned is not None else None,
+        cost=final_cost,
+        rl_cost=rl_cost,
+        policy_cost=costs["policy"],
+        metrics=metrics,
+        curve=monitor.curve,
+        sims=problem.n_sims,
+        rl_sims=rl_sims,
+        wall_time=0.0,
+        stopped=monitor.stopped,
+        agent_path=agent_path,
+        provenance=Provenance(spec_hash=spec.content_hash(), seed=s.seed, versions=versions(), command=command),
+    )
+    if verify:
+        monitor.report(force=True, phase="verify")
+        from gaintune.verify import verify as verify_gains
+
+        result.verification = verify_gains(spec, gains, plant=problem.plant, layout=layout).model_dump(mode="json")
+    if baselines:
+        from gaintune.baselines import run_baseline
+
+        for method in ("simc", "amigo", "zn_step", "imc"):
+            res = run_baseline(spec, method, evaluator=ev)
+            result.baselines.append(res.model_dump(mode="json"))
+    result.wall_time = time.perf_counter() - t0
+    _ = refine_sims
+    return result
