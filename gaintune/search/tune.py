@@ -24,7 +24,7 @@ from gaintune.search.agents import load_agent, make_agent
 from gaintune.search.result import CurvePoint, Progress, Provenance, TuneResult
 from gaintune.spec import TuningSpec
 
-__all__ = ["tune", "versions", "SearchMonitor"]
+__all__ = ["tune", "policy_gains", "versions", "SearchMonitor"]
 
 
 class Cancel(Protocol):
@@ -194,14 +194,19 @@ def tune(
     agent_overrides
         SB3 hyper-parameters replacing the defaults of :mod:`gaintune.search.agents`.
     """
+    return _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_overrides, command)
+
+
+def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_overrides, command) -> TuneResult:
     t0 = time.perf_counter()
     s = spec.search
     problem = GainProblem(spec)
     per_candidate = problem.k * len(spec.scenarios)
     n_envs = s.n_envs
     batch = n_envs * per_candidate
+    # Hard budget: set-up sims already spent + RL + the 3 final evaluations + the refinement reserve.
     reserve = min(int(0.1 * s.budget), 1000) if s.refine else 0
-    rl_budget = max(s.budget - reserve - 2 * per_candidate, 0)
+    rl_budget = max(s.budget - problem.n_sims - reserve - 3 * per_candidate, 0)
     monitor = SearchMonitor(problem, rl_budget, s.wall_time, progress, cancel, s.early_stop_patience)
     env = BatchedGainVecEnv(problem, n_envs, seed=s.seed)
     env.on_batch = monitor.on_batch
@@ -230,7 +235,7 @@ def tune(
     refine_sims = 0
     if s.refine and monitor.stopped != "cancelled" and reserve > 0:
         monitor.report(force=True, phase="refine")
-        ra, rc, refine_sims = _refine(problem, action, reserve, s.seed)
+        ra, rc, refine_sims = _refine(problem, action, min(reserve, s.budget - problem.n_sims - per_candidate), s.seed)
         if rc < final_cost:
             action, final_cost, source = ra, rc, "refined"
     full = layout.full(layout.action_to_tuned(action))
@@ -278,3 +283,19 @@ def tune(
     result.wall_time = time.perf_counter() - t0
     _ = refine_sims
     return result
+
+
+def policy_gains(agent_path: str | Path, spec: TuningSpec, context: np.ndarray | None = None) -> dict[str, dict[str, float]]:
+    """"Learning off": the saved agent's deterministic gains for ``spec`` (nominal context by default).
+
+    The spec must have the same loop structure (gain layout) as the one the agent was trained on.
+    """
+    problem = GainProblem(spec)
+    agent = load_agent(agent_path)
+    obs = _nominal_obs(problem) if context is None else np.atleast_2d(context).astype(np.float32)
+    if agent.action_space.shape != (problem.dim,) or agent.observation_space.shape != obs.shape[1:]:
+        from gaintune.errors import SpecError
+
+        raise SpecError("warm_start", f"agent expects {agent.action_space.shape[0]} gains; this spec tunes {problem.dim}")
+    action = np.asarray(agent.predict(obs, deterministic=True)[0], dtype=float).reshape(-1)
+    return problem.layout.to_dict(problem.layout.full(problem.layout.action_to_tuned(action)))

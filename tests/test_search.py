@@ -1,0 +1,103 @@
+"""RL search: end-to-end tune, budgets, progress/cancel, early stop, save/load/warm start, reproducibility."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from gaintune.objective import Evaluator
+from gaintune.search import Progress, policy_gains, tune
+from gaintune.search.agents import load_agent
+from gaintune.spec import load_spec
+
+EASY = {
+    "plant": {"tf": {"num": ["K"], "den": "(s+1)^2"}, "params": {"K": 1.0}},
+    "loops": [{"type": "pi"}],
+    "scenario": {"horizon": 10, "dt": 0.02},
+    "search": {"budget": 600, "n_envs": 16, "seed": 1},
+}
+
+
+def _spec(**search):
+    data = {**EASY, "search": {**EASY["search"], **search}}
+    return load_spec(data)
+
+
+@pytest.fixture(scope="module")
+def tuned(tmp_path_factory):
+    out = tmp_path_factory.mktemp("tune")
+    seen: list[Progress] = []
+    result = tune(_spec(), out_dir=out, progress=seen.append)
+    return result, seen, out
+
+
+def test_tune_beats_a_poor_starting_guess(tuned):
+    result, _, _ = tuned
+    spec = _spec()
+    ev = Evaluator(spec)
+    poor = ev.layout.from_dict({"loop0": {"Kp": 0.05, "Ki": 0.02}})
+    poor_cost = float(ev(poor[ev.layout.tuned_idx][None])[0])
+    assert result.cost < 0.5 * poor_cost
+    # the RL figure is reported beside the refined one and is itself a clear improvement
+    assert result.rl_cost is not None and result.rl_cost < 0.6 * poor_cost
+    assert result.cost <= result.rl_cost + 1e-12
+
+
+def test_budget_progress_and_result_fields(tuned):
+    result, seen, _ = tuned
+    assert result.sims <= 600
+    sims = [p.sims for p in seen if p.phase == "search"]
+    assert sims == sorted(sims) and sims[-1] > 0
+    assert result.curve and [c.best_cost for c in result.curve] == sorted((c.best_cost for c in result.curve), reverse=True)
+    assert result.provenance.seed == 1 and result.provenance.versions["stable-baselines3"]
+    assert result.verification is not None and result.verification["verdict"] in ("pass", "fail")
+    assert set(result.gains) == {"loop0"} and set(result.gains["loop0"]) == {"Kp", "Ki"}
+    if result.verdict == "pass":
+        assert result.accepted_gains == result.gains
+    else:
+        assert result.accepted_gains is None
+
+
+def test_save_load_and_warm_start_round_trip(tuned):
+    result, _, out = tuned
+    agent_path = out / "agent.zip"
+    assert result.agent_path == str(agent_path) and agent_path.exists()
+    agent = load_agent(agent_path)
+    action = agent.predict(np.zeros((1, 1), dtype=np.float32), deterministic=True)[0]
+    spec = _spec()
+    from gaintune.envs import GainProblem
+
+    lay = GainProblem(spec).layout
+    gains = lay.to_dict(lay.full(lay.action_to_tuned(np.asarray(action).reshape(-1))))
+    assert gains["loop0"]["Kp"] == pytest.approx(result.policy_gains["loop0"]["Kp"], rel=1e-5)
+    # learning on: continue on a changed plant
+    changed = load_spec({**EASY, "plant": {**EASY["plant"], "params": {"K": 1.5}}, "search": {**EASY["search"], "budget": 200}})
+    warm = tune(changed, warm_start=agent_path, verify=False)
+    assert warm.rl_sims > 0 and warm.cost < 1e6
+    # learning off: the saved policy reused as it is
+    off = policy_gains(agent_path, _spec())
+    assert off["loop0"]["Kp"] == pytest.approx(result.policy_gains["loop0"]["Kp"], rel=1e-5)
+
+
+def test_seeded_search_is_reproducible():
+    a = tune(_spec(budget=200, refine=False), verify=False)
+    b = tune(_spec(budget=200, refine=False), verify=False)
+    assert a.gains == b.gains and a.rl_cost == b.rl_cost
+
+
+def test_cancel_and_progress_false_stop_the_search():
+    event = threading.Event()
+    event.set()
+    r = tune(_spec(budget=2000, refine=False), cancel=event, verify=False)
+    assert r.stopped == "cancelled" and r.rl_sims <= 16
+    r2 = tune(_spec(budget=2000, refine=False), progress=lambda p: False, verify=False)
+    assert r2.stopped == "cancelled" and r2.rl_sims < 2000
+
+
+def test_wall_time_and_early_stop():
+    r = tune(_spec(budget=5000, refine=False, wall_time=0.3), verify=False)
+    assert r.stopped == "wall_time" and r.rl_sims < 5000
+    r2 = tune(_spec(budget=3000, refine=False, early_stop_patience=32), verify=False)
+    assert r2.stopped == "converged" and r2.rl_sims < 3000
