@@ -1,0 +1,1 @@
+"""Benchmarks runnable as ``gaintune bench <name>`` or ``python -m gaintune.bench.<name>``."""

@@ -1,0 +1,483 @@
+"""Named benchmark suites: the problems ``gaintune bench search|compare`` run.
+
+Every problem is a complete spec dict (inline plant or ``plant: {model: ...}``
+with the model's example loops), with
+
+* stated **requirements** (checked by :func:`gaintune.verify.verify`, reported
+  as the verdict; they are not part of the cost),
+* the **objective** IAE + 0.01 int u^2 unless the problem calls for another,
+* a fixed **search budget** (at most 5,000 simulations) and ``search.n_envs`` 32,
+* a horizon/dt of at most 4,000 steps, so that the budget fits in about a minute.
+
+Benchmarks measure an optimiser against the optimum of a *deterministic*
+cost, so the built-in models' domain randomisation is dropped (the nominal
+plant is the problem). The processes follow Astrom & Hagglund, "Benchmark
+Systems for PID Control" (2000).
+
+Suites: ``default`` (10 problems), ``quick`` (3 tiny problems for tests) and
+``full`` (default plus more A&H processes and the 3-loop DC-motor cascade).
+
+>>> [p.name for p in get_suite("quick")]
+['q_lag2_pi', 'q_delay_pi', 'q_lq_msd']
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from gaintune.spec import TuningSpec, load_spec
+
+__all__ = [
+    "Problem",
+    "SUITES",
+    "MAX_BUDGET",
+    "get_suite",
+    "suite_names",
+    "select",
+    "reference_key",
+    "exact_optimum",
+]
+
+#: Largest search budget (simulations) a suite problem may set.
+MAX_BUDGET = 5000
+#: Largest number of steps (horizon / dt) of one scenario in a suite problem.
+MAX_SUITE_STEPS = 4000
+
+#: Default objective: IAE + 0.01 int u^2.
+IAE_EFFORT = {"measure": "iae", "effort_weight": 0.01}
+#: Textbook margins.
+GM_PM = {"gm_min_db": 6.0, "pm_min_deg": 45.0, "ms_max": None}
+
+
+def _ms(ms: float) -> dict[str, Any]:
+    return {"gm_min_db": None, "pm_min_deg": None, "ms_max": ms}
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One benchmark problem.
+
+    Attributes
+    ----------
+    name
+        Short identifier (used on the command line and as a table row).
+    title
+        Plant and controller in words, e.g. ``1/(s+1)^3, PID``.
+    spec
+        Complete spec dict (validated by :meth:`tuning_spec`).
+    family
+        lag, nmp, delay, oscillatory, integrating, unstable, cascade, nonlinear, lq.
+    reference
+        Options of :func:`gaintune.baselines.reference.reference_optimum`.
+    exact
+        ``"dlqr"`` when the exact optimum is known (discrete Riccati), else None.
+    note
+        Anything a reader should know (why the reference is exact or not).
+    """
+
+    name: str
+    title: str
+    spec: dict[str, Any]
+    family: str
+    reference: dict[str, Any] = field(default_factory=dict)
+    exact: str | None = None
+    note: str = ""
+
+    def tuning_spec(self, budget: int | None = None, seed: int | None = None) -> TuningSpec:
+        """The validated spec, with the search budget and seed optionally replaced."""
+        d = copy.deepcopy(self.spec)
+        d.setdefault("name", self.name)
+        s = d.setdefault("search", {})
+        if budget is not None:
+            s["budget"] = int(budget)
+        if seed is not None:
+            s["seed"] = int(seed)
+        return load_spec(d)
+
+    @property
+    def budget(self) -> int:
+        return int(self.spec.get("search", {}).get("budget", 3000))
+
+    @property
+    def requirements(self) -> dict[str, float]:
+        """The requirements that are set (None ones dropped), as the verdict checks them."""
+        req = self.tuning_spec().requirements.model_dump()
+        return {k: v for k, v in req.items() if v is not None}
+
+    def requirements_text(self) -> str:
+        names = {"gm_min_db": "GM >= {:g} dB", "pm_min_deg": "PM >= {:g} deg", "ms_max": "Ms <= {:g}",
+                 "mt_max": "Mt <= {:g}", "dm_min": "DM >= {:g} s"}
+        return ", ".join(names[k].format(v) for k, v in self.requirements.items())
+
+    def objective_text(self) -> str:
+        ob = self.tuning_spec().objective
+        txt = f"{ob.measure.upper()} + {ob.effort_weight:g} int u^2"
+        return txt
+
+
+def _tf(num: Any, den: Any, delay: float = 0.0) -> dict[str, Any]:
+    p: dict[str, Any] = {"tf": {"num": num, "den": den}}
+    if delay:
+        p["delay"] = delay
+    return p
+
+
+def _pid(kind: str = "pid", **gains: tuple[float, float]) -> list[dict[str, Any]]:
+    loop: dict[str, Any] = {"name": "main", "type": kind}
+    if gains:
+        loop["gains"] = {k: {"bounds": list(v)} for k, v in gains.items()}
+    return [loop]
+
+
+def _step(dt: float, horizon: float, **extra: Any) -> list[dict[str, Any]]:
+    sc = {"name": "step", "dt": dt, "horizon": horizon, "reference": {"kind": "step", "amplitude": 1.0, "time": 0.0}}
+    sc.update(extra)
+    return [sc]
+
+
+def _spec(plant, loops, scenarios, requirements, budget=3000, objective=None, **more) -> dict[str, Any]:
+    d = {
+        "plant": plant,
+        "loops": loops,
+        "scenarios": scenarios,
+        "objective": dict(objective or IAE_EFFORT),
+        "requirements": dict(requirements),
+        "search": {"budget": budget, "n_envs": 32},
+    }
+    d.update(more)
+    return d
+
+
+def _model(name: str, budget: int, requirements: dict[str, Any] | None = None, **edits: Any) -> dict[str, Any]:
+    """A built-in model's example spec, without randomisation, with a budget."""
+    from gaintune.plants.library import load_model
+
+    d = copy.deepcopy(load_model(name).example_spec())
+    d.pop("description", None)
+    d.pop("randomize", None)
+    if requirements is not None:
+        d["requirements"] = dict(requirements)
+    d.update(edits)
+    d["search"] = {"budget": budget, "n_envs": 32}
+    return d
+
+
+def _lq_msd(dt: float, horizon: float, budget: int) -> dict[str, Any]:
+    """Mass-spring-damper, LQR in gains mode, regulation after an input impulse, ISE + 0.01 int u^2."""
+    return {
+        "plant": {"model": "mass_spring_damper"},
+        "loops": [{
+            "name": "lqr", "measure": "position", "type": "lqr", "lq_mode": "gains",
+            "gains": {"k_x": {"bounds": [0.1, 100.0]}, "k_v": {"bounds": [0.01, 100.0]}},
+        }],
+        "scenarios": [{
+            "name": "impulse", "dt": dt, "horizon": horizon,
+            "reference": {"kind": "none"},
+            "disturbance": {"kind": "impulse", "entry": "input", "amplitude": 1.0, "time": 0.0},
+        }],
+        "objective": {"measure": "ise", "effort_weight": 0.01},
+        "requirements": dict(GM_PM),
+        "search": {"budget": budget, "n_envs": 32},
+    }
+
+
+_LQ_NOTE = (
+    "ISE + w int u^2 after a unit input impulse (x(dt) = Bd/dt, u(0) = 0) with u = -K x: the sampled cost is "
+    "x1' P x1 with the discrete Riccati P for Q = C'C dt, R = w dt on the exact ZOH model, minimised over all K by "
+    "the DARE gain for every x1. The exact optimum (up to the 10 s truncation) is that gain, scored by the simulator."
+)
+
+_REF_QUICK = {"restarts": 1, "sims_per_restart": 400, "polish": False}
+
+
+def _default() -> list[Problem]:
+    return [
+        Problem("lag3_pid", "1/(s+1)^3, PID", _spec(_tf([1], "(s+1)^3"), _pid(), _step(0.01, 20.0), _ms(2.0)), "lag"),
+        Problem(
+            "lags4_pid", "1/((1+s)(1+0.2s)(1+0.04s)(1+0.008s)), PID",
+            _spec(_tf([1], "(s+1)*(0.2*s+1)*(0.04*s+1)*(0.008*s+1)"), _pid(), _step(0.005, 10.0), _ms(2.0)), "lag",
+        ),
+        Problem("nmp_pid", "(1-2s)/(s+1)^3, PID", _spec(_tf([-2, 1], "(s+1)^3"), _pid(), _step(0.02, 40.0), GM_PM), "nmp"),
+        Problem(
+            "delay_pi", "e^{-s}/(1+0.1s), PI",
+            _spec(_tf([1], [0.1, 1], delay=1.0), _pid("pi"), _step(0.01, 20.0), _ms(1.6)), "delay",
+        ),
+        Problem(
+            "osc_pid", "4/((s+1)(s^2+0.4s+4)), PID (w0 = 2, zeta = 0.1)",
+            _spec(_tf([4], "(s+1)*(s^2+0.4*s+4)"), _pid(), _step(0.01, 30.0), _ms(2.0)), "oscillatory",
+            note="Oscillatory path: the FOTD rules do not apply, so the search box is the layout's default.",
+        ),
+        Problem(
+            "integ_pid", "e^{-s}/(s(1+0.5s)), PID, setpoint step then load step",
+            _spec(
+                _tf([1], "s*(0.5*s+1)", delay=1.0), _pid(), _step(
+                    0.02, 60.0, disturbance={"kind": "step", "entry": "input", "amplitude": -0.1, "time": 30.0}
+                ), _ms(2.0),
+            ), "integrating",
+        ),
+        Problem(
+            "unstable_pid", "1/(s^2-1), PID",
+            _spec(_tf([1], [1, 0, -1]), _pid(Kp=(1.2, 200.0), Ki=(0.01, 200.0), Kd=(0.05, 50.0)), _step(0.01, 10.0), GM_PM),
+            "unstable", note="Unstable plant: no rule applies; explicit bounds keep Kp > 1.",
+        ),
+        Problem(
+            "quadrotor_cascade", "quadrotor_axis example: angle P -> rate PID (2 loops), saturated",
+            _model("quadrotor_axis", 4000, GM_PM), "cascade",
+        ),
+        Problem(
+            "water_tank", "water_tank example (nonlinear, sqrt outflow), PI, pump 0..10 V",
+            _model("water_tank", 3000, GM_PM), "nonlinear",
+        ),
+        Problem(
+            "lq_msd", "mass_spring_damper, LQR gains k_x, k_v, impulse regulation, ISE + 0.01 int u^2",
+            _lq_msd(0.01, 10.0, 2000), "lq", exact="dlqr", note=_LQ_NOTE,
+        ),
+    ]
+
+
+def _extra() -> list[Problem]:
+    """More Astrom & Hagglund processes and the 3-loop cascade (``full`` suite only)."""
+    return [
+        Problem("lag4_pid", "1/(s+1)^4, PID", _spec(_tf([1], "(s+1)^4"), _pid(), _step(0.01, 30.0), _ms(2.0)), "lag"),
+        Problem("lag8_pid", "1/(s+1)^8, PID", _spec(_tf([1], "(s+1)^8"), _pid(), _step(0.02, 60.0), _ms(2.0)), "lag"),
+        Problem(
+            "lags_a05_pid", "1/((1+s)(1+0.5s)(1+0.25s)(1+0.125s)), PID",
+            _spec(_tf([1], "(s+1)*(0.5*s+1)*(0.25*s+1)*(0.125*s+1)"), _pid(), _step(0.01, 20.0), _ms(2.0)), "lag",
+        ),
+        Problem("nmp05_pid", "(1-0.5s)/(s+1)^3, PID", _spec(_tf([-0.5, 1], "(s+1)^3"), _pid(), _step(0.01, 30.0), GM_PM), "nmp"),
+        Problem("nmp2_pi", "(1-2s)/(s+1)^3, PI", _spec(_tf([-2, 1], "(s+1)^3"), _pid("pi"), _step(0.02, 60.0), GM_PM), "nmp"),
+        Problem(
+            "delay_fotd5_pi", "e^{-5s}/(s+1), PI",
+            _spec(_tf([1], [1, 1], delay=5.0), _pid("pi"), _step(0.05, 100.0), _ms(1.6)), "delay",
+        ),
+        Problem(
+            "delay_sotd_pid", "e^{-s}/(1+s)^2, PID",
+            _spec(_tf([1], "(s+1)^2", delay=1.0), _pid(), _step(0.01, 30.0), _ms(2.0)), "delay",
+        ),
+        Problem(
+            "osc_w1_pid", "1/((s+1)(s^2+0.2s+1)), PID (w0 = 1)",
+            _spec(_tf([1], "(s+1)*(s^2+0.2*s+1)"), _pid(), _step(0.02, 60.0), _ms(2.0)), "oscillatory",
+        ),
+        Problem(
+            "unstable_delay_pid", "e^{-0.2s}/(s-1), PID",
+            _spec(_tf([1], [1, -1], delay=0.2), _pid(Kp=(1.05, 50.0), Ki=(0.01, 50.0), Kd=(0.001, 5.0)), _step(0.01, 15.0), GM_PM),
+            "unstable",
+        ),
+        Problem(
+            "thermal_fotd", "thermal_fotd example: 2e^{-10s}/(60s+1), PI, setpoint and load scenarios",
+            _model("thermal_fotd", 3000, _ms(1.6)), "delay",
+        ),
+        Problem(
+            "dc_motor_cascade", "dc_motor example: position P -> speed PI -> current PI (3 loops)",
+            _model("dc_motor", 5000, GM_PM), "cascade",
+        ),
+    ]
+
+
+def _quick() -> list[Problem]:
+    """Three small problems with tiny budgets (tests and smoke runs)."""
+    lag = _spec(_tf([1], "(s+1)^2"), _pid("pi"), _step(0.05, 10.0), _ms(2.0), budget=160)
+    dly = _spec(_tf([1], [1, 1], delay=0.5), _pid("pi"), _step(0.05, 10.0), GM_PM, budget=160)
+    lq = _lq_msd(0.02, 8.0, 160)
+    return [
+        Problem("q_lag2_pi", "1/(s+1)^2, PI (quick)", lag, "lag", reference=dict(_REF_QUICK)),
+        Problem("q_delay_pi", "e^{-0.5s}/(s+1), PI (quick)", dly, "delay", reference=dict(_REF_QUICK)),
+        Problem("q_lq_msd", "mass_spring_damper LQR gains (quick)", lq, "lq", reference=dict(_REF_QUICK),
+                exact="dlqr", note=_LQ_NOTE),
+    ]
+
+
+SUITES: dict[str, Any] = {
+    "default": _default,
+    "quick": _quick,
+    "full": lambda: _default() + _extra(),
+}
+
+
+def suite_names() -> list[str]:
+    return list(SUITES)
+
+
+def get_suite(name: str = "default") -> list[Problem]:
+    """The problems of suite ``name``; unknown names raise ValueError listing the known ones."""
+    if name not in SUITES:
+        raise ValueError(f"unknown suite {name!r}; choose from {', '.join(SUITES)}")
+    return SUITES[name]()
+
+
+def select(problems: list[Problem], names: list[str] | None) -> list[Problem]:
+    """Keep the named problems (in the order given); unknown names raise ValueError."""
+    if not names:
+        return problems
+    by = {p.name: p for p in problems}
+    unknown = [n for n in names if n not in by]
+    if unknown:
+        raise ValueError(f"unknown problem(s) {unknown}; this suite has {', '.join(by)}")
+    return [by[n] for n in names]
+
+
+def reference_key(problem: Problem) -> str:
+    """Hash of everything the reference optimum depends on.
+
+    The spec without its name, description, search budget/seed/agent settings,
+    requirements and verification settings (none of which change the cost
+    function or the search box), plus the reference options and exactness.
+    """
+    spec = problem.tuning_spec()
+    d = spec.model_dump(mode="json")
+    for k in ("name", "description", "requirements", "verify"):
+        d.pop(k, None)
+    d["search"] = {"robust": d["search"]["robust"]}
+    d["_reference"] = {"options": problem.reference, "exact": problem.exact}
+    return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def exact_optimum(problem: Problem, evaluator) -> dict[str, Any] | None:
+    """Known exact optimum of ``problem`` as ``{"gains", "cost", "method"}``, or None.
+
+    ``dlqr``: the discrete Riccati gain for Q = C'C dt, R = effort_weight dt on
+    the exact ZOH model of the plant at the scenario's dt; the simulated cost of
+    ``u = -K x`` after an input impulse is x1' P_K x1 (x1 = Bd/dt), which that
+    gain minimises over all K for every x1 (up to the horizon truncation).
+    """
+    if problem.exact != "dlqr":
+        return None
+    from scipy.linalg import expm, solve_discrete_are
+
+    spec = problem.tuning_spec()
+    loop = spec.loops[-1]
+    sc = spec.scenarios[0]
+    lin = evaluator.plant.linearize()
+    n = lin.A.shape[0]
+    m = lin.output_index(loop.measure) if loop.measure else 0
+    M = np.zeros((n + 1, n + 1))
+    M[:n, :n] = lin.A * sc.dt
+    M[:n, n:] = lin.B * sc.dt
+    E = expm(M)
+    Ad, Bd = E[:n, :n], E[:n, n:]
+    C = lin.C[m : m + 1]
+    w = spec.objective.effort_weight
+    Q = C.T @ C * sc.dt
+    R = np.array([[w * sc.dt]])
+    P = solve_discrete_are(Ad, Bd, Q, R)
+    K = np.linalg.solve(R + Bd.T @ P @ Bd, Bd.T @ P @ Ad).ravel()
+    gains = {loop.name: {f"k_{s}": float(k) for s, k in zip(lin.states, K)}}
+    layout = evaluator.layout
+    tuned = np.asarray(layout.from_dict(gains))[layout.tuned_idx]
+    cost = float(np.asarray(evaluator(tuned[None, :])).ravel()[0])
+    x1 = Bd[:, 0] / sc.dt
+    return {
+        "gains": gains,
+        "cost": cost if math.isfinite(cost) else None,
+        "riccati_cost": float(x1 @ P @ x1),
+        "method": "dlqr (discrete Riccati on the exact ZOH model)",
+    }
+
+
+def _check_suites() -> None:
+    """Every suite problem validates, respects the budget and step limits (used by the tests)."""
+    for name in SUITES:
+        for p in get_suite(name):
+            spec = p.tuning_spec()
+            assert spec.search.budget <= MAX_BUDGET, p.name
+            for sc in spec.scenarios:
+                assert sc.n_steps <= MAX_SUITE_STEPS, (p.name, sc.n_steps)
+
+
+# ------------------------------------------------------------ reference cache
+
+
+def default_out_dir() -> "Path":
+    """``bench/results`` of the source checkout when gaintune runs from one, else ``./bench/results``."""
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[2]
+    if (repo / "bench").is_dir() and (repo / "pyproject.toml").is_file():
+        return repo / "bench" / "results"
+    return Path("bench") / "results"
+
+
+def _read_cache(path) -> dict[str, Any]:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def reference_for(
+    problem: Problem, suite: str, out_dir=None, *, refresh: bool = False, evaluator=None, log=None
+) -> dict[str, Any]:
+    """Reference optimum of ``problem``, from ``reference_<suite>.json`` in ``out_dir`` or computed and cached.
+
+    The entry is keyed by :func:`reference_key`; any ``reference_*.json`` in the
+    folder is searched, so suites sharing a problem share its reference. Returns
+    ``{"problem", "key", "cost", "gains", "source", "n_sims", "wall_time", "search": {...}, "exact": {...}|None}``:
+    ``cost`` is the best of the multistart search (``run_baseline(spec, "reference")``)
+    and, when known, the exact optimum.
+    """
+    from pathlib import Path
+
+    out = Path(out_dir) if out_dir is not None else default_out_dir()
+    key = reference_key(problem)
+    path = out / f"reference_{suite}.json"
+    if not refresh:
+        files = [path] + sorted(p for p in out.glob("reference_*.json") if p != path)
+        for f in files:
+            entry = _read_cache(f).get(key)
+            if entry is not None:
+                if f != path:
+                    _write_entry(path, key, entry)
+                return entry
+    entry = compute_reference(problem, evaluator=evaluator, log=log)
+    entry["key"] = key
+    _write_entry(path, key, entry)
+    return entry
+
+
+def _write_entry(path, key: str, entry: dict[str, Any]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = _read_cache(path)
+    data[key] = entry
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+    tmp.replace(path)
+
+
+def compute_reference(problem: Problem, *, evaluator=None, log=None) -> dict[str, Any]:
+    """Run the reference optimum (and the exact optimum when known) for ``problem``."""
+    import time
+
+    from gaintune.baselines import run_baseline
+    from gaintune.envs.problem import GainProblem
+
+    spec = problem.tuning_spec()
+    ev = evaluator if evaluator is not None else GainProblem(spec).evaluator
+    if log:
+        log(f"reference optimum of {problem.name} (cached afterwards) ...")
+    t0 = time.perf_counter()
+    r = run_baseline(spec, "reference", seed=0, evaluator=ev, **problem.reference)
+    ex = exact_optimum(problem, ev)
+    entry: dict[str, Any] = {
+        "problem": problem.name,
+        "search": {"cost": r.cost, "gains": r.gains, "n_sims": r.n_sims, "wall_time": r.wall_time,
+                   "winner": r.details.get("winner"), "options": problem.reference},
+        "exact": ex,
+    }
+    cands = [("search", r.cost, r.gains)]
+    if ex is not None:
+        cands.append(("exact", ex["cost"], ex["gains"]))
+    cands = [c for c in cands if c[1] is not None]
+    if cands:
+        src, cost, gains = min(cands, key=lambda c: c[1])
+    else:
+        src, cost, gains = "none", None, None
+    entry.update(cost=cost, gains=gains, source=src, n_sims=r.n_sims, wall_time=time.perf_counter() - t0)
+    return entry
