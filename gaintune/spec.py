@@ -156,6 +156,13 @@ class ModelRefSpec(_Model):
     name: str = Field(description="File stem in models/, e.g. 'dc_motor'.")
     params: dict[str, float] = Field(default_factory=dict, description="Overrides of the model's nominal parameters.")
 
+    @field_validator("params")
+    @classmethod
+    def _params(cls, v: dict[str, float]) -> dict[str, float]:
+        for k, x in v.items():
+            _finite(x, f"parameter {k!r}")
+        return v
+
 
 class PlantSpec(_Model):
     """Exactly one of ``tf``, ``ss``, ``ode`` or ``model``, plus delay and parameters."""
@@ -164,12 +171,14 @@ class PlantSpec(_Model):
     ss: StateSpaceSpec | None = None
     ode: OdeSpec | None = None
     model: ModelRefSpec | str | None = None
-    delay: Coef = Field(0.0, description="Input/output time delay in seconds (number or parameter expression).")
+    delay: Coef | None = Field(
+        None, description="Input/output time delay in seconds (number or parameter expression); default 0, or the model's."
+    )
     params: dict[str, float] = Field(default_factory=dict, description="Nominal parameter values.")
 
     @field_validator("delay")
     @classmethod
-    def _delay(cls, v: Coef) -> Coef:
+    def _delay(cls, v: Coef | None) -> Coef | None:
         if isinstance(v, float):
             _finite(v, "delay")
             if v < 0:

@@ -275,7 +275,7 @@ def test_minimal_spec_gets_all_defaults() -> None:
     assert not spec.randomize.active
     assert spec.search.algo == "ppo" and spec.search.budget == 3000
     assert spec.verify.pade_order is None
-    assert spec.plant.delay == 0.0 and spec.plant.params == {}
+    assert spec.plant.delay is None and spec.plant.params == {}  # None: 0 s, or the model's own delay
 
 
 def test_model_string_shorthand_becomes_reference() -> None:

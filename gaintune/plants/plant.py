@@ -87,7 +87,7 @@ class Plant:
 
     def delay(self, values: dict[str, float] | None = None) -> float:
         p = self.with_params(values)
-        d = expr.to_float(self.spec.delay, p, "plant.delay")
+        d = expr.to_float(self.spec.delay if self.spec.delay is not None else 0.0, p, "plant.delay")
         if not np.isfinite(d) or d < 0:
             raise SpecError("plant.delay", f"delay must be a finite number >= 0, got {d}")
         return d
@@ -250,7 +250,7 @@ def _resolve_model(spec: PlantSpec) -> PlantSpec:
         if k not in params:
             raise SpecError(f"plant.model.params.{k}", f"model {ref.name!r} has no parameter {k!r}; known: {', '.join(params)}")
         params[k] = v
-    delay = spec.delay if spec.delay != 0.0 else base.delay
+    delay = spec.delay if spec.delay is not None else base.delay
     return base.model_copy(update={"params": params, "delay": delay})
 
 

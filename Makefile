@@ -1,0 +1,34 @@
+# Two entry points for a fresh machine: `make demo` and `make test`.
+# Both create .venv, install torch 2.13.0 (the CPU build on this machine) first, then gaintune.
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: install demo test test-all bench clean
+
+$(STAMP): pyproject.toml
+	python3 -m venv $(VENV)
+	$(PY) -m pip install --upgrade pip
+	$(PY) -m pip install "torch==2.13.0"
+	$(PY) -m pip install -e ".[dev]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+## Tune the built-in demo loop, verify it and write result.json, report.html and exports to out/demo.
+demo: $(STAMP)
+	$(VENV)/bin/gaintune demo --out out/demo
+
+## The whole default test suite (slow tests excluded; run `make test-all` for those too).
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+test-all: $(STAMP)
+	$(PY) -m pytest -q -m ""
+
+bench: $(STAMP)
+	$(VENV)/bin/gaintune bench sim
+	$(VENV)/bin/gaintune bench verify
+
+clean:
+	rm -rf $(VENV) out .pytest_cache
