@@ -1,0 +1,54 @@
+"""Typed dependency aliases: settings, job store, supervisor, and the caller's identity (API key)."""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+from typing import Annotated
+
+from fastapi import Depends, Request, Security
+from fastapi.security import APIKeyHeader
+
+from api.problems import ApiError
+from api.settings import Settings
+from api.store import JobStore
+
+__all__ = ["SettingsDep", "StoreDep", "OwnerDep", "require_key", "owner_of", "api_key_header"]
+
+api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False, description="API key (when the server has keys configured).")
+
+
+def get_settings(request: Request) -> Settings:
+    return request.app.state.settings
+
+
+def get_store(request: Request) -> JobStore:
+    return request.app.state.store
+
+
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+StoreDep = Annotated[JobStore, Depends(get_store)]
+
+
+def owner_of(key: str | None) -> str:
+    """Stable owner id of an API key (a hash: keys are never stored)."""
+    if key is None:
+        return "anonymous"
+    return "key:" + hashlib.sha256(key.encode()).hexdigest()[:32]
+
+
+def authenticate(settings: SettingsDep, key: Annotated[str | None, Security(api_key_header)] = None) -> str:
+    """The caller's owner id; 401 when keys are configured and none (or a wrong one) is given."""
+    if not settings.api_keys:
+        return owner_of(None)
+    if key:
+        given = key.encode()
+        for k in settings.api_keys:
+            if hmac.compare_digest(k.encode(), given):
+                return owner_of(k)
+    raise ApiError(401, "Send a valid API key in the X-API-Key header.", headers={"WWW-Authenticate": "ApiKey"})
+
+
+OwnerDep = Annotated[str, Depends(authenticate)]
+#: Router-level dependency for routes that need a key but not the owner.
+require_key = Depends(authenticate)

@@ -1,0 +1,113 @@
+"""The FastAPI app: wires settings, middleware, error handlers and routers. No endpoint logic lives here.
+
+Start with ``gaintune serve --workers N`` (calls :func:`serve`), ``python -m api``
+or ``uvicorn api.main:app`` (workers from ``GAINTUNE_WORKERS``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+from fastapi.middleware.cors import CORSMiddleware
+
+from api.metrics import Metrics
+from api.middleware import BodySizeLimit, LatencyMetrics
+from api.problems import SafeJSONResponse, install_handlers
+from api.routes import jobs, ops, plants, simulate, verify
+from api.settings import Settings
+from api.store import JobStore
+from api.supervisor import Supervisor
+
+__all__ = ["create_app", "app", "serve"]
+
+log = logging.getLogger("gaintune.api")
+
+API_DESCRIPTION = """\
+Tune cascaded PID / LQ controller gains with reinforcement learning, verify them
+(stability, margins, robustness) and simulate them.
+
+* `POST /v1/tune` queues a job (the body is a gaintune spec); poll `GET /v1/jobs/{id}`.
+* `POST /v1/verify` and `POST /v1/simulate` answer synchronously.
+* Errors are RFC 7807 problems (`application/problem+json`) with field paths in `errors`.
+* Send `X-API-Key` when the server has keys configured; jobs are visible only to the key that created them.
+"""
+
+
+def _warm_up(done: threading.Event) -> None:
+    """Load the compiled simulator and verification paths once, off the event loop."""
+    try:
+        from gaintune.spec import load_spec
+        from gaintune.verify import verify
+
+        spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^2"}}, "loops": [{"type": "pi"}],
+                          "scenario": {"dt": 0.05, "horizon": 5.0}})
+        verify(spec, {"loop0": {"Kp": 1.0, "Ki": 0.5}})
+    except Exception:  # noqa: BLE001 - warm-up is an optimisation only
+        log.warning("warm-up failed", exc_info=True)
+    finally:
+        done.set()
+
+
+@asynccontextmanager
+async def lifespan(app: FastAPI):
+    settings: Settings = app.state.settings
+    store = JobStore(settings.db_path)
+    store.init()
+    settings.jobs_dir.mkdir(parents=True, exist_ok=True)
+    app.state.store = store
+    app.state.warm = threading.Event()
+    if settings.warmup:
+        threading.Thread(target=_warm_up, args=(app.state.warm,), name="warmup", daemon=True).start()
+    else:
+        app.state.warm.set()
+    sup = Supervisor(settings, store)
+    sup.start()
+    app.state.supervisor = sup
+    task = asyncio.create_task(sup.watch())
+    try:
+        yield
+    finally:
+        task.cancel()
+        sup.stop()
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the app. ``settings`` default: from the environment (``GAINTUNE_*``, ``.env``)."""
+    settings = settings or Settings()
+    app = FastAPI(
+        title="gaintune API",
+        version="1.0.0",
+        description=API_DESCRIPTION,
+        lifespan=lifespan,
+        default_response_class=SafeJSONResponse,
+    )
+    app.state.settings = settings
+    app.state.metrics = Metrics()
+    app.state.supervisor = None
+    app.state.verify_cache = None
+    install_handlers(app)
+    for r in (jobs.router, verify.router, simulate.router, plants.router, ops.router):
+        app.include_router(r)
+    if settings.cors_origins:
+        app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
+                           allow_headers=["*"], expose_headers=["Location", "Retry-After"])
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(LatencyMetrics, metrics=app.state.metrics)
+    return app
+
+
+app = create_app()
+
+
+def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1, *, log_level: str | None = None) -> None:
+    """Run the API with uvicorn and ``workers`` job worker processes (other settings from the environment)."""
+    import uvicorn
+
+    settings = Settings(workers=workers)
+    logging.basicConfig(level=(log_level or settings.log_level).upper(),
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    uvicorn.run(create_app(settings), host=host, port=port, log_level=log_level or settings.log_level)

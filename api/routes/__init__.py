@@ -1,0 +1,1 @@
+"""One router per resource: jobs (and POST /v1/tune), verify, simulate, plants, ops (health, metrics)."""

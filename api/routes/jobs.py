@@ -1,0 +1,236 @@
+"""Tuning jobs: ``POST /v1/tune`` queues one; ``/v1/jobs`` lists, reads, cancels and serves their artifacts."""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Body, Header, Query, Response
+from fastapi.responses import FileResponse, HTMLResponse
+
+from api.artifacts import EXPORT_MEDIA, export_gains, render_report
+from api.deps import OwnerDep, SettingsDep, StoreDep
+from api.jsonbody import StrictJSONRoute
+from api.problems import ApiError
+from api.schemas import ExportFormat, JobList, JobPublic, JobResultPublic, JobStatus, JobSummary, ProgressPublic
+from api.store import IdempotencyConflict, JobRow, QueueFull, loads
+from api.validation import check_spec
+from gaintune.spec import TuningSpec
+
+router = APIRouter(prefix="/v1", tags=["jobs"], route_class=StrictJSONRoute)
+
+_PROBLEM = {"content": {"application/problem+json": {}}}
+NOT_FOUND = {404: {"description": "No such job (for this API key).", **_PROBLEM}}
+
+
+def _ts(x: float | None) -> datetime | None:
+    return None if x is None else datetime.fromtimestamp(x, tz=timezone.utc)
+
+
+def _progress(row: JobRow) -> ProgressPublic | None:
+    p = loads(row.progress)
+    if not p:
+        return None
+    budget = int(p.get("budget") or 0)
+    sims = int(p.get("sims") or 0)
+    return ProgressPublic(
+        sims=sims, budget=budget, fraction=min(1.0, sims / budget) if budget else 0.0, best_cost=p.get("best_cost"),
+        elapsed=float(p.get("elapsed") or 0.0), eta=p.get("eta"), phase=str(p.get("phase") or "search"),
+    )
+
+
+def _agent_file(row: JobRow, result: dict[str, Any], jobs_dir: Path) -> Path | None:
+    path = result.get("agent_path")
+    if not path:
+        return None
+    p = Path(path).resolve()
+    root = (jobs_dir / row.id).resolve()
+    if root not in p.parents or not p.is_file():
+        return None
+    return p
+
+
+def _summary_fields(row: JobRow) -> dict[str, Any]:
+    return dict(
+        id=row.id, status=row.status, spec_name=row.spec_name, spec_hash=row.spec_hash,
+        created_at=_ts(row.created_at), updated_at=_ts(row.updated_at), started_at=_ts(row.started_at),
+        finished_at=_ts(row.finished_at), progress=_progress(row), cancel_requested=row.cancel_requested_at is not None,
+        attempts=row.attempts, error=row.error,
+    )
+
+
+def to_public(row: JobRow, jobs_dir: Path) -> JobPublic:
+    base = f"/v1/jobs/{row.id}"
+    links = {"self": base}
+    result = None
+    r = loads(row.result)
+    if r is not None:
+        verification = r.get("verification")
+        verdict = verification.get("verdict") if isinstance(verification, dict) else None
+        agent = _agent_file(row, r, jobs_dir) is not None
+        result = JobResultPublic(
+            verdict=verdict, accepted_gains=r.get("gains") if verdict == "pass" else None, algo=r.get("algo", ""),
+            cost=r.get("cost"), rl_cost=r.get("rl_cost"), policy_cost=r.get("policy_cost"),
+            gains_source=str(r.get("gains_source", "")), sims=int(r.get("sims", 0)), rl_sims=int(r.get("rl_sims", 0)),
+            wall_time=float(r.get("wall_time", 0.0)), stopped=str(r.get("stopped", "")), metrics=r.get("metrics") or {},
+            curve=r.get("curve") or [], verification=verification, baselines=r.get("baselines") or [],
+            provenance=r.get("provenance") or {}, agent_available=agent,
+        )
+        links.update(report=f"{base}/report", export=f"{base}/export?format=json")
+        if agent:
+            links["agent"] = f"{base}/agent"
+    return JobPublic(**_summary_fields(row), result=result, links=links)
+
+
+def _get(store, job_id: str, owner: str) -> JobRow:
+    row = store.get(job_id, owner)
+    if row is None:
+        raise ApiError(404, f"No job {job_id!r}.")
+    return row
+
+
+@router.post(
+    "/tune",
+    status_code=202,
+    response_model=JobPublic,
+    summary="Queue a tuning job",
+    responses={
+        202: {"description": "Accepted; poll the URL in the Location header."},
+        409: {"description": "Idempotency-Key reused with a different spec.", **_PROBLEM},
+        413: {"description": "Body too large.", **_PROBLEM},
+        422: {"description": "Invalid spec (field paths in `errors`).", **_PROBLEM},
+        503: {"description": "Queue full; retry after Retry-After seconds.", **_PROBLEM},
+    },
+)
+def submit_tune(
+    spec: Annotated[TuningSpec, Body(description="The tuning problem (gaintune spec schema).")],
+    response: Response,
+    settings: SettingsDep,
+    store: StoreDep,
+    owner: OwnerDep,
+    idempotency_key: Annotated[str | None, Header(alias="Idempotency-Key", max_length=200)] = None,
+) -> JobPublic:
+    """Validate the spec fully (schema, limits, plant build, names, gain layout) and queue it.
+
+    A retried request with the same ``Idempotency-Key`` (per API key) returns the same job.
+    """
+    check_spec(spec, settings, "tune")
+    try:
+        row, created = store.create(owner, spec.model_dump_json(), spec.content_hash(), spec.name,
+                                    idem_key=idempotency_key, max_queue=settings.max_queue)
+    except QueueFull:
+        raise ApiError(503, f"The job queue is full ({settings.max_queue} jobs); retry later.",
+                       headers={"Retry-After": str(settings.retry_after)}) from None
+    except IdempotencyConflict as exc:
+        raise ApiError(409, f"Idempotency-Key was already used for job {exc.args[0]} with a different spec.") from None
+    response.headers["Location"] = f"/v1/jobs/{row.id}"
+    if not created:
+        response.headers["Idempotent-Replayed"] = "true"
+    return to_public(row, settings.jobs_dir)
+
+
+@router.get("/jobs", response_model=JobList, summary="List your jobs (newest first)")
+def list_jobs(
+    settings: SettingsDep,
+    store: StoreDep,
+    owner: OwnerDep,
+    status: JobStatus | None = None,
+    limit: Annotated[int, Query(ge=1, le=200)] = 50,
+    offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
+) -> JobList:
+    rows, total = store.list(owner, status, limit, offset)
+    items = [JobSummary(**_summary_fields(r)) for r in rows]
+    nxt = offset + len(rows) if offset + len(rows) < total else None
+    return JobList(items=items, total=total, limit=limit, offset=offset, next_offset=nxt)
+
+
+@router.get("/jobs/{job_id}", response_model=JobPublic, responses=NOT_FOUND, summary="Status, progress and result")
+def get_job(job_id: str, settings: SettingsDep, store: StoreDep, owner: OwnerDep) -> JobPublic:
+    """Status and progress; once finished, the result: accepted gains (only on a `pass` verdict),
+    verification report, metrics, training curve and provenance."""
+    return to_public(_get(store, job_id, owner), settings.jobs_dir)
+
+
+@router.delete(
+    "/jobs/{job_id}",
+    response_model=JobPublic,
+    responses={**NOT_FOUND, 202: {"description": "Cancellation requested; the running search stops within seconds."},
+               409: {"description": "The job already finished.", **_PROBLEM}},
+    summary="Cancel a job",
+)
+def cancel_job(job_id: str, response: Response, settings: SettingsDep, store: StoreDep, owner: OwnerDep) -> JobPublic:
+    """Queued jobs are cancelled at once (200); running ones are signalled (202) and stop within
+    ``cancel_grace`` seconds."""
+    before = _get(store, job_id, owner)
+    if before.status in ("succeeded", "failed", "cancelled"):
+        raise ApiError(409, f"Job {job_id} already finished ({before.status}).")
+    row = store.request_cancel(job_id, owner)
+    if row is None:
+        raise ApiError(404, f"No job {job_id!r}.")
+    if row.status == "running":
+        response.status_code = 202
+    return to_public(row, settings.jobs_dir)
+
+
+def _finished_result(row: JobRow) -> dict[str, Any]:
+    r = loads(row.result)
+    if r is None:
+        raise ApiError(409, f"Job {row.id} has no result (status: {row.status}).")
+    return r
+
+
+def _tune_result(r: dict[str, Any]):
+    from gaintune.search.result import TuneResult
+
+    return TuneResult.model_validate(r)
+
+
+@router.get("/jobs/{job_id}/report", response_class=HTMLResponse, summary="HTML report of a finished job",
+            responses={**NOT_FOUND, 409: {"description": "No result yet.", **_PROBLEM},
+                       501: {"description": "Reports not installed.", **_PROBLEM}})
+def job_report(job_id: str, settings: SettingsDep, store: StoreDep, owner: OwnerDep) -> Response:
+    row = _get(store, job_id, owner)
+    r = _finished_result(row)
+    path = settings.jobs_dir / row.id / "report.html"
+    if not path.is_file():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp.html")
+        out = render_report(_tune_result(r), tmp)
+        Path(out).replace(path)
+    return FileResponse(path, media_type="text/html; charset=utf-8")
+
+
+@router.get("/jobs/{job_id}/agent", summary="Trained SB3 agent (zip)",
+            responses={**NOT_FOUND, 200: {"content": {"application/zip": {}}},
+                       409: {"description": "No result or no saved agent.", **_PROBLEM}})
+def job_agent(job_id: str, settings: SettingsDep, store: StoreDep, owner: OwnerDep) -> Response:
+    row = _get(store, job_id, owner)
+    r = _finished_result(row)
+    path = _agent_file(row, r, settings.jobs_dir)
+    if path is None:
+        raise ApiError(409, f"Job {job_id} saved no agent.")
+    return FileResponse(path, media_type="application/zip", filename=f"agent_{row.id}.zip")
+
+
+@router.get("/jobs/{job_id}/export", summary="Gains exported as json, yaml, C or MATLAB",
+            responses={**NOT_FOUND, 409: {"description": "No result, or verification did not pass.", **_PROBLEM},
+                       501: {"description": "Exports not installed.", **_PROBLEM}})
+def job_export(
+    job_id: str,
+    settings: SettingsDep,
+    store: StoreDep,
+    owner: OwnerDep,
+    format: ExportFormat = "json",
+    allow_unverified: Annotated[bool, Query(description="Export gains whose verification did not pass.")] = False,
+) -> Response:
+    row = _get(store, job_id, owner)
+    r = _finished_result(row)
+    verdict = (r.get("verification") or {}).get("verdict")
+    if verdict != "pass" and not allow_unverified:
+        raise ApiError(409, f"Job {job_id}'s gains were not accepted (verdict: {verdict}); "
+                            "pass allow_unverified=true to export them anyway.")
+    text = export_gains(_tune_result(r), format)
+    media, ext = EXPORT_MEDIA[format]
+    return Response(content=text, media_type=media,
+                    headers={"Content-Disposition": f'attachment; filename="gains_{row.id}.{ext}"'})

@@ -1,0 +1,171 @@
+"""Request and response models (schema families per resource). The spec itself is ``gaintune.spec.TuningSpec``."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from gaintune.spec import TuningSpec
+
+__all__ = [
+    "Gains", "JobStatus", "ProgressPublic", "JobResultPublic", "JobPublic", "JobSummary", "JobList",
+    "VerifyRequest", "SimulateRequest", "ScenarioTrace", "SimulateResponse",
+    "ParamPublic", "SignalPublic", "PlantPublic", "PlantList", "Health", "Ready", "ExportFormat",
+]
+
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+#: ``{loop_name: {gain_name: value}}``
+Gains = dict[str, dict[str, FiniteFloat]]
+JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+ExportFormat = Literal["json", "yaml", "c", "matlab"]
+#: A number, or "Infinity"/"-Infinity"/"NaN" for non-finite figures (JSON has no such numbers).
+Num = float | str | None
+
+
+class _In(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+# ------------------------------------------------------------------ jobs
+
+
+class ProgressPublic(BaseModel):
+    sims: int = Field(description="Simulations done.")
+    budget: int = Field(description="Simulation budget of the search.")
+    fraction: float = Field(description="sims / budget, in [0, 1].")
+    best_cost: Num = Field(None, description="Best cost found so far.")
+    elapsed: float = Field(0.0, description="Seconds since the search started.")
+    eta: float | None = Field(None, description="Estimated seconds left.")
+    phase: str = "search"
+
+
+class JobResultPublic(BaseModel):
+    """The outcome of a finished search. ``accepted_gains`` is set only when verification passed."""
+
+    verdict: Literal["pass", "fail"] | None = Field(description="Verification verdict (null: not verified).")
+    accepted_gains: dict[str, dict[str, float]] | None = Field(
+        description="The tuned gains, present ONLY when the verification verdict is pass."
+    )
+    algo: str
+    cost: Num
+    rl_cost: Num = None
+    policy_cost: Num = None
+    gains_source: str
+    sims: int
+    rl_sims: int = 0
+    wall_time: float
+    stopped: str
+    metrics: dict[str, dict[str, Any]] = Field(default_factory=dict, description="Per-scenario metrics of the gains.")
+    curve: list[dict[str, Any]] = Field(default_factory=list, description="Training curve: best cost vs simulations.")
+    verification: dict[str, Any] | None = Field(None, description="The full VerificationReport.")
+    baselines: list[dict[str, Any]] = Field(default_factory=list)
+    provenance: dict[str, Any] = Field(description="spec_hash, seed, versions.")
+    agent_available: bool = Field(description="GET /v1/jobs/{id}/agent serves the trained SB3 agent.")
+
+
+class JobSummary(BaseModel):
+    id: str
+    status: JobStatus
+    spec_name: str
+    spec_hash: str
+    created_at: datetime
+    updated_at: datetime
+    started_at: datetime | None = None
+    finished_at: datetime | None = None
+    progress: ProgressPublic | None = None
+    cancel_requested: bool = False
+    attempts: int = Field(0, description="Times a worker started this job (>1 after recovery).")
+    error: str | None = Field(None, description="Why the job failed, was cancelled or re-queued.")
+
+
+class JobPublic(JobSummary):
+    result: JobResultPublic | None = None
+    links: dict[str, str] = Field(default_factory=dict)
+
+
+class JobList(BaseModel):
+    items: list[JobSummary]
+    total: int
+    limit: int
+    offset: int
+    next_offset: int | None = Field(description="Offset of the next page, null on the last page.")
+
+
+# ---------------------------------------------------------- verify/sim
+
+
+class VerifyRequest(_In):
+    spec: TuningSpec
+    gains: Gains = Field(description="{loop_name: {gain_name: value}}; fixed gains may be omitted.")
+    robust: bool | None = Field(None, description="Check the randomisation set; default: when the spec randomises.")
+    nonlinear: bool = Field(True, description="Run the nonlinear simulation check.")
+
+
+class SimulateRequest(_In):
+    spec: TuningSpec
+    gains: Gains
+    max_points: int = Field(2000, ge=2, le=1_000_000, description="Most points per trace (capped by the server).")
+    scenarios: list[str] | None = Field(None, max_length=64, description="Scenario names to run; default all.")
+
+
+class ScenarioTrace(BaseModel):
+    name: str
+    dt: float
+    n_steps: int
+    stride: int = Field(description="Every stride-th sample is returned (plus the last one).")
+    t: list[float]
+    traces: dict[str, list[Num]] = Field(description="y.<loop>, sp.<loop> per loop, and u.")
+    metrics: dict[str, Num | bool]
+
+
+class SimulateResponse(BaseModel):
+    gains: dict[str, dict[str, float]]
+    max_points: int
+    scenarios: list[ScenarioTrace]
+
+
+# -------------------------------------------------------------- plants
+
+
+class ParamPublic(BaseModel):
+    value: float
+    unit: str
+    description: str
+
+
+class SignalPublic(BaseModel):
+    unit: str
+    description: str
+
+
+class PlantPublic(BaseModel):
+    name: str
+    title: str
+    description: str
+    parameters: dict[str, ParamPublic]
+    input: SignalPublic
+    outputs: dict[str, SignalPublic]
+    order: int | None = Field(None, description="State dimension of the nominal plant.")
+    plant: dict[str, Any] = Field(description="The plant section, in the spec schema.")
+    example_spec: dict[str, Any] = Field(description="A complete spec using this model, tunable as is.")
+
+
+class PlantList(BaseModel):
+    items: list[PlantPublic]
+
+
+# ------------------------------------------------------------- health
+
+
+class Health(BaseModel):
+    status: Literal["ok"] = "ok"
+
+
+class Ready(BaseModel):
+    status: Literal["ready", "not_ready"]
+    database: bool
+    workers_alive: int
+    workers_configured: int
+    queue_depth: int

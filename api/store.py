@@ -1,0 +1,320 @@
+"""Durable job store on SQLite (WAL, synchronous=FULL): jobs, progress and results.
+
+Every state change is one short transaction, so a crash (``kill -9``) of the
+server or a worker never loses an accepted job or a written result. A worker
+owns a running job through a random ``claim`` token: all its writes are
+conditional on the token, so a job that was recovered (re-queued or failed)
+after its worker was presumed dead can never be overwritten by that worker.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sqlite3
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable
+
+__all__ = ["JobRow", "JobStore", "QueueFull", "IdempotencyConflict", "STATUSES", "TERMINAL", "dumps", "loads"]
+
+STATUSES = ("queued", "running", "succeeded", "failed", "cancelled")
+TERMINAL = ("succeeded", "failed", "cancelled")
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS jobs (
+    seq INTEGER PRIMARY KEY AUTOINCREMENT,
+    id TEXT NOT NULL UNIQUE,
+    owner TEXT NOT NULL,
+    idem_key TEXT,
+    status TEXT NOT NULL,
+    spec TEXT NOT NULL,
+    spec_hash TEXT NOT NULL,
+    spec_name TEXT NOT NULL,
+    created_at REAL NOT NULL,
+    updated_at REAL NOT NULL,
+    started_at REAL,
+    finished_at REAL,
+    progress TEXT,
+    result TEXT,
+    error TEXT,
+    cancel_requested_at REAL,
+    claim TEXT,
+    worker_pid INTEGER,
+    heartbeat_at REAL,
+    attempts INTEGER NOT NULL DEFAULT 0
+);
+CREATE UNIQUE INDEX IF NOT EXISTS jobs_idem ON jobs(owner, idem_key) WHERE idem_key IS NOT NULL;
+CREATE INDEX IF NOT EXISTS jobs_status ON jobs(status, seq);
+CREATE INDEX IF NOT EXISTS jobs_owner ON jobs(owner, seq);
+"""
+
+
+def dumps(obj: Any) -> str:
+    """JSON with non-finite floats kept (Infinity/NaN literals): lossless storage of results."""
+    return json.dumps(obj, allow_nan=True, separators=(",", ":"))
+
+
+def loads(text: str | None) -> Any:
+    return None if text is None else json.loads(text)
+
+
+class QueueFull(Exception):
+    """The queue holds ``max_queue`` jobs already."""
+
+
+class IdempotencyConflict(Exception):
+    """An Idempotency-Key was reused with a different request body."""
+
+
+@dataclass(frozen=True)
+class JobRow:
+    id: str
+    owner: str
+    idem_key: str | None
+    status: str
+    spec: str
+    spec_hash: str
+    spec_name: str
+    created_at: float
+    updated_at: float
+    started_at: float | None
+    finished_at: float | None
+    progress: str | None
+    result: str | None
+    error: str | None
+    cancel_requested_at: float | None
+    claim: str | None
+    worker_pid: int | None
+    heartbeat_at: float | None
+    attempts: int
+
+    @classmethod
+    def from_row(cls, row: sqlite3.Row) -> "JobRow":
+        return cls(**{k: row[k] for k in cls.__dataclass_fields__})
+
+
+_COLS = ", ".join(JobRow.__dataclass_fields__)
+
+
+class JobStore:
+    """Jobs in one SQLite file. Safe to use from many threads and processes."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._local = threading.local()
+
+    # ------------------------------------------------------------ plumbing
+    def _conn(self) -> sqlite3.Connection:
+        conn = getattr(self._local, "conn", None)
+        if conn is None or getattr(self._local, "pid", None) != os.getpid():
+            conn = sqlite3.connect(self.path, timeout=30.0, isolation_level=None, check_same_thread=False)
+            conn.row_factory = sqlite3.Row
+            conn.execute("PRAGMA busy_timeout=30000")
+            conn.execute("PRAGMA synchronous=FULL")
+            self._local.conn = conn
+            self._local.pid = os.getpid()
+        return conn
+
+    def _tx(self):
+        return _Tx(self._conn())
+
+    def init(self) -> None:
+        """Create the file, schema and WAL mode."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        conn = self._conn()
+        conn.execute("PRAGMA journal_mode=WAL")
+        conn.executescript(_SCHEMA)
+
+    def ping(self) -> None:
+        self._conn().execute("SELECT 1").fetchone()
+
+    # -------------------------------------------------------------- create
+    def create(
+        self, owner: str, spec_json: str, spec_hash: str, spec_name: str, *, idem_key: str | None, max_queue: int
+    ) -> tuple[JobRow, bool]:
+        """Queue a job. Returns (job, created); an existing job for the same idempotency key is returned as is.
+
+        Raises QueueFull or IdempotencyConflict.
+        """
+        with self._tx() as c:
+            if idem_key is not None:
+                row = c.execute(f"SELECT {_COLS} FROM jobs WHERE owner=? AND idem_key=?", (owner, idem_key)).fetchone()
+                if row is not None:
+                    if row["spec_hash"] != spec_hash:
+                        raise IdempotencyConflict(row["id"])
+                    return JobRow.from_row(row), False
+            (queued,) = c.execute("SELECT COUNT(*) FROM jobs WHERE status='queued'").fetchone()
+            if queued >= max_queue:
+                raise QueueFull()
+            now = time.time()
+            job_id = uuid.uuid4().hex
+            c.execute(
+                "INSERT INTO jobs (id, owner, idem_key, status, spec, spec_hash, spec_name, created_at, updated_at)"
+                " VALUES (?, ?, ?, 'queued', ?, ?, ?, ?, ?)",
+                (job_id, owner, idem_key, spec_json, spec_hash, spec_name, now, now),
+            )
+            row = c.execute(f"SELECT {_COLS} FROM jobs WHERE id=?", (job_id,)).fetchone()
+            return JobRow.from_row(row), True
+
+    # --------------------------------------------------------------- read
+    def get(self, job_id: str, owner: str | None = None) -> JobRow | None:
+        q = f"SELECT {_COLS} FROM jobs WHERE id=?"
+        args: tuple = (job_id,)
+        if owner is not None:
+            q += " AND owner=?"
+            args += (owner,)
+        row = self._conn().execute(q, args).fetchone()
+        return None if row is None else JobRow.from_row(row)
+
+    def list(self, owner: str, status: str | None, limit: int, offset: int) -> tuple[list[JobRow], int]:
+        where = "owner=?"
+        args: list[Any] = [owner]
+        if status is not None:
+            where += " AND status=?"
+            args.append(status)
+        conn = self._conn()
+        (total,) = conn.execute(f"SELECT COUNT(*) FROM jobs WHERE {where}", args).fetchone()
+        rows = conn.execute(
+            f"SELECT {_COLS} FROM jobs WHERE {where} ORDER BY seq DESC LIMIT ? OFFSET ?", [*args, limit, offset]
+        ).fetchall()
+        return [JobRow.from_row(r) for r in rows], total
+
+    def counts(self) -> dict[str, int]:
+        out = {s: 0 for s in STATUSES}
+        for status, n in self._conn().execute("SELECT status, COUNT(*) FROM jobs GROUP BY status"):
+            out[status] = n
+        return out
+
+    def running(self) -> list[JobRow]:
+        rows = self._conn().execute(f"SELECT {_COLS} FROM jobs WHERE status='running'").fetchall()
+        return [JobRow.from_row(r) for r in rows]
+
+    # -------------------------------------------------------------- cancel
+    def request_cancel(self, job_id: str, owner: str) -> JobRow | None:
+        """Queued -> cancelled at once; running -> flagged for its worker. Terminal jobs are left alone."""
+        now = time.time()
+        with self._tx() as c:
+            c.execute(
+                "UPDATE jobs SET status='cancelled', finished_at=?, updated_at=?, cancel_requested_at=?,"
+                " error='cancelled before it started' WHERE id=? AND owner=? AND status='queued'",
+                (now, now, now, job_id, owner),
+            )
+            c.execute(
+                "UPDATE jobs SET cancel_requested_at=?, updated_at=? WHERE id=? AND owner=? AND status='running'"
+                " AND cancel_requested_at IS NULL",
+                (now, now, job_id, owner),
+            )
+            row = c.execute(f"SELECT {_COLS} FROM jobs WHERE id=? AND owner=?", (job_id, owner)).fetchone()
+        return None if row is None else JobRow.from_row(row)
+
+    # -------------------------------------------------------------- worker
+    def claim(self, pid: int) -> JobRow | None:
+        """Take the oldest queued job (atomically) for worker ``pid``."""
+        now = time.time()
+        token = uuid.uuid4().hex
+        with self._tx() as c:
+            row = c.execute("SELECT id FROM jobs WHERE status='queued' ORDER BY seq LIMIT 1").fetchone()
+            if row is None:
+                return None
+            c.execute(
+                "UPDATE jobs SET status='running', claim=?, worker_pid=?, started_at=?, heartbeat_at=?, updated_at=?,"
+                " attempts=attempts+1, error=NULL WHERE id=?",
+                (token, pid, now, now, now, row["id"]),
+            )
+            row = c.execute(f"SELECT {_COLS} FROM jobs WHERE id=?", (row["id"],)).fetchone()
+            return JobRow.from_row(row)
+
+    def heartbeat(self, job_id: str, claim: str, progress: dict | None) -> tuple[bool, bool]:
+        """Record progress. Returns (still_owned, cancel_requested)."""
+        now = time.time()
+        conn = self._conn()
+        if progress is not None:
+            cur = conn.execute(
+                "UPDATE jobs SET heartbeat_at=?, updated_at=?, progress=? WHERE id=? AND claim=? AND status='running'",
+                (now, now, dumps(progress), job_id, claim),
+            )
+        else:
+            cur = conn.execute(
+                "UPDATE jobs SET heartbeat_at=? WHERE id=? AND claim=? AND status='running'", (now, job_id, claim)
+            )
+        if cur.rowcount == 0:
+            return False, True
+        row = conn.execute("SELECT cancel_requested_at FROM jobs WHERE id=?", (job_id,)).fetchone()
+        return True, row is not None and row[0] is not None
+
+    def finish(
+        self,
+        job_id: str,
+        claim: str | None,
+        status: str,
+        *,
+        result: dict | None = None,
+        error: str | None = None,
+        progress: dict | None = None,
+    ) -> bool:
+        """Write the final state (conditional on the claim unless ``claim`` is None)."""
+        assert status in TERMINAL
+        now = time.time()
+        sets = "status=?, finished_at=?, updated_at=?, result=COALESCE(?, result), error=?, progress=COALESCE(?, progress), claim=NULL"
+        args: list[Any] = [status, now, now, None if result is None else dumps(result), error,
+                           None if progress is None else dumps(progress)]
+        q = f"UPDATE jobs SET {sets} WHERE id=? AND status='running'"
+        args.append(job_id)
+        if claim is not None:
+            q += " AND claim=?"
+            args.append(claim)
+        cur = self._conn().execute(q, args)
+        return cur.rowcount == 1
+
+    # ------------------------------------------------------------ recovery
+    def recover(self, job_ids: Iterable[str], policy: str, reason: str, max_attempts: int) -> list[str]:
+        """Re-queue (or fail) running jobs whose worker is gone. Returns the ids changed."""
+        changed = []
+        now = time.time()
+        with self._tx() as c:
+            for job_id in job_ids:
+                row = c.execute("SELECT status, attempts, cancel_requested_at FROM jobs WHERE id=?", (job_id,)).fetchone()
+                if row is None or row["status"] != "running":
+                    continue
+                if row["cancel_requested_at"] is not None:
+                    c.execute(
+                        "UPDATE jobs SET status='cancelled', finished_at=?, updated_at=?, claim=NULL, error=? WHERE id=?",
+                        (now, now, f"cancelled ({reason})", job_id),
+                    )
+                elif policy == "requeue" and row["attempts"] < max_attempts:
+                    c.execute(
+                        "UPDATE jobs SET status='queued', claim=NULL, worker_pid=NULL, started_at=NULL, updated_at=?,"
+                        " error=? WHERE id=?",
+                        (now, f"re-queued: {reason}", job_id),
+                    )
+                else:
+                    why = reason if policy == "fail" else f"{reason}; gave up after {row['attempts']} attempt(s)"
+                    c.execute(
+                        "UPDATE jobs SET status='failed', finished_at=?, updated_at=?, claim=NULL, error=? WHERE id=?",
+                        (now, now, f"interrupted: {why}", job_id),
+                    )
+                changed.append(job_id)
+        return changed
+
+
+class _Tx:
+    """BEGIN IMMEDIATE ... COMMIT (ROLLBACK on error)."""
+
+    def __init__(self, conn: sqlite3.Connection) -> None:
+        self.conn = conn
+
+    def __enter__(self) -> sqlite3.Connection:
+        self.conn.execute("BEGIN IMMEDIATE")
+        return self.conn
+
+    def __exit__(self, et, ev, tb) -> None:
+        self.conn.execute("COMMIT" if et is None else "ROLLBACK")
+
+
+def finite_or_none(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else x

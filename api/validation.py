@@ -1,0 +1,111 @@
+"""Semantic validation of a spec before it is accepted: service limits, plant build, name checks, gain layout.
+
+Everything that would otherwise fail later in a worker (``build_plant``,
+``validate_against_plant``, ``GainLayout``, the simulator set-up) runs here,
+synchronously, and becomes a 422 problem naming the field.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from pydantic import ValidationError
+
+from api.problems import ApiError
+from api.settings import Settings
+from gaintune.errors import GaintuneError, problem_details
+from gaintune.spec import TuningSpec
+
+__all__ = ["Checked", "check_spec", "nonfinite_paths", "invalid"]
+
+log = logging.getLogger("gaintune.api")
+
+Purpose = Literal["tune", "verify", "simulate"]
+
+
+@dataclass
+class Checked:
+    spec: TuningSpec
+    plant: Any
+    layout: Any
+
+
+def invalid(errors: list[dict[str, Any]], detail: str = "The spec is invalid.") -> ApiError:
+    return ApiError(422, detail, errors=errors)
+
+
+def nonfinite_paths(obj: Any, prefix: str = "") -> list[str]:
+    """Paths of NaN/inf floats anywhere in a dumped model."""
+    out: list[str] = []
+    stack: list[tuple[Any, str]] = [(obj, prefix)]
+    while stack:
+        node, path = stack.pop()
+        if isinstance(node, float) and not math.isfinite(node):
+            out.append(path)
+        elif isinstance(node, dict):
+            stack.extend((v, f"{path}.{k}" if path else str(k)) for k, v in node.items())
+        elif isinstance(node, (list, tuple)):
+            stack.extend((v, f"{path}.{i}" if path else str(i)) for i, v in enumerate(node))
+    return sorted(out)
+
+
+def _limits(spec: TuningSpec, s: Settings, purpose: Purpose, prefix: str) -> list[dict[str, str]]:
+    errs: list[dict[str, str]] = []
+    p = f"{prefix}." if prefix else ""
+    for path in nonfinite_paths(spec.model_dump(mode="python"), prefix):
+        errs.append({"loc": path, "msg": "must be a finite number (NaN and infinity are not accepted)"})
+    if purpose == "tune" and spec.search.budget > s.max_budget:
+        errs.append({"loc": f"{p}search.budget", "msg": f"{spec.search.budget} exceeds this server's limit of {s.max_budget} simulations"})
+    if len(spec.scenarios) > s.max_scenarios:
+        errs.append({"loc": f"{p}scenarios", "msg": f"{len(spec.scenarios)} scenarios exceed this server's limit of {s.max_scenarios}"})
+    for i, sc in enumerate(spec.scenarios):
+        if sc.n_steps > s.max_steps:
+            errs.append({"loc": f"{p}scenarios.{i}.horizon",
+                         "msg": f"horizon/dt = {sc.n_steps} steps exceeds this server's limit of {s.max_steps}; raise dt or shorten the horizon"})
+    if purpose == "verify":
+        if spec.verify.n_freq > s.sync_max_n_freq:
+            errs.append({"loc": f"{p}verify.n_freq", "msg": f"{spec.verify.n_freq} exceeds the limit of {s.sync_max_n_freq} for synchronous verification"})
+        if spec.verify.robust_samples > s.sync_max_robust_samples:
+            errs.append({"loc": f"{p}verify.robust_samples",
+                         "msg": f"{spec.verify.robust_samples} exceeds the limit of {s.sync_max_robust_samples} for synchronous verification"})
+    return errs
+
+
+def _prefixed(errs: list[dict[str, Any]], prefix: str) -> list[dict[str, Any]]:
+    if not prefix:
+        return errs
+    return [{**e, "loc": f"{prefix}.{e['loc']}" if e.get("loc") else prefix} for e in errs]
+
+
+def check_spec(spec: TuningSpec, settings: Settings, purpose: Purpose, *, prefix: str = "") -> Checked:
+    """Enforce service limits and build plant + layout. Raises ApiError(422) with [{loc, msg}]."""
+    errs = _limits(spec, settings, purpose, prefix)
+    if errs:
+        raise invalid(errs)
+    from gaintune.controllers.layout import GainLayout
+    from gaintune.plants import build_plant
+    from gaintune.plants.checks import validate_against_plant
+
+    try:
+        plant = build_plant(spec.plant)
+        if plant.order > settings.max_order:
+            raise invalid([{"loc": f"{prefix + '.' if prefix else ''}plant",
+                            "msg": f"plant order {plant.order} exceeds this server's limit of {settings.max_order}"}])
+        validate_against_plant(spec, plant)
+        layout = GainLayout(spec, plant.states)
+        if purpose in ("tune", "simulate"):
+            from gaintune.sim.build import Problem
+
+            Problem.build(spec, plant, layout)
+    except ApiError:
+        raise
+    except (GaintuneError, ValidationError) as exc:
+        raise invalid(_prefixed(problem_details(exc), prefix)) from None
+    except Exception as exc:  # noqa: BLE001 - user input must never produce a 500
+        log.warning("spec rejected by an unexpected %s while building the plant", type(exc).__name__, exc_info=True)
+        raise invalid([{"loc": prefix + (".plant" if prefix else "plant"),
+                        "msg": f"the plant could not be built ({type(exc).__name__}: {str(exc)[:300]})"}]) from None
+    return Checked(spec, plant, layout)

@@ -1,0 +1,504 @@
+"""REST API route tests (FastAPI TestClient, no worker processes; jobs run in-process with a fake search)."""
+
+from __future__ import annotations
+
+import threading
+import time
+import zipfile
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from api.main import create_app
+from api.settings import Settings
+from api.store import JobStore
+from api.supervisor import Supervisor
+from api.worker import process_next
+from gaintune.search.result import CurvePoint, Progress, Provenance, TuneResult
+
+SPEC = {
+    "name": "lag3",
+    "plant": {"tf": {"num": [1], "den": "(s+1)^3"}},
+    "loops": [{"type": "pi"}],
+    "scenario": {"dt": 0.05, "horizon": 20.0},
+    "search": {"budget": 200},
+}
+GOOD = {"loop0": {"Kp": 1.14, "Ki": 0.454}}
+BAD = {"loop0": {"Kp": 20.0, "Ki": 20.0}}  # unstable: verification fails
+
+
+def make_fake_tune(gains=GOOD, *, steps: int = 3, sleep: float = 0.0, honour_cancel: bool = True):
+    """A stand-in for gaintune.search.tune: reports progress, verifies fixed gains, saves a dummy agent."""
+
+    def fake_tune(spec, *, progress=None, out_dir=None, verify=True, cancel=None, **kw):
+        from gaintune.verify import verify as do_verify
+
+        budget = spec.search.budget
+        stopped = "budget"
+        t0 = time.monotonic()
+        sims = 0
+        for k in range(steps):
+            time.sleep(sleep)
+            sims = (k + 1) * budget // steps
+            keep = progress(Progress(sims=sims, budget=budget, best_cost=10.0 / (k + 1), elapsed=time.monotonic() - t0,
+                                     eta=1.0)) if progress else True
+            if honour_cancel and (keep is False or (cancel is not None and cancel.is_set())):
+                stopped = "cancelled"
+                break
+        report = do_verify(spec, gains) if verify else None
+        agent = None
+        if out_dir is not None:
+            agent = str(Path(out_dir) / "agent.zip")
+            with zipfile.ZipFile(agent, "w") as z:
+                z.writestr("policy.txt", "fake")
+        return TuneResult(
+            spec=spec.model_dump(mode="json"), algo=spec.search.algo, gains=gains, cost=1.5, metrics={"nominal": {"iae": 1.5}},
+            curve=[CurvePoint(sims=sims, best_cost=1.5, wall_time=0.1)], sims=sims, wall_time=time.monotonic() - t0,
+            stopped=stopped, agent_path=agent, verification=None if report is None else report.model_dump(mode="json"),
+            provenance=Provenance(spec_hash=spec.content_hash(), seed=spec.search.seed, versions={"gaintune": "test"}),
+        )
+
+    return fake_tune
+
+
+def settings_for(tmp_path: Path, **kw) -> Settings:
+    base = dict(db_path=tmp_path / "jobs.db", data_dir=tmp_path / "data", workers=0, warmup=False,
+                heartbeat_interval=0.05, cancel_grace=1.0)
+    base.update(kw)
+    return Settings(_env_file=None, **base)
+
+
+@pytest.fixture
+def make_client(tmp_path):
+    clients = []
+
+    def make(**kw) -> TestClient:
+        app = create_app(settings_for(tmp_path, **kw))
+        c = TestClient(app, raise_server_exceptions=False)
+        c.__enter__()
+        clients.append(c)
+        return c
+
+    yield make
+    for c in clients:
+        c.__exit__(None, None, None)
+
+
+@pytest.fixture
+def client(make_client) -> TestClient:
+    return make_client()
+
+
+def run_next(client: TestClient, tune=None) -> str | None:
+    app = client.app
+    return process_next(app.state.store, app.state.settings, tune or make_fake_tune())
+
+
+def submit(client: TestClient, spec=SPEC, **headers) -> dict:
+    r = client.post("/v1/tune", json=spec, headers=headers)
+    assert r.status_code == 202, r.text
+    return r.json()
+
+
+# ------------------------------------------------------------------ jobs
+
+
+def test_submit_returns_202_with_location_and_queued_job(client):
+    r = client.post("/v1/tune", json=SPEC)
+    assert r.status_code == 202
+    job = r.json()
+    assert r.headers["location"] == f"/v1/jobs/{job['id']}"
+    assert job["status"] == "queued" and job["result"] is None and job["spec_name"] == "lag3"
+    assert client.get(r.headers["location"]).json()["id"] == job["id"]
+
+
+def test_job_lifecycle_succeeded_with_accepted_gains_report_export_agent(client):
+    job = submit(client)
+    assert run_next(client) == "succeeded"
+    j = client.get(f"/v1/jobs/{job['id']}").json()
+    assert j["status"] == "succeeded"
+    assert j["started_at"] and j["finished_at"] and j["attempts"] == 1
+    assert j["progress"]["sims"] == j["progress"]["budget"] == 200 and j["progress"]["fraction"] == 1.0
+    res = j["result"]
+    assert res["verdict"] == "pass"
+    assert res["accepted_gains"] == GOOD
+    assert res["verification"]["verdict"] == "pass" and res["verification"]["loops"]
+    assert res["provenance"]["spec_hash"] == job["spec_hash"]
+    assert res["curve"] and res["metrics"]["nominal"]["iae"] == 1.5
+    assert res["agent_available"] and set(j["links"]) >= {"self", "report", "export", "agent"}
+    agent = client.get(f"/v1/jobs/{job['id']}/agent")
+    assert agent.status_code == 200 and agent.headers["content-type"] == "application/zip"
+    assert agent.content[:2] == b"PK"
+
+
+def test_failed_verification_hides_gains_and_refuses_export(client):
+    job = submit(client)
+    assert run_next(client, make_fake_tune(BAD)) == "succeeded"
+    res = client.get(f"/v1/jobs/{job['id']}").json()["result"]
+    assert res["verdict"] == "fail"
+    assert res["accepted_gains"] is None
+    assert res["verification"]["reasons"]
+    r = client.get(f"/v1/jobs/{job['id']}/export", params={"format": "json"})
+    assert r.status_code == 409 and "allow_unverified" in r.json()["detail"]
+
+
+@pytest.mark.parametrize("fmt", ["json", "yaml", "c", "matlab"])
+def test_export_formats(client, fmt):
+    pytest.importorskip("gaintune.export")
+    job = submit(client)
+    run_next(client)
+    r = client.get(f"/v1/jobs/{job['id']}/export", params={"format": fmt})
+    assert r.status_code == 200, r.text
+    assert "attachment" in r.headers["content-disposition"]
+    assert "1.14" in r.text
+
+
+def test_export_unknown_format_is_422(client):
+    job = submit(client)
+    run_next(client)
+    r = client.get(f"/v1/jobs/{job['id']}/export", params={"format": "xml"})
+    assert r.status_code == 422 and r.json()["errors"][0]["loc"] == "query.format"
+
+
+def test_report_html(client):
+    pytest.importorskip("gaintune.report")
+    job = submit(client)
+    run_next(client)
+    r = client.get(f"/v1/jobs/{job['id']}/report")
+    assert r.status_code == 200, r.text
+    assert r.headers["content-type"].startswith("text/html") and "<html" in r.text.lower()
+    assert client.get(f"/v1/jobs/{job['id']}/report").status_code == 200  # cached file
+
+
+def test_report_and_export_missing_module_is_501(client, monkeypatch):
+    import importlib
+
+    job = submit(client)
+    run_next(client)
+    real = importlib.import_module
+
+    def fake_import(name, *a, **kw):
+        if name in ("gaintune.report", "gaintune.export"):
+            raise ImportError(f"No module named {name!r}")
+        return real(name, *a, **kw)
+
+    monkeypatch.setattr(importlib, "import_module", fake_import)
+    for path in ("report", "export"):
+        r = client.get(f"/v1/jobs/{job['id']}/{path}")
+        assert r.status_code == 501, r.text
+        assert r.headers["content-type"] == "application/problem+json" and "not available" in r.json()["detail"]
+
+
+def test_artifacts_before_result_are_409(client):
+    job = submit(client)
+    for path in ("report", "agent", "export"):
+        r = client.get(f"/v1/jobs/{job['id']}/{path}")
+        assert r.status_code == 409, path
+
+
+def test_unknown_job_is_404_problem(client):
+    for method, path in [("get", "/v1/jobs/nope"), ("delete", "/v1/jobs/nope"), ("get", "/v1/jobs/nope/report"),
+                         ("get", "/v1/jobs/nope/agent"), ("get", "/v1/jobs/nope/export")]:
+        r = getattr(client, method)(path)
+        assert r.status_code == 404, path
+        body = r.json()
+        assert body["status"] == 404 and body["title"] and r.headers["content-type"] == "application/problem+json"
+
+
+def test_list_jobs_paginates_and_filters(client):
+    ids = [submit(client, {**SPEC, "name": f"j{i}"})["id"] for i in range(5)]
+    run_next(client)  # oldest (ids[0]) succeeds
+    page = client.get("/v1/jobs", params={"limit": 2}).json()
+    assert page["total"] == 5 and [j["id"] for j in page["items"]] == ids[::-1][:2] and page["next_offset"] == 2
+    last = client.get("/v1/jobs", params={"limit": 2, "offset": 4}).json()
+    assert [j["id"] for j in last["items"]] == [ids[0]] and last["next_offset"] is None
+    done = client.get("/v1/jobs", params={"status": "succeeded"}).json()
+    assert [j["id"] for j in done["items"]] == [ids[0]]
+    assert client.get("/v1/jobs", params={"status": "queued"}).json()["total"] == 4
+    assert client.get("/v1/jobs", params={"status": "bogus"}).status_code == 422
+    assert client.get("/v1/jobs", params={"limit": 0}).status_code == 422
+
+
+def test_idempotency_key_returns_same_job(client):
+    a = client.post("/v1/tune", json=SPEC, headers={"Idempotency-Key": "abc"})
+    b = client.post("/v1/tune", json=SPEC, headers={"Idempotency-Key": "abc"})
+    assert a.status_code == b.status_code == 202
+    assert a.json()["id"] == b.json()["id"] and b.headers["idempotent-replayed"] == "true"
+    assert client.get("/v1/jobs").json()["total"] == 1
+    c = client.post("/v1/tune", json={**SPEC, "name": "other"}, headers={"Idempotency-Key": "abc"})
+    assert c.status_code == 409
+    d = client.post("/v1/tune", json=SPEC, headers={"Idempotency-Key": "xyz"})
+    assert d.json()["id"] != a.json()["id"]
+
+
+def test_queue_full_is_503_with_retry_after(make_client):
+    client = make_client(max_queue=2, retry_after=7)
+    submit(client)
+    submit(client)
+    r = client.post("/v1/tune", json=SPEC)
+    assert r.status_code == 503 and r.headers["retry-after"] == "7"
+    assert r.json()["status"] == 503
+
+
+def test_cancel_queued_job(client):
+    job = submit(client)
+    r = client.delete(f"/v1/jobs/{job['id']}")
+    assert r.status_code == 200 and r.json()["status"] == "cancelled"
+    assert run_next(client) is None  # nothing left to run
+    assert client.delete(f"/v1/jobs/{job['id']}").status_code == 409
+
+
+def _run_in_thread(client, tune):
+    out = {}
+    th = threading.Thread(target=lambda: out.setdefault("status", run_next(client, tune)), daemon=True)
+    th.start()
+    return th, out
+
+
+def _wait_status(client, job_id, statuses, timeout=10.0):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        j = client.get(f"/v1/jobs/{job_id}").json()
+        if j["status"] in statuses:
+            return j
+        time.sleep(0.05)
+    raise AssertionError(f"job stayed {j['status']}")
+
+
+def test_cancel_running_job_stops_search(client):
+    job = submit(client)
+    th, out = _run_in_thread(client, make_fake_tune(steps=400, sleep=0.02))
+    j = _wait_status(client, job["id"], {"running"})
+    t0 = time.monotonic()
+    r = client.delete(f"/v1/jobs/{job['id']}")
+    assert r.status_code == 202 and r.json()["cancel_requested"]
+    j = _wait_status(client, job["id"], {"cancelled"})
+    assert time.monotonic() - t0 < 3.0
+    th.join(5)
+    assert out["status"] == "cancelled"
+    assert j["result"]["stopped"] == "cancelled" and j["error"] == "cancelled on request"
+
+
+def test_cancel_ignored_by_search_is_forced_after_grace(client):
+    job = submit(client)
+    th, _ = _run_in_thread(client, make_fake_tune(steps=150, sleep=0.02, honour_cancel=False))
+    _wait_status(client, job["id"], {"running"})
+    t0 = time.monotonic()
+    client.delete(f"/v1/jobs/{job['id']}")
+    j = _wait_status(client, job["id"], {"cancelled"})
+    assert time.monotonic() - t0 < 3.0  # cancel_grace = 1 s
+    assert "did not stop" in j["error"]
+    th.join(10)
+    assert client.get(f"/v1/jobs/{job['id']}").json()["status"] == "cancelled"  # late result does not overwrite
+
+
+def test_wall_time_limit_fails_job(make_client):
+    client = make_client(job_wall_time=0.3)
+    job = submit(client)
+    assert run_next(client, make_fake_tune(steps=200, sleep=0.02)) == "failed"
+    j = client.get(f"/v1/jobs/{job['id']}").json()
+    assert j["status"] == "failed" and "wall-time limit" in j["error"]
+
+
+def test_search_exception_fails_job_without_trace(client):
+    job = submit(client)
+
+    def broken(spec, **kw):
+        raise RuntimeError("boom")
+
+    assert run_next(client, broken) == "failed"
+    j = client.get(f"/v1/jobs/{job['id']}").json()
+    assert j["status"] == "failed" and "RuntimeError: boom" in j["error"] and "Traceback" not in j["error"]
+
+
+def test_running_progress_is_visible(client):
+    job = submit(client)
+    th, _ = _run_in_thread(client, make_fake_tune(steps=60, sleep=0.02))
+    t0 = time.monotonic()
+    prog = None
+    while time.monotonic() - t0 < 5 and prog is None:
+        prog = client.get(f"/v1/jobs/{job['id']}").json()["progress"]
+        time.sleep(0.05)
+    th.join(10)
+    assert prog is not None and prog["budget"] == 200 and 0 < prog["sims"] <= 200 and prog["best_cost"] > 0
+
+
+# -------------------------------------------------------------- recovery
+
+
+def _fake_running(store: JobStore, pid: int) -> str:
+    row, _ = store.create("anonymous", '{"plant": {"tf": {"num": [1], "den": [1, 1]}}, "loops": [{"type": "p"}]}',
+                          "h", "x", idem_key=None, max_queue=10)
+    claimed = store.claim(pid)
+    assert claimed.id == row.id
+    return row.id
+
+
+@pytest.mark.parametrize("policy,expected", [("requeue", "queued"), ("fail", "failed")])
+def test_recovery_policy_for_dead_worker(tmp_path, policy, expected):
+    s = settings_for(tmp_path, recover=policy)
+    store = JobStore(s.db_path)
+    store.init()
+    job_id = _fake_running(store, pid=2**22 + 12345)  # no such process
+    changed = Supervisor(s, store).recover("test")
+    assert changed == [job_id]
+    row = store.get(job_id)
+    assert row.status == expected and row.claim is None
+    assert ("re-queued" if policy == "requeue" else "interrupted") in row.error
+
+
+def test_recovery_gives_up_after_max_attempts(tmp_path):
+    s = settings_for(tmp_path, recover="requeue", max_attempts=1)
+    store = JobStore(s.db_path)
+    store.init()
+    job_id = _fake_running(store, pid=2**22 + 12345)
+    Supervisor(s, store).recover("test")
+    assert store.get(job_id).status == "failed"
+
+
+def test_recovered_job_ignores_writes_from_old_claim(tmp_path):
+    s = settings_for(tmp_path)
+    store = JobStore(s.db_path)
+    store.init()
+    job_id = _fake_running(store, pid=2**22 + 12345)
+    old = store.get(job_id).claim
+    Supervisor(s, store).recover("test")
+    assert store.heartbeat(job_id, old, {"sims": 1}) == (False, True)
+    assert not store.finish(job_id, old, "succeeded", result={"x": 1})
+    assert store.get(job_id).status == "queued"
+
+
+def test_restart_finds_jobs(tmp_path):
+    s = settings_for(tmp_path)
+    with TestClient(create_app(s)) as c:
+        job = submit(c)
+    with TestClient(create_app(s)) as c:
+        assert c.get(f"/v1/jobs/{job['id']}").json()["status"] == "queued"
+
+
+# ------------------------------------------------------------ auth
+
+
+def test_api_keys_required_and_jobs_isolated(make_client):
+    client = make_client(api_keys=["alpha", "beta"])
+    assert client.post("/v1/tune", json=SPEC).status_code == 401
+    assert client.post("/v1/tune", json=SPEC, headers={"X-API-Key": "wrong"}).status_code == 401
+    r = client.post("/v1/tune", json=SPEC, headers={"X-API-Key": "alpha"})
+    assert r.status_code == 202
+    job_id = r.json()["id"]
+    assert client.get(f"/v1/jobs/{job_id}", headers={"X-API-Key": "alpha"}).status_code == 200
+    assert client.get(f"/v1/jobs/{job_id}", headers={"X-API-Key": "beta"}).status_code == 404
+    assert client.delete(f"/v1/jobs/{job_id}", headers={"X-API-Key": "beta"}).status_code == 404
+    assert client.get("/v1/jobs", headers={"X-API-Key": "beta"}).json()["total"] == 0
+    assert client.get("/v1/jobs", headers={"X-API-Key": "alpha"}).json()["total"] == 1
+    # Idempotency keys are scoped per API key.
+    a = client.post("/v1/tune", json=SPEC, headers={"X-API-Key": "alpha", "Idempotency-Key": "k"})
+    b = client.post("/v1/tune", json=SPEC, headers={"X-API-Key": "beta", "Idempotency-Key": "k"})
+    assert a.json()["id"] != b.json()["id"]
+    for path in ("/v1/plants", "/v1/jobs", "/metrics"):
+        assert client.get(path).status_code == 401, path
+    assert client.post("/v1/verify", json={"spec": SPEC, "gains": GOOD}).status_code == 401
+    assert client.get("/healthz").status_code == 200 and client.get("/readyz").status_code == 200
+
+
+def test_env_settings(monkeypatch, tmp_path):
+    monkeypatch.setenv("GAINTUNE_API_KEYS", "k1, k2")
+    monkeypatch.setenv("GAINTUNE_RECOVER", "fail")
+    monkeypatch.setenv("GAINTUNE_MAX_BUDGET", "500")
+    s = Settings(_env_file=None)
+    assert s.api_keys == ["k1", "k2"] and s.recover == "fail" and s.max_budget == 500
+    monkeypatch.setenv("GAINTUNE_API_KEYS", '["a"]')
+    assert Settings(_env_file=None).api_keys == ["a"]
+
+
+def test_cors(make_client):
+    client = make_client(cors_origins=["https://ui.example"])
+    r = client.options("/v1/plants", headers={"Origin": "https://ui.example", "Access-Control-Request-Method": "GET"})
+    assert r.headers["access-control-allow-origin"] == "https://ui.example"
+
+
+# ------------------------------------------------------ verify / simulate
+
+
+def test_verify_pass_and_fail(client):
+    r = client.post("/v1/verify", json={"spec": SPEC, "gains": GOOD})
+    assert r.status_code == 200
+    rep = r.json()
+    assert rep["verdict"] == "pass" and rep["gains"] == GOOD and rep["loops"]
+    again = client.post("/v1/verify", json={"spec": SPEC, "gains": GOOD})
+    assert again.json() == rep and again.headers["x-cache"] == "hit"
+    bad = client.post("/v1/verify", json={"spec": SPEC, "gains": BAD}).json()
+    assert bad["verdict"] == "fail" and bad["reasons"]
+
+
+@pytest.mark.parametrize(
+    "gains,loc",
+    [
+        ({"loop0": {"Kp": -1.0, "Ki": 0.4}}, "gains.loop0.Kp"),
+        ({"loop0": {"Kp": 1.0}}, "gains.loop0.Ki"),
+        ({"loop0": {"Kp": 1.0, "Ki": 1.0, "Kd": 1.0}}, "gains.loop0"),
+        ({"outer": {"Kp": 1.0}}, "gains"),
+        ({"loop0": {"Kp": "nan", "Ki": 1.0}}, "gains.loop0.Kp"),
+        ({"loop0": {"Kp": "abc", "Ki": 1.0}}, "gains.loop0.Kp"),
+    ],
+)
+def test_verify_bad_gains_are_422_with_loc(client, gains, loc):
+    r = client.post("/v1/verify", json={"spec": SPEC, "gains": gains})
+    assert r.status_code == 422, r.text
+    assert r.json()["errors"][0]["loc"] == loc
+
+
+def test_verify_sync_limits(client):
+    spec = {**SPEC, "verify": {"n_freq": 90000}}
+    r = client.post("/v1/verify", json={"spec": spec, "gains": GOOD})
+    assert r.status_code == 422 and r.json()["errors"][0]["loc"] == "spec.verify.n_freq"
+
+
+def test_simulate_traces_decimated(client):
+    spec = {**SPEC, "scenario": {"dt": 0.001, "horizon": 20.0}}
+    r = client.post("/v1/simulate", json={"spec": spec, "gains": GOOD, "max_points": 500})
+    assert r.status_code == 200, r.text
+    sc = r.json()["scenarios"][0]
+    assert sc["n_steps"] == 20000 and len(sc["t"]) <= 500 and sc["stride"] > 1
+    assert set(sc["traces"]) == {"y.loop0", "sp.loop0", "u"}
+    assert all(len(v) == len(sc["t"]) for v in sc["traces"].values())
+    assert abs(sc["t"][-1] - 19.999) < 1e-9
+    assert sc["metrics"]["iae"] > 0 and sc["metrics"]["diverged"] is False
+    capped = client.post("/v1/simulate", json={"spec": spec, "gains": GOOD, "max_points": 100000}).json()
+    assert len(capped["scenarios"][0]["t"]) <= 2000 and capped["max_points"] == 2000
+
+
+def test_simulate_unknown_scenario_is_422(client):
+    r = client.post("/v1/simulate", json={"spec": SPEC, "gains": GOOD, "scenarios": ["nope"]})
+    assert r.status_code == 422 and r.json()["errors"][0]["loc"] == "scenarios"
+
+
+# ------------------------------------------------------------ plants, ops
+
+
+def test_plants_listing_has_parameters_and_units(client):
+    items = client.get("/v1/plants").json()["items"]
+    motor = next(p for p in items if p["name"] == "dc_motor")
+    assert motor["parameters"]["R"]["unit"] == "ohm" and motor["outputs"]["speed"]["unit"] == "rad/s"
+    assert motor["order"] == 3 and motor["example_spec"]["loops"]
+    assert client.get("/v1/plants/dc_motor").json()["title"] == motor["title"]
+    assert client.get("/v1/plants/../etc").status_code == 404
+    assert client.get("/v1/plants/nope").status_code == 404
+
+
+def test_metrics_prometheus_text(client):
+    submit(client)
+    client.get("/v1/jobs")
+    text = client.get("/metrics").text
+    assert 'gaintune_jobs{state="queued"} 1' in text
+    assert "gaintune_queue_depth 1" in text
+    assert 'gaintune_http_request_duration_seconds_count{method="GET",route="/v1/jobs",status="200"} 1' in text
+    assert "# TYPE gaintune_http_request_duration_seconds histogram" in text
+
+
+def test_health_and_openapi(client):
+    assert client.get("/healthz").json() == {"status": "ok"}
+    assert client.get("/readyz").json()["status"] == "ready"
+    schema = client.get("/openapi.json").json()
+    assert "/v1/tune" in schema["paths"] and "TuningSpec" in schema["components"]["schemas"]
