@@ -72,7 +72,13 @@ class Evaluator:
 
     def __init__(self, spec: TuningSpec, sim: Simulator | None = None, draws: Draws | None = None) -> None:
         self.spec = spec
-        self.sim = sim or Simulator(spec)
+        if sim is None:
+            from gaintune.controllers.layout import search_layout
+            from gaintune.plants import build_plant
+
+            plant = build_plant(spec.plant)
+            sim = Simulator(spec, plant, search_layout(spec, plant))
+        self.sim = sim
         self.plant: Plant = self.sim.plant
         self.layout = self.sim.layout
         rob = spec.search.robust
@@ -96,13 +102,17 @@ class Evaluator:
         full = np.repeat(self.layout.full(tuned), K, axis=0)
         d = draws_mod.take(self.draws, np.tile(np.arange(K), B))
         total = np.zeros(B * K)
+        diverged = np.zeros(B * K, dtype=bool)
         results = []
         for i, sc in enumerate(self.spec.scenarios):
             res = self.sim.run(full, d, i, traces=traces)
-            total += sc.weight * scenario_cost(res.metrics, self.spec.objective, sc)
+            cost = scenario_cost(res.metrics, self.spec.objective, sc)
+            total += sc.weight * cost
+            diverged |= cost >= DIVERGED_COST
             results.append(res)
         self.n_sims += B * K * len(self.spec.scenarios)
-        total = np.minimum(total, DIVERGED_COST)
+        # a diverged simulation costs DIVERGED_COST whatever its scenario's weight
+        total = np.where(diverged, DIVERGED_COST, np.minimum(total, DIVERGED_COST))
         rob = self.spec.search.robust
         return aggregate(total.reshape(B, K), rob.aggregate, rob.alpha), results
 

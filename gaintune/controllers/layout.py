@@ -17,7 +17,7 @@ import numpy as np
 from gaintune.errors import GainError, SpecError
 from gaintune.spec import GAIN_NAMES, LoopSpec, TuningSpec
 
-__all__ = ["GainSlot", "GainLayout", "loop_gain_names", "DEFAULT_BOUNDS"]
+__all__ = ["GainSlot", "GainLayout", "loop_gain_names", "search_layout", "DEFAULT_BOUNDS"]
 
 #: Fallback log-scale bounds when neither the spec nor a classical rule gives any.
 DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {
@@ -199,3 +199,14 @@ class GainLayout:
                 raise GainError(f"{field}.{slot.loop_name}.{slot.name}", f"must be > 0, got {v}")
             out[k] = v
         return out
+
+
+def search_layout(spec: TuningSpec, plant: Any) -> GainLayout:
+    """The search space every optimiser shares: spec bounds, else bounds centred on a classical rule.
+
+    RL, the black-box baselines and the reference optimum all search this same
+    box, so their costs compare like with like.
+    """
+    from gaintune.baselines import auto_bounds  # lazy: baselines import the evaluator
+
+    return GainLayout(spec, plant.states, auto_bounds=auto_bounds(spec, plant))

@@ -24,8 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gaintune.baselines import auto_bounds
-from gaintune.controllers.layout import GainLayout
+from gaintune.controllers.layout import GainLayout, search_layout
 from gaintune.objective import DIVERGED_COST, Evaluator, aggregate, scenario_cost
 from gaintune.plants import build_plant
 from gaintune.plants.checks import validate_against_plant
@@ -67,8 +66,7 @@ class GainProblem:
         self.spec = spec
         plant = build_plant(spec.plant)
         validate_against_plant(spec, plant)
-        bounds = auto_bounds(spec, plant) if use_auto_bounds else {}
-        self.layout = GainLayout(spec, plant.states, auto_bounds=bounds)
+        self.layout = search_layout(spec, plant) if use_auto_bounds else GainLayout(spec, plant.states)
         self.plant = plant
         self.sim = Simulator(spec, plant, self.layout)
         self.evaluator = Evaluator(spec, self.sim)
