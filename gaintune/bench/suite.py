@@ -43,6 +43,10 @@ __all__ = [
     "select",
     "reference_key",
     "exact_optimum",
+    "reference_for",
+    "compute_reference",
+    "default_out_dir",
+    "suite_markdown",
 ]
 
 #: Largest search budget (simulations) a suite problem may set.
@@ -236,7 +240,7 @@ def _default() -> list[Problem]:
             _model("water_tank", 3000, GM_PM), "nonlinear",
         ),
         Problem(
-            "lq_msd", "mass_spring_damper, LQR gains k_x, k_v, impulse regulation, ISE + 0.01 int u^2",
+            "lq_msd", "mass_spring_damper, LQR state feedback k_x, k_v (gains mode), input-impulse regulation",
             _lq_msd(0.01, 10.0, 2000), "lq", exact="dlqr", note=_LQ_NOTE,
         ),
     ]
@@ -481,3 +485,14 @@ def compute_reference(problem: Problem, *, evaluator=None, log=None) -> dict[str
         src, cost, gains = "none", None, None
     entry.update(cost=cost, gains=gains, source=src, n_sims=r.n_sims, wall_time=time.perf_counter() - t0)
     return entry
+
+
+def suite_markdown(problems: list[Problem]) -> str:
+    """Markdown table of a suite: problem, plant/controller, objective, requirements, budget, steps."""
+    lines = ["| problem | plant, controller | objective | requirements | budget | dt, horizon (steps) |",
+             "|---|---|---|---|---|---|"]
+    for p in problems:
+        spec = p.tuning_spec()
+        sc = ", ".join(f"{s.dt:g} s, {s.horizon:g} s ({s.n_steps})" for s in spec.scenarios)
+        lines.append(f"| {p.name} | {p.title} | {p.objective_text()} | {p.requirements_text()} | {p.budget} | {sc} |")
+    return "\n".join(lines)

@@ -76,6 +76,8 @@ class GainProblem:
         self.randomized = spec.randomize.active
         self.obs_size = draws_mod.context_size(spec)
         self.cost_scale = self._cost_scale()
+        #: Optional hook called as ``on_score(tuned, scored)`` after every env scoring (search monitor).
+        self.on_score = None
 
     @property
     def n_sims(self) -> int:
@@ -141,7 +143,10 @@ class GainProblem:
         ratio = np.minimum(cost / self.cost_scale, COST_CAP)
         reward = -(ratio + obj.divergence_penalty * div + obj.trip_penalty * trip + obj.margin_weight * margin)
         assert first is not None
-        return Scored(reward.astype(np.float64), cost, div, trip, margin, first)
+        scored = Scored(reward.astype(np.float64), cost, div, trip, margin, first)
+        if self.on_score is not None:
+            self.on_score(tuned, scored)
+        return scored
 
     def draws_for(self, d: Draws) -> Draws:
         """Expand B episode draws to B*K rows: the episode's draw plus K-1 extra robust draws."""

@@ -43,8 +43,6 @@ class BatchedGainVecEnv(VecEnv):
         self._actions: np.ndarray | None = None
         self._draws: Draws | None = None
         self._obs = np.zeros((n_envs, problem.obs_size), dtype=np.float32)
-        #: Optional hook called with (tuned gains (n, d), Scored) after each batch.
-        self.on_batch = None
 
     def _new_episodes(self) -> np.ndarray:
         d = self.problem.draw(self._rng, self.num_envs)
@@ -67,8 +65,6 @@ class BatchedGainVecEnv(VecEnv):
         assert self._actions is not None and self._draws is not None
         tuned = self.problem.layout.action_to_tuned(self._actions)
         s: Scored = self.problem.score(tuned, self._draws)
-        if self.on_batch is not None:
-            self.on_batch(tuned, s)
         last_obs = self._obs
         new_obs = self._new_episodes()
         infos: list[dict[str, Any]] = [

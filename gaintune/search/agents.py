@@ -44,7 +44,7 @@ def agent_defaults(algo: str, n_envs: int, dim: int, budget_steps: int) -> dict[
     net = [64, 64]
     if algo == "ppo":
         return dict(
-            n_steps=1, batch_size=n_envs, n_epochs=10, learning_rate=1e-3, gamma=0.0, gae_lambda=1.0,
+            n_steps=1, batch_size=n_envs, n_epochs=10, learning_rate=3e-3, gamma=0.0, gae_lambda=1.0,
             clip_range=0.2, ent_coef=0.0, vf_coef=0.5, max_grad_norm=0.5, normalize_advantage=True,
             policy_kwargs=dict(net_arch=dict(pi=net, vf=net), log_std_init=-1.0, ortho_init=True),
         )
@@ -68,10 +68,24 @@ def agent_defaults(algo: str, n_envs: int, dim: int, budget_steps: int) -> dict[
     return off
 
 
-def make_agent(algo: str, env: VecEnv, seed: int, budget_steps: int, overrides: dict[str, Any] | None = None) -> BaseAlgorithm:
+def iterative_defaults(algo: str, n_envs: int, horizon: int) -> dict[str, Any]:
+    """Changes for the multi-step iterative env: returns over a short horizon instead of one-step bandits."""
+    if algo in ("ppo", "a2c"):
+        kw: dict[str, Any] = dict(n_steps=horizon, gamma=0.95, gae_lambda=0.95)
+        if algo == "ppo":
+            kw["batch_size"] = n_envs * horizon
+        return kw
+    return dict(gamma=0.95)
+
+
+def make_agent(
+    algo: str, env: VecEnv, seed: int, budget_steps: int, overrides: dict[str, Any] | None = None, horizon: int = 1
+) -> BaseAlgorithm:
     """Build an SB3 agent on the batched env with gain-search defaults (plus ``overrides``)."""
     cls = ALGOS[algo]
     kw = agent_defaults(algo, env.num_envs, env.action_space.shape[0], budget_steps)
+    if horizon > 1:
+        kw.update(iterative_defaults(algo, env.num_envs, horizon))
     kw.update(overrides or {})
     return cls("MlpPolicy", env, seed=seed, verbose=0, device="cpu", **kw)
 

@@ -140,6 +140,20 @@ def _nominal_obs(problem: GainProblem) -> np.ndarray:
     return problem.context(draws_mod.nominal(problem.spec, problem.plant, 1))
 
 
+ITERATIVE_HORIZON = 5
+
+
+def _iterative_rollout(agent, spec: TuningSpec, problem: GainProblem, horizon: int) -> np.ndarray:
+    """Deterministic policy of the iterative env: roll it out once from the start gains (nominal plant)."""
+    from gaintune.envs.iterative import IterativeGainTuningEnv
+
+    env = IterativeGainTuningEnv(spec, problem=problem, horizon=horizon)
+    obs, _ = env.reset(seed=spec.search.seed)
+    for _ in range(horizon):
+        obs, *_ = env.step(agent.predict(obs[None], deterministic=True)[0][0])
+    return env._a.copy()
+
+
 def _refine(problem: GainProblem, start: np.ndarray, sims: int, seed: int) -> tuple[np.ndarray, float, int]:
     """Local CMA-ES polish in action space around ``start``; returns (action, cost, sims used)."""
     from cmaes import CMA
@@ -208,14 +222,27 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     reserve = min(int(0.1 * s.budget), 1000) if s.refine else 0
     rl_budget = max(s.budget - problem.n_sims - reserve - 3 * per_candidate, 0)
     monitor = SearchMonitor(problem, rl_budget, s.wall_time, progress, cancel, s.early_stop_patience)
-    env = BatchedGainVecEnv(problem, n_envs, seed=s.seed)
-    env.on_batch = monitor.on_batch
+    problem.on_score = monitor.on_batch
+    horizon = 1
+    if s.env == "iterative":
+        # The multi-step env scores one gain set per env step (no batching across envs).
+        from stable_baselines3.common.vec_env import DummyVecEnv
+
+        from gaintune.envs.iterative import IterativeGainTuningEnv
+
+        horizon = ITERATIVE_HORIZON
+        env = DummyVecEnv([lambda: IterativeGainTuningEnv(spec, problem=problem, horizon=horizon) for _ in range(n_envs)])
+        env.seed(s.seed)
+    else:
+        env = BatchedGainVecEnv(problem, n_envs, seed=s.seed)
+    if s.env == "iterative":
+        batch = 2 * n_envs * per_candidate  # a step may also reset (score the start gains of) every env
     steps = max(rl_budget // per_candidate, n_envs)
     if warm_start is not None:
         agent = load_agent(warm_start, env=env)
         agent.set_random_seed(s.seed)
     else:
-        agent = make_agent(s.algo, env, s.seed, steps, agent_overrides)
+        agent = make_agent(s.algo, env, s.seed, steps, agent_overrides, horizon=horizon)
     if rl_budget >= batch:
         agent.learn(total_timesteps=steps, callback=_StopCallback(monitor, batch), reset_num_timesteps=warm_start is None)
     rl_sims = monitor.sims
@@ -223,8 +250,12 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     # Freeze: deterministic policy output for the nominal context, and the best gains seen.
     layout = problem.layout
     ev = problem.evaluator
-    obs = _nominal_obs(problem)
-    policy_action = np.asarray(agent.predict(obs, deterministic=True)[0], dtype=float).reshape(-1)
+    problem.on_score = None
+    if s.env == "iterative":
+        policy_action = _iterative_rollout(agent, spec, problem, horizon)
+    else:
+        obs = _nominal_obs(problem)
+        policy_action = np.asarray(agent.predict(obs, deterministic=True)[0], dtype=float).reshape(-1)
     cand = {"policy": policy_action}
     if monitor.best_tuned is not None:
         cand["best_seen"] = layout.tuned_to_action(monitor.best_tuned)

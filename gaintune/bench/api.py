@@ -1,0 +1,212 @@
+"""Benchmark: REST API latency and throughput against a real uvicorn server on 127.0.0.1.
+
+Run::
+
+    gaintune bench api             # or: python -m gaintune.bench.api [--requests 500] [--concurrency 8] [--json]
+
+Phases (each bounded by ``--requests`` requests or ``--seconds`` seconds):
+
+1. ``verify_distinct``: ``POST /v1/verify`` on a 2-loop DC-motor cascade (speed PI
+   outside, current PI inside; inline state-space spec), every request with
+   different gains (seeded log-uniform factors in [0.8, 1.25] on nominal
+   gains), so each one is a full verification (no cache hit).
+2. ``verify_repeat``: the same request over and over (served from the
+   server's verification LRU cache after the first).
+3. ``get_job_idle``: ``GET /v1/jobs/{id}`` with no job running.
+4. ``get_job_2_jobs``: the same while 2 tuning jobs run in the 2 worker
+   processes (both CPUs busy with the RL search); then both jobs are cancelled
+   and the time until they report ``cancelled`` is printed.
+
+Targets (issue): verify p95 <= 50 ms and >= 200 requests/s; GET stays low while jobs run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["main", "CASCADE_SPEC", "NOMINAL_GAINS"]
+
+R, Lm, J, b, Kt = 1.0, 0.01, 0.01, 0.001, 0.5
+
+#: DC motor (states current i, speed w), speed PI -> current PI.
+CASCADE_SPEC = {
+    "name": "dc_motor_speed_cascade",
+    "plant": {
+        "ss": {
+            "A": [[-R / Lm, -Kt / Lm], [Kt / J, -b / J]],
+            "B": [[1.0 / Lm], [0.0]],
+            "C": [[1.0, 0.0], [0.0, 1.0]],
+            "states": ["i", "w"],
+            "outputs": ["i", "w"],
+        }
+    },
+    "loops": [
+        {"name": "speed", "type": "pi", "measure": "w", "gains": {"Kp": {"bounds": [0.05, 20]}, "Ki": {"bounds": [0.5, 500]}}},
+        {"name": "current", "type": "pi", "measure": "i", "gains": {"Kp": {"bounds": [0.5, 50]}, "Ki": {"bounds": [10, 5000]}}},
+    ],
+    "scenario": {"dt": 1e-3, "horizon": 0.5},
+}
+NOMINAL_GAINS = {"speed": {"Kp": 2.0, "Ki": 40.0}, "current": {"Kp": 10.0, "Ki": 1000.0}}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _pct(x: list[float], q: float) -> float:
+    return float(np.percentile(np.asarray(x) * 1e3, q)) if x else float("nan")
+
+
+async def _load(client, make_request, n: int, seconds: float, concurrency: int) -> dict:
+    """Fire up to n requests (or for `seconds`) with `concurrency` in flight; latency per request."""
+    lat: list[float] = []
+    errors: dict[int, int] = {}
+    counter = iter(range(n))
+    t_end = time.perf_counter() + seconds
+
+    async def one_worker():
+        for i in counter:
+            if time.perf_counter() > t_end:
+                return
+            method, url, body = make_request(i)
+            t0 = time.perf_counter()
+            r = await client.request(method, url, json=body)
+            lat.append(time.perf_counter() - t0)
+            if r.status_code >= 300:
+                errors[r.status_code] = errors.get(r.status_code, 0) + 1
+
+    t0 = time.perf_counter()
+    await asyncio.gather(*(one_worker() for _ in range(concurrency)))
+    wall = time.perf_counter() - t0
+    return {"requests": len(lat), "seconds": round(wall, 2), "rps": round(len(lat) / wall, 1),
+            "p50_ms": round(_pct(lat, 50), 2), "p95_ms": round(_pct(lat, 95), 2), "p99_ms": round(_pct(lat, 99), 2),
+            "errors": errors}
+
+
+def _start_server(tmp: Path, port: int, workers: int) -> subprocess.Popen:
+    env = dict(os.environ, GAINTUNE_DB_PATH=str(tmp / "jobs.db"), GAINTUNE_DATA_DIR=str(tmp / "data"))
+    cmd = [sys.executable, "-m", "api", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers),
+           "--log-level", "warning"]
+    return subprocess.Popen(cmd, cwd=tmp, env=env, stdout=open(tmp / "server.log", "w"), stderr=subprocess.STDOUT)
+
+
+async def _run(args) -> dict:
+    import httpx
+
+    tmp = Path(tempfile.mkdtemp(prefix="gaintune-bench-api-"))
+    port = _free_port()
+    proc = _start_server(tmp, port, workers=2)
+    out: dict = {"url": f"http://127.0.0.1:{port}", "cpus": os.cpu_count(), "concurrency": args.concurrency}
+    try:
+        limits = httpx.Limits(max_connections=args.concurrency * 2)
+        async with httpx.AsyncClient(base_url=out["url"], timeout=60, limits=limits) as c:
+            t0 = time.perf_counter()
+            while True:
+                if proc.poll() is not None:
+                    raise SystemExit("server exited:\n" + (tmp / "server.log").read_text()[-3000:])
+                try:
+                    if (await c.get("/readyz")).status_code == 200:
+                        break
+                except httpx.TransportError:
+                    pass
+                if time.perf_counter() - t0 > 120:
+                    raise SystemExit("server not ready after 120 s")
+                await asyncio.sleep(0.2)
+            out["startup_s"] = round(time.perf_counter() - t0, 1)
+
+            rng = np.random.default_rng(0)
+            factors = np.exp(rng.uniform(np.log(0.8), np.log(1.25), size=(args.requests + 64, 4)))
+
+            def distinct(i):
+                f = factors[i]
+                g = {"speed": {"Kp": 2.0 * f[0], "Ki": 40.0 * f[1]}, "current": {"Kp": 10.0 * f[2], "Ki": 1000.0 * f[3]}}
+                return "POST", "/v1/verify", {"spec": CASCADE_SPEC, "gains": g}
+
+            def repeat(i):
+                return "POST", "/v1/verify", {"spec": CASCADE_SPEC, "gains": NOMINAL_GAINS}
+
+            r = await c.post("/v1/verify", json={"spec": CASCADE_SPEC, "gains": NOMINAL_GAINS})
+            r.raise_for_status()
+            out["verdict_nominal"] = r.json()["verdict"]
+            await _load(c, lambda i: distinct(args.requests + (i % 64)), 16, 30, args.concurrency)  # warm-up
+            out["verify_distinct"] = await _load(c, distinct, args.requests, args.seconds, args.concurrency)
+            out["verify_repeat"] = await _load(c, repeat, args.requests, args.seconds, args.concurrency)
+
+            tune_spec = {**CASCADE_SPEC, "search": {"budget": 100_000, "n_envs": 32}}
+            idle = (await c.post("/v1/tune", json={**tune_spec, "name": "probe"})).json()["id"]
+            await c.delete(f"/v1/jobs/{idle}")
+            out["get_job_idle"] = await _load(c, lambda i: ("GET", f"/v1/jobs/{idle}", None), args.requests,
+                                              args.seconds, args.concurrency)
+            jobs = [(await c.post("/v1/tune", json={**tune_spec, "name": f"load{k}"})).json()["id"] for k in range(2)]
+            t0 = time.perf_counter()
+            while True:
+                st = [(await c.get(f"/v1/jobs/{j}")).json() for j in jobs]
+                if all(s["status"] == "running" and s["progress"] for s in st):
+                    break
+                if time.perf_counter() - t0 > 120:
+                    raise SystemExit(f"jobs did not start: {[s['status'] for s in st]}")
+                await asyncio.sleep(0.2)
+            out["get_job_2_jobs"] = await _load(c, lambda i: ("GET", f"/v1/jobs/{jobs[i % 2]}", None), args.requests,
+                                                args.seconds, args.concurrency)
+            out["sims_while_measuring"] = [(await c.get(f"/v1/jobs/{j}")).json()["progress"]["sims"] for j in jobs]
+            t0 = time.perf_counter()
+            for j in jobs:
+                await c.delete(f"/v1/jobs/{j}")
+            while True:
+                states = [(await c.get(f"/v1/jobs/{j}")).json()["status"] for j in jobs]
+                if "running" not in states:
+                    break
+                await asyncio.sleep(0.05)
+            out["cancelled_states"] = states
+            out["cancel_s"] = round(time.perf_counter() - t0, 2)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="gaintune bench api", description="REST API latency/throughput on a real server.")
+    ap.add_argument("--requests", type=int, default=500, help="requests per phase (upper bound)")
+    ap.add_argument("--seconds", type=float, default=20.0, help="seconds per phase (upper bound)")
+    ap.add_argument("--concurrency", type=int, default=8)
+    ap.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    args = ap.parse_args(argv)
+    out = asyncio.run(_run(args))
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0
+    print(f"server {out['url']} ({out['cpus']} CPUs, 2 job workers), ready in {out['startup_s']} s; "
+          f"concurrency {out['concurrency']}; nominal verdict {out['verdict_nominal']}")
+    print("| phase | requests | req/s | p50 ms | p95 ms | p99 ms | errors |")
+    print("|---|---:|---:|---:|---:|---:|---|")
+    for k in ("verify_distinct", "verify_repeat", "get_job_idle", "get_job_2_jobs"):
+        r = out[k]
+        print(f"| {k} | {r['requests']} | {r['rps']} | {r['p50_ms']} | {r['p95_ms']} | {r['p99_ms']} | {r['errors'] or '-'} |")
+    print(f"2 jobs ran {out['sims_while_measuring']} simulations by the end of the GET phase; "
+          f"both cancelled within {out['cancel_s']} s of DELETE")
+    vd = out["verify_distinct"]
+    print(f"targets: verify p95 <= 50 ms: {'met' if vd['p95_ms'] <= 50 else 'MISSED'} ({vd['p95_ms']} ms, distinct gains); "
+          f">= 200 req/s: {'met' if vd['rps'] >= 200 else 'MISSED'} ({vd['rps']} req/s, distinct gains)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

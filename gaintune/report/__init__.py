@@ -1,0 +1,145 @@
+"""Self-contained HTML report of a tuning result (PDF on request via headless Chromium).
+
+Sections: 1 Summary, 2 Time responses, 3 Frequency, 4 Robustness, 5 Search,
+6 Baselines, 7 Reproducibility. Plots are inline SVG (matplotlib, Agg), so the
+page is one file that works offline.
+
+Example
+-------
+>>> from gaintune.report import render_report, result_from_gains   # doctest: +SKIP
+>>> render_report(result, "out/report.html")                        # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from gaintune.errors import GaintuneError
+
+__all__ = ["SECTIONS", "ReportError", "render_html", "render_report", "render_pdf", "find_chromium", "result_from_gains"]
+
+#: Section ids in page order (the HTML element ids).
+SECTIONS: tuple[str, ...] = ("summary", "time", "frequency", "robustness", "search", "baselines", "reproducibility")
+
+#: Where the PDF renderer looks for a browser ($GAINTUNE_CHROMIUM first).
+CHROMIUM_PATHS = ("/usr/bin/chromium", "/usr/bin/chromium-browser", "/usr/bin/google-chrome")
+
+
+class ReportError(GaintuneError):
+    """The report cannot be produced (e.g. no browser for the PDF)."""
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("gaintune")
+    except Exception:  # pragma: no cover
+        return "unknown"
+
+
+def render_html(result: Any, *, command: str | None = None) -> str:
+    """The report of ``result`` (a :class:`~gaintune.search.result.TuneResult`) as one HTML string."""
+    import jinja2
+
+    from gaintune.report.context import build_context
+
+    ctx = build_context(result, command=command)
+    env = jinja2.Environment(
+        loader=jinja2.FileSystemLoader(str(Path(__file__).parent / "templates")),
+        autoescape=jinja2.select_autoescape(["html", "j2"]),
+    )
+    ctx.update(generated=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), version=_version())
+    return env.get_template("report.html.j2").render(**ctx)
+
+
+def render_report(result: Any, path: str | os.PathLike, *, pdf: bool = False, command: str | None = None) -> Path:
+    """Write the HTML report of ``result`` to ``path`` (and ``path`` with ``.pdf`` when ``pdf``). Returns the HTML path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(render_html(result, command=command), encoding="utf-8")
+    if pdf:
+        render_pdf(path, path.with_suffix(".pdf"))
+    return path
+
+
+def find_chromium() -> str | None:
+    env = os.environ.get("GAINTUNE_CHROMIUM")
+    if env:
+        return env if Path(env).exists() else None
+    for p in CHROMIUM_PATHS:
+        if Path(p).exists():
+            return p
+    return None
+
+
+def render_pdf(html_path: str | os.PathLike, pdf_path: str | os.PathLike, *, timeout: float = 120.0) -> Path:
+    """Print an HTML file to PDF with headless Chromium (``--print-to-pdf``).
+
+    Raises
+    ------
+    ReportError
+        When no Chromium is installed (install the ``chromium`` package or set
+        ``$GAINTUNE_CHROMIUM``) or printing fails.
+    """
+    exe = find_chromium()
+    if exe is None:
+        raise ReportError(
+            "pdf",
+            f"PDF output needs headless Chromium; none found at {', '.join(CHROMIUM_PATHS)}. "
+            "Install it (apt-get install chromium) or set GAINTUNE_CHROMIUM, or open the HTML report and print it.",
+        )
+    html_path, pdf_path = Path(html_path).resolve(), Path(pdf_path).resolve()
+    pdf_path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="gaintune-chromium-") as profile:
+        cmd = [
+            exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+            "--disable-component-update", "--disable-sync", "--no-first-run", "--no-pdf-header-footer",
+            f"--user-data-dir={profile}", f"--print-to-pdf={pdf_path}", html_path.as_uri(),
+        ]
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            raise ReportError("pdf", f"Chromium did not finish printing within {timeout:.0f} s") from None
+    if proc.returncode != 0 or not pdf_path.exists() or pdf_path.stat().st_size == 0:
+        raise ReportError("pdf", f"Chromium failed to print the PDF (exit {proc.returncode}): {proc.stderr.strip()[-500:]}")
+    return pdf_path
+
+
+def result_from_gains(spec: Any, gains: dict[str, dict[str, float]], *, algo: str = "manual", verify: bool = True,
+                      baselines: list[dict[str, Any]] | None = None, command: str = "") -> Any:
+    """Wrap hand-picked (or baseline) gains in a :class:`TuneResult`, verified and scored, so they can be reported and exported."""
+    from gaintune.objective import Evaluator
+    from gaintune.report.context import _versions
+    from gaintune.search.result import Provenance, TuneResult
+    from gaintune.verify import verify as run_verify
+
+    t0 = time.perf_counter()
+    ev = Evaluator(spec)
+    full = ev.layout.from_dict(gains)
+    named = ev.layout.to_dict(full)
+    cost, _ = ev.run(full[ev.layout.tuned_idx][None, :])
+    metrics = {}
+    for i, sc in enumerate(spec.scenarios):
+        m = ev.sim.run(full[None, :], scenario=i).metrics
+        metrics[sc.name] = {k: (float(v[0]) if math.isfinite(float(v[0])) else None) for k, v in m.items()}
+    rep = json.loads(run_verify(spec, named).model_dump_json()) if verify else None
+    return TuneResult(
+        spec=json.loads(spec.model_dump_json()), algo=algo, gains=named, gains_source="best_seen", cost=float(cost[0]),
+        metrics=metrics, sims=ev.n_sims, wall_time=time.perf_counter() - t0, stopped="budget", verification=rep,
+        baselines=baselines or [],
+        provenance=Provenance(spec_hash=spec.content_hash(), seed=spec.search.seed, versions=_versions(), command=command),
+    )
+
+
+def _which(name: str) -> str | None:  # pragma: no cover - helper for diagnostics
+    return shutil.which(name)

@@ -1,0 +1,417 @@
+"""Everything the HTML report shows, computed from a TuneResult (simulations, frequency responses, tables)."""
+
+from __future__ import annotations
+
+import math
+import platform
+from dataclasses import fields
+from typing import Any
+
+import numpy as np
+import yaml
+
+from gaintune.report import plots
+from gaintune.spec import DisturbanceSpec, ProfileSpec, ScenarioSpec, TuningSpec
+
+__all__ = ["build_context"]
+
+#: Monte-Carlo draws (besides the box corners) for the robustness envelope.
+ENVELOPE_DRAWS = 32
+#: Classical baselines computed by the report when the result carries none.
+QUICK_BASELINES = ("simc", "amigo")
+
+Gains = dict[str, dict[str, float]]
+
+
+def _fmt(x: Any, digits: int = 4) -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    if isinstance(x, (float, np.floating)):
+        x = float(x)
+        if math.isnan(x):
+            return "-"
+        if math.isinf(x):
+            return "inf" if x > 0 else "-inf"
+        return f"{x:.{digits}g}"
+    return str(x)
+
+
+def _versions() -> dict[str, str]:
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": platform.python_version()}
+    for pkg in ("gaintune", "numpy", "scipy", "control", "numba", "stable-baselines3", "torch", "gymnasium", "casadi", "pydantic"):
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            pass
+    return out
+
+
+# ------------------------------------------------------------------ summary
+
+
+def _plant_summary(spec: TuningSpec, plant) -> dict[str, Any]:
+    p = spec.plant
+    units: dict[str, str] = {}
+    out: dict[str, Any] = {"kind": plant.kind, "states": plant.states, "outputs": plant.outputs,
+                           "params": dict(plant.with_params(None)) if plant.param_names else {}}
+    if p.model is not None:
+        from gaintune.plants.library import load_model
+
+        m = load_model(p.model.name)
+        out["title"] = f"{m.title} (built-in model '{m.name}')"
+        out["description"] = m.description
+        units = {k: v.unit for k, v in m.outputs.items()}
+        out["param_units"] = {k: v.unit for k, v in m.parameters.items()}
+        if m.plant.tf is not None:
+            out["structure"] = f"G(s) = ({_poly(m.plant.tf.num)}) / ({_poly(m.plant.tf.den)})"
+        elif m.plant.ss is not None:
+            out["structure"] = f"state space, states {plant.states}, outputs {plant.outputs}"
+        else:
+            out["structure"] = f"nonlinear ODE, states {plant.states}, outputs {plant.outputs}"
+    elif p.tf is not None:
+        out["title"] = "Transfer function"
+        out["structure"] = f"G(s) = ({_poly(p.tf.num)}) / ({_poly(p.tf.den)})"
+    elif p.ss is not None:
+        out["title"] = "State space"
+        out["structure"] = f"states {plant.states}, outputs {plant.outputs}"
+    else:
+        out["title"] = "Nonlinear ODE"
+        out["structure"] = f"states {plant.states}, outputs {plant.outputs} (margins from the linearisation)"
+    out["delay"] = plant.delay()
+    out["units"] = units
+    return out
+
+
+def _poly(v: Any) -> str:
+    if isinstance(v, str):
+        return v
+    n = len(v) - 1
+    terms = []
+    for i, c in enumerate(v):
+        k = n - i
+        cs = _fmt(c) if not isinstance(c, str) else f"({c})"
+        terms.append(cs if k == 0 else f"{cs} s" + (f"^{k}" if k > 1 else ""))
+    return " + ".join(terms)
+
+
+def _loop_rows(spec: TuningSpec, plant) -> list[dict[str, Any]]:
+    rows = []
+    for i, lp in enumerate(spec.loops):
+        inner = i == len(spec.loops) - 1
+        lim = spec.actuator.limits if inner else lp.output_limits
+        rows.append({
+            "name": lp.name,
+            "type": lp.type.upper(),
+            "form": lp.form if not lp.is_lq else lp.lq_mode,
+            "measure": lp.measure or plant.outputs[0],
+            "drives": "actuator u" if inner else f"setpoint of {spec.loops[i + 1].name}",
+            "limits": "-" if lim is None else f"[{_fmt(lim[0])}, {_fmt(lim[1])}]",
+            "anti_windup": "-" if lp.is_lq or "i" not in lp.type[1:] else lp.anti_windup,
+            "weights": "-" if lp.is_lq else f"b={_fmt(lp.b)}, c={_fmt(lp.c)}",
+        })
+    return rows
+
+
+def _requirements(rep) -> list[dict[str, Any]]:
+    names = {"gm_min_db": "gain margin >= (dB)", "pm_min_deg": "phase margin >= (deg)", "dm_min": "delay margin >= (s)",
+             "ms_max": "Ms <=", "mt_max": "Mt <="}
+    return [{
+        "name": names.get(q.requirement, q.requirement), "value": _fmt(q.value), "limit": _fmt(q.limit),
+        "margin": _fmt(q.margin), "passed": q.passed,
+        "where": f"{q.loop} / {q.break_point} / {q.case}" if q.loop else q.case,
+    } for q in rep.requirements]
+
+
+def _margin_rows(rep) -> list[dict[str, Any]]:
+    return [{
+        "loop": f.loop, "break": "controller output" if f.break_point == "controller_output" else "plant input",
+        "gm": _fmt(f.gm_db, 3), "pm": _fmt(f.pm_deg, 3), "wc": _fmt(f.pm_freq, 3), "dm": _fmt(f.delay_margin, 3),
+        "ms": _fmt(f.ms, 3), "mt": _fmt(f.mt, 3), "disk": _fmt(f.disk_alpha, 3),
+    } for f in rep.loops]
+
+
+# ------------------------------------------------------------ simulations
+
+
+def _loop_traces(res, spec: TuningSpec, plant, units: dict[str, str], b: int = 0) -> list[dict[str, Any]]:
+    out = []
+    for lp in spec.loops:
+        meas = lp.measure or plant.outputs[0]
+        out.append({"name": lp.name, "measure": meas, "unit": units.get(meas, ""),
+                    "y": res.traces[f"y.{lp.name}"][b], "sp": res.traces[f"sp.{lp.name}"][b]})
+    return out
+
+
+def _load_scenario(spec: TuningSpec, u_final: float, u0: float) -> ScenarioSpec | None:
+    """A load-disturbance experiment derived from the first scenario (when no scenario has one)."""
+    if any(sc.disturbance.kind != "none" for sc in spec.scenarios):
+        return None
+    sc = spec.scenarios[0]
+    lim = spec.actuator.limits
+    amp = 0.1 * (lim[1] - lim[0]) if lim else abs(u_final - u0)
+    if not math.isfinite(amp) or amp < 1e-9:
+        amp = 1.0
+    t_d = round(0.1 * sc.horizon / sc.dt) * sc.dt
+    return sc.model_copy(update={
+        "name": "load_disturbance",
+        "reference": ProfileSpec(kind="none"),
+        "disturbance": DisturbanceSpec(kind="step", amplitude=float(amp), time=t_d, entry="input"),
+        "noise_std": 0.0,
+    })
+
+
+def _time_section(spec, plant, sim, full, units) -> tuple[list[dict], dict]:
+    figs = []
+    lim = spec.actuator.limits
+    nominal_runs = {}
+    for i, sc in enumerate(spec.scenarios):
+        res = sim.run(full[None], scenario=i, traces=True)
+        nominal_runs[i] = res
+        kind = sc.reference.kind if sc.reference.kind != "none" else "no reference change"
+        dist = "" if sc.disturbance.kind == "none" else f", {sc.disturbance.kind} load disturbance at the {sc.disturbance.entry}"
+        title = f"Scenario '{sc.name}': reference {kind}{dist}"
+        figs.append({"title": title, "svg": plots.time_figure(res.t, _loop_traces(res, spec, plant, units), res.traces["u"][0], lim, title)})
+    lin = plant.linearize()
+    u_final = float(nominal_runs[0].traces["u"][0][-1])
+    load = _load_scenario(spec, u_final, float(lin.u0))
+    if load is not None:
+        res = sim.run(full[None], scenario=load, traces=True)
+        title = (f"Load disturbance: input step of {load.disturbance.amplitude:.3g} at t = {load.disturbance.time:g} s "
+                 "(derived from the first scenario, reference held)")
+        m = res.metrics
+        figs.append({"title": title, "svg": plots.time_figure(res.t, _loop_traces(res, spec, plant, units), res.traces["u"][0], lim, title),
+                     "note": f"load IAE {_fmt(float(m['load_iae'][0]))}"})
+    return figs, nominal_runs
+
+
+def _freq_section(spec, plant, layout, full, rep) -> dict[str, Any]:
+    from gaintune.verify.loops import build_cascade, sampling_delay
+    from gaintune.verify.margins import DelayModel
+
+    lin = plant.linearize()
+    t_s = sampling_delay(spec)
+    delay = DelayModel(lin.delay + t_s, spec.verify.pade_order)
+    cas = build_cascade(spec, layout, full[None, :], lin)
+    cross = []
+    for f in rep.loops:
+        cross += [x for x in (f.pm_freq, f.gm_freq, f.ms_freq, f.mt_freq) if x]
+        cross += f.gain_crossovers + f.phase_crossovers[:2]
+    cross = [x for x in cross if math.isfinite(x) and x > 1e-9]
+    poles = [abs(e) for e in np.linalg.eigvals(lin.A)] if lin.A.size else []
+    poles = [x for x in poles if math.isfinite(x) and x > 1e-9]
+    if not cross:
+        cross = poles or [1.0]
+    lo = min(cross + poles) / 30.0 if poles else min(cross) / 100.0
+    lo = max(lo, min(cross) / 1e3)
+    hi = max(cross) * 100.0
+    if delay.T > 0:  # beyond a few rad of delay phase the plot only shows the delay spinning
+        hi = min(hi, max(max(cross) * 5.0, 3.0 / delay.T))
+    w = np.logspace(math.log10(lo), math.log10(hi), 1500)
+    s = 1j * w
+    with np.errstate(all="ignore"):
+        L = cas.loop_responses(s, lin, delay.factor(s))[:, 0, :]
+    figs_by_break = {(f.loop, f.break_point): f for f in rep.loops}
+    bodes, curves = [], []
+    breaks = list(zip(cas.break_names, L))
+    if len(spec.loops) == 1:  # the controller output is the plant input: one curve is enough
+        breaks = breaks[:1]
+    for (loop, brk), Lr in breaks:
+        f = figs_by_break.get((loop, brk))
+        label = f"{loop} (broken at its controller output)" if brk == "controller_output" else "plant input (all loops closed)"
+        gm = {"db": f.gm_db, "freq": f.gm_freq} if f else None
+        pm = {"deg": f.pm_deg, "freq": f.pm_freq} if f else None
+        bodes.append({"title": f"Bode: loop transfer at {label}", "svg": plots.bode_figure(w, Lr, f"L at {label}", gm, pm)})
+        curves.append((loop if brk == "controller_output" else "plant input", Lr))
+    req = spec.requirements
+    ms_vals = [f.ms for f in rep.loops]
+    return {
+        "bodes": bodes,
+        "nyquist": plots.nyquist_figure(curves, req.ms_max, [max(ms_vals)] if ms_vals else []),
+        "sensitivity": plots.sensitivity_figure(w, curves, req.ms_max, req.mt_max),
+        "delay_note": (f"Loop delay {delay.T:.4g} s = plant delay {lin.delay:.4g} s + sampling delay dt/2 = {t_s:.4g} s, "
+                       + ("exact e^(-jwT)." if delay.pade_order is None else f"Padé order {delay.pade_order}.")),
+    }
+
+
+def _concat_draws(a, b):
+    from gaintune.sim.draws import Draws
+
+    return Draws(**{f.name: np.concatenate([getattr(a, f.name), getattr(b, f.name)]) for f in fields(Draws)})
+
+
+def _robust_section(spec, plant, sim, full, rep, nominal_res, units) -> dict[str, Any]:
+    from gaintune.sim import draws as dm
+
+    out: dict[str, Any] = {"active": spec.randomize.active, "worst": [], "svg": None}
+    if rep.robust is not None:
+        r = rep.robust
+        out["summary"] = (f"{r.n_samples} sampled plants ({r.n_corners} box corners + {r.n_monte_carlo} random draws, seed {r.seed}); "
+                          f"{r.n_unstable} unstable")
+        out["n_unstable"] = r.n_unstable
+        for wc in r.worst:
+            out["worst"].append({
+                "loop": wc.loop, "break": "controller output" if wc.break_point == "controller_output" else "plant input",
+                "gm": _fmt(wc.gm_db, 3), "pm": _fmt(wc.pm_deg, 3), "dm": _fmt(wc.delay_margin, 3), "ms": _fmt(wc.ms, 3),
+                "mt": _fmt(wc.mt, 3), "disk": _fmt(wc.disk_alpha, 3),
+                "where": ", ".join(f"{k}={_fmt(v, 3)}" for k, v in wc.where.get("pm_deg", {}).items()),
+            })
+    if not spec.randomize.active:
+        return out
+    rng = np.random.default_rng(spec.search.seed)
+    d = _concat_draws(dm.corners(spec, plant, 64), dm.sample(spec, plant, rng, ENVELOPE_DRAWS))
+    n = len(d)
+    res = sim.run(np.tile(full, (n, 1)), draws=d, scenario=0, traces=True)
+    lp0 = spec.loops[0]
+    meas = lp0.measure or plant.outputs[0]
+    ys = res.traces[f"y.{lp0.name}"]
+    nom = nominal_res[0]
+    ok = np.all(np.isfinite(ys), axis=1) & ~res.metrics["diverged"]
+    out["n_draws"] = n
+    out["n_diverged"] = int((~ok).sum())
+    if ok.any():
+        out["svg"] = plots.envelope_figure(res.t, ys[ok], nom.traces[f"y.{lp0.name}"][0], nom.traces[f"sp.{lp0.name}"][0],
+                                           res.traces["u"][ok], nom.traces["u"][0], meas)
+        iae = res.metrics["iae"][ok]
+        out["iae"] = {"min": _fmt(float(iae.min())), "mean": _fmt(float(iae.mean())), "max": _fmt(float(iae.max()))}
+    return out
+
+
+def _search_section(result, spec: TuningSpec) -> dict[str, Any]:
+    series = []
+    if result.curve:
+        series.append((f"{result.algo} (gaintune)", [c.sims for c in result.curve], [c.best_cost for c in result.curve]))
+    for b in result.baselines or []:
+        h = b.get("history") or []
+        if h:
+            series.append((b.get("method", "?"), [int(x[0]) for x in h], [float(x[1]) for x in h]))
+    facts = [
+        ("algorithm", result.algo), ("environment", spec.search.env), ("budget (simulations)", spec.search.budget),
+        ("simulations used", result.sims), ("RL simulations", result.rl_sims), ("parallel envs", spec.search.n_envs),
+        ("robust samples / aggregate", f"{spec.search.robust.samples} / {spec.search.robust.aggregate}"),
+        ("wall time", f"{result.wall_time:.1f} s"), ("stopped by", result.stopped), ("gains source", result.gains_source),
+        ("final cost", _fmt(result.cost)), ("RL-only cost", _fmt(result.rl_cost)), ("policy cost", _fmt(result.policy_cost)),
+        ("seed", spec.search.seed), ("agent", result.agent_path or "-"),
+    ]
+    return {"facts": [(k, _fmt(v) if not isinstance(v, str) else v) for k, v in facts],
+            "svg": plots.curve_figure(series) if series else None}
+
+
+def _baselines_section(result, rep0, spec, plant, sim, full, nominal_res, units) -> dict[str, Any]:
+    from gaintune.verify import verify
+
+    computed = False
+    entries = [dict(b) for b in (result.baselines or [])]
+    if not entries:
+        from gaintune.baselines import run_baseline
+
+        computed = True
+        for m in QUICK_BASELINES:
+            try:
+                entries.append(run_baseline(spec, m).model_dump())
+            except Exception as exc:  # a baseline that cannot run is reported, never fatal
+                entries.append({"method": m, "gains": None, "reason": str(exc)})
+    rows = [{"method": f"gaintune ({result.algo})", "cost": _fmt(result.cost), "sims": _fmt(result.sims),
+             "verdict": rep0.verdict, "gm": "", "pm": "", "ms": "", "note": "this result", "self": True}]
+    if rep0.loops:
+        rows[0].update(gm=_fmt(min(f.gm_db for f in rep0.loops), 3), pm=_fmt(min(f.pm_deg for f in rep0.loops), 3),
+                       ms=_fmt(max(f.ms for f in rep0.loops), 3))
+    lp0 = spec.loops[0]
+    nom = nominal_res[0]
+    runs = [(f"gaintune ({result.algo})", nom.traces[f"y.{lp0.name}"][0], nom.traces["u"][0])]
+    for b in entries:
+        g = b.get("gains")
+        row = {"method": b.get("method", "?"), "cost": _fmt(b.get("cost")), "sims": _fmt(b.get("n_sims")),
+               "verdict": "-", "gm": "-", "pm": "-", "ms": "-", "note": b.get("reason") or "", "self": False}
+        if g:
+            try:
+                vec = sim.layout.from_dict(g)
+                vr = verify(spec, g, robust=False, nonlinear=False, plant=sim.plant, layout=sim.layout)
+                row.update(verdict=vr.verdict + " (nominal)", gm=_fmt(min(f.gm_db for f in vr.loops), 3),
+                           pm=_fmt(min(f.pm_deg for f in vr.loops), 3), ms=_fmt(max(f.ms for f in vr.loops), 3))
+                res = sim.run(vec[None], scenario=0, traces=True)
+                if not res.metrics["diverged"][0]:
+                    runs.append((b.get("method", "?"), res.traces[f"y.{lp0.name}"][0], res.traces["u"][0]))
+                else:
+                    row["note"] = (row["note"] + "; " if row["note"] else "") + "diverges"
+            except Exception as exc:
+                row["note"] = f"could not evaluate: {exc}"
+        rows.append(row)
+    meas = lp0.measure or plant.outputs[0]
+    svg = plots.overlay_figure(nom.t, nom.traces[f"sp.{lp0.name}"][0], runs, spec.actuator.limits, meas,
+                               f"Scenario '{spec.scenarios[0].name}': gaintune vs baselines") if len(runs) > 1 else None
+    return {"rows": rows, "svg": svg, "computed": computed}
+
+
+# -------------------------------------------------------------------- main
+
+
+def build_context(result, *, command: str | None = None) -> dict[str, Any]:
+    """All data of the report for one TuneResult (re-simulates with traces, computes frequency responses)."""
+    from gaintune.plants.plant import build_plant
+    from gaintune.sim import Simulator
+    from gaintune.verify import VerificationReport, verify
+
+    spec = TuningSpec.model_validate(result.spec)
+    plant = build_plant(spec.plant)
+    sim = Simulator(spec, plant)
+    full = sim.layout.from_dict(result.gains)
+    verified_now = result.verification is None
+    rep = verify(spec, result.gains, plant=plant, layout=sim.layout) if verified_now else VerificationReport.model_validate(result.verification)
+    passed = rep.verdict == "pass"
+    ps = _plant_summary(spec, plant)
+    units = ps["units"]
+    gains_rows = []
+    for loop, g in result.gains.items():
+        for k, v in g.items():
+            gains_rows.append({"loop": loop, "gain": k, "value": _fmt(v, 6)})
+    time_figs, nominal_res = _time_section(spec, plant, sim, full, units)
+    metric_keys = ("iae", "ise", "effort", "overshoot", "rise_time", "settling_time", "sse", "peak_u", "sat_frac")
+    metrics = []
+    for i, sc in enumerate(spec.scenarios):
+        m = nominal_res[i].metrics
+        metrics.append({"scenario": sc.name, **{k: _fmt(float(m[k][0])) for k in metric_keys}, "diverged": bool(m["diverged"][0])})
+    prov = result.provenance
+    versions = dict(prov.versions) if prov.versions else {}
+    if not versions:
+        versions = _versions()
+    cmd = command or prov.command or f"gaintune tune spec.yaml --seed {prov.seed}"
+    return {
+        "title": f"gaintune report: {spec.name}",
+        "spec": spec,
+        "spec_name": spec.name,
+        "description": spec.description,
+        "passed": passed,
+        "verdict": rep.verdict,
+        "verified_now": verified_now,
+        "reasons": rep.reasons,
+        "notes": rep.notes,
+        "plant": ps,
+        "loops": _loop_rows(spec, plant),
+        "actuator": {"limits": spec.actuator.limits, "rate_limit": spec.actuator.rate_limit},
+        "gains": gains_rows,
+        "gains_source": result.gains_source,
+        "requirements": _requirements(rep),
+        "margins": _margin_rows(rep),
+        "stability": rep.stability,
+        "metric_keys": metric_keys,
+        "metrics": metrics,
+        "time": time_figs,
+        "freq": _freq_section(spec, plant, sim.layout, full, rep),
+        "robust": _robust_section(spec, plant, sim, full, rep, nominal_res, units),
+        "search": _search_section(result, spec),
+        "baselines": _baselines_section(result, rep, spec, plant, sim, full, nominal_res, units),
+        "repro": {
+            "spec_yaml": yaml.safe_dump(result.spec, sort_keys=False),
+            "seed": prov.seed,
+            "spec_hash": prov.spec_hash,
+            "versions": versions,
+            "command": cmd,
+        },
+        "fmt": _fmt,
+    }
