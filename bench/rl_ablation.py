@@ -1,0 +1,50 @@
+"""RL ablation on 1/(s+1)^3 PID (IAE + 0.01*int u^2): agents and PPO settings side by side.
+
+Usage: python bench/rl_ablation.py [--budget 5000] [--seeds 0 1] [--reference 1.602535]
+Prints RL-only and policy-mean cost ratios to the reference optimum (docs/search.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from gaintune.search import tune
+from gaintune.spec import load_spec
+
+CONFIGS = {
+    "ppo (default)": ("ppo", "oneshot", {}),
+    "ppo lr=1e-3": ("ppo", "oneshot", {"learning_rate": 1e-3}),
+    "ppo lr=1e-2": ("ppo", "oneshot", {"learning_rate": 1e-2}),
+    "ppo 20 epochs": ("ppo", "oneshot", {"n_epochs": 20}),
+    "sac": ("sac", "oneshot", {}),
+    "td3": ("td3", "oneshot", {}),
+    "ppo iterative env": ("ppo", "iterative", {}),
+}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--budget", type=int, default=5000)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0])
+    ap.add_argument("--reference", type=float, default=1.602535, help="reference optimum cost")
+    ap.add_argument("--configs", nargs="+", default=list(CONFIGS))
+    a = ap.parse_args(argv)
+    print("| config | seed | RL-only / optimum | policy / optimum | sims | wall s |")
+    print("|---|---|---|---|---|---|")
+    for name in a.configs:
+        algo, env, over = CONFIGS[name]
+        for seed in a.seeds:
+            spec = load_spec({
+                "plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pid"}],
+                "objective": {"margin_weight": 0},
+                "search": {"algo": algo, "env": env, "budget": a.budget, "seed": seed, "refine": False},
+            })
+            t0 = time.perf_counter()
+            r = tune(spec, verify=False, agent_overrides=over or None)
+            print(f"| {name} | {seed} | {r.rl_cost / a.reference:.4f} | {r.policy_cost / a.reference:.4f} | "
+                  f"{r.sims} | {time.perf_counter() - t0:.1f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
