@@ -13,9 +13,19 @@ from api.problems import ApiError
 from api.settings import Settings
 from api.store import JobStore
 
-__all__ = ["SettingsDep", "StoreDep", "OwnerDep", "require_key", "owner_of", "api_key_header"]
+__all__ = ["SettingsDep", "StoreDep", "OwnerDep", "require_key", "owner_of", "api_key_header", "run_compute"]
 
 api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False, description="API key (when the server has keys configured).")
+
+
+async def run_compute(request: Request, fn, *args):
+    """Run CPU-bound ``fn(*args)`` in a worker thread, at most ``compute_threads`` at a time (off the event loop)."""
+    import anyio
+
+    st = request.app.state
+    if getattr(st, "compute_limiter", None) is None:
+        st.compute_limiter = anyio.CapacityLimiter(st.settings.compute_threads)
+    return await anyio.to_thread.run_sync(fn, *args, limiter=st.compute_limiter)
 
 
 def get_settings(request: Request) -> Settings:

@@ -89,6 +89,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.metrics = Metrics()
     app.state.supervisor = None
     app.state.verify_cache = None
+    app.state.compute_limiter = None
     install_handlers(app)
     for r in (jobs.router, verify.router, simulate.router, plants.router, ops.router):
         app.include_router(r)

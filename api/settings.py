@@ -54,6 +54,10 @@ class Settings(BaseSettings):
     sync_max_n_freq: int = Field(20_000, ge=100, description="verify.n_freq cap for synchronous /v1/verify.")
     sync_max_robust_samples: int = Field(64, ge=0, description="verify.robust_samples cap for synchronous /v1/verify.")
     simulate_max_points: int = Field(2000, ge=2, description="Most points per returned trace of /v1/simulate.")
+    compute_threads: int = Field(
+        1, ge=1, le=64, description="Concurrent /v1/verify and /v1/simulate computations (GIL-bound: more threads "
+        "add contention, not throughput)."
+    )
     verify_cache_size: int = Field(256, ge=0, description="LRU entries of identical /v1/verify requests (0: off).")
 
     # ------------------------------------------------------- security

@@ -6,9 +6,9 @@ import logging
 import math
 
 import numpy as np
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 
-from api.deps import SettingsDep, require_key
+from api.deps import SettingsDep, require_key, run_compute
 from api.jsonbody import StrictJSONRoute
 from api.problems import ApiError
 from api.schemas import ScenarioTrace, SimulateRequest, SimulateResponse
@@ -43,8 +43,12 @@ def decimate(n: int, max_points: int) -> tuple[np.ndarray, int]:
     summary="Simulate gains on the spec's scenarios; traces decimated to max_points",
     responses={422: {"description": "Invalid spec, gains or scenario names.", "content": {"application/problem+json": {}}}},
 )
-def simulate(body: SimulateRequest, settings: SettingsDep) -> SimulateResponse:
+async def simulate(body: SimulateRequest, request: Request, settings: SettingsDep) -> SimulateResponse:
     """Nominal-plant closed-loop traces (``y.<loop>``, ``sp.<loop>``, ``u``) and metrics per scenario."""
+    return await run_compute(request, _simulate, body, settings)
+
+
+def _simulate(body: SimulateRequest, settings) -> SimulateResponse:
     from gaintune.sim import Simulator
 
     checked = check_spec(body.spec, settings, "simulate", prefix="spec")

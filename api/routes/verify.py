@@ -10,7 +10,7 @@ from collections import OrderedDict
 
 from fastapi import APIRouter, Request, Response
 
-from api.deps import SettingsDep, require_key
+from api.deps import SettingsDep, require_key, run_compute
 from api.jsonbody import StrictJSONRoute
 from api.problems import ApiError
 from api.schemas import VerifyRequest
@@ -60,9 +60,13 @@ def _cache(request: Request) -> ReportCache:
     summary="Verify gains: stability, margins, robustness, nonlinear check, verdict",
     responses={422: {"description": "Invalid spec or gains.", "content": {"application/problem+json": {}}}},
 )
-def verify_gains(body: VerifyRequest, request: Request, settings: SettingsDep) -> Response:
+async def verify_gains(body: VerifyRequest, request: Request, settings: SettingsDep) -> Response:
     """Returns the VerificationReport. Non-finite figures (e.g. an infinite gain margin) are the strings
     ``"Infinity"``/``"-Infinity"``."""
+    return await run_compute(request, _verify, body, request, settings)
+
+
+def _verify(body: VerifyRequest, request: Request, settings) -> Response:
     checked = check_spec(body.spec, settings, "verify", prefix="spec")
     key = hashlib.sha256(
         json.dumps([body.spec.content_hash(), body.gains, body.robust, body.nonlinear], sort_keys=True).encode()

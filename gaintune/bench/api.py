@@ -104,13 +104,34 @@ def _start_server(tmp: Path, port: int, workers: int) -> subprocess.Popen:
     return subprocess.Popen(cmd, cwd=tmp, env=env, stdout=open(tmp / "server.log", "w"), stderr=subprocess.STDOUT)
 
 
+def _in_process_verify_ms(n: int = 20) -> float:
+    """Median time of one direct verify() call with distinct gains: the compute floor of a verify request."""
+    from gaintune.spec import load_spec
+    from gaintune.verify import verify
+
+    spec = load_spec(CASCADE_SPEC)
+    verify(spec, NOMINAL_GAINS)
+    rng = np.random.default_rng(1)
+    ts = []
+    for _ in range(n):
+        f = np.exp(rng.uniform(np.log(0.8), np.log(1.25), 4))
+        g = {"speed": {"Kp": 2.0 * f[0], "Ki": 40.0 * f[1]}, "current": {"Kp": 10.0 * f[2], "Ki": 1000.0 * f[3]}}
+        t0 = time.perf_counter()
+        verify(spec, g)
+        ts.append(time.perf_counter() - t0)
+    return round(float(np.median(ts)) * 1e3, 2)
+
+
 async def _run(args) -> dict:
     import httpx
 
     tmp = Path(tempfile.mkdtemp(prefix="gaintune-bench-api-"))
     port = _free_port()
+    load0 = [round(x, 2) for x in os.getloadavg()]
+    in_process = _in_process_verify_ms()
     proc = _start_server(tmp, port, workers=2)
-    out: dict = {"url": f"http://127.0.0.1:{port}", "cpus": os.cpu_count(), "concurrency": args.concurrency}
+    out: dict = {"url": f"http://127.0.0.1:{port}", "cpus": os.cpu_count(), "concurrency": args.concurrency,
+                 "loadavg_start": load0, "verify_in_process_ms": in_process}
     try:
         limits = httpx.Limits(max_connections=args.concurrency * 2)
         async with httpx.AsyncClient(base_url=out["url"], timeout=60, limits=limits) as c:
@@ -190,11 +211,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true", help="print JSON instead of a table")
     args = ap.parse_args(argv)
     out = asyncio.run(_run(args))
+    out["loadavg_end"] = [round(x, 2) for x in os.getloadavg()]
     if args.json:
         print(json.dumps(out, indent=2))
         return 0
     print(f"server {out['url']} ({out['cpus']} CPUs, 2 job workers), ready in {out['startup_s']} s; "
           f"concurrency {out['concurrency']}; nominal verdict {out['verdict_nominal']}")
+    print(f"load average at start {out['loadavg_start']}, at end {out['loadavg_end']}; one verify() in-process "
+          f"(no HTTP, distinct gains): {out['verify_in_process_ms']} ms median")
     print("| phase | requests | req/s | p50 ms | p95 ms | p99 ms | errors |")
     print("|---|---:|---:|---:|---:|---:|---|")
     for k in ("verify_distinct", "verify_repeat", "get_job_idle", "get_job_2_jobs"):
