@@ -295,9 +295,17 @@ class ActuatorSpec(_Model):
     @field_validator("limits")
     @classmethod
     def _limits(cls, v: tuple[float, float] | None) -> tuple[float, float] | None:
-        if v is not None and not (v[0] < v[1]):
-            raise ValueError(f"limits must be [low, high] with low < high, got {list(v)}")
+        if v is not None:
+            _finite(v[0], "limits")
+            _finite(v[1], "limits")
+            if not v[0] < v[1]:
+                raise ValueError(f"limits must be [low, high] with low < high, got {list(v)}")
         return v
+
+    @field_validator("safe_value", "rate_limit")
+    @classmethod
+    def _finite_value(cls, v: float | None) -> float | None:
+        return v if v is None else _finite(v, "value")
 
 
 # ----------------------------------------------------------------- scenarios
@@ -322,6 +330,9 @@ class ProfileSpec(_Model):
     def _check(self) -> "ProfileSpec":
         for x in (self.amplitude, self.time, self.slope):
             _finite(x, "profile value")
+        for t, v in self.points:
+            _finite(t, "sequence time")
+            _finite(v, "sequence value")
         if self.kind == "sequence":
             if not self.points:
                 raise ValueError("a sequence profile needs points: [[t0, v0], [t1, v1], ...]")
@@ -422,6 +433,10 @@ class DistSpec(_Model):
 
     @model_validator(mode="after")
     def _check(self) -> "DistSpec":
+        for name in ("low", "high", "mean", "std"):
+            v = getattr(self, name)
+            if v is not None:
+                _finite(v, name)
         if self.dist == "normal":
             if self.mean is None or self.std is None:
                 raise ValueError("a normal distribution needs mean and std")
@@ -479,6 +494,19 @@ class SafetySpec(_Model):
         None, description="Loop name -> gain dict used after a trip when action is fallback."
     )
     divergence_bound: float = Field(1e6, gt=0, description="|state| beyond this, or NaN/inf, marks divergence.")
+
+    @model_validator(mode="after")
+    def _finite_numbers(self) -> "SafetySpec":
+        for k, v in self.state_bounds.items():
+            _finite(v, f"state bound {k!r}")
+            if v <= 0:
+                raise ValueError(f"state bound {k!r} must be > 0, got {v}")
+        for loop, gains in (self.fallback_gains or {}).items():
+            for g, v in gains.items():
+                _finite(v, f"fallback gain {loop}.{g}")
+        for name in ("max_abs_error", "max_abs_output", "divergence_bound"):
+            _finite(getattr(self, name) or 1.0, name)
+        return self
 
 
 class RobustSpec(_Model):
