@@ -44,7 +44,7 @@ app.add_typer(plants_app, name="plants")
 app.add_typer(bench_app, name="bench")
 
 out = Console()
-err = Console(stderr=True)
+err = Console(stderr=True, soft_wrap=True)
 
 
 class InputError(Exception):
@@ -171,8 +171,16 @@ def apply_overrides(spec, *, algo: str | None = None, budget: int | None = None,
     return TuningSpec.model_validate(data)
 
 
-def _command_line() -> str:
-    return "gaintune " + shlex.join(sys.argv[1:])
+def _command_line(*parts: Any, **options: Any) -> str:
+    """The command that re-runs this result: positional parts, then the options that were given."""
+    words = ["gaintune", *[str(p) for p in parts]]
+    for k, v in options.items():
+        if v is None or v is False:
+            continue
+        words.append(f"--{k.replace('_', '-')}")
+        if v is not True:
+            words.append(str(v))
+    return shlex.join(words)
 
 
 # --------------------------------------------------------------- output
@@ -262,9 +270,16 @@ def _get_tune() -> Callable:
     return tune
 
 
-def _run_tune(spec, *, out_dir: Path | None, json_out: bool, baselines: bool) -> Any:
+def _run_tune(spec, *, out_dir: Path | None, json_out: bool, baselines: bool, command: str) -> Any:
     tune = _get_tune()
     kwargs: dict[str, Any] = dict(out_dir=str(out_dir) if out_dir else None, verify=True, baselines=baselines)
+    import inspect
+
+    try:
+        if "command" in inspect.signature(tune).parameters:
+            kwargs["command"] = command
+    except (TypeError, ValueError):  # pragma: no cover - not introspectable
+        pass
     if json_out:
         return tune(spec, progress=None, **kwargs)
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -284,9 +299,9 @@ def _run_tune(spec, *, out_dir: Path | None, json_out: bool, baselines: bool) ->
         return tune(spec, progress=progress, **kwargs)
 
 
-def _finish(result, *, out_dir: Path | None, json_out: bool) -> None:
+def _finish(result, *, out_dir: Path | None, json_out: bool, command: str) -> None:
     if not result.provenance.command:
-        result.provenance.command = _command_line()
+        result.provenance.command = command
     if out_dir is not None:
         _write_outputs(result, out_dir, console=err if json_out else out)
     if json_out:
@@ -316,8 +331,9 @@ def tune(
 ) -> None:
     """Tune the gains of SPEC with RL, verify them and print a summary. Exit 3 if verification fails."""
     spec = apply_overrides(load_spec_file(spec_path), algo=algo, budget=budget, seed=seed, workers=workers)
-    result = _run_tune(spec, out_dir=out_dir, json_out=json_out, baselines=baselines)
-    _finish(result, out_dir=out_dir, json_out=json_out)
+    command = _command_line("tune", spec_path, algo=algo, budget=budget, seed=spec.search.seed, workers=workers, baselines=baselines)
+    result = _run_tune(spec, out_dir=out_dir, json_out=json_out, baselines=baselines, command=command)
+    _finish(result, out_dir=out_dir, json_out=json_out, command=command)
 
 
 def demo_spec(budget: int | None = None, seed: int | None = None):
@@ -340,8 +356,9 @@ def demo(
 ) -> None:
     """Tune the built-in demo loop (PID on 1/(s+1)^3), verify it and write result, report and exports to --out."""
     spec = demo_spec(budget, seed)
-    result = _run_tune(spec, out_dir=out_dir, json_out=json_out, baselines=False)
-    _finish(result, out_dir=out_dir, json_out=json_out)
+    command = _command_line("demo", budget=budget, seed=spec.search.seed)
+    result = _run_tune(spec, out_dir=out_dir, json_out=json_out, baselines=False, command=command)
+    _finish(result, out_dir=out_dir, json_out=json_out, command=command)
     if not json_out:
         out.print(f"open {out_dir / 'report.html'} in a browser")
 
@@ -363,7 +380,7 @@ def verify(
     if json_out:
         sys.stdout.write(rep.model_dump_json(indent=2) + "\n")
     else:
-        out.print(format_table(rep), markup=False, highlight=False)
+        sys.stdout.write(format_table(rep) + "\n")
     if rep.verdict != "pass":
         raise typer.Exit(EXIT_VERIFY)
 
@@ -394,13 +411,14 @@ def simulate(
             doc[r.scenario] = d
         sys.stdout.write(json.dumps(doc, indent=2) + "\n")
     else:
-        keys = ("iae", "ise", "effort", "overshoot", "rise_time", "settling_time", "sse", "peak_u", "sat_frac", "diverged", "tripped")
+        keys = ("iae", "ise", "itae", "effort", "tv", "overshoot", "rise_time", "settling_time", "sse", "peak_u", "sat_frac",
+                "load_iae", "diverged", "tripped")
         t = Table(title=f"Simulation of {spec.name!r} (nominal plant)")
-        t.add_column("scenario")
-        for k in keys:
-            t.add_column(k, justify="right")
+        t.add_column("metric")
         for r in results:
-            t.add_row(r.scenario, *[_f(float(r.metrics[k][0])) if r.metrics[k].dtype != bool else str(bool(r.metrics[k][0])) for k in keys])
+            t.add_column(r.scenario, justify="right")
+        for k in keys:
+            t.add_row(k, *[str(bool(r.metrics[k][0])) if r.metrics[k].dtype == bool else _f(float(r.metrics[k][0])) for r in results])
         out.print(t)
     if plot is not None:
         _plot_runs(spec, sim, results, plot)

@@ -212,7 +212,7 @@ def _freq_section(spec, plant, layout, full, rep) -> dict[str, Any]:
     hi = max(cross) * 100.0
     if delay.T > 0:  # beyond a few rad of delay phase the plot only shows the delay spinning
         hi = min(hi, max(max(cross) * 5.0, 3.0 / delay.T))
-    w = np.logspace(math.log10(lo), math.log10(hi), 1500)
+    w = np.logspace(math.log10(lo), math.log10(hi), 800)
     s = 1j * w
     with np.errstate(all="ignore"):
         L = cas.loop_responses(s, lin, delay.factor(s))[:, 0, :]

@@ -48,6 +48,7 @@ def to_svg(fig: Any) -> str:
     plt.close(fig)
     text = buf.getvalue()
     text = text[text.index("<svg"):]
+    text = re.sub(r"<metadata>.*?</metadata>", "", text, flags=re.S)
     pre = f"f{next(_counter)}_"
     text = re.sub(r'\bid="([^"]+)"', lambda m: f'id="{pre}{m.group(1)}"', text)
     text = re.sub(r"url\(#([^)]+)\)", lambda m: f"url(#{pre}{m.group(1)})", text)
@@ -55,6 +56,17 @@ def to_svg(fig: Any) -> str:
     # scale with the page: keep the viewBox, drop the fixed size
     text = re.sub(r'<svg([^>]*?)\swidth="[^"]+"\sheight="[^"]+"', r'<svg\1 class="plot"', text, count=1)
     return text
+
+
+def _logx(*axes) -> None:
+    """Plain decade labels and no minor ticks: mathtext labels and minor tick artists make log axes slow."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
+
+    for ax in axes:
+        ax.set_xscale("log")
+        ax.xaxis.set_major_locator(LogLocator(base=10.0, numticks=12))
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _p: f"{v:g}"))
+        ax.xaxis.set_minor_locator(NullLocator())
 
 
 def time_figure(t: np.ndarray, loops: list[dict], u: np.ndarray, u_limits: tuple[float, float] | None,
@@ -67,7 +79,7 @@ def time_figure(t: np.ndarray, loops: list[dict], u: np.ndarray, u_limits: tuple
         ax.plot(t, lp["sp"], color="0.4", ls="--", lw=1.0, label=f"setpoint {lp['name']}")
         ax.plot(t, lp["y"], color=COLORS[0], lw=1.4, label=f"{lp['name']} ({lp['measure']})")
         ax.set_ylabel(lp["measure"] + (f" [{lp['unit']}]" if lp.get("unit") and lp["unit"] != "-" else ""))
-        ax.legend(loc="best", fontsize=8)
+        ax.legend(loc="lower right", fontsize=8, framealpha=0.8)
     ax = axes[-1]
     ax.plot(t, u, color=COLORS[1], lw=1.2, label="u (actuator)")
     if u_limits is not None:
@@ -79,7 +91,7 @@ def time_figure(t: np.ndarray, loops: list[dict], u: np.ndarray, u_limits: tuple
             ax.plot([], [], "k:", label="saturation " + " / ".join(lab))
     ax.set_ylabel("u")
     ax.set_xlabel("time [s]")
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="lower right", fontsize=8, framealpha=0.8)
     axes[0].set_title(title)
     fig.tight_layout()
     return to_svg(fig)
@@ -95,10 +107,11 @@ def bode_figure(w: np.ndarray, L: np.ndarray, title: str, gm: dict | None, pm: d
     # shift the phase so that it starts within (-360, 0] like textbook Bode plots
     if ph.size and np.isfinite(ph[0]):
         ph = ph - 360.0 * math.ceil(ph[0] / 360.0) if ph[0] > 0 else ph
-    a1.semilogx(w, mag, color=COLORS[0], lw=1.4)
+    a1.plot(w, mag, color=COLORS[0], lw=1.4)
     a1.axhline(0, color="k", lw=0.8)
     a1.set_ylabel("|L| [dB]")
-    a2.semilogx(w, ph, color=COLORS[0], lw=1.4)
+    a2.plot(w, ph, color=COLORS[0], lw=1.4)
+    _logx(a1, a2)
     a2.axhline(-180, color="k", lw=0.8)
     a2.set_ylabel("phase [deg]")
     a2.set_xlabel("frequency [rad/s]")
@@ -162,8 +175,9 @@ def sensitivity_figure(w: np.ndarray, curves: list[tuple[str, np.ndarray]], ms_m
         with np.errstate(all="ignore"):
             S = 1.0 / (1.0 + L)
             T = L / (1.0 + L)
-            a1.semilogx(w, 20 * np.log10(np.abs(S)), color=c, lw=1.3, label=name)
-            a2.semilogx(w, 20 * np.log10(np.abs(T)), color=c, lw=1.3, label=name)
+            a1.plot(w, 20 * np.log10(np.abs(S)), color=c, lw=1.3, label=name)
+            a2.plot(w, 20 * np.log10(np.abs(T)), color=c, lw=1.3, label=name)
+    _logx(a1, a2)
     if ms_max:
         a1.axhline(20 * math.log10(ms_max), color="k", ls="--", lw=1, label=f"Ms limit {ms_max:g}")
     if mt_max:
@@ -190,7 +204,7 @@ def envelope_figure(t: np.ndarray, ys: np.ndarray, y_nom: np.ndarray, sp: np.nda
     a1.plot(t, sp, color="0.4", ls="--", lw=1, label="setpoint")
     a1.plot(t, y_nom, color="k", lw=1.4, label="nominal")
     a1.set_ylabel(label)
-    a1.legend(loc="best", fontsize=8)
+    a1.legend(loc="lower right", fontsize=8, framealpha=0.8)
     a2.fill_between(t, np.nanmin(us, 0), np.nanmax(us, 0), color=COLORS[1], alpha=0.2, lw=0)
     a2.plot(t, u_nom, color=COLORS[1], lw=1.2)
     a2.set_ylabel("u")
@@ -215,7 +229,7 @@ def curve_figure(series: list[tuple[str, list[float], list[float]]]) -> str:
     ax.set_xlabel("simulations")
     ax.set_ylabel("best cost")
     ax.set_title("Search progress")
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="lower right", fontsize=8, framealpha=0.8)
     fig.tight_layout()
     return to_svg(fig)
 
@@ -239,6 +253,6 @@ def overlay_figure(t: np.ndarray, sp: np.ndarray, runs: list[tuple[str, np.ndarr
     a2.set_ylabel("u")
     a2.set_xlabel("time [s]")
     a1.set_title(title)
-    a1.legend(loc="best", fontsize=8)
+    a1.legend(loc="lower right", fontsize=8, framealpha=0.8)
     fig.tight_layout()
     return to_svg(fig)
