@@ -454,7 +454,7 @@ def markdown(result: dict[str, Any]) -> str:
         lines.append(
             f"| {r['case']} | {r['batch']} | {r['steps']} | {r['kernel_sims_per_s']:,.0f} | {r['kernel_ms_per_sim']:.4f} | "
             f"{r['run_sims_per_s']:,.0f} | {100 * r['overhead_frac']:.0f} % | {r['numpy_sims_per_s']:,.1f} | "
-            f"{r['speedup_vs_numpy']:,.0f}x | {r.get('kernel_peak_mb', float('nan')):.1f} | {r.get('numpy_peak_mb', float('nan')):.1f} |"
+            f"{r['speedup_vs_numpy']:,.0f}x | {r.get('kernel_peak_mb', float('nan')):.2f} | {r.get('numpy_peak_mb', float('nan')):.2f} |"
         )
     meth = {r.get("memory_method") for r in result["rows"]} - {None}
     if meth:

@@ -13,6 +13,13 @@ the independent candidates give the CPU instruction-level parallelism: this
 measured about 3.4x faster per candidate than one fused pass per candidate,
 whose long dependent chain leaves the core waiting on latency.
 
+The loops are bound by loads and stores, so per-step work is trimmed where
+results are unchanged bit for bit: a plant identical across a chunk (the usual
+case: many gain sets on the nominal plant) is read as scalars and its zero
+entries skipped; the measured output is the true output when there is no
+noise; disturbance, fractional-delay and feedthrough terms are only computed
+when present (about 1.4x on the LTI benchmark cases).
+
 The discrete-time controller law is documented in :mod:`gaintune.controllers.pid`;
 the plant update is exact ZOH with a fractional input delay for LTI plants,
 and RK4 over a casadi instruction tape for nonlinear ones.
@@ -231,6 +238,12 @@ def _kernel(
         dmax = max(dmax, dsteps[b])
         any_noise = any_noise or noise_std[b] > 0
     M = dmax + 2  # delay ring-buffer length
+    has_G1 = False
+    if not nonlinear:
+        for i in range(G1.shape[0]):
+            for b in range(G1.shape[1]):
+                has_G1 = has_G1 or G1[i, b] != 0.0
+    ymf = P_YM if any_noise else P_YT  # measured = true output unless there is noise
     has_D = False
     for l in range(Dm.shape[0]):
         for b in range(Dm.shape[1]):
@@ -258,6 +271,17 @@ def _kernel(
                     if (sk0[sg, p, b] != sk0[sg, p, b0] or sk1[sg, p, b] != sk1[sg, p, b0]
                             or soff[sg, p, b] != soff[sg, p, b0] or sslope[sg, p, b] != sslope[sg, p, b0]):
                         shared = False
+        # A plant identical across the chunk (e.g. B gain sets on the nominal plant) is read as scalars.
+        shared_plant = not nonlinear
+        if shared_plant:
+            for j in range(1, m):
+                b = b0 + j
+                for i in range(n):
+                    shared_plant = shared_plant and G0[i, b] == G0[i, b0] and G1[i, b] == G1[i, b0]
+                    for q in range(n):
+                        shared_plant = shared_plant and Ad[i, q, b] == Ad[i, q, b0]
+                    for l in range(L):
+                        shared_plant = shared_plant and Cm[l, i, b] == Cm[l, i, b0]
         x = np.zeros((n, CHUNK))
         xn = np.zeros((n, CHUNK))
         ls = np.zeros((N_F, CHUNK))
@@ -315,16 +339,21 @@ def _kernel(
                 dins = _signal(1, k, b0, sk0, sk1, soff, sslope, dt) if has_sig[1] else 0.0
                 douts = _signal(2, k, b0, sk0, sk1, soff, sslope, dt) if has_sig[2] else 0.0
             # ---- plant input seen by the outputs (only the delayed u[k-1-d] is known before u[k])
-            for j in range(m):
-                b = b0 + j
-                idd = pos - 1 - dsteps[b]
-                ls[F_UB, j] = buf[idd + M if idd < 0 else idd, j]
+            if nonlinear:
+                for j in range(m):
+                    b = b0 + j
+                    idd = pos - 1 - dsteps[b]
+                    ls[F_UB, j] = buf[idd + M if idd < 0 else idd, j]
             # ---- signals
             if shared:
                 for j in range(m):
                     ls[F_R, j] = rs + y_op[0, b0 + j]
-                    ls[F_DIN, j] = dins
-                    ls[F_DOUT, j] = douts
+                if has_sig[1]:
+                    for j in range(m):
+                        ls[F_DIN, j] = dins
+                if has_sig[2]:
+                    for j in range(m):
+                        ls[F_DOUT, j] = douts
             else:
                 for j in range(m):
                     b = b0 + j
@@ -346,20 +375,30 @@ def _kernel(
             else:
                 for l in range(L):
                     dl = dist_out_loops[l]
-                    for j in range(m):
-                        lp[P_YT, l, j] = dl * ls[F_DOUT, j]
-                    for i in range(n):
+                    if has_sig[2]:
                         for j in range(m):
-                            lp[P_YT, l, j] += Cm[l, i, b0 + j] * x[i, j]
+                            lp[P_YT, l, j] = dl * ls[F_DOUT, j]
+                    else:
+                        for j in range(m):
+                            lp[P_YT, l, j] = 0.0
+                    for i in range(n):
+                        if shared_plant:
+                            cli = Cm[l, i, b0]
+                            if cli != 0.0:
+                                for j in range(m):
+                                    lp[P_YT, l, j] += cli * x[i, j]
+                        else:
+                            for j in range(m):
+                                lp[P_YT, l, j] += Cm[l, i, b0 + j] * x[i, j]
                     if has_D:  # feedthrough sees only delayed inputs (d >= 1 is enforced)
                         for j in range(m):
                             b = b0 + j
                             idd = pos - dsteps[b]
                             lp[P_YT, l, j] += Dm[l, b] * (buf[idd + M if idd < 0 else idd, j] + ls[F_DIN, j])
-            for l in range(L):
-                for j in range(m):
-                    lp[P_YM, l, j] = lp[P_YT, l, j]
             if any_noise:
+                for l in range(L):
+                    for j in range(m):
+                        lp[P_YM, l, j] = lp[P_YT, l, j]
                 for l in range(L):
                     for j in range(m):
                         b = b0 + j
@@ -401,13 +440,13 @@ def _kernel(
                 for l in range(L):
                     for j in range(m):
                         sp0 = ls[F_R, j] if l == 0 else lp[P_VOUT, l - 1, j]
-                        lp[P_EDP, l, j] = lp[P_CW, l, j] * sp0 - lp[P_YM, l, j]  # no derivative kick
+                        lp[P_EDP, l, j] = lp[P_CW, l, j] * sp0 - lp[ymf, l, j]  # no derivative kick
             for l in range(L):
                 if l == L - 1 and sf:
                     for j in range(m):
                         b = b0 + j
                         sp = ls[F_R, j] if l == 0 else lp[P_VOUT, l - 1, j]
-                        e = sp - lp[P_YM, l, j]
+                        e = sp - lp[ymf, l, j]
                         v = ls[F_UOP, j] + nr[b] * (sp - y_op[l, b])
                         for i in range(n):
                             v -= K[i, b] * (x[i, j] - x_op[i, b])
@@ -424,7 +463,7 @@ def _kernel(
                 mode = aw[l]
                 for j in range(m):
                     sp = ls[F_R, j] if l == 0 else lp[P_VOUT, l - 1, j]
-                    y = lp[P_YM, l, j]
+                    y = lp[ymf, l, j]
                     e = sp - y
                     ed = lp[P_CW, l, j] * sp - y
                     dterm = lp[P_AL, l, j] * lp[P_D, l, j] + lp[P_BE, l, j] * (ed - lp[P_EDP, l, j])
@@ -522,10 +561,29 @@ def _kernel(
                 for i in range(n):
                     for j in range(m):
                         xn[i, j] = x[i, j] + dt / 6.0 * (k1[i, j] + 2.0 * k2[i, j] + 2.0 * k3[i, j] + k4[i, j])
+            elif shared_plant:
+                for i in range(n):
+                    g0 = G0[i, b0]
+                    g1 = G1[i, b0]
+                    if has_G1:
+                        for j in range(m):
+                            xn[i, j] = g0 * ls[F_UA, j] + g1 * ls[F_UB, j]
+                    else:
+                        for j in range(m):
+                            xn[i, j] = g0 * ls[F_UA, j]
+                    for q in range(n):
+                        a = Ad[i, q, b0]
+                        if a != 0.0:
+                            for j in range(m):
+                                xn[i, j] += a * x[q, j]
             else:
                 for i in range(n):
-                    for j in range(m):
-                        xn[i, j] = G0[i, b0 + j] * ls[F_UA, j] + G1[i, b0 + j] * ls[F_UB, j]
+                    if has_G1:
+                        for j in range(m):
+                            xn[i, j] = G0[i, b0 + j] * ls[F_UA, j] + G1[i, b0 + j] * ls[F_UB, j]
+                    else:
+                        for j in range(m):
+                            xn[i, j] = G0[i, b0 + j] * ls[F_UA, j]
                     for q in range(n):
                         for j in range(m):
                             xn[i, j] += Ad[i, q, b0 + j] * x[q, j]
