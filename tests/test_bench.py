@@ -127,6 +127,35 @@ def test_reference_cache_is_reused_and_shared(tmp_path, monkeypatch):
     assert U.reference_key(p) in json.loads((tmp_path / "reference_other.json").read_text())
     U.reference_for(p, "quick", tmp_path, refresh=True)
     assert calls == [p.name, p.name]
+    stale = json.loads((tmp_path / "reference_quick.json").read_text())
+    stale["0ldkey"] = {"problem": p.name, "cost": 1.0}
+    (tmp_path / "reference_quick.json").write_text(json.dumps(stale))
+    U.reference_for(p, "quick", tmp_path, refresh=True)
+    assert list(json.loads((tmp_path / "reference_quick.json").read_text())) == [U.reference_key(p)]
+
+
+def test_stale_reference_is_recomputed(tmp_path, monkeypatch):
+    calls = []
+
+    def fake(problem, evaluator=None, log=None):
+        calls.append(problem.name)
+        return {"problem": problem.name, "cost": 9.0, "gains": None, "source": "search", "n_sims": 5, "wall_time": 0.0,
+                "exact": None}
+
+    monkeypatch.setattr(U, "compute_reference", fake)
+    p = U.get_suite("quick")[0]
+    key = U.reference_key(p)
+    gains = {"main": {"Kp": 2.0, "Ki": 1.0}}
+    from gaintune.envs.problem import GainProblem
+
+    ev = GainProblem(p.tuning_spec()).evaluator
+    true = float(ev(np.array([[2.0, 1.0]]))[0])
+    for cost, recomputed in ((true, False), (true * 1.01, True)):
+        (tmp_path / "reference_quick.json").write_text(json.dumps({key: {"problem": p.name, "cost": cost, "gains": gains}}))
+        calls.clear()
+        e = U.reference_for(p, "quick", tmp_path)
+        assert (calls == [p.name]) is recomputed
+        assert e["cost"] == (9.0 if recomputed else true)
 
 
 # ------------------------------------------------------------------ helpers

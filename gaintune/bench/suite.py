@@ -330,17 +330,34 @@ def select(problems: list[Problem], names: list[str] | None) -> list[Problem]:
 def reference_key(problem: Problem) -> str:
     """Hash of everything the reference optimum depends on.
 
-    The spec without its name, description, search budget/seed/agent settings,
-    requirements and verification settings (none of which change the cost
-    function or the search box), plus the reference options and exactness.
+    The spec's non-default fields (so that schema additions and default-preserving
+    refactors keep the key) without its name, description, search budget/seed/agent
+    settings, requirements and verification settings (none of which change the
+    cost function), plus the search box (which a rule change may move), the
+    reference options and exactness. :func:`reference_for` also re-scores a cached
+    answer, so a changed cost function is caught even when the key is unchanged.
     """
     spec = problem.tuning_spec()
-    d = spec.model_dump(mode="json")
-    for k in ("name", "description", "requirements", "verify"):
+    d = spec.model_dump(mode="json", exclude_defaults=True)
+    for k in ("name", "description", "requirements", "verify", "search"):
         d.pop(k, None)
-    d["search"] = {"robust": d["search"]["robust"]}
+    d["_robust"] = spec.search.robust.model_dump(mode="json")
+    d["_box"] = _search_box(spec)
     d["_reference"] = {"options": problem.reference, "exact": problem.exact}
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _search_box(spec: TuningSpec) -> list[list[float]]:
+    """Log-scale bounds of the tuned gains as the searches see them (rounded for a stable hash)."""
+    import warnings
+
+    from gaintune.controllers.layout import search_layout
+    from gaintune.plants import build_plant
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # FOTD fits of stiff paths warn about conditioning
+        layout = search_layout(spec, build_plant(spec.plant))
+    return [[float(f"{lo:.9g}"), float(f"{hi:.9g}")] for lo, hi in (s.bounds for s in layout.tuned_slots)]
 
 
 def exact_optimum(problem: Problem, evaluator) -> dict[str, Any] | None:
@@ -436,19 +453,48 @@ def reference_for(
         files = [path] + sorted(p for p in out.glob("reference_*.json") if p != path)
         for f in files:
             entry = _read_cache(f).get(key)
-            if entry is not None:
+            if entry is not None and _still_valid(problem, entry, evaluator):
                 if f != path:
                     _write_entry(path, key, entry)
                 return entry
+            if entry is not None and log:
+                log(f"cached reference of {problem.name} no longer scores {entry.get('cost')}: recomputing")
     entry = compute_reference(problem, evaluator=evaluator, log=log)
     entry["key"] = key
     _write_entry(path, key, entry)
     return entry
 
 
+#: Relative difference between a cached reference cost and its re-scored gains that invalidates the entry.
+RESCORE_RTOL = 1e-6
+
+
+def _still_valid(problem: Problem, entry: dict[str, Any], evaluator=None) -> bool:
+    """Re-score the cached reference gains (one simulation): the cost function may have changed."""
+    gains, cost = entry.get("gains"), entry.get("cost")
+    if gains is None or cost is None:
+        return True  # nothing to check (no finite reference was found)
+    try:
+        if evaluator is None:
+            from gaintune.envs.problem import GainProblem
+
+            evaluator = GainProblem(problem.tuning_spec()).evaluator
+        layout = evaluator.layout
+        tuned = np.asarray(layout.from_dict(gains))[layout.tuned_idx]
+        n0 = getattr(evaluator, "n_sims", 0)
+        now = float(np.asarray(evaluator(tuned[None, :])).ravel()[0])
+        if hasattr(evaluator, "n_sims"):
+            evaluator.n_sims = n0
+    except Exception:  # gains no longer fit the layout, etc.
+        return False
+    return math.isfinite(now) and abs(now - cost) <= RESCORE_RTOL * max(abs(cost), 1e-300)
+
+
 def _write_entry(path, key: str, entry: dict[str, Any]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     data = _read_cache(path)
+    # one entry per problem and suite file: an older key of the same problem is stale
+    data = {k: v for k, v in data.items() if k == key or not isinstance(v, dict) or v.get("problem") != entry.get("problem")}
     data[key] = entry
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
