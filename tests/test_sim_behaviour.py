@@ -386,3 +386,14 @@ def test_shared_plant_chunk_and_per_candidate_plants_agree() -> None:
     for k in ("iae", "ise", "overshoot", "settling_time", "y_final"):
         np.testing.assert_array_equal(a.metrics[k][:-1], b.metrics[k][:-1])
     assert a.metrics["iae"][-1] != b.metrics["iae"][-1]
+
+
+def test_fallback_with_an_lq_loop_is_rejected_not_ignored() -> None:
+    """Regression: the fallback switch only changed PID gains, so an LQR loop silently kept its K after a trip."""
+    from gaintune.errors import SpecError
+
+    spec = {"plant": {"ss": {"A": [[0, 1], [2, -0.5]], "B": [[0], [1]], "C": [[1, 0]], "states": ["p", "v"], "outputs": ["p"]}},
+            "loops": [{"type": "lqr"}],
+            "safety": {"max_abs_error": 0.5, "action": "fallback", "fallback_gains": {"loop0": {"q_p": 1000.0, "q_v": 1.0}}}}
+    with pytest.raises(SpecError, match="fallback"):
+        make(spec)

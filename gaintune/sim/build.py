@@ -107,6 +107,9 @@ class Problem:
         f_tape = h_tape = None
         if plant.kind == "nonlinear":
             f_tape, h_tape = make_tape(plant.f), make_tape(plant.h)
+        if spec.safety.action == "fallback" and any(loop.is_lq for loop in spec.loops):
+            # the kernel switches PID gains only: an LQ loop would silently keep its tuned K after a trip
+            raise SpecError("safety.action", "'fallback' is not supported with LQR/LQI loops; use 'hold'")
         for name in spec.safety.state_bounds:
             if name not in plant.states:
                 raise SpecError(f"safety.state_bounds.{name}", f"unknown state; the plant has {plant.states}")
