@@ -200,7 +200,7 @@ def _f(x: Any, d: int = 4) -> str:
 
 
 def _print_summary(result, console: Console = out) -> None:
-    from gaintune.verify import VerificationReport
+    from gaintune.report import load_verification
 
     verdict = result.verdict
     passed = verdict == "pass"
@@ -214,7 +214,7 @@ def _print_summary(result, console: Console = out) -> None:
             t.add_row(loop, k, _f(v, 6))
     console.print(t)
     if result.verification:
-        rep = VerificationReport.model_validate(result.verification)
+        rep = load_verification(result.verification)
         m = Table(title="Margins per loop (nominal)")
         for c in ("loop", "break", "GM dB", "PM deg", "wc rad/s", "DM s", "Ms", "Mt"):
             m.add_column(c, justify="left" if c in ("loop", "break") else "right")

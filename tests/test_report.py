@@ -87,6 +87,20 @@ def test_unverified_result_with_its_own_baselines(passed_result: TuneResult) -> 
     assert "cmaes" in _section(html, "search")  # and their history is the curve
 
 
+def test_report_reads_infinities_stored_as_null(passed_result: TuneResult) -> None:
+    """Regression: a VerificationReport kept as model_dump() (inf floats) is written by TuneResult as null."""
+    from gaintune.report import load_verification
+
+    rep = load_verification(passed_result.verification)
+    assert rep.loops[0].gm_lower_db == float("inf")
+    raw = passed_result.model_copy(update={"verification": rep.model_dump()})
+    back = TuneResult.model_validate_json(raw.model_dump_json())
+    assert back.verification["loops"][0]["gm_lower_db"] is None
+    again = load_verification(back.verification)
+    assert again.loops[0].gm_lower_db == float("inf") and again.verdict == "pass"
+    assert "Accepted gains" in render_html(back)
+
+
 def test_pdf_without_browser_is_a_clear_error(passed_html: Path, tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setenv("GAINTUNE_CHROMIUM", str(tmp_path / "no-such-browser"))
     with pytest.raises(ReportError, match="Chromium"):

@@ -25,7 +25,7 @@ from typing import Any
 
 from gaintune.errors import GaintuneError
 
-__all__ = ["SECTIONS", "ReportError", "render_html", "render_report", "render_pdf", "find_chromium", "result_from_gains"]
+__all__ = ["SECTIONS", "ReportError", "load_verification", "render_html", "render_report", "render_pdf", "find_chromium", "result_from_gains"]
 
 #: Section ids in page order (the HTML element ids).
 SECTIONS: tuple[str, ...] = ("summary", "time", "frequency", "robustness", "search", "baselines", "reproducibility")
@@ -45,6 +45,34 @@ def _version() -> str:
         return version("gaintune")
     except Exception:  # pragma: no cover
         return "unknown"
+
+
+def load_verification(data: dict[str, Any]):
+    """``TuneResult.verification`` -> VerificationReport, tolerant of infinities stored as JSON ``null``.
+
+    A ``VerificationReport`` dumped with ``model_dump()`` keeps ``inf`` floats, which
+    ``TuneResult.model_dump_json()`` writes as ``null``; a required float that reads back
+    as ``null`` was such an infinity (a figure without crossover: +inf; a requirement margin: +inf if it passed, else -inf).
+    """
+    from pydantic import ValidationError
+
+    from gaintune.verify import VerificationReport
+
+    try:
+        return VerificationReport.model_validate(data)
+    except ValidationError as exc:
+        fixed = json.loads(json.dumps(data))
+        for e in exc.errors():
+            if e["type"] not in ("float_type", "float_parsing"):
+                raise
+            *path, key = e["loc"]
+            node = fixed
+            for k in path:
+                node = node[k]
+            if node[key] is not None:
+                raise
+            node[key] = "Infinity" if key != "margin" or node.get("passed") else "-Infinity"
+        return VerificationReport.model_validate(fixed)
 
 
 def render_html(result: Any, *, command: str | None = None) -> str:

@@ -69,14 +69,14 @@ def _plant_summary(spec: TuningSpec, plant) -> dict[str, Any]:
         units = {k: v.unit for k, v in m.outputs.items()}
         out["param_units"] = {k: v.unit for k, v in m.parameters.items()}
         if m.plant.tf is not None:
-            out["structure"] = f"G(s) = ({_poly(m.plant.tf.num)}) / ({_poly(m.plant.tf.den)})"
+            out["structure"] = f"G(s) = {_wrap(_poly(m.plant.tf.num))} / {_wrap(_poly(m.plant.tf.den))}"
         elif m.plant.ss is not None:
             out["structure"] = f"state space, states {plant.states}, outputs {plant.outputs}"
         else:
             out["structure"] = f"nonlinear ODE, states {plant.states}, outputs {plant.outputs}"
     elif p.tf is not None:
         out["title"] = "Transfer function"
-        out["structure"] = f"G(s) = ({_poly(p.tf.num)}) / ({_poly(p.tf.den)})"
+        out["structure"] = f"G(s) = {_wrap(_poly(p.tf.num))} / {_wrap(_poly(p.tf.den))}"
     elif p.ss is not None:
         out["title"] = "State space"
         out["structure"] = f"states {plant.states}, outputs {plant.outputs}"
@@ -88,6 +88,10 @@ def _plant_summary(spec: TuningSpec, plant) -> dict[str, Any]:
     return out
 
 
+def _wrap(text: str) -> str:
+    return text if text.replace("_", "").replace(".", "").isalnum() else f"({text})"
+
+
 def _poly(v: Any) -> str:
     if isinstance(v, str):
         return v
@@ -95,7 +99,7 @@ def _poly(v: Any) -> str:
     terms = []
     for i, c in enumerate(v):
         k = n - i
-        cs = _fmt(c) if not isinstance(c, str) else f"({c})"
+        cs = _fmt(c) if not isinstance(c, str) else (c if c.replace("_", "").isalnum() or len(v) == 1 else f"({c})")
         terms.append(cs if k == 0 else f"{cs} s" + (f"^{k}" if k > 1 else ""))
     return " + ".join(terms)
 
@@ -355,14 +359,15 @@ def build_context(result, *, command: str | None = None) -> dict[str, Any]:
     """All data of the report for one TuneResult (re-simulates with traces, computes frequency responses)."""
     from gaintune.plants.plant import build_plant
     from gaintune.sim import Simulator
-    from gaintune.verify import VerificationReport, verify
+    from gaintune.report import load_verification
+    from gaintune.verify import verify
 
     spec = TuningSpec.model_validate(result.spec)
     plant = build_plant(spec.plant)
     sim = Simulator(spec, plant)
     full = sim.layout.from_dict(result.gains)
     verified_now = result.verification is None
-    rep = verify(spec, result.gains, plant=plant, layout=sim.layout) if verified_now else VerificationReport.model_validate(result.verification)
+    rep = verify(spec, result.gains, plant=plant, layout=sim.layout) if verified_now else load_verification(result.verification)
     passed = rep.verdict == "pass"
     ps = _plant_summary(spec, plant)
     units = ps["units"]
