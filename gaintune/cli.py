@@ -534,7 +534,8 @@ def plants_show(name: str = typer.Argument(..., help="Model name, e.g. dc_motor.
         o.add_row(f"output {k}", s.unit, s.description)
     out.print(o)
     out.print("Example spec (save as spec.yaml, then: gaintune tune spec.yaml):")
-    out.print(yaml.safe_dump(m.example_spec(), sort_keys=False), markup=False, highlight=False)
+    out.file.flush()
+    sys.stdout.write(yaml.safe_dump(m.example_spec(), sort_keys=False, width=1000))
 
 
 @app.command()
