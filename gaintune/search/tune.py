@@ -9,6 +9,7 @@ CMA-ES (reported separately: ``rl_cost`` is the agent's own figure); verify.
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -304,7 +305,9 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
         monitor.report(force=True, phase="verify")
         from gaintune.verify import verify as verify_gains
 
-        result.verification = verify_gains(spec, gains, plant=problem.plant, layout=layout).model_dump(mode="json")
+        report = verify_gains(spec, gains, plant=problem.plant, layout=layout)
+        # Through the report's own JSON, so infinite margins survive a result.json round trip.
+        result.verification = json.loads(report.model_dump_json())
     if baselines:
         from gaintune.baselines import run_baseline
 

@@ -436,11 +436,6 @@ def _kernel(
                                 lp[P_AL, l, j] = fb_tf[l, b] / (fb_tf[l, b] + dt)
                                 lp[P_BE, l, j] = fb_kd[l, b] / (fb_tf[l, b] + dt)
             # ---- controllers, outer loop first; each output is the next loop's setpoint
-            if k == 0:
-                for l in range(L):
-                    for j in range(m):
-                        sp0 = ls[F_R, j] if l == 0 else lp[P_VOUT, l - 1, j]
-                        lp[P_EDP, l, j] = lp[P_CW, l, j] * sp0 - lp[ymf, l, j]  # no derivative kick
             for l in range(L):
                 if l == L - 1 and sf:
                     for j in range(m):
@@ -466,6 +461,8 @@ def _kernel(
                     y = lp[ymf, l, j]
                     e = sp - y
                     ed = lp[P_CW, l, j] * sp - y
+                    if k == 0:
+                        lp[P_EDP, l, j] = ed  # no derivative kick at start (inner setpoints are known only now)
                     dterm = lp[P_AL, l, j] * lp[P_D, l, j] + lp[P_BE, l, j] * (ed - lp[P_EDP, l, j])
                     lp[P_EDP, l, j] = ed
                     lp[P_D, l, j] = dterm
