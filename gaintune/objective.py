@@ -9,7 +9,9 @@ Per scenario::
 ``perf`` is IAE, ISE or ITAE of the outer loop. Scenario costs are summed by
 scenario weight. A diverged simulation costs :data:`DIVERGED_COST`. With
 several plant draws per gain set (robust mode) the draws are aggregated by
-their mean, worst case or CVaR.
+their mean, worst case or CVaR. The search objective multiplies the cost by
+``1 + margin_weight * requirement_penalty`` (:func:`penalized`), so every
+optimiser is steered to gains that pass verification and compares like with like.
 
 :class:`Evaluator` is the one batched cost function that the RL search, the
 black-box baselines and the reference optimum all share.
@@ -25,10 +27,24 @@ from gaintune.sim import draws as draws_mod
 from gaintune.sim.draws import Draws
 from gaintune.spec import ObjectiveSpec, ScenarioSpec, TuningSpec
 
-__all__ = ["DIVERGED_COST", "scenario_cost", "aggregate", "Evaluator"]
+__all__ = ["DIVERGED_COST", "MAX_PENALTY_CORNERS", "scenario_cost", "aggregate", "penalized", "Evaluator"]
 
 #: Cost given to a diverged run: finite, so optimisers can rank it, and far above any real cost.
 DIVERGED_COST = 1e6
+#: At most this many corners of the randomisation box enter the requirement penalty.
+MAX_PENALTY_CORNERS = 8
+#: How far inside the spec's limits the search aims (the penalty is an estimate; verification is exact).
+DESIGN_MARGIN = {"gm_db": 0.5, "pm_deg": 2.0, "dm_factor": 1.05, "peak_factor": 0.97}
+
+
+def penalized(cost: np.ndarray, penalty: np.ndarray, weight: float) -> np.ndarray:
+    """The search objective: ``cost * (1 + weight * penalty)``; equal to the cost when the requirements hold.
+
+    ``penalty`` is the cheap requirement estimate of :func:`gaintune.verify.quick.requirement_penalty`
+    (0 when every requirement passes). Diverged runs stay at DIVERGED_COST.
+    """
+    out = np.minimum(cost * (1.0 + weight * np.asarray(penalty)), DIVERGED_COST)
+    return np.where(cost >= DIVERGED_COST, DIVERGED_COST, out)
 
 
 def scenario_cost(m: dict[str, np.ndarray], obj: ObjectiveSpec, sc: ScenarioSpec) -> np.ndarray:
@@ -95,8 +111,66 @@ class Evaluator:
     def dim(self) -> int:
         return self.layout.n_tuned
 
-    def run(self, tuned: np.ndarray, traces: bool = False) -> tuple[np.ndarray, list[SimResult]]:
-        """Costs (B,) and the raw per-scenario results (batch of B*K rows, draw-major per gain set)."""
+    @property
+    def penalty_models(self) -> list:
+        """Linear models the requirement penalty is checked on: nominal plus the randomisation box corners.
+
+        Verification gates on the worst case over these corners (and Monte-Carlo draws), so the
+        search objective sees the same corners.
+        """
+        if getattr(self, "_penalty_models", None) is None:
+            import dataclasses
+
+            spec, plant = self.spec, self.plant
+            models = [plant.linearize()]
+            if spec.randomize.params or spec.randomize.delay:
+                c = draws_mod.corners(spec, plant, max_corners=MAX_PENALTY_CORNERS)
+                for i in range(len(c)):
+                    lin = plant.linearize(dict(zip(plant.param_names, c.params[i])))
+                    models.append(dataclasses.replace(lin, delay=float(c.delay[i])))
+            self._penalty_models = models
+        return self._penalty_models
+
+    def _design_spec(self) -> TuningSpec:
+        """The spec with requirements tightened by :data:`DESIGN_MARGIN`.
+
+        The penalty is a cheap estimate (coarse frequency grid, box corners only) while
+        verification also checks Monte-Carlo draws: aiming slightly inside the limits
+        makes the frozen gains pass instead of landing on the boundary.
+        """
+        if getattr(self, "_design", None) is None:
+            r = self.spec.requirements
+            m = DESIGN_MARGIN
+            tight = r.model_copy(update={
+                "gm_min_db": None if r.gm_min_db is None else r.gm_min_db + m["gm_db"],
+                "pm_min_deg": None if r.pm_min_deg is None else r.pm_min_deg + m["pm_deg"],
+                "dm_min": None if r.dm_min is None else r.dm_min * m["dm_factor"],
+                "ms_max": None if r.ms_max is None else max(1.0 + 1e-6, r.ms_max * m["peak_factor"]),
+                "mt_max": None if r.mt_max is None else r.mt_max * m["peak_factor"],
+            })
+            self._design = self.spec.model_copy(update={"requirements": tight})
+        return self._design
+
+    def requirement_penalty(self, tuned: np.ndarray) -> np.ndarray:
+        """(B,) worst-case requirement penalty over :attr:`penalty_models` (0 when all requirements hold)."""
+        tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
+        if self.spec.objective.margin_weight <= 0:
+            return np.zeros(tuned.shape[0])
+        from gaintune.verify.quick import requirement_penalty
+
+        full = self.layout.full(tuned)
+        spec = self._design_spec()
+        pens = [requirement_penalty(spec, self.plant, self.layout, full, lin) for lin in self.penalty_models]
+        return np.nan_to_num(np.max(pens, axis=0), nan=10.0, posinf=10.0)
+
+    def run(
+        self, tuned: np.ndarray, traces: bool = False, penalize: bool = True
+    ) -> tuple[np.ndarray, list[SimResult]]:
+        """Costs (B,) and the raw per-scenario results (batch of B*K rows, draw-major per gain set).
+
+        With ``penalize`` (default) the cost is the search objective :func:`penalized`;
+        otherwise the plain objective.
+        """
         tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
         B, K = tuned.shape[0], len(self.draws)
         full = np.repeat(self.layout.full(tuned), K, axis=0)
@@ -114,10 +188,13 @@ class Evaluator:
         # a diverged simulation costs DIVERGED_COST whatever its scenario's weight
         total = np.where(diverged, DIVERGED_COST, np.minimum(total, DIVERGED_COST))
         rob = self.spec.search.robust
-        return aggregate(total.reshape(B, K), rob.aggregate, rob.alpha), results
+        cost = aggregate(total.reshape(B, K), rob.aggregate, rob.alpha)
+        if penalize and self.spec.objective.margin_weight > 0:
+            cost = penalized(cost, self.requirement_penalty(tuned), self.spec.objective.margin_weight)
+        return cost, results
 
     def __call__(self, tuned: np.ndarray) -> np.ndarray:
-        """Costs (B,) of B tuned-gain vectors (lower is better)."""
+        """Search objective (B,) of B tuned-gain vectors (lower is better)."""
         return self.run(tuned)[0]
 
     def cost_of_action(self, action: np.ndarray) -> np.ndarray:

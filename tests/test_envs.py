@@ -93,8 +93,9 @@ def test_reward_arithmetic_matches_hand_computation(lag3):
     m = res.metrics
     cost = m["iae"][0] + 0.01 * m["effort"][0]
     assert cost == pytest.approx(scenario_cost(m, lag3.spec.objective, sc)[0], rel=1e-12)
-    assert info["cost"] == pytest.approx(cost, rel=1e-12)
-    expected = -(cost / lag3.cost_scale + lag3.spec.objective.margin_weight * info["margin_penalty"])
+    assert info["cost"] == pytest.approx(cost * (1 + lag3.spec.objective.margin_weight * info["margin_penalty"]), rel=1e-12)
+    w = lag3.spec.objective.margin_weight
+    expected = -(cost * (1 + w * info["margin_penalty"]) / lag3.cost_scale)
     assert reward == pytest.approx(expected, rel=1e-9)
 
 

@@ -102,7 +102,7 @@ def test_evaluator_robust_aggregate_over_draws(how: str, alpha: float) -> None:
     ev = Evaluator(spec)
     assert len(ev.draws) == 8 and len(np.unique(ev.draws.params[:, 0])) == 8
     tuned = np.array([[1.0, 0.4], [0.6, 0.3]])
-    cost, _ = ev.run(tuned)
+    cost, _ = ev.run(tuned, penalize=False)  # the plain objective; the penalty is tested below
     sim = Simulator(spec)
     sc = spec.scenarios[0]
     for i in range(2):
@@ -111,7 +111,21 @@ def test_evaluator_robust_aggregate_over_draws(how: str, alpha: float) -> None:
         ref = {"mean": per_draw.mean(), "worst": per_draw.max(), "cvar": np.sort(per_draw)[-2:].mean()}[how]
         assert cost[i] == pytest.approx(ref, rel=1e-12)
     # common random numbers: the same tuned gains always cost the same
-    np.testing.assert_array_equal(ev(tuned), cost)
+    np.testing.assert_array_equal(ev.run(tuned, penalize=False)[0], cost)
+    # the search objective is the cost times (1 + w * requirement penalty)
+    w = spec.objective.margin_weight
+    np.testing.assert_allclose(ev(tuned), cost * (1 + w * ev.requirement_penalty(tuned)), rtol=1e-12)
+
+
+def test_penalized_objective_equals_cost_when_requirements_hold() -> None:
+    from gaintune.objective import DIVERGED_COST, penalized
+
+    cost = np.array([2.0, 2.0, DIVERGED_COST])
+    np.testing.assert_allclose(penalized(cost, np.array([0.0, 0.5, 0.0]), 1.0), [2.0, 3.0, DIVERGED_COST])
+    # a loose loop passes the requirements: no penalty; an aggressive one does not
+    ev = Evaluator(load_spec(dict(SPEC, loops=[{"type": "pi"}], requirements={"gm_min_db": 6, "pm_min_deg": 45})))
+    pen = ev.requirement_penalty(np.array([[0.3, 0.1], [6.0, 5.0]]))
+    assert pen[0] == 0.0 and pen[1] > 0.0
 
 
 def test_cost_of_action_maps_through_log_bounds() -> None:

@@ -7,10 +7,9 @@ scores a batch of gain sets in ONE simulator call per scenario. Every env in
 
 Reward of one gain set (all terms are O(1))::
 
-    reward = -( min(cost / cost_scale, COST_CAP)
+    reward = -( min(cost * (1 + margin_weight * requirement_penalty) / cost_scale, COST_CAP)
                 + divergence_penalty * diverged
-                + trip_penalty * tripped
-                + margin_weight * requirement_penalty )
+                + trip_penalty * tripped )
 
 ``cost`` is the objective of :mod:`gaintune.objective` (aggregated over the
 robust draws), ``cost_scale`` the cost of the classical-rule gains on the
@@ -25,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gaintune.controllers.layout import GainLayout, search_layout
-from gaintune.objective import DIVERGED_COST, Evaluator, aggregate, scenario_cost
+from gaintune.objective import DIVERGED_COST, Evaluator, aggregate, penalized, scenario_cost
 from gaintune.plants import build_plant
 from gaintune.plants.checks import validate_against_plant
 from gaintune.sim import Simulator
@@ -39,12 +38,13 @@ __all__ = ["COST_CAP", "GainProblem", "Scored"]
 COST_CAP = 10.0
 
 
+
 @dataclass
 class Scored:
     """Scores of B gain sets."""
 
     reward: np.ndarray  # (B,)
-    cost: np.ndarray  # (B,) aggregated objective (DIVERGED_COST when diverged)
+    cost: np.ndarray  # (B,) search objective: aggregated cost x (1 + w * penalty); DIVERGED_COST when diverged
     diverged: np.ndarray  # (B,) bool: any draw diverged
     tripped: np.ndarray  # (B,) bool: the safety monitor tripped on any draw
     margin_penalty: np.ndarray  # (B,)
@@ -135,13 +135,10 @@ class GainProblem:
         div = diverged.reshape(B, K).any(axis=1)
         trip = tripped.reshape(B, K).any(axis=1)
         obj = spec.objective
-        margin = np.zeros(B)
-        if obj.margin_weight > 0:
-            from gaintune.verify.quick import requirement_penalty
-
-            margin = np.nan_to_num(requirement_penalty(spec, self.plant, self.layout, self.layout.full(tuned), self.lin), nan=10.0)
+        margin = self.evaluator.requirement_penalty(tuned)
+        cost = penalized(cost, margin, obj.margin_weight)
         ratio = np.minimum(cost / self.cost_scale, COST_CAP)
-        reward = -(ratio + obj.divergence_penalty * div + obj.trip_penalty * trip + obj.margin_weight * margin)
+        reward = -(ratio + obj.divergence_penalty * div + obj.trip_penalty * trip)
         assert first is not None
         scored = Scored(reward.astype(np.float64), cost, div, trip, margin, first)
         if self.on_score is not None:

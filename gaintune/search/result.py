@@ -52,7 +52,10 @@ class TuneResult(BaseModel):
     gains_source: Literal["policy", "best_seen", "refined"] = "best_seen"
     policy_gains: Gains | None = Field(None, description="Deterministic policy output for the nominal context.")
     best_seen_gains: Gains | None = None
-    cost: float = Field(description="Cost of `gains` on the spec's evaluator.")
+    cost: float = Field(
+        description="Search objective of `gains`: the cost x (1 + margin_weight x requirement penalty); "
+        "equal to the plain cost when the requirements are met."
+    )
     rl_cost: float | None = Field(None, description="Cost reached by the RL agent alone (before any refinement).")
     policy_cost: float | None = None
     metrics: dict[str, dict[str, float | None]] = Field(
