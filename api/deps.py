@@ -13,7 +13,7 @@ from api.problems import ApiError
 from api.settings import Settings
 from api.store import JobStore
 
-__all__ = ["SettingsDep", "StoreDep", "OwnerDep", "require_key", "owner_of", "api_key_header", "run_compute"]
+__all__ = ["SettingsDep", "StoreDep", "OwnerDep", "require_key", "owner_of", "api_key_header", "run_compute", "run_pooled"]
 
 api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False, description="API key (when the server has keys configured).")
 
@@ -26,6 +26,15 @@ async def run_compute(request: Request, fn, *args):
     if getattr(st, "compute_limiter", None) is None:
         st.compute_limiter = anyio.CapacityLimiter(st.settings.compute_threads)
     return await anyio.to_thread.run_sync(fn, *args, limiter=st.compute_limiter)
+
+
+async def run_pooled(request: Request, fn, *args):
+    """``fn(*args)`` in the compute process pool; None when there is none (or it just broke):
+    the caller then uses :func:`run_compute`. ``fn`` must be picklable and never raise for bad input."""
+    pool = getattr(request.app.state, "compute_pool", None)
+    if pool is None:
+        return None
+    return await pool.run(fn, *args)
 
 
 def get_settings(request: Request) -> Settings:

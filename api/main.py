@@ -14,6 +14,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 
+from api.compute import ComputePool
 from api.metrics import Metrics
 from api.middleware import BodySizeLimit, LatencyMetrics
 from api.problems import SafeJSONResponse, install_handlers
@@ -37,9 +38,13 @@ Tune cascaded PID / LQ controller gains with reinforcement learning, verify them
 """
 
 
-def _warm_up(done: threading.Event) -> None:
-    """Load the compiled simulator and verification paths once, off the event loop."""
+def _warm_up(done: threading.Event, pool: ComputePool | None = None) -> None:
+    """Load the compiled simulator and verification paths once, off the event loop
+    (and wait for the compute workers to have done the same)."""
     try:
+        if pool is not None:
+            for f in pool.warm:
+                f.result(timeout=300)
         from gaintune.spec import load_spec
         from gaintune.verify import verify
 
@@ -60,8 +65,13 @@ async def lifespan(app: FastAPI):
     settings.jobs_dir.mkdir(parents=True, exist_ok=True)
     app.state.store = store
     app.state.warm = threading.Event()
+    pool = None
+    if settings.compute_processes > 0:
+        pool = ComputePool(settings.compute_processes)
+        pool.start()  # spawned from this (main) thread: the workers die with it
+    app.state.compute_pool = pool
     if settings.warmup:
-        threading.Thread(target=_warm_up, args=(app.state.warm,), name="warmup", daemon=True).start()
+        threading.Thread(target=_warm_up, args=(app.state.warm, pool), name="warmup", daemon=True).start()
     else:
         app.state.warm.set()
     sup = Supervisor(settings, store)
@@ -73,6 +83,9 @@ async def lifespan(app: FastAPI):
     finally:
         task.cancel()
         sup.stop()
+        app.state.compute_pool = None
+        if pool is not None:
+            pool.shutdown()
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -90,6 +103,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.supervisor = None
     app.state.verify_cache = None
     app.state.compute_limiter = None
+    app.state.compute_pool = None
+    app.state.check_cache = None
     install_handlers(app)
     for r in (jobs.router, verify.router, simulate.router, plants.router, ops.router):
         app.include_router(r)

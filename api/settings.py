@@ -7,6 +7,7 @@ JSON array or a comma-separated string.
 
 from __future__ import annotations
 
+import os
 from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -54,9 +55,14 @@ class Settings(BaseSettings):
     sync_max_n_freq: int = Field(20_000, ge=100, description="verify.n_freq cap for synchronous /v1/verify.")
     sync_max_robust_samples: int = Field(64, ge=0, description="verify.robust_samples cap for synchronous /v1/verify.")
     simulate_max_points: int = Field(2000, ge=2, description="Most points per returned trace of /v1/simulate.")
+    compute_processes: int = Field(
+        default_factory=lambda: min(os.cpu_count() or 1, 4), ge=0, le=64,
+        description="Warm worker processes for /v1/verify and /v1/simulate (default: CPUs, at most 4); "
+        "0: compute in the server process with compute_threads threads.",
+    )
     compute_threads: int = Field(
-        1, ge=1, le=64, description="Concurrent /v1/verify and /v1/simulate computations (GIL-bound: more threads "
-        "add contention, not throughput)."
+        1, ge=1, le=64, description="Concurrent /v1/verify and /v1/simulate computations in the server process "
+        "when compute_processes is 0 (GIL-bound: more threads add contention, not throughput)."
     )
     verify_cache_size: int = Field(256, ge=0, description="LRU entries of identical /v1/verify requests (0: off).")
 

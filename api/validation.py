@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -19,11 +21,12 @@ from api.settings import Settings
 from gaintune.errors import GaintuneError, problem_details
 from gaintune.spec import TuningSpec
 
-__all__ = ["Checked", "check_spec", "nonfinite_paths", "invalid"]
+__all__ = ["Checked", "check_spec", "cached_check", "check_and_remember", "nonfinite_paths", "invalid"]
 
 log = logging.getLogger("gaintune.api")
 
 Purpose = Literal["tune", "verify", "simulate"]
+_CHECK_LOCK = threading.Lock()
 
 
 @dataclass
@@ -109,3 +112,40 @@ def check_spec(spec: TuningSpec, settings: Settings, purpose: Purpose, *, prefix
         raise invalid([{"loc": prefix + (".plant" if prefix else "plant"),
                         "msg": f"the plant could not be built ({type(exc).__name__}: {str(exc)[:300]})"}]) from None
     return Checked(spec, plant, layout)
+
+
+#: Validated specs kept per app (purpose, prefix, spec hash) -> Checked.
+CHECK_CACHE_SIZE = 64
+
+
+def _check_cache(request) -> "OrderedDict[tuple, Checked]":
+    st = request.app.state
+    c = getattr(st, "check_cache", None)
+    if c is None:
+        c = st.check_cache = OrderedDict()
+    return c
+
+
+def cached_check(request, spec: TuningSpec, purpose: Purpose, prefix: str = "") -> Checked | None:
+    """The result of an earlier successful :func:`check_spec` of the same spec content, or None.
+
+    Only successes are kept (the limits are the app's settings, fixed for its lifetime)."""
+    key = (purpose, prefix, spec.content_hash())
+    c = _check_cache(request)
+    with _CHECK_LOCK:
+        hit = c.get(key)
+        if hit is not None:
+            c.move_to_end(key)
+            return Checked(spec, hit.plant, hit.layout)
+    return None
+
+
+def check_and_remember(request, spec: TuningSpec, purpose: Purpose, prefix: str = "") -> Checked:
+    """:func:`check_spec` with the app's settings, remembering a success for :func:`cached_check`."""
+    checked = check_spec(spec, request.app.state.settings, purpose, prefix=prefix)
+    c = _check_cache(request)
+    with _CHECK_LOCK:
+        c[(purpose, prefix, spec.content_hash())] = checked
+        while len(c) > CHECK_CACHE_SIZE:
+            c.popitem(last=False)
+    return checked

@@ -63,7 +63,7 @@ def make_fake_tune(gains=GOOD, *, steps: int = 3, sleep: float = 0.0, honour_can
 
 
 def settings_for(tmp_path: Path, **kw) -> Settings:
-    base = dict(db_path=tmp_path / "jobs.db", data_dir=tmp_path / "data", workers=0, warmup=False,
+    base = dict(db_path=tmp_path / "jobs.db", data_dir=tmp_path / "data", workers=0, warmup=False, compute_processes=0,
                 heartbeat_interval=0.05, cancel_grace=1.0)
     base.update(kw)
     return Settings(_env_file=None, **base)
@@ -502,3 +502,32 @@ def test_health_and_openapi(client):
     assert client.get("/readyz").json()["status"] == "ready"
     schema = client.get("/openapi.json").json()
     assert "/v1/tune" in schema["paths"] and "TuningSpec" in schema["components"]["schemas"]
+
+
+def test_compute_pool_matches_in_process_and_leaves_no_process(make_client, tmp_path):
+    """verify/simulate in a warm worker process give the in-process answers; workers stop with the app."""
+    import os
+
+    local = make_client()
+    (tmp_path / "pooled").mkdir()
+    with TestClient(create_app(settings_for(tmp_path / "pooled", compute_processes=1)), raise_server_exceptions=False) as pooled:
+        pool = pooled.app.state.compute_pool
+        assert pool is not None and pool.warm[0].result(timeout=120) != os.getpid()
+        pids = pool.pids
+        assert len(pids) == 1
+        for g in (GOOD, BAD, {"loop0": {"Kp": 1.3, "Ki": 0.45}}):
+            a = local.post("/v1/verify", json={"spec": SPEC, "gains": g}).json()
+            b = pooled.post("/v1/verify", json={"spec": SPEC, "gains": g}).json()
+            a.pop("elapsed_s"), b.pop("elapsed_s")
+            assert a == b
+        r = pooled.post("/v1/verify", json={"spec": SPEC, "gains": {"loop0": {"Kp": -1.0, "Ki": 0.4}}})
+        assert r.status_code == 422 and r.json()["errors"][0]["loc"] == "gains.loop0.Kp"
+        body = {"spec": SPEC, "gains": GOOD, "max_points": 50}
+        assert local.post("/v1/simulate", json=body).json() == pooled.post("/v1/simulate", json=body).json()
+    assert pooled.app.state.compute_pool is None
+    for pid in pids:  # joined by the shutdown: gone, not even a zombie
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            continue
+        raise AssertionError(f"compute worker {pid} still alive after shutdown")

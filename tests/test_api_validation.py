@@ -21,7 +21,7 @@ SPEC = {
 @pytest.fixture(scope="module")
 def client(tmp_path_factory):
     d = tmp_path_factory.mktemp("api")
-    s = Settings(_env_file=None, db_path=d / "jobs.db", data_dir=d, workers=0, warmup=False, max_budget=5000,
+    s = Settings(_env_file=None, db_path=d / "jobs.db", data_dir=d, workers=0, warmup=False, compute_processes=0, max_budget=5000,
                  max_body_bytes=64_000, max_order=8)
     with TestClient(create_app(s), raise_server_exceptions=False) as c:
         yield c

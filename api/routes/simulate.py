@@ -8,12 +8,12 @@ import math
 import numpy as np
 from fastapi import APIRouter, Request
 
-from api.deps import SettingsDep, require_key, run_compute
+from api.compute import compute_simulate
+from api.deps import SettingsDep, require_key, run_compute, run_pooled
 from api.jsonbody import StrictJSONRoute
 from api.problems import ApiError
 from api.schemas import ScenarioTrace, SimulateRequest, SimulateResponse
-from api.validation import check_spec
-from gaintune.errors import GaintuneError, problem_details
+from api.validation import cached_check, check_and_remember
 
 router = APIRouter(prefix="/v1", tags=["simulate"], route_class=StrictJSONRoute, dependencies=[require_key])
 log = logging.getLogger("gaintune.api")
@@ -45,13 +45,9 @@ def decimate(n: int, max_points: int) -> tuple[np.ndarray, int]:
 )
 async def simulate(body: SimulateRequest, request: Request, settings: SettingsDep) -> SimulateResponse:
     """Nominal-plant closed-loop traces (``y.<loop>``, ``sp.<loop>``, ``u``) and metrics per scenario."""
-    return await run_compute(request, _simulate, body, settings)
-
-
-def _simulate(body: SimulateRequest, settings) -> SimulateResponse:
-    from gaintune.sim import Simulator
-
-    checked = check_spec(body.spec, settings, "simulate", prefix="spec")
+    checked = cached_check(request, body.spec, "simulate", "spec")
+    if checked is None:
+        checked = await run_compute(request, check_and_remember, request, body.spec, "simulate", "spec")
     spec = body.spec
     names = [sc.name for sc in spec.scenarios]
     if body.scenarios is not None:
@@ -63,22 +59,34 @@ def _simulate(body: SimulateRequest, settings) -> SimulateResponse:
     else:
         chosen = list(range(len(names)))
     max_points = min(body.max_points, settings.simulate_max_points)
-    try:
-        full = checked.layout.from_dict(body.gains)
-        sim = Simulator(spec, checked.plant, checked.layout)
-        out = []
-        for i in chosen:
-            res = sim.run(full[None, :], scenario=i, traces=True)
-            sc = spec.scenarios[i]
-            idx, stride = decimate(len(res.t), max_points)
-            traces = {k: [_num(v) for v in arr[0, idx]] for k, arr in res.traces.items()}
-            metrics = {k: (bool(v[0]) if v.dtype == bool else _num(v[0])) for k, v in res.metrics.items()}
-            out.append(ScenarioTrace(name=sc.name, dt=sc.dt, n_steps=sc.n_steps, stride=stride,
-                                     t=[float(x) for x in res.t[idx]], traces=traces, metrics=metrics))
-    except GaintuneError as exc:
-        raise ApiError(422, "The gains are invalid for this spec.", errors=problem_details(exc)) from None
-    except Exception as exc:  # noqa: BLE001 - user input must never produce a 500
-        log.warning("simulate failed unexpectedly", exc_info=True)
-        raise ApiError(422, "These gains could not be simulated for this spec.",
-                       errors=[{"loc": "gains", "msg": f"{type(exc).__name__}: {str(exc)[:300]}"}]) from None
-    return SimulateResponse(gains=checked.layout.to_dict(full), max_points=max_points, scenarios=out)
+    args = (spec, body.gains, chosen, max_points)
+    out = await run_pooled(request, compute_simulate, *args)
+    if out is None:
+        out = await run_compute(request, compute_simulate, *args, checked.plant, checked.layout)
+    tag, data = out
+    if tag == "gains":
+        raise ApiError(422, "The gains are invalid for this spec.", errors=data)
+    if tag != "ok":
+        raise ApiError(422, "These gains could not be simulated for this spec.", errors=[{"loc": "gains", "msg": data}])
+    return data
+
+
+def simulate_response(spec, gains, chosen: list[int], max_points: int, plant=None, layout=None) -> SimulateResponse:
+    """Traces and metrics of ``gains`` on the chosen scenarios (the spec's cached simulator)."""
+    from gaintune.verify.context import spec_context
+
+    ctx = spec_context(spec, plant, layout)
+    full = ctx.layout.from_dict(gains)
+    sim = ctx.simulator(spec)
+    if sim is None:
+        raise RuntimeError("the simulator (gaintune.sim) is not available")
+    out = []
+    for i in chosen:
+        res = sim.run(full[None, :], scenario=i, traces=True)
+        sc = spec.scenarios[i]
+        idx, stride = decimate(len(res.t), max_points)
+        traces = {k: [_num(v) for v in arr[0, idx]] for k, arr in res.traces.items()}
+        metrics = {k: (bool(v[0]) if v.dtype == bool else _num(v[0])) for k, v in res.metrics.items()}
+        out.append(ScenarioTrace(name=sc.name, dt=sc.dt, n_steps=sc.n_steps, stride=stride,
+                                 t=[float(x) for x in res.t[idx]], traces=traces, metrics=metrics))
+    return SimulateResponse(gains=ctx.layout.to_dict(full), max_points=max_points, scenarios=out)

@@ -1,4 +1,4 @@
-"""``POST /v1/verify``: synchronous verification of gains against a spec (runs in the thread pool)."""
+"""``POST /v1/verify``: synchronous verification of gains against a spec (in the compute pool, see :mod:`api.compute`)."""
 
 from __future__ import annotations
 
@@ -10,12 +10,12 @@ from collections import OrderedDict
 
 from fastapi import APIRouter, Request, Response
 
-from api.deps import SettingsDep, require_key, run_compute
+from api.compute import compute_verify
+from api.deps import SettingsDep, require_key, run_compute, run_pooled
 from api.jsonbody import StrictJSONRoute
 from api.problems import ApiError
 from api.schemas import VerifyRequest
-from api.validation import check_spec
-from gaintune.errors import GaintuneError, problem_details
+from api.validation import cached_check, check_and_remember
 from gaintune.verify import VerificationReport
 
 router = APIRouter(prefix="/v1", tags=["verify"], route_class=StrictJSONRoute, dependencies=[require_key])
@@ -63,11 +63,9 @@ def _cache(request: Request) -> ReportCache:
 async def verify_gains(body: VerifyRequest, request: Request, settings: SettingsDep) -> Response:
     """Returns the VerificationReport. Non-finite figures (e.g. an infinite gain margin) are the strings
     ``"Infinity"``/``"-Infinity"``."""
-    return await run_compute(request, _verify, body, request, settings)
-
-
-def _verify(body: VerifyRequest, request: Request, settings) -> Response:
-    checked = check_spec(body.spec, settings, "verify", prefix="spec")
+    checked = cached_check(request, body.spec, "verify", "spec")
+    if checked is None:
+        checked = await run_compute(request, check_and_remember, request, body.spec, "verify", "spec")
     key = hashlib.sha256(
         json.dumps([body.spec.content_hash(), body.gains, body.robust, body.nonlinear], sort_keys=True).encode()
     ).hexdigest()
@@ -75,17 +73,14 @@ def _verify(body: VerifyRequest, request: Request, settings) -> Response:
     hit = cache.get(key)
     if hit is not None:
         return Response(hit, media_type="application/json", headers={"X-Cache": "hit"})
-    from gaintune.verify import verify
-
-    try:
-        report = verify(body.spec, body.gains, robust=body.robust, nonlinear=body.nonlinear,
-                        plant=checked.plant, layout=checked.layout)
-    except GaintuneError as exc:
-        raise ApiError(422, "The gains are invalid for this spec.", errors=problem_details(exc)) from None
-    except Exception as exc:  # noqa: BLE001 - user input must never produce a 500
-        log.warning("verify failed unexpectedly", exc_info=True)
-        raise ApiError(422, "These gains could not be verified for this spec.",
-                       errors=[{"loc": "gains", "msg": f"{type(exc).__name__}: {str(exc)[:300]}"}]) from None
-    data = report.model_dump_json().encode()
+    args = (body.spec, body.gains, body.robust, body.nonlinear)
+    out = await run_pooled(request, compute_verify, *args)
+    if out is None:  # no pool: compute here (in a thread), reusing the validated plant and layout
+        out = await run_compute(request, compute_verify, *args, checked.plant, checked.layout)
+    tag, data = out
+    if tag == "gains":
+        raise ApiError(422, "The gains are invalid for this spec.", errors=data)
+    if tag != "ok":
+        raise ApiError(422, "These gains could not be verified for this spec.", errors=[{"loc": "gains", "msg": data}])
     cache.put(key, data)
     return Response(data, media_type="application/json", headers={"X-Cache": "miss"})

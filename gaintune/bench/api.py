@@ -3,6 +3,7 @@
 Run::
 
     gaintune bench api             # or: python -m gaintune.bench.api [--requests 500] [--concurrency 8] [--json]
+                                   #     [--compute-processes N]  (0: no process pool, the old mode)
 
 Phases (each bounded by ``--requests`` requests or ``--seconds`` seconds):
 
@@ -97,8 +98,10 @@ async def _load(client, make_request, n: int, seconds: float, concurrency: int) 
             "errors": errors}
 
 
-def _start_server(tmp: Path, port: int, workers: int) -> subprocess.Popen:
+def _start_server(tmp: Path, port: int, workers: int, compute_processes: int | None = None) -> subprocess.Popen:
     env = dict(os.environ, GAINTUNE_DB_PATH=str(tmp / "jobs.db"), GAINTUNE_DATA_DIR=str(tmp / "data"))
+    if compute_processes is not None:
+        env["GAINTUNE_COMPUTE_PROCESSES"] = str(compute_processes)
     cmd = [sys.executable, "-m", "api", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers),
            "--log-level", "warning"]
     return subprocess.Popen(cmd, cwd=tmp, env=env, stdout=open(tmp / "server.log", "w"), stderr=subprocess.STDOUT)
@@ -129,9 +132,10 @@ async def _run(args) -> dict:
     port = _free_port()
     load0 = [round(x, 2) for x in os.getloadavg()]
     in_process = _in_process_verify_ms()
-    proc = _start_server(tmp, port, workers=2)
+    proc = _start_server(tmp, port, workers=2, compute_processes=args.compute_processes)
     out: dict = {"url": f"http://127.0.0.1:{port}", "cpus": os.cpu_count(), "concurrency": args.concurrency,
-                 "loadavg_start": load0, "verify_in_process_ms": in_process}
+                 "loadavg_start": load0, "verify_in_process_ms": in_process,
+                 "compute_processes": "default" if args.compute_processes is None else args.compute_processes}
     try:
         limits = httpx.Limits(max_connections=args.concurrency * 2)
         async with httpx.AsyncClient(base_url=out["url"], timeout=60, limits=limits) as c:
@@ -208,6 +212,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--requests", type=int, default=500, help="requests per phase (upper bound)")
     ap.add_argument("--seconds", type=float, default=20.0, help="seconds per phase (upper bound)")
     ap.add_argument("--concurrency", type=int, default=8)
+    ap.add_argument("--compute-processes", type=int, default=None,
+                    help="server's compute_processes (default: the server default; 0: compute in the server process)")
     ap.add_argument("--json", action="store_true", help="print JSON instead of a table")
     args = ap.parse_args(argv)
     out = asyncio.run(_run(args))
@@ -215,7 +221,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps(out, indent=2))
         return 0
-    print(f"server {out['url']} ({out['cpus']} CPUs, 2 job workers), ready in {out['startup_s']} s; "
+    print(f"server {out['url']} ({out['cpus']} CPUs, 2 job workers, compute_processes {out['compute_processes']}), "
+          f"ready in {out['startup_s']} s; "
           f"concurrency {out['concurrency']}; nominal verdict {out['verdict_nominal']}")
     print(f"load average at start {out['loadavg_start']}, at end {out['loadavg_end']}; one verify() in-process "
           f"(no HTTP, distinct gains): {out['verify_in_process_ms']} ms median")

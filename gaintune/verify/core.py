@@ -12,6 +12,7 @@ from gaintune.controllers.layout import GainLayout
 from gaintune.errors import GainError
 from gaintune.plants.plant import Plant, build_plant
 from gaintune.spec import TuningSpec
+from gaintune.verify.context import spec_context
 from gaintune.verify.loops import build_cascade, sampling_delay
 from gaintune.verify.margins import Analysis, BreakFigures, DelayModel, analyse
 from gaintune.verify.nonlinear import nonlinear_check
@@ -71,13 +72,14 @@ def _to_model(f: BreakFigures) -> LoopFigures:
     kept = [c for c in f.crossings if c.kind == "gain"] + phase[:MAX_PHASE_CROSSINGS]
     kept.sort(key=lambda c: c.omega)
     cr = [CrossingModel(kind=c.kind, omega=c.omega, value=c.value, delay_margin=c.delay_margin, binding=c.binding) for c in kept]
+    omitted = len(f.crossings) - len(kept) + f.phase_omitted
     return LoopFigures(
         loop=f.loop, break_point=f.break_point, gm_db=f.gm_db, gm_upper_db=f.gm_upper_db, gm_lower_db=f.gm_lower_db,
         gm_freq=f.gm_freq, pm_deg=f.pm_deg, pm_freq=f.pm_freq, delay_margin=f.delay_margin, ms=f.ms, ms_freq=f.ms_freq,
         mt=f.mt, mt_freq=f.mt_freq, disk_alpha=f.disk_alpha, disk_gm_db=f.disk_gm_db, disk_pm_deg=f.disk_pm_deg,
         disk_freq=f.disk_freq, gain_crossovers=[c.omega for c in f.crossings if c.kind == "gain"],
         phase_crossovers=[c.omega for c in kept if c.kind == "phase"], crossings=cr,
-        crossings_omitted=len(f.crossings) - len(kept),
+        crossings_omitted=omitted,
     )
 
 
@@ -155,7 +157,9 @@ def _requirement_lines(spec: TuningSpec, loops: list[LoopFigures], worst: list[W
             margin = (value - limit) if kind == "min" else (limit - value)
             if math.isnan(margin):
                 margin = -math.inf
-            if best is None or margin < best[0]:
+            # ties (within rounding: e.g. a single loop's two identical break points) keep the first
+            tol = 1e-12 * max(1.0, abs(best[0])) if best is not None and math.isfinite(best[0]) else 0.0
+            if best is None or margin < best[0] - tol:
                 best = (margin, value, loop, brk, case)
         margin, value, loop, brk, case = best  # type: ignore[misc]
         lines.append(RequirementLine(requirement=name, figure=attr, limit=float(limit), value=float(value),
@@ -171,6 +175,7 @@ def verify(
     nonlinear: bool = True,
     plant: Plant | None = None,
     layout: GainLayout | None = None,
+    cache: bool = True,
 ) -> VerificationReport:
     """Verify frozen gains against the spec's requirements.
 
@@ -187,6 +192,10 @@ def verify(
         Run the nonlinear simulation check (skipped with a note if :mod:`gaintune.sim` is missing).
     plant, layout
         Pre-built objects to reuse (built from ``spec`` when omitted).
+    cache
+        Reuse the per-spec objects (plant, layout, linearisation, simulator) of earlier calls
+        on the same spec (keyed by ``spec.content_hash()``; see :mod:`gaintune.verify.context`).
+        A cached entry takes precedence over ``plant``/``layout``.
 
     Raises
     ------
@@ -194,10 +203,14 @@ def verify(
         For NaN, non-positive, missing/unknown gains or a wrong count.
     """
     t0 = time.perf_counter()
-    plant = plant or build_plant(spec.plant)
-    layout = layout or GainLayout(spec, plant.states)
+    ctx = spec_context(spec, plant, layout) if cache else None
+    if ctx is not None:
+        plant, layout, lin = ctx.plant, ctx.layout, ctx.lin
+    else:
+        plant = plant or build_plant(spec.plant)
+        layout = layout or GainLayout(spec, plant.states)
+        lin = plant.linearize()
     full = coerce_gains(layout, gains)
-    lin = plant.linearize()
     t_s = sampling_delay(spec)
     delay = DelayModel(lin.delay + t_s, spec.verify.pade_order)
     cas = build_cascade(spec, layout, full[None, :], lin)
@@ -229,7 +242,7 @@ def verify(
             reasons.append(f"robust: {rob.n_unstable} of {rob.n_samples} sampled plants give an unstable closed loop")
     nl = None
     if nonlinear:
-        nl = nonlinear_check(spec, plant, layout, full)
+        nl = nonlinear_check(spec, plant, layout, full, sim=ctx.simulator(spec) if ctx is not None else None)
         if nl.ran and not nl.passed:
             reasons.append(f"nonlinear check failed: {nl.note}")
         elif not nl.ran:

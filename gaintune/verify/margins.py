@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gaintune.plants.plant import LinearModel
-from gaintune.verify.loops import Cascade, observable_part, pade_response
+from gaintune.verify.loops import Cascade, _schur, observable_part, pade_response
 
 __all__ = ["DelayModel", "BreakFigures", "Analysis", "analyse"]
 
@@ -95,6 +95,9 @@ class BreakFigures:
     disk_pm_deg: float = 90.0
     disk_freq: float | None = None
     crossings: list[Crossing] = field(default_factory=list)
+    #: Valid phase crossings not refined and not in ``crossings`` (delay spirals give hundreds):
+    #: each has a larger |GM| than every listed one beyond the first MAX_PHASE_LISTED.
+    phase_omitted: int = 0
 
 
 @dataclass
@@ -119,8 +122,22 @@ class Analysis:
 # ------------------------------------------------------------------ helpers
 
 
+_EIG_CACHE: dict[int, tuple[LinearModel, np.ndarray]] = {}
+
+
+def _plant_eig_abs(lin: LinearModel) -> list[float]:
+    hit = _EIG_CACHE.get(id(lin))
+    if hit is not None and hit[0] is lin:
+        return list(hit[1])
+    v = np.abs(np.linalg.eigvals(lin.A)) if lin.A.size else np.zeros(0)
+    if len(_EIG_CACHE) > 512:
+        _EIG_CACHE.clear()
+    _EIG_CACHE[id(lin)] = (lin, v)
+    return list(v)
+
+
 def _char_freqs(cas: Cascade, lin: LinearModel, delay: DelayModel) -> np.ndarray:
-    f = [abs(x) for x in np.linalg.eigvals(lin.A)] if lin.A.size else []
+    f = _plant_eig_abs(lin)
     for lp in cas.loops:
         if lp.kind == "pid":
             kp, ki, kd, tf = float(lp.Kp[0]), float(lp.Ki[0]), float(lp.Kd[0]), float(lp.Tf[0])
@@ -134,62 +151,195 @@ def _char_freqs(cas: Cascade, lin: LinearModel, delay: DelayModel) -> np.ndarray
     return f if f.size else np.array([1.0])
 
 
+_CHUNK = 4096
+
+
+def _dot(c: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """c @ X for a short coefficient vector, without BLAS (whose threads only add latency here)."""
+    if c.size > 8:
+        return c @ X
+    out = c[0] * X[0]
+    for i in range(1, c.size):
+        out = out + c[i] * X[i]
+    return out
+
+
 class _Evaluator:
-    """L at arbitrary frequencies for one gain set (rows: break points)."""
+    """L at arbitrary frequencies for one gain set (rows: break points).
+
+    Same algebra as :meth:`Cascade.loop_responses` (the reference, used for batches > 1),
+    specialised for one gain set: controller gains as Python scalars, the plant's complex
+    Schur form and the output rows C Z precomputed, and only the measured outputs formed,
+    so one call is a few dozen numpy operations over the frequency vector.
+    """
 
     def __init__(self, cas: Cascade, lin: LinearModel, delay: DelayModel):
         self.cas, self.lin, self.delay = cas, lin, delay
         self.calls = 0
+        self.points = 0
+        self.fast = cas.batch == 1
+        if not self.fast:
+            return
+        n = lin.A.shape[0]
+        if n:
+            T, Z, zb = _schur(lin)
+            self._T, self._zb = T, zb
+            self._diag = np.diag(T).copy()
+            CZ = lin.C.astype(complex) @ Z
+        else:
+            self._T = self._zb = self._diag = None
+            CZ = np.zeros((lin.C.shape[0], 0), dtype=complex)
+        self._n = n
+        outs = sorted({lp.out_idx for lp in cas.loops})
+        self._outs = {j: (CZ[j], complex(lin.D[j, 0])) for j in outs}
+        self._ctl = []
+        for lp in cas.loops:
+            if lp.kind == "pid":
+                self._ctl.append(("pid", lp.out_idx, lp.has_i, lp.has_d, float(lp.Kp[0]), float(lp.Ki[0]),
+                                  float(lp.Kd[0]), float(lp.Tf[0]), float(lp.b), float(lp.c)))
+            else:
+                KZ = (np.asarray(lp.K[0], dtype=float) @ Z) if n else np.zeros(0, dtype=complex)
+                self._ctl.append(("lq", lp.out_idx, lp.has_i, KZ, float(lp.Kint[0]) if lp.has_i else 0.0,
+                                  float(lp.Nr[0])))
 
     def __call__(self, w: np.ndarray, shift: float = 0.0) -> np.ndarray:
         self.calls += 1
-        s = -shift + 1j * np.asarray(w, dtype=float)
+        w = np.asarray(w, dtype=float)
+        self.points += w.size
+        s = -shift + 1j * w
         with np.errstate(all="ignore"):
-            return self.cas.loop_responses(s, self.lin, self.delay.factor(s))[:, 0, :]
+            if not self.fast:
+                return self.cas.loop_responses(s, self.lin, self.delay.factor(s))[:, 0, :]
+            if s.size <= _CHUNK:
+                return self._eval(s)
+            # chunks keep every temporary below glibc's mmap threshold (128 KiB): large
+            # temporaries are fresh mappings, and their page faults cost more than the arithmetic
+            out = np.empty((len(self.cas.loops) + 1, s.size), dtype=complex)
+            for i in range(0, s.size, _CHUNK):
+                out[:, i : i + _CHUNK] = self._eval(s[i : i + _CHUNK])
+            return out
+
+    def _eval(self, s: np.ndarray) -> np.ndarray:
+        d = self.delay.factor(s)
+        n = self._n
+        if n:
+            T, zb, diag = self._T, self._zb, self._diag
+            xs = np.empty((n, s.size), dtype=complex)
+            for i in range(n - 1, -1, -1):
+                acc = zb[i]
+                if i + 1 < n:
+                    acc = acc + _dot(T[i, i + 1 :], xs[i + 1 :])
+                xs[i] = acc / (s - diag[i])
+        P = {}
+        for j, (cz, dj) in self._outs.items():
+            P[j] = (_dot(cz, xs) + dj) * d if n else dj * d
+        inv_s = None
+        resp = []
+        for c in self._ctl:
+            if c[0] == "pid":
+                _, oi, has_i, has_d, kp, ki, kd, tf, b, cw = c
+                if has_i:
+                    if inv_s is None:
+                        inv_s = 1.0 / s
+                    I = ki * inv_s
+                else:
+                    I = 0.0
+                Dd = kd * s / (tf * s + 1.0) if has_d else 0.0
+                C = kp + I + Dd
+                F = b * kp + I + cw * Dd
+                m = -C * P[oi]
+            else:
+                _, oi, has_i, KZ, kint, nr = c
+                KX = (_dot(KZ, xs) * d) if n else np.zeros(s.size, dtype=complex)
+                if has_i:
+                    if inv_s is None:
+                        inv_s = 1.0 / s
+                    I = kint * inv_s
+                else:
+                    I = 0.0
+                m = -(KX + I * P[oi])
+                F = nr + I
+            resp.append((F, m))
+        nl = len(resp)
+        g = []
+        prev = 0.0
+        for F, m in resp:
+            prev = F * prev + m
+            g.append(prev)
+        L = np.empty((nl + 1, s.size), dtype=complex)
+        H = 1.0
+        for k in range(nl - 1, -1, -1):
+            L[k] = -g[k] * H
+            F, m = resp[k]
+            H = H * F / (1.0 - H * m)
+        L[nl] = -g[nl - 1]
+        return L
 
 
-def _zoom_roots(ev: _Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray, fn, iters: int = 12):
+def _zoom_roots(ev: _Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray, fn, iters: int = 12,
+                La: np.ndarray | None = None, Lb: np.ndarray | None = None):
     """Refine brackets [lo, hi] (per row) of a sign change of fn(L): vectorised Illinois
-    (modified regula falsi) in log w, one evaluation of all brackets per iteration."""
+    (modified regula falsi) in log w, one evaluation of the unconverged brackets per iteration.
+
+    ``La``/``Lb``: L at the bracket ends when known (grid values), else evaluated.
+    ``fn`` maps (L values, bracket indices) to the function values. Returns (w, L at w).
+    """
     if lo.size == 0:
-        return lo
+        return lo, np.zeros(0, dtype=complex)
     a, b = np.log(lo), np.log(hi)
     k = np.arange(lo.size)
-    fa = fn(ev(np.exp(a))[rows, k])
-    fb = fn(ev(np.exp(b))[rows, k])
+    if La is None or Lb is None:
+        Lab = ev(np.concatenate([lo, hi]))
+        La, Lb = Lab[rows, k], Lab[rows, k + lo.size]
+    fa = fn(La, k)
+    fb = fn(Lb, k)
     side = np.zeros(lo.size)
     c = 0.5 * (a + b)
+    Lc = np.where(np.abs(fa) <= np.abs(fb), La, Lb)  # only used if no iteration runs
+    act = np.arange(lo.size)
     for _ in range(iters):
-        c_prev = c
+        A, Bv, FA, FB = a[act], b[act], fa[act], fb[act]
+        c_prev = c[act]
         with np.errstate(invalid="ignore", divide="ignore"):
-            c = np.where(fa != fb, (a * fb - b * fa) / (fb - fa), 0.5 * (a + b))
-        bad = ~np.isfinite(c) | (c <= np.minimum(a, b)) | (c >= np.maximum(a, b))
-        c = np.where(bad, 0.5 * (a + b), c)
-        fc = fn(ev(np.exp(c))[rows, k])
-        left = np.sign(fc) == np.sign(fa)  # root in [c, b]
+            cc = np.where(FA != FB, (A * FB - Bv * FA) / (FB - FA), 0.5 * (A + Bv))
+        bad = ~np.isfinite(cc) | (cc <= np.minimum(A, Bv)) | (cc >= np.maximum(A, Bv))
+        cc = np.where(bad, 0.5 * (A + Bv), cc)
+        Lcc = ev(np.exp(cc))[rows[act], np.arange(act.size)]
+        fc = fn(Lcc, act)
+        c[act] = cc
+        Lc[act] = Lcc
+        left = np.sign(fc) == np.sign(FA)  # root in [c, b]
+        sd = side[act]
         # Illinois: halve the retained end's value when the same side is kept twice
-        fb = np.where(left & (side == 1), fb * 0.5, fb)
-        fa = np.where(~left & (side == -1), fa * 0.5, fa)
-        a, fa = np.where(left, c, a), np.where(left, fc, fa)
-        b, fb = np.where(left, b, c), np.where(left, fb, fc)
-        side = np.where(left, 1, -1)
-        if np.all((np.abs(c - c_prev) < 1e-12) | (np.abs(b - a) < 1e-12) | (fc == 0)):
+        FB = np.where(left & (sd == 1), FB * 0.5, FB)
+        FA = np.where(~left & (sd == -1), FA * 0.5, FA)
+        a[act], fa[act] = np.where(left, cc, A), np.where(left, fc, FA)
+        b[act], fb[act] = np.where(left, Bv, cc), np.where(left, FB, fc)
+        side[act] = np.where(left, 1, -1)
+        done = (np.abs(cc - c_prev) < 1e-12) | (np.abs(b[act] - a[act]) < 1e-12) | (fc == 0)
+        act = act[~done]
+        if act.size == 0:
             break
-    return np.exp(c)
+    return np.exp(c), Lc
 
 
-def _zoom_peaks(ev: _Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray, fn, rounds: int = 2):
-    """Refine the maximum of fn(L) inside [lo, hi] per row. Returns (w, value)."""
+def _zoom_peaks(ev: _Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray, fns, q: np.ndarray, rounds: int = 2):
+    """Refine the maximum of fns[q_i](L) inside [lo_i, hi_i] (row rows_i), all peaks in one
+    evaluation per round. Returns (w, value)."""
     best_w = np.sqrt(lo * hi)
     best_v = np.full(lo.size, -np.inf)
+    k = np.arange(lo.size)
+    t = np.linspace(0.0, 1.0, _ZOOM)
     for _ in range(rounds):
-        t = np.linspace(0.0, 1.0, _ZOOM)
         W = np.exp(np.log(lo)[:, None] + (np.log(hi) - np.log(lo))[:, None] * t[None, :])
         L = ev(W.ravel())
         Lr = L[rows[:, None], np.arange(W.size).reshape(W.shape)]
-        f = fn(Lr)
+        f = np.empty(W.shape)
+        for qi, fn in enumerate(fns):
+            sel = q == qi
+            if np.any(sel):
+                f[sel] = fn(Lr[sel])
         j = np.argmax(f, axis=1)
-        k = np.arange(lo.size)
         better = f[k, j] > best_v
         best_v = np.where(better, f[k, j], best_v)
         best_w = np.where(better, W[k, j], best_w)
@@ -222,45 +372,89 @@ def disk_from_alpha(alpha: float) -> tuple[float, float]:
 # ------------------------------------------------------------------ margins
 
 
+_COS_DPH = math.cos(0.5)
+
+
 def _grid(ev: _Evaluator, cas, lin, delay, n_freq: int):
     """Log grid covering every frequency where max|L| >= MAG_FLOOR, refined where the
-    phase turns fast (delays)."""
+    phase turns fast (delays). Returns (w, L, |L|).
+
+    The end probes are evaluated in one call; each refinement round checks only the
+    intervals created by the previous one (the others were already fine) and inserts the
+    new points in place (no re-sort).
+    """
     cf = _char_freqs(cas, lin, DelayModel(0.0))
     lo, hi = cf.min() * 1e-3, cf.max() * 1e3
-    for _ in range(8):
-        if np.all(np.abs(ev(np.array([hi]))) < MAG_FLOOR):
-            break
-        hi *= 10.0
-    for _ in range(3):
-        Llo = np.abs(ev(np.array([lo])))
-        if np.all((Llo > 1e3) | (Llo < MAG_FLOOR)):
-            break
-        lo /= 100.0
+    his = hi * 10.0 ** np.arange(8)
+    los = lo / 100.0 ** np.arange(3)
+    P = np.abs(ev(np.concatenate([his, los])))
+    ok_hi = np.all(P[:, :8] < MAG_FLOOR, axis=0)
+    hi = his[int(np.argmax(ok_hi))] if ok_hi.any() else hi * 1e8
+    Plo = P[:, 8:]
+    ok_lo = np.all((Plo > 1e3) | (Plo < MAG_FLOOR), axis=0)
+    lo = los[int(np.argmax(ok_lo))] if ok_lo.any() else lo / 1e6
     w = np.logspace(np.log10(lo), np.log10(hi), n_freq)
     L = ev(w)
+    aL = np.abs(L)
+    ws, Ls, aLs = [w], [L], [aL]
+    R = L.shape[0]
+    # candidate intervals: the sub-intervals of a block of refined intervals (end points E (m, k+1),
+    # responses LE (R, m, k+1)), then bad intervals left over by the cap (higher w, rarely any)
+    E, LE, AE = w[None, :], L[:, None, :], aL[:, None, :]
+    rest = (np.zeros(0), np.zeros(0), np.zeros((R, 0), complex), np.zeros((R, 0), complex), np.zeros((R, 0)), np.zeros((R, 0)))
     for _ in range(4):
+        m, k = E.shape[0], E.shape[1] - 1
+        z = LE[:, :, 1:] * LE[:, :, :-1].conj()
+        zr = rest[3] * rest[2].conj()
         with np.errstate(all="ignore"):
-            dph = np.abs(np.angle(L[:, 1:] / L[:, :-1]))
-            big = (np.abs(L[:, 1:]) > MAG_FLOOR) | (np.abs(L[:, :-1]) > MAG_FLOOR)
-        bad = np.nonzero(np.any((dph > 0.5) & big, axis=0))[0][:20000]
-        if bad.size == 0:
+            turn = z.real < _COS_DPH * np.abs(z)  # |arg(L_right/L_left)| > 0.5
+            big = (AE[:, :, 1:] > MAG_FLOOR) | (AE[:, :, :-1] > MAG_FLOOR)
+            turn_r = zr.real < _COS_DPH * np.abs(zr)
+            big_r = (rest[5] > MAG_FLOOR) | (rest[4] > MAG_FLOOR)
+        bad_all = np.concatenate([np.nonzero(np.any(turn & big, axis=0).ravel())[0],
+                                  m * k + np.nonzero(np.any(turn_r & big_r, axis=0))[0]])
+        if bad_all.size == 0:
             break
-        new = np.exp(np.log(w[bad, None]) + np.log(w[bad + 1] / w[bad])[:, None] * np.linspace(0, 1, 8)[None, 1:-1]).ravel()
-        o = np.argsort(np.concatenate([w, new]))
-        w = np.concatenate([w, new])[o]
-        L = np.concatenate([L, ev(new)], axis=1)[:, o]
-    return w, L
+
+        def pick(idx):
+            blk = idx[idx < m * k]
+            bi, bj = np.divmod(blk, k)
+            ri = idx[idx >= m * k] - m * k
+            cat = np.concatenate
+            return (cat([E[bi, bj], rest[0][ri]]), cat([E[bi, bj + 1], rest[1][ri]]),
+                    cat([LE[:, bi, bj], rest[2][:, ri]], axis=1), cat([LE[:, bi, bj + 1], rest[3][:, ri]], axis=1),
+                    cat([AE[:, bi, bj], rest[4][:, ri]], axis=1), cat([AE[:, bi, bj + 1], rest[5][:, ri]], axis=1))
+
+        wl, wr, Ll, Lr, al, ar = pick(bad_all[:20000])
+        rest = pick(bad_all[20000:])
+        nb = wl.size
+        new = np.exp(np.log(wl[:, None]) + np.log(wr / wl)[:, None] * np.linspace(0, 1, 8)[None, 1:-1])
+        Ln = ev(new.ravel())
+        an = np.abs(Ln)
+        ws.append(new.ravel())
+        Ls.append(Ln)
+        aLs.append(an)
+        E = np.concatenate([wl[:, None], new, wr[:, None]], axis=1)
+        LE = np.concatenate([Ll[:, :, None], Ln.reshape(R, nb, 6), Lr[:, :, None]], axis=2)
+        AE = np.concatenate([al[:, :, None], an.reshape(R, nb, 6), ar[:, :, None]], axis=2)
+    if len(ws) > 1:
+        w = np.concatenate(ws)
+        o = np.argsort(w, kind="stable")  # a few sorted runs: a cheap merge
+        w = w[o]
+        L = np.concatenate(Ls, axis=1)[:, o]
+        aL = np.concatenate(aLs, axis=1)[:, o]
+    return w, L, aL
 
 
-def _figures_for_row(row_name, Lrow, w, gm_list, pm_list, peaks) -> BreakFigures:
+def _figures_for_row(row_name, gm_w, gm_k, pm_w, pm_deg, peaks, phase_omitted: int) -> BreakFigures:
     fig = BreakFigures(loop=row_name[0], break_point=row_name[1])
     crossings: list[Crossing] = []
     ups, lows = [], []
-    for wc, k in gm_list:  # k: critical gain factor
-        if not np.isfinite(k) or k > GM_INF_LIMIT or k < 1.0 / GM_INF_LIMIT:
-            continue
+    with np.errstate(divide="ignore", invalid="ignore"):
+        keep = np.isfinite(gm_k) & (gm_k <= GM_INF_LIMIT) & (gm_k >= 1.0 / GM_INF_LIMIT)
+    for wc, k in zip(gm_w[keep].tolist(), gm_k[keep].tolist()):  # k: critical gain factor
         db = 20 * math.log10(k)
-        crossings.append(Crossing("phase", float(wc), float(db)))
+        crossings.append(Crossing("phase", wc, db))
         (ups if k > 1 else lows).append((db, wc, len(crossings) - 1))
     if ups:
         fig.gm_upper_db = min(ups)[0]
@@ -272,11 +466,11 @@ def _figures_for_row(row_name, Lrow, w, gm_list, pm_list, peaks) -> BreakFigures
         fig.gm_db, fig.gm_freq = float(d), float(wc)
         crossings[i].binding = True
     pms = []
-    for wc, phase_deg in pm_list:
-        pm = float(_wrap180(np.array(180.0 + phase_deg)))
+    for wc, phase_deg in zip(np.asarray(pm_w).tolist(), np.asarray(pm_deg).tolist()):
+        pm = 180.0 - ((180.0 - (180.0 + phase_deg)) % 360.0)
         lag = math.radians(pm % 360.0)
         dm = lag / wc if wc > 0 else math.inf
-        crossings.append(Crossing("gain", float(wc), pm, delay_margin=float(dm)))
+        crossings.append(Crossing("gain", wc, pm, delay_margin=float(dm)))
         pms.append((abs(pm), len(crossings) - 1))
         fig.delay_margin = min(fig.delay_margin, dm)
     if pms:
@@ -284,68 +478,151 @@ def _figures_for_row(row_name, Lrow, w, gm_list, pm_list, peaks) -> BreakFigures
         fig.pm_deg, fig.pm_freq = crossings[i].value, crossings[i].omega
         crossings[i].binding = True
     fig.crossings = sorted(crossings, key=lambda c: c.omega)
+    fig.phase_omitted = int(phase_omitted)
     (fig.ms_freq, fig.ms), (fig.mt_freq, fig.mt), (fig.disk_freq, inv_alpha) = peaks
     fig.disk_alpha = 1.0 / inv_alpha if inv_alpha > 0 else math.inf
     fig.disk_gm_db, fig.disk_pm_deg = disk_from_alpha(fig.disk_alpha)
     return fig
 
 
-def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, names) -> list[BreakFigures]:
-    R = L.shape[0]
+#: Phase crossings refined per break point (those of smallest |GM| first); the rest are only counted.
+MAX_PHASE_LISTED = 20
+_PHASE_REFINE = 2 * MAX_PHASE_LISTED + 8
+#: An unrefined crossing is classified from its bracket only when both ends' |L| are this factor
+#: clear of a threshold (|L| hardly changes over a bracket; the root's lies between the ends').
+_BAND = 1.25
+
+
+def _crit_gain(z: np.ndarray) -> np.ndarray:
+    """Critical gain factor 1/|L| at a refined phase crossing; NaN when L is not on the negative real axis."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        logmag = np.log(np.abs(L))
-    # ---- gain crossings
-    sc = (np.sign(logmag[:, :-1]) != np.sign(logmag[:, 1:])) & np.isfinite(logmag[:, :-1]) & np.isfinite(logmag[:, 1:])
-    r_g, i_g = np.nonzero(sc)
-    wg = _zoom_roots(ev, w[i_g], w[i_g + 1], r_g, lambda Z: np.log(np.abs(Z)))
-    # ---- phase crossings (negative real axis)
+        on_axis = np.abs(z.imag) <= 1e-6 * np.abs(z) + 1e-300
+        k = np.where(on_axis, 1.0 / np.abs(z), 1.0 / np.abs(z.real))  # too flat to pin down: still a crossing
+        return np.where(z.real < 0, k, np.nan)
+
+
+def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names) -> list[BreakFigures]:
+    R = L.shape[0]
     im, re = L.imag, L.real
-    aL = np.abs(L)
+    with np.errstate(invalid="ignore"):
+        fin = np.isfinite(aL) & (aL > 0)
+        sgn = np.sign(aL - 1.0)  # sign of log|L|
+    # ---- gain crossings
+    sc = (sgn[:, :-1] != sgn[:, 1:]) & fin[:, :-1] & fin[:, 1:]
+    r_g, i_g = np.nonzero(sc)
+    # ---- phase crossings (negative real axis)
     sp = (np.sign(im[:, :-1]) != np.sign(im[:, 1:])) & ((re[:, :-1] < 0) | (re[:, 1:] < 0))
     sp &= (aL[:, :-1] > 0.5 * MAG_FLOOR) | (aL[:, 1:] > 0.5 * MAG_FLOOR)
     sp &= (aL[:, :-1] < 2 * GM_INF_LIMIT) | (aL[:, 1:] < 2 * GM_INF_LIMIT)
     r_p, i_p = np.nonzero(sp)
-    wp = _zoom_roots(ev, w[i_p], w[i_p + 1], r_p, lambda Z: Z.imag)
-    # ---- evaluate at the roots
-    pts = np.concatenate([wg, wp])
-    Lpts = ev(pts) if pts.size else np.zeros((R, 0), dtype=complex)
-    gm_lists = [[] for _ in range(R)]
-    pm_lists = [[] for _ in range(R)]
-    for k, (r, wc) in enumerate(zip(r_g, wg)):
-        pm_lists[r].append((wc, math.degrees(np.angle(Lpts[r, k]))))
-    for k, (r, wc) in enumerate(zip(r_p, wp)):
-        z = Lpts[r, wg.size + k]
-        if z.real < 0 and abs(z.imag) <= 1e-6 * abs(z) + 1e-300:
-            gm_lists[r].append((wc, 1.0 / abs(z)))
-        elif z.real < 0:  # crossing too flat to pin down: still a crossing of the real axis
-            gm_lists[r].append((wc, 1.0 / abs(z.real)))
+    # Delays give hundreds of phase crossings; only those that can be listed (smallest |GM|)
+    # or whose classification is not clear from the bracket are refined, the rest counted.
+    Pa, Pb = L[r_p, i_p], L[r_p, i_p + 1]
+    aa, ab = aL[r_p, i_p], aL[r_p, i_p + 1]
+    lo_m, hi_m = np.minimum(aa, ab), np.maximum(aa, ab)
+    with np.errstate(all="ignore"):
+        zz = Pb * Pa.conj()
+        amb = (Pa.real >= 0) | (Pb.real >= 0) | (zz.real <= 0.5 * np.abs(zz)) | ~np.isfinite(hi_m) | ~(lo_m > 0)
+        # an interval the delay alone turns by > 0.5 rad may hide whole turns between its ends
+        amb |= max(ev.delay.T, 0.0) * (w[i_p + 1] - w[i_p]) > 0.5
+        amb |= (hi_m * _BAND > MAG_FLOOR) & (lo_m / _BAND < MAG_FLOOR)
+        amb |= (hi_m * _BAND > GM_INF_LIMIT) & (lo_m / _BAND < GM_INF_LIMIT)
+        score = np.abs(0.5 * (np.log(aa) + np.log(ab)))  # ~ |ln GM| of the crossing
+        slack = 0.5 * np.abs(np.log(aa) - np.log(ab)) + math.log(1.5)
+    score = np.where(np.isfinite(score), score, np.inf)
+    refine = amb.copy()
+    for r in range(R):
+        idx = np.nonzero(r_p == r)[0]
+        if idx.size > _PHASE_REFINE:
+            refine[idx[np.argpartition(score[idx], _PHASE_REFINE)[:_PHASE_REFINE]]] = True
+        else:
+            refine[idx] = True
+    # ---- zoom: gain and phase brackets together
+    fn_gain = lambda Z: np.log(np.abs(Z))  # noqa: E731
+    done = np.zeros(r_p.size, dtype=bool)
+    wp = np.full(r_p.size, np.nan)
+    kp_ = np.full(r_p.size, np.nan)
+    first = True
+    while True:
+        todo = np.nonzero(refine & ~done)[0]
+        ng = r_g.size if first else 0
+        lo = np.concatenate([w[i_g] if first else np.zeros(0), w[i_p[todo]]])
+        hi = np.concatenate([w[i_g + 1] if first else np.zeros(0), w[i_p[todo] + 1]])
+        rows = np.concatenate([r_g if first else np.zeros(0, dtype=np.int64), r_p[todo]]).astype(np.int64)
+        La = np.concatenate([L[r_g, i_g] if first else np.zeros(0, dtype=complex), Pa[todo]])
+        Lb = np.concatenate([L[r_g, i_g + 1] if first else np.zeros(0, dtype=complex), Pb[todo]])
+
+        def fn(Z, kk, ng=ng):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                return np.where(kk < ng, fn_gain(Z), Z.imag)
+
+        wz, Lz = _zoom_roots(ev, lo, hi, rows, fn, La=La, Lb=Lb)
+        if first:
+            wg, Lg = wz[:ng], Lz[:ng]
+            first = False
+        wp[todo] = wz[ng:]
+        kp_[todo] = _crit_gain(Lz[ng:])
+        done[todo] = True
+        # every unrefined bracket must rank after the MAX_PHASE_LISTED-th refined crossing of its row
+        more = False
+        for r in range(R):
+            un = np.nonzero((r_p == r) & ~done)[0]
+            if un.size == 0:
+                continue
+            kr = kp_[(r_p == r) & done]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                v = np.abs(np.log(kr[np.isfinite(kr) & (kr <= GM_INF_LIMIT) & (kr >= 1 / GM_INF_LIMIT)]))
+            tau = np.sort(v)[MAX_PHASE_LISTED - 1] if v.size >= MAX_PHASE_LISTED else np.inf
+            need = un[score[un] - slack[un] <= tau]
+            if need.size:
+                refine[need] = True
+                more = True
+        if not more:
+            break
+    # ---- per row: listed crossings and counts
+    gm_w = [[] for _ in range(R)]
+    gm_k = [[] for _ in range(R)]
+    omitted = np.zeros(R, dtype=np.int64)
+    for r in range(R):
+        sel = (r_p == r) & done
+        gm_w[r], gm_k[r] = wp[sel], kp_[sel]
+        un = (r_p == r) & ~done
+        # unrefined: clearly on the negative real axis, |L| clearly inside (MAG_FLOOR, GM_INF_LIMIT)
+        omitted[r] = int(np.count_nonzero(un & (lo_m > MAG_FLOOR) & (hi_m < GM_INF_LIMIT)))
     # w = 0: finite negative real DC gain is a phase crossing too
     L0 = ev(np.array([0.0]))[:, 0]
     for r in range(R):
         z = L0[r]
         if np.isfinite(z) and 0 < abs(z) < 1e8 and z.real < 0 and abs(z.imag) < 1e-9 * abs(z):
-            gm_lists[r].append((0.0, 1.0 / abs(z)))
-    # ---- peaks: Ms, Mt, 1/alpha
+            o = np.argsort(np.concatenate([[0.0], gm_w[r]]), kind="stable")
+            gm_w[r] = np.concatenate([[0.0], gm_w[r]])[o]
+            gm_k[r] = np.concatenate([[1.0 / abs(z)], gm_k[r]])[o]
+    pm_w = [wg[r_g == r] for r in range(R)]
+    pm_deg = [np.degrees(np.angle(Lg[r_g == r])) for r in range(R)]
+    # ---- peaks: Ms, Mt, 1/alpha (all rows and figures zoomed together)
     with np.errstate(divide="ignore", invalid="ignore"):
         S = 1.0 / (1.0 + L)
-        fns = [
-            lambda Z: np.abs(1.0 / (1.0 + Z)),
-            lambda Z: np.abs(Z / (1.0 + Z)),
-            lambda Z: np.abs(1.0 / (1.0 + Z) - 0.5),
-        ]
         vals = [np.abs(S), np.abs(L * S), np.abs(S - 0.5)]
-    peaks = [[None] * 3 for _ in range(R)]
-    rows = np.arange(R)
-    for q, (fn, V) in enumerate(zip(fns, vals)):
+    fns = [
+        lambda Z: np.nan_to_num(np.abs(1.0 / (1.0 + Z)), nan=np.inf),
+        lambda Z: np.nan_to_num(np.abs(Z / (1.0 + Z)), nan=np.inf),
+        lambda Z: np.nan_to_num(np.abs(1.0 / (1.0 + Z) - 0.5), nan=np.inf),
+    ]
+    js, Vj = [], []
+    for V in vals:
         V = np.nan_to_num(V, nan=np.inf)
         j = np.argmax(V, axis=1)
-        lo = w[np.maximum(j - 1, 0)]
-        hi = w[np.minimum(j + 1, w.size - 1)]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            pw, pv = _zoom_peaks(ev, lo, hi, rows, lambda Z, fn=fn: np.nan_to_num(fn(Z), nan=np.inf))
-        for r in range(R):
-            peaks[r][q] = (float(pw[r]), float(max(pv[r], V[r, j[r]])))
-    return [_figures_for_row(names[r], L[r], w, gm_lists[r], pm_lists[r], peaks[r]) for r in range(R)]
+        js.append(j)
+        Vj.append(V[np.arange(R), j])
+    jj = np.concatenate(js)
+    lo = w[np.maximum(jj - 1, 0)]
+    hi = w[np.minimum(jj + 1, w.size - 1)]
+    rows = np.tile(np.arange(R), 3)
+    q = np.repeat(np.arange(3), R)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pw, pv = _zoom_peaks(ev, lo, hi, rows, fns, q)
+    peaks = [[(float(pw[qi * R + r]), float(max(pv[qi * R + r], Vj[qi][r]))) for qi in range(3)] for r in range(R)]
+    return [_figures_for_row(names[r], gm_w[r], gm_k[r], pm_w[r], pm_deg[r], peaks[r], omitted[r]) for r in range(R)]
 
 
 # --------------------------------------------------------------- stability
@@ -441,7 +718,7 @@ def _stability(ev: _Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel
 def analyse(cas: Cascade, lin: LinearModel, delay: DelayModel, n_freq: int = 2000) -> Analysis:
     """Margins at every break point and closed-loop stability for a one-member cascade."""
     ev = _Evaluator(cas, lin, delay)
-    w, L = _grid(ev, cas, lin, delay, n_freq)
-    figs = _margins(ev, w, L, cas.break_names)
+    w, L, aL = _grid(ev, cas, lin, delay, n_freq)
+    figs = _margins(ev, w, L, aL, cas.break_names)
     stab = _stability(ev, cas, lin, delay, float(w[-1]), max(400, n_freq // 2))
     return Analysis(figs, stab, (float(w[0]), float(w[-1])))

@@ -20,20 +20,30 @@ __all__ = ["nonlinear_check"]
 _SUMMARY = ("iae", "overshoot", "settling_time", "sat_frac")
 
 
-def nonlinear_check(spec, plant, layout, full_gains: np.ndarray) -> NonlinearReport:
-    """Run the simulator on one full gain vector; ``ran=False`` when :mod:`gaintune.sim` is unavailable."""
+def nonlinear_check(spec, plant, layout, full_gains: np.ndarray, sim=None) -> NonlinearReport:
+    """Run the simulator on one full gain vector; ``ran=False`` when :mod:`gaintune.sim` is unavailable.
+
+    ``sim``: a :class:`gaintune.sim.Simulator` of this spec to reuse (its discretisation memo stays warm).
+    """
+    full = np.atleast_2d(np.asarray(full_gains, dtype=float))
+    if sim is not None:
+        results = [sim.run(full, None, i) for i in range(len(spec.scenarios))]
+        return _report(results)
     try:
-        sim = importlib.import_module("gaintune.sim")
-        simulate = getattr(sim, "simulate")
+        simmod = importlib.import_module("gaintune.sim")
+        simulate = getattr(simmod, "simulate")
     except (ImportError, AttributeError) as exc:
         return NonlinearReport(ran=False, note=f"simulator unavailable ({exc.__class__.__name__}: {exc})")
-    full = np.atleast_2d(np.asarray(full_gains, dtype=float))
-    runner = getattr(sim, "Simulator", None)
+    runner = getattr(simmod, "Simulator", None)
     if runner is not None:
         sm = runner(spec, plant, layout)
         results = [sm.run(full, None, i) for i in range(len(spec.scenarios))]
     else:
         results = simulate(spec, full, draws=None, traces=False)
+    return _report(results)
+
+
+def _report(results) -> NonlinearReport:
     if not isinstance(results, (list, tuple)):
         results = [results]
     metrics: dict[str, list] = {}

@@ -1,0 +1,82 @@
+"""Per-spec objects reused between verifications: plant, gain layout, linearisation, simulator.
+
+Verifying a new gain set on a spec seen before rebuilds nothing: the entry (keyed by
+``spec.content_hash()``) holds the plant (whose linearisation cache is then warm), the
+layout, the nominal linear model and the :class:`gaintune.sim.Simulator` (whose
+discretisation / draw-array memo is then warm). A small thread-safe LRU.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Any
+
+from gaintune.controllers.layout import GainLayout
+from gaintune.plants.plant import LinearModel, Plant, build_plant
+from gaintune.spec import TuningSpec
+
+__all__ = ["SpecContext", "spec_context", "clear_cache", "CACHE_SIZE"]
+
+#: Specs kept (least recently used evicted).
+CACHE_SIZE = 32
+
+
+@dataclass
+class SpecContext:
+    spec_hash: str
+    plant: Plant
+    layout: GainLayout
+    lin: LinearModel
+    _sim: Any = None
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def simulator(self, spec: TuningSpec):
+        """The spec's simulator (built on first use); None when :mod:`gaintune.sim` is unavailable."""
+        if self._sim is None:
+            with self._lock:
+                if self._sim is None:
+                    import importlib
+
+                    try:
+                        sim = importlib.import_module("gaintune.sim")
+                        runner = getattr(sim, "Simulator")
+                    except (ImportError, AttributeError):
+                        return None
+                    self._sim = runner(spec, self.plant, self.layout)
+        return self._sim
+
+
+_CACHE: OrderedDict[str, SpecContext] = OrderedDict()
+_LOCK = threading.Lock()
+
+
+def spec_context(spec: TuningSpec, plant: Plant | None = None, layout: GainLayout | None = None) -> SpecContext:
+    """The cached context of ``spec`` (built on a miss, from ``plant``/``layout`` when given).
+
+    A cached entry wins over ``plant``/``layout`` passed in: both are built from the spec
+    (the key is the hash of its full content), so they are equivalent.
+    """
+    key = spec.content_hash()
+    with _LOCK:
+        hit = _CACHE.get(key)
+        if hit is not None:
+            _CACHE.move_to_end(key)
+            return hit
+    plant = plant or build_plant(spec.plant)
+    layout = layout or GainLayout(spec, plant.states)
+    ctx = SpecContext(key, plant, layout, plant.linearize())
+    with _LOCK:
+        hit = _CACHE.get(key)
+        if hit is not None:  # built concurrently: keep the first
+            return hit
+        _CACHE[key] = ctx
+        while len(_CACHE) > CACHE_SIZE:
+            _CACHE.popitem(last=False)
+    return ctx
+
+
+def clear_cache() -> None:
+    with _LOCK:
+        _CACHE.clear()
