@@ -326,13 +326,18 @@ class ProfileSpec(_Model):
     width: float | None = Field(None, gt=0)
     points: list[tuple[float, float]] = Field(default_factory=list)
 
+    @field_validator("points")
+    @classmethod
+    def _finite_points(cls, v: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        for t, x in v:
+            _finite(t, "sequence time")
+            _finite(x, "sequence value")
+        return v
+
     @model_validator(mode="after")
     def _check(self) -> "ProfileSpec":
         for x in (self.amplitude, self.time, self.slope):
             _finite(x, "profile value")
-        for t, v in self.points:
-            _finite(t, "sequence time")
-            _finite(v, "sequence value")
         if self.kind == "sequence":
             if not self.points:
                 raise ValueError("a sequence profile needs points: [[t0, v0], [t1, v1], ...]")

@@ -54,6 +54,8 @@ def test_budget_progress_and_result_fields(tuned):
     assert result.provenance.seed == 1 and result.provenance.versions["stable-baselines3"]
     assert result.verification is not None and result.verification["verdict"] in ("pass", "fail")
     assert set(result.gains) == {"loop0"} and set(result.gains["loop0"]) == {"Kp", "Ki"}
+    assert 0 <= result.diverged_episodes <= result.rl_sims and 0 <= result.tripped_episodes <= result.rl_sims
+
     if result.verdict == "pass":
         assert result.accepted_gains == result.gains
     else:
@@ -101,3 +103,10 @@ def test_wall_time_and_early_stop():
     assert r.stopped == "wall_time" and r.rl_sims < 5000
     r2 = tune(_spec(budget=3000, refine=False, early_stop_patience=32), verify=False)
     assert r2.stopped == "converged" and r2.rl_sims < 3000
+
+
+def test_safety_trips_are_counted_in_the_search_statistics():
+    spec = load_spec({**EASY, "safety": {"max_abs_output": 1.3}, "search": {**EASY["search"], "budget": 300, "refine": False}})
+    r = tune(spec, verify=False)
+    assert r.tripped_episodes > 0  # wide exploration overshoots past |y| = 1.3 at least sometimes
+    assert r.tripped_episodes <= r.rl_sims

@@ -66,6 +66,8 @@ class TuneResult(BaseModel):
     rl_sims: int = 0
     wall_time: float = 0.0
     stopped: str = Field("budget", description="Why the search stopped: budget, wall_time, converged, cancelled.")
+    diverged_episodes: int = Field(0, description="Search episodes whose simulation diverged.")
+    tripped_episodes: int = Field(0, description="Search episodes in which the safety monitor tripped.")
     agent_path: str | None = None
     verification: dict[str, Any] | None = Field(None, description="VerificationReport as JSON, when verified.")
     baselines: list[dict[str, Any]] = Field(default_factory=list, description="Baseline results for comparison.")

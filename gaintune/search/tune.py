@@ -69,6 +69,8 @@ class SearchMonitor:
         self.best_tuned: np.ndarray | None = None
         self.best_at = 0
         self.curve: list[CurvePoint] = []
+        self.n_diverged = 0
+        self.n_tripped = 0
         self.stopped = "budget"
         self._last_report = 0.0
 
@@ -82,6 +84,8 @@ class SearchMonitor:
 
     def on_batch(self, tuned: np.ndarray, s: Scored) -> None:
         """Record the batch's best *nominal-objective* cost (diverged/tripped runs never count as best)."""
+        self.n_diverged += int(s.diverged.sum())
+        self.n_tripped += int(s.tripped.sum())
         ok = ~(s.diverged | s.tripped)
         if ok.any():
             i = int(np.argmin(np.where(ok, s.cost, np.inf)))
@@ -298,6 +302,8 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
         rl_sims=rl_sims,
         wall_time=0.0,
         stopped=monitor.stopped,
+        diverged_episodes=monitor.n_diverged,
+        tripped_episodes=monitor.n_tripped,
         agent_path=agent_path,
         provenance=Provenance(spec_hash=spec.content_hash(), seed=s.seed, versions=versions(), command=command),
     )
