@@ -172,15 +172,17 @@ def tune_classical(spec: TuningSpec, plant, method: str, params: dict[str, float
 def auto_bounds(spec: TuningSpec, plant, factor: float = BOUNDS_FACTOR) -> dict[tuple[str, str], tuple[float, float]]:
     """Default log-scale search bounds ``{(loop, gain): (g/factor, g*factor)}`` around a robust rule.
 
-    SIMC (tau_c = theta) is tried first, then AMIGO; the bounds are centred
+    SIMC (tau_c = theta) is tried first, then AMIGO, then Ziegler-Nichols' ultimate-gain
+    rule (which needs no FOTD model, so it covers oscillatory paths); the bounds are centred
     geometrically on that rule's gains, a factor ``factor`` (default 30, i.e.
     about three decades in all) each way - wide enough to contain the
     cost-optimal gains of every benchmark process we checked and narrow enough
     to keep random gains mostly stable. Returns ``{}`` when no rule applies
-    (LQ loops, unstable or oscillatory paths, ...): the layout then falls back
+    (LQ loops, paths without a phase crossover, ...): the layout then falls back
     to its fixed defaults. Fixed gains are skipped.
     """
-    for method in ("simc", "amigo"):
+    # zn_ultimate last: it needs no FOTD model, so it also centres oscillatory paths.
+    for method in ("simc", "amigo", "zn_ultimate"):
         try:
             res = tune_classical(spec, plant, method)
         except (NoModelError, ValueError, np.linalg.LinAlgError):
