@@ -29,7 +29,15 @@ from typing import Any
 
 import numpy as np
 
-from gaintune.bench.suite import Problem, default_out_dir, get_suite, reference_for, select, suite_names
+from gaintune.bench.suite import (
+    Problem,
+    default_out_dir,
+    describe_problems,
+    get_suite,
+    reference_for,
+    select,
+    suite_names,
+)
 
 __all__ = [
     "DEFAULT_METHODS",
@@ -279,8 +287,7 @@ def run_compare(
         "seed": seed,
         "budget_override": budget,
         "methods": list(methods),
-        "problems": [{"name": p.name, "title": p.title, "family": p.family, "budget": budget or p.budget,
-                      "requirements": p.requirements_text(), "objective": p.objective_text()} for p in problems],
+        "problems": describe_problems(problems, budget),
         "references": refs,
         "rows": rows,
         "summary": summarize(rows, methods),

@@ -32,7 +32,15 @@ from pathlib import Path
 from typing import Any
 
 from gaintune.bench.compare import fmt, fmt_ratio, md_table, ratio, set_threads, stats, write_outputs
-from gaintune.bench.suite import Problem, default_out_dir, get_suite, reference_for, select, suite_names
+from gaintune.bench.suite import (
+    Problem,
+    default_out_dir,
+    describe_problems,
+    get_suite,
+    reference_for,
+    select,
+    suite_names,
+)
 
 __all__ = ["run_one", "run_search", "summarize", "per_problem", "render_markdown", "main"]
 
@@ -120,8 +128,7 @@ def run_search(
         "algo": algo,
         "seeds": list(seeds),
         "budget_override": budget,
-        "problems": [{"name": p.name, "title": p.title, "family": p.family, "budget": budget or p.budget,
-                      "requirements": p.requirements_text(), "objective": p.objective_text()} for p in problems],
+        "problems": describe_problems(problems, budget),
         "references": refs,
         "rows": rows,
         "per_problem": per_problem(rows),

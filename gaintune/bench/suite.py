@@ -47,6 +47,7 @@ __all__ = [
     "compute_reference",
     "default_out_dir",
     "suite_markdown",
+    "describe_problems",
 ]
 
 #: Largest search budget (simulations) a suite problem may set.
@@ -542,3 +543,9 @@ def suite_markdown(problems: list[Problem]) -> str:
         sc = ", ".join(f"{s.dt:g} s, {s.horizon:g} s ({s.n_steps})" for s in spec.scenarios)
         lines.append(f"| {p.name} | {p.title} | {p.objective_text()} | {p.requirements_text()} | {p.budget} | {sc} |")
     return "\n".join(lines)
+
+
+def describe_problems(problems, budget: int | None = None) -> list[dict[str, Any]]:
+    """The problem descriptions stored with every benchmark result (JSON-able)."""
+    return [{"name": p.name, "title": p.title, "family": p.family, "budget": budget or p.budget,
+             "requirements": p.requirements_text(), "objective": p.objective_text()} for p in problems]
