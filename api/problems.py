@@ -23,7 +23,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from gaintune.errors import GaintuneError, problem_details
 
-__all__ = ["Problem", "ApiError", "problem_response", "install_handlers", "SafeJSONResponse", "json_safe", "PROBLEM_TYPES"]
+__all__ = ["ApiError", "problem_response", "install_handlers", "SafeJSONResponse", "json_safe", "PROBLEM_TYPES"]
 
 log = logging.getLogger("gaintune.api")
 

@@ -19,6 +19,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from gaintune.fmt import fmt
+
 __all__ = ["app", "EXIT_OK", "EXIT_INPUT", "EXIT_VERIFY"]
 
 EXIT_OK, EXIT_INPUT, EXIT_VERIFY = 0, 2, 3
@@ -186,17 +188,7 @@ def _command_line(*parts: Any, **options: Any) -> str:
 # --------------------------------------------------------------- output
 
 
-def _f(x: Any, d: int = 4) -> str:
-    if x is None:
-        return "-"
-    if isinstance(x, str):
-        return x
-    x = float(x)
-    if math.isnan(x):
-        return "-"
-    if math.isinf(x):
-        return "inf" if x > 0 else "-inf"
-    return f"{x:.{d}g}"
+_f = fmt  # one formatter for every table (gaintune.fmt)
 
 
 def _print_summary(result, console: Console = out) -> None:

@@ -325,7 +325,7 @@ def to_c(spec: TuningSpec, gains: Gains, verdict: str | None, dt: float, prefix:
         ]
     sig = f"static inline double {P}_step({P}_state *s, double r, const double y[{U}_N_LOOPS]" + (", const double *x)" if lq else ")")
     lines += [
-        f"/* One sample of the whole cascade: reference r, measurements y (outer loop first)"
+        "/* One sample of the whole cascade: reference r, measurements y (outer loop first)"
         + (", plant state x" if lq else "") + " -> actuator u. */",
         sig,
         "{",

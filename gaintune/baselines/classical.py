@@ -90,7 +90,7 @@ def _close(sys, m: int, K):
     """Close u = K [r; y_m] around ``sys`` (u -> all outputs); returns r -> all outputs."""
     A, B, C, D = (np.asarray(x, float) for x in (sys.A, sys.B, sys.C, sys.D))
     Ak, Bk, Ck, Dk = (np.asarray(x, float) for x in (K.A, K.B, K.C, K.D))
-    n, nk = A.shape[0], Ak.shape[0]
+    nk = Ak.shape[0]
     Bkr, Bky = Bk[:, :1], Bk[:, 1:2]
     dkr, dky = Dk[0, 0], Dk[0, 1]
     Cm, dm = C[m : m + 1, :], D[m, 0]

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from gaintune.fmt import fmt
 from gaintune.bench.suite import (
     Problem,
     default_out_dir,
@@ -81,23 +82,6 @@ def stats(values: Sequence[float | None]) -> dict[str, float | int | None]:
     if not v:
         return {"n": 0, "median": None, "worst": None}
     return {"n": len(v), "median": float(np.median(v)), "worst": float(max(v))}
-
-
-def fmt(x: Any, digits: int = 4) -> str:
-    """Compact table cell: None -> '-', inf -> 'inf', floats to ``digits`` significant figures."""
-    if x is None:
-        return "-"
-    if isinstance(x, bool):
-        return "yes" if x else "no"
-    if isinstance(x, (int, np.integer)):
-        return str(int(x))
-    if isinstance(x, (float, np.floating)):
-        if math.isnan(x):
-            return "-"
-        if math.isinf(x):
-            return "inf" if x > 0 else "-inf"
-        return f"{x:.{digits}g}"
-    return str(x)
 
 
 def fmt_ratio(x: Any) -> str:

@@ -24,6 +24,7 @@ Suites: ``default`` (10 problems), ``quick`` (3 tiny problems for tests) and
 from __future__ import annotations
 
 import copy
+from pathlib import Path
 import hashlib
 import json
 import math
@@ -416,7 +417,7 @@ def _check_suites() -> None:
 # ------------------------------------------------------------ reference cache
 
 
-def default_out_dir() -> "Path":
+def default_out_dir() -> Path:
     """``bench/results`` of the source checkout when gaintune runs from one, else ``./bench/results``."""
     from pathlib import Path
 

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from gaintune.fmt import fmt
 from gaintune.report import plots
 from gaintune.spec import DisturbanceSpec, ProfileSpec, ScenarioSpec, TuningSpec
 
@@ -23,21 +24,7 @@ QUICK_BASELINES = ("simc", "amigo")
 Gains = dict[str, dict[str, float]]
 
 
-def _fmt(x: Any, digits: int = 4) -> str:
-    if x is None:
-        return "-"
-    if isinstance(x, bool):
-        return "yes" if x else "no"
-    if isinstance(x, (int, np.integer)):
-        return str(int(x))
-    if isinstance(x, (float, np.floating)):
-        x = float(x)
-        if math.isnan(x):
-            return "-"
-        if math.isinf(x):
-            return "inf" if x > 0 else "-inf"
-        return f"{x:.{digits}g}"
-    return str(x)
+_fmt = fmt  # one formatter for every table (gaintune.fmt)
 
 
 def _versions() -> dict[str, str]:
