@@ -16,12 +16,13 @@ from typing import Any, Literal
 
 from pydantic import ValidationError
 
+from api.deps import run_compute
 from api.problems import ApiError
 from api.settings import Settings
 from gaintune.errors import GaintuneError, problem_details
 from gaintune.spec import TuningSpec
 
-__all__ = ["Checked", "check_spec", "cached_check", "check_and_remember", "nonfinite_paths", "invalid"]
+__all__ = ["Checked", "check_spec", "cached_check", "check_and_remember", "checked_spec", "nonfinite_paths", "invalid"]
 
 log = logging.getLogger("gaintune.api")
 
@@ -148,4 +149,12 @@ def check_and_remember(request, spec: TuningSpec, purpose: Purpose, prefix: str 
         c[(purpose, prefix, spec.content_hash())] = checked
         while len(c) > CHECK_CACHE_SIZE:
             c.popitem(last=False)
+    return checked
+
+
+async def checked_spec(request, spec: TuningSpec, purpose: Purpose, prefix: str = "spec") -> Checked:
+    """The spec's semantic check: from the per-spec cache, else computed off the event loop and remembered."""
+    checked = cached_check(request, spec, purpose, prefix)
+    if checked is None:
+        checked = await run_compute(request, check_and_remember, request, spec, purpose, prefix)
     return checked

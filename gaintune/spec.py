@@ -19,10 +19,10 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any, Literal, Union
+from typing import Annotated, Any, Literal, Union
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from gaintune.errors import SpecError
 
@@ -87,6 +87,15 @@ def _check_coefs(values: Any, what: str) -> Any:
                 _finite(item, what)
     return values
 
+
+def _finite_params(v: dict[str, float]) -> dict[str, float]:
+    for k, x in v.items():
+        _finite(x, f"parameter {k!r}")
+    return v
+
+
+#: Parameter values by name, all finite.
+FiniteParams = Annotated[dict[str, float], AfterValidator(_finite_params)]
 
 # --------------------------------------------------------------------- plant
 
@@ -154,14 +163,7 @@ class ModelRefSpec(_Model):
     """A built-in model from ``models/`` with parameter overrides."""
 
     name: str = Field(description="File stem in models/, e.g. 'dc_motor'.")
-    params: dict[str, float] = Field(default_factory=dict, description="Overrides of the model's nominal parameters.")
-
-    @field_validator("params")
-    @classmethod
-    def _params(cls, v: dict[str, float]) -> dict[str, float]:
-        for k, x in v.items():
-            _finite(x, f"parameter {k!r}")
-        return v
+    params: FiniteParams = Field(default_factory=dict, description="Overrides of the model's nominal parameters.")
 
 
 class PlantSpec(_Model):
@@ -174,7 +176,7 @@ class PlantSpec(_Model):
     delay: Coef | None = Field(
         None, description="Input/output time delay in seconds (number or parameter expression); default 0, or the model's."
     )
-    params: dict[str, float] = Field(default_factory=dict, description="Nominal parameter values.")
+    params: FiniteParams = Field(default_factory=dict, description="Nominal parameter values.")
 
     @field_validator("delay")
     @classmethod
@@ -183,13 +185,6 @@ class PlantSpec(_Model):
             _finite(v, "delay")
             if v < 0:
                 raise ValueError(f"delay must be >= 0 seconds, got {v}")
-        return v
-
-    @field_validator("params")
-    @classmethod
-    def _params(cls, v: dict[str, float]) -> dict[str, float]:
-        for k, x in v.items():
-            _finite(x, f"parameter {k!r}")
         return v
 
     @model_validator(mode="after")

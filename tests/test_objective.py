@@ -79,7 +79,6 @@ def test_evaluator_weights_scenarios_by_hand() -> None:
     tuned = np.array([[1.0, 0.4], [0.5, 0.2], [30.0, 30.0]])  # the last one diverges
     cost = ev(tuned)
     sim = Simulator(spec)
-    o = spec.objective
     expect = np.zeros(3)
     for sc in spec.scenarios:
         m = sim.run(sim.layout.full(tuned), scenario=spec.scenarios.index(sc)).metrics

@@ -13,6 +13,7 @@ from gaintune.errors import GainError
 from gaintune.spec import load_spec
 from gaintune.verify import format_table, verify
 from gaintune.verify.report import VerificationReport
+from plant_fixtures import MOTOR
 
 # dt = 1 us: the dt/2 sampling delay is negligible when comparing with delay-free python-control loops
 FAST = {"dt": 1e-6, "horizon": 0.1}
@@ -235,15 +236,6 @@ def test_delay_dominant_loop_against_dense_grid_and_pade():
 # -------------------------------------------------------------- cascades
 
 
-MOTOR = {
-    "ss": {
-        "A": [[-100.0, -50.0, 0.0], [50.0, -0.1, 0.0], [0.0, 1.0, 0.0]],
-        "B": [[100.0], [0.0], [0.0]],
-        "C": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-        "states": ["i", "w", "th"],
-        "outputs": ["i", "w", "th"],
-    }
-}
 
 
 def test_two_loop_cascade_matches_hand_computation_with_feedback():

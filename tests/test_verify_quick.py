@@ -15,16 +15,8 @@ from gaintune.spec import load_spec
 from gaintune.verify import quick_margins, requirement_penalty, verify
 from gaintune.verify.loops import pid_arrays
 from gaintune.verify.quick import UNSTABLE_PENALTY
+from plant_fixtures import MOTOR
 
-MOTOR = {
-    "ss": {
-        "A": [[-100.0, -50.0, 0.0], [50.0, -0.1, 0.0], [0.0, 1.0, 0.0]],
-        "B": [[100.0], [0.0], [0.0]],
-        "C": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-        "states": ["i", "w", "th"],
-        "outputs": ["i", "w", "th"],
-    }
-}
 MOTOR_LOOPS = [
     {"name": "position", "type": "p", "measure": "th"},
     {"name": "speed", "type": "pi", "measure": "w"},

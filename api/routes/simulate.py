@@ -13,7 +13,7 @@ from api.deps import SettingsDep, require_key, run_compute, run_pooled
 from api.jsonbody import StrictJSONRoute
 from api.problems import ApiError
 from api.schemas import ScenarioTrace, SimulateRequest, SimulateResponse
-from api.validation import cached_check, check_and_remember
+from api.validation import checked_spec
 
 router = APIRouter(prefix="/v1", tags=["simulate"], route_class=StrictJSONRoute, dependencies=[require_key])
 log = logging.getLogger("gaintune.api")
@@ -45,9 +45,7 @@ def decimate(n: int, max_points: int) -> tuple[np.ndarray, int]:
 )
 async def simulate(body: SimulateRequest, request: Request, settings: SettingsDep) -> SimulateResponse:
     """Nominal-plant closed-loop traces (``y.<loop>``, ``sp.<loop>``, ``u``) and metrics per scenario."""
-    checked = cached_check(request, body.spec, "simulate", "spec")
-    if checked is None:
-        checked = await run_compute(request, check_and_remember, request, body.spec, "simulate", "spec")
+    checked = await checked_spec(request, body.spec, "simulate")
     spec = body.spec
     names = [sc.name for sc in spec.scenarios]
     if body.scenarios is not None:

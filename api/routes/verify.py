@@ -15,7 +15,7 @@ from api.deps import SettingsDep, require_key, run_compute, run_pooled
 from api.jsonbody import StrictJSONRoute
 from api.problems import ApiError
 from api.schemas import VerifyRequest
-from api.validation import cached_check, check_and_remember
+from api.validation import checked_spec
 from gaintune.verify import VerificationReport
 
 router = APIRouter(prefix="/v1", tags=["verify"], route_class=StrictJSONRoute, dependencies=[require_key])
@@ -63,9 +63,7 @@ def _cache(request: Request) -> ReportCache:
 async def verify_gains(body: VerifyRequest, request: Request, settings: SettingsDep) -> Response:
     """Returns the VerificationReport. Non-finite figures (e.g. an infinite gain margin) are the strings
     ``"Infinity"``/``"-Infinity"``."""
-    checked = cached_check(request, body.spec, "verify", "spec")
-    if checked is None:
-        checked = await run_compute(request, check_and_remember, request, body.spec, "verify", "spec")
+    checked = await checked_spec(request, body.spec, "verify")
     key = hashlib.sha256(
         json.dumps([body.spec.content_hash(), body.gains, body.robust, body.nonlinear], sort_keys=True).encode()
     ).hexdigest()

@@ -21,7 +21,6 @@ import argparse
 import json
 import math
 import sys
-import time
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -36,6 +35,8 @@ from gaintune.bench.suite import (
     describe_problems,
     get_suite,
     reference_for,
+    reference_summary,
+    timed_row,
     select,
     suite_names,
 )
@@ -251,21 +252,18 @@ def run_compare(
     refs: dict[str, Any] = {}
     for p in problems:
         ref = reference_for(p, suite, out_dir, refresh=refresh_reference, log=log)
-        refs[p.name] = {"cost": ref.get("cost"), "source": ref.get("source"), "key": ref.get("key"),
-                        "n_sims": ref.get("n_sims"), "exact": ref.get("exact")}
+        refs[p.name] = reference_summary(ref, "exact")
         for m in methods:
-            t0 = time.perf_counter()
-            try:
-                row = runner(p, m, seed=seed, budget=budget, reference=ref)
-            except Exception as exc:  # one broken method must not lose the whole table
-                row = {"problem": p.name, "method": m, "applicable": True, "error": f"{type(exc).__name__}: {exc}",
-                       "cost": None}
+            row, elapsed = timed_row(
+                lambda: runner(p, m, seed=seed, budget=budget, reference=ref),
+                {"problem": p.name, "method": m, "applicable": True, "cost": None},
+            )
             row["ratio"] = ratio(row.get("cost"), ref.get("cost")) if row.get("applicable") else None
             rows.append(row)
             if log:
                 what = (f"cost {fmt(row.get('cost'))} ratio {fmt(row['ratio'])} {row.get('verdict')}"
                         if row.get("applicable") else f"n/a: {row.get('reason')}")
-                log(f"  {p.name:<20} {m:<12} {what} ({time.perf_counter() - t0:.1f} s)")
+                log(f"  {p.name:<20} {m:<12} {what} ({elapsed:.1f} s)")
     return {
         "suite": suite,
         "seed": seed,

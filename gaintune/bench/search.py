@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -38,6 +37,8 @@ from gaintune.bench.suite import (
     describe_problems,
     get_suite,
     reference_for,
+    reference_summary,
+    timed_row,
     select,
     suite_names,
 )
@@ -110,19 +111,17 @@ def run_search(
     refs: dict[str, Any] = {}
     for p in problems:
         ref = reference_for(p, suite, out_dir, refresh=refresh_reference, log=log)
-        refs[p.name] = {"cost": ref.get("cost"), "source": ref.get("source"), "key": ref.get("key"),
-                        "n_sims": ref.get("n_sims"), "gains": ref.get("gains")}
+        refs[p.name] = reference_summary(ref, "gains")
         for seed in seeds:
-            t0 = time.perf_counter()
-            try:
-                row = runner(p, seed, algo=algo, budget=budget, reference=ref)
-            except Exception as exc:  # a crashed run is a result too
-                row = {"problem": p.name, "seed": seed, "algo": algo, "error": f"{type(exc).__name__}: {exc}"}
+            row, elapsed = timed_row(
+                lambda: runner(p, seed, algo=algo, budget=budget, reference=ref),
+                {"problem": p.name, "seed": seed, "algo": algo},
+            )
             rows.append(_add_ratios(row, ref.get("cost")))
             if log:
                 log(f"  {p.name:<20} seed {seed}: RL/ref {fmt_ratio(row['rl_ratio'])} refined/ref "
                     f"{fmt_ratio(row['refined_ratio'])} RL/CMA-ES {fmt_ratio(row['rl_vs_cmaes'])} sims {fmt(row.get('sims'))} {row.get('verdict')} "
-                    f"({time.perf_counter() - t0:.1f} s)" + (f" ERROR {row['error']}" if row.get("error") else ""))
+                    f"({elapsed:.1f} s)" + (f" ERROR {row['error']}" if row.get("error") else ""))
     return {
         "suite": suite,
         "algo": algo,

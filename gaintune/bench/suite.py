@@ -24,10 +24,12 @@ Suites: ``default`` (10 problems), ``quick`` (3 tiny problems for tests) and
 from __future__ import annotations
 
 import copy
-from pathlib import Path
 import hashlib
 import json
 import math
+import time
+from collections.abc import Callable
+from pathlib import Path
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -49,6 +51,8 @@ __all__ = [
     "default_out_dir",
     "suite_markdown",
     "describe_problems",
+    "reference_summary",
+    "timed_row",
 ]
 
 #: Largest search budget (simulations) a suite problem may set.
@@ -550,3 +554,18 @@ def describe_problems(problems, budget: int | None = None) -> list[dict[str, Any
     """The problem descriptions stored with every benchmark result (JSON-able)."""
     return [{"name": p.name, "title": p.title, "family": p.family, "budget": budget or p.budget,
              "requirements": p.requirements_text(), "objective": p.objective_text()} for p in problems]
+
+
+def reference_summary(ref: dict[str, Any], *extra: str) -> dict[str, Any]:
+    """The fields of a reference entry stored with a benchmark result (plus ``extra`` ones)."""
+    return {k: ref.get(k) for k in ("cost", "source", "key", "n_sims", *extra)}
+
+
+def timed_row(run: Callable[[], dict[str, Any]], on_error: dict[str, Any]) -> tuple[dict[str, Any], float]:
+    """Run one benchmark cell; a crash becomes a row (``on_error`` + ``error``), never a lost table."""
+    t0 = time.perf_counter()
+    try:
+        row = run()
+    except Exception as exc:  # one broken method or run must not lose the whole table
+        row = {**on_error, "error": f"{type(exc).__name__}: {exc}"}
+    return row, time.perf_counter() - t0

@@ -15,7 +15,7 @@ import numpy as np
 from gaintune.plants.plant import Plant
 from gaintune.spec import DistSpec, TuningSpec
 
-__all__ = ["Draws", "REF_KINDS", "nominal", "sample", "corners", "context", "context_size", "take"]
+__all__ = ["Draws", "REF_KINDS", "nominal", "draw_dist", "sample", "corners", "context", "context_size", "take"]
 
 #: Reference kinds a draw can select; -1 keeps the scenario's own profile.
 REF_KINDS = ("step", "ramp", "impulse")
@@ -54,7 +54,8 @@ def nominal(spec: TuningSpec, plant: Plant, n: int = 1, seed: int = 0) -> Draws:
     )
 
 
-def _draw(d: DistSpec, rng: np.random.Generator, n: int) -> np.ndarray:
+def draw_dist(d: DistSpec, rng: np.random.Generator, n: int) -> np.ndarray:
+    """n samples of one spec distribution (uniform, log-uniform or normal)."""
     if d.dist == "uniform":
         return rng.uniform(d.low, d.high, n)
     if d.dist == "loguniform":
@@ -69,17 +70,17 @@ def sample(spec: TuningSpec, plant: Plant, rng: np.random.Generator, n: int) -> 
     params = base.params.copy()
     names = plant.param_names
     for name, dist in rz.params.items():
-        params[:, names.index(name)] = _draw(dist, rng, n)
-    delay = np.maximum(_draw(rz.delay, rng, n), 0.0) if rz.delay else base.delay
-    scale = np.maximum(_draw(rz.actuator_scale, rng, n), 1e-6) if rz.actuator_scale else base.act_scale
+        params[:, names.index(name)] = draw_dist(dist, rng, n)
+    delay = np.maximum(draw_dist(rz.delay, rng, n), 0.0) if rz.delay else base.delay
+    scale = np.maximum(draw_dist(rz.actuator_scale, rng, n), 1e-6) if rz.actuator_scale else base.act_scale
     kinds = (
         np.array([REF_KINDS.index(k) for k in rz.reference_kinds])[rng.integers(0, len(rz.reference_kinds), n)]
         if rz.reference_kinds
         else base.ref_kind
     )
-    amp = _draw(rz.reference_amplitude, rng, n) if rz.reference_amplitude else base.ref_amp
-    dsize = _draw(rz.disturbance_size, rng, n) if rz.disturbance_size else base.dist_size
-    dtime = np.maximum(_draw(rz.disturbance_time, rng, n), 0.0) if rz.disturbance_time else base.dist_time
+    amp = draw_dist(rz.reference_amplitude, rng, n) if rz.reference_amplitude else base.ref_amp
+    dsize = draw_dist(rz.disturbance_size, rng, n) if rz.disturbance_size else base.dist_size
+    dtime = np.maximum(draw_dist(rz.disturbance_time, rng, n), 0.0) if rz.disturbance_time else base.dist_time
     seeds = rng.integers(0, 2**62, n, dtype=np.int64)
     return Draws(params, delay, scale, kinds.astype(np.int64), amp, dsize, dtime, seeds)
 

@@ -6,6 +6,7 @@ import itertools
 
 import numpy as np
 
+from gaintune.sim.draws import draw_dist as _draw
 from gaintune.spec import DistSpec, TuningSpec
 
 __all__ = ["robust_samples", "MAX_CORNERS", "DELAY_KEY"]
@@ -14,14 +15,6 @@ __all__ = ["robust_samples", "MAX_CORNERS", "DELAY_KEY"]
 MAX_CORNERS = 256
 #: Key of the delay in a sample dict.
 DELAY_KEY = "__delay__"
-
-
-def _draw(d: DistSpec, rng: np.random.Generator, n: int) -> np.ndarray:
-    if d.dist == "uniform":
-        return rng.uniform(d.low, d.high, n)
-    if d.dist == "loguniform":
-        return np.exp(rng.uniform(np.log(d.low), np.log(d.high), n))
-    return rng.normal(d.mean, d.std, n)
 
 
 def robust_samples(spec: TuningSpec) -> tuple[list[dict[str, float]], int, int]:
