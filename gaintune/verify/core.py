@@ -39,6 +39,10 @@ REQUIREMENTS: dict[str, tuple[str, str]] = {
     "mt_max": ("mt", "max"),
 }
 
+#: The analysis band ends at this multiple of the controller's Nyquist frequency pi/dt (largest
+#: scenario dt) when the frequencies above are proven harmless (:func:`analyse`, ``band``).
+BAND_NYQUIST = 10.0
+
 #: Padé adequacy tolerances (vs the exact e^{-jwT} figures).
 PADE_TOL = {"pm_deg": 1.0, "gm_db": 0.5, "ms_rel": 0.02}
 
@@ -107,6 +111,11 @@ def _pade_check(order: int, pade: Analysis, exact: Analysis) -> PadeCheck:
     return PadeCheck(order=order, adequate=ok, max_pm_err_deg=pm, max_gm_err_db=gm, max_ms_rel_err=ms, same_stability=same)
 
 
+def analysis_band(spec: TuningSpec) -> float:
+    """Upper end (rad/s) of the analysis band: BAND_NYQUIST x the Nyquist frequency pi/dt of the largest dt."""
+    return BAND_NYQUIST * math.pi / max(sc.dt for sc in spec.scenarios)
+
+
 def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis) -> tuple[RobustReport, list[WorstCase]]:
     samples, n_corners, n_mc = robust_samples(spec)
     keys = ("gm_db", "pm_deg", "delay_margin", "ms", "mt", "disk_alpha")
@@ -118,7 +127,7 @@ def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis) -> tuple[RobustRe
         params = {k: v for k, v in smp.items() if k != DELAY_KEY}
         lin = plant.linearize(params)
         T = (smp[DELAY_KEY] if DELAY_KEY in smp else lin.delay) + t_s
-        a = analyse(cas, lin, DelayModel(T, spec.verify.pade_order), spec.verify.n_freq)
+        a = analyse(cas, lin, DelayModel(T, spec.verify.pade_order), spec.verify.n_freq, analysis_band(spec))
         if not a.stability.stable:
             unstable.append(dict(smp))
         for r, f in enumerate(a.figures):
@@ -214,12 +223,13 @@ def verify(
     t_s = sampling_delay(spec)
     delay = DelayModel(lin.delay + t_s, spec.verify.pade_order)
     cas = build_cascade(spec, layout, full[None, :], lin)
-    nom = analyse(cas, lin, delay, spec.verify.n_freq)
+    band = analysis_band(spec)
+    nom = analyse(cas, lin, delay, spec.verify.n_freq, band)
     notes: list[str] = []
     reasons: list[str] = []
     pade = None
     if delay.pade_order is not None and delay.T > 0:
-        exact = analyse(cas, lin, DelayModel(delay.T, None), spec.verify.n_freq)
+        exact = analyse(cas, lin, DelayModel(delay.T, None), spec.verify.n_freq, band)
         pade = _pade_check(delay.pade_order, nom, exact)
         if not pade.adequate:
             reasons.append(
@@ -268,6 +278,6 @@ def verify(
         spec_name=spec.name, spec_hash=spec.content_hash(), gains=layout.to_dict(full), verdict=verdict,
         reasons=reasons, delay=float(lin.delay), sampling_delay=t_s,
         delay_method="none" if delay.T <= 0 else ("pade" if delay.pade_order else "exact"), pade=pade,
-        operating_point=op, stability=stab, loops=loops, robust=rob, nonlinear=nl, requirements=req, notes=notes,
+        operating_point=op, stability=stab, analysis_band=nom.omega_range, loops=loops, robust=rob, nonlinear=nl, requirements=req, notes=notes,
         elapsed_s=time.perf_counter() - t0,
     )

@@ -36,6 +36,7 @@ import numpy as np
 
 from gaintune.plants.plant import LinearModel
 from gaintune.verify.loops import Cascade, _schur, observable_part, pade_response
+from gaintune.verify.tail import INNER_LEVEL, chain_ss, level_clear, series, tail_levels
 
 __all__ = ["DelayModel", "BreakFigures", "Analysis", "analyse"]
 
@@ -323,7 +324,7 @@ def _zoom_roots(ev: _Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray
     return np.exp(c), Lc
 
 
-def _zoom_peaks(ev: _Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray, fns, q: np.ndarray, rounds: int = 2):
+def _zoom_peaks(ev: _Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray, fns, q: np.ndarray, rounds: int = 3):
     """Refine the maximum of fns[q_i](L) inside [lo_i, hi_i] (row rows_i), all peaks in one
     evaluation per round. Returns (w, value)."""
     best_w = np.sqrt(lo * hi)
@@ -375,14 +376,8 @@ def disk_from_alpha(alpha: float) -> tuple[float, float]:
 _COS_DPH = math.cos(0.5)
 
 
-def _grid(ev: _Evaluator, cas, lin, delay, n_freq: int):
-    """Log grid covering every frequency where max|L| >= MAG_FLOOR, refined where the
-    phase turns fast (delays). Returns (w, L, |L|).
-
-    The end probes are evaluated in one call; each refinement round checks only the
-    intervals created by the previous one (the others were already fine) and inserts the
-    new points in place (no re-sort).
-    """
+def _band_ends(ev: _Evaluator, cas, lin) -> tuple[float, float]:
+    """(lo, hi) of the full grid: every frequency where max|L| >= MAG_FLOOR (end probes in one call)."""
     cf = _char_freqs(cas, lin, DelayModel(0.0))
     lo, hi = cf.min() * 1e-3, cf.max() * 1e3
     his = hi * 10.0 ** np.arange(8)
@@ -393,6 +388,15 @@ def _grid(ev: _Evaluator, cas, lin, delay, n_freq: int):
     Plo = P[:, 8:]
     ok_lo = np.all((Plo > 1e3) | (Plo < MAG_FLOOR), axis=0)
     lo = los[int(np.argmax(ok_lo))] if ok_lo.any() else lo / 1e6
+    return float(lo), float(hi)
+
+
+def _grid(ev: _Evaluator, lo: float, hi: float, n_freq: int):
+    """Log grid on [lo, hi], refined where the phase turns fast (delays). Returns (w, L, |L|).
+
+    Each refinement round checks only the intervals created by the previous one (the
+    others were already fine); the points are merged once at the end.
+    """
     w = np.logspace(np.log10(lo), np.log10(hi), n_freq)
     L = ev(w)
     aL = np.abs(L)
@@ -628,17 +632,36 @@ def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names
 # --------------------------------------------------------------- stability
 
 
-def _argument_principle(ev: _Evaluator, ol_poles: np.ndarray, w_hi: float, eps: float, n_freq: int):
-    """Number of closed-loop roots right of Re s = -eps (plant-input cut, row -1)."""
-    im_axis = np.abs(ol_poles.imag[np.abs(ol_poles.real) < 10 * eps])
-    extra = [w0 + eps * np.linspace(-30, 30, 61) for w0 in im_axis if w0 > 0]
-    w = np.concatenate([[0.0], np.logspace(np.log10(eps / 100), np.log10(w_hi), n_freq), *extra])
-    w = np.unique(w[w >= 0])
+#: Offsets (in units of the pole's distance to the contour) sampled around every open-loop pole.
+_POLE_OFFSETS = np.concatenate([-(2.0 ** np.arange(9, -4, -1)), [0.0], 2.0 ** np.arange(-3, 10)])
+
+
+def _argument_principle(ev: _Evaluator, ol_poles: np.ndarray, w_hi: float, eps: float, n_freq: int,
+                        tail_proven: bool = False):
+    """Number of closed-loop roots right of Re s = -eps (plant-input cut, row -1).
+
+    The contour runs on the grid up to ``w_hi``; above it |L| < 1 keeps 1 + L in the right
+    half-plane, so the rest of the contour adds the principal angle from 1 + L(w_hi) to
+    1 + L(inf). ``tail_proven``: that bound is proven (:mod:`gaintune.verify.tail`) rather
+    than checked at one far point.
+    """
+    # An open-loop pole p turns 1 + L within a few |Re p + eps| of Im p. A lightly damped one
+    # (a resonance) can make 1 + L circle the origin between two log-grid points, which leaves
+    # no trace in the phase steps checked below: sample around every pole.
+    up = ol_poles[ol_poles.imag > 0]
+    dist = np.maximum(np.abs(up.real + eps), eps)  # pole to contour
+    extra = (up.imag[:, None] + dist[:, None] * _POLE_OFFSETS[None, :]).ravel()
+    w = np.concatenate([[0.0], np.logspace(np.log10(eps / 100), np.log10(w_hi), n_freq), extra])
+    w = np.unique(w[(w >= 0) & (w <= w_hi)])
     phi = 1.0 + ev(w, shift=eps)[-1]
+    # the delay alone turns L by T dw over an interval: where |L| is not small, a whole turn of
+    # 1 + L could also hide between two points
+    T = max(ev.delay.T, 0.0)
     for _ in range(10):
-        ang = np.angle(phi)
         d = np.abs(np.angle(phi[1:] / phi[:-1]))
-        bad = np.nonzero(d > 0.3)[0]
+        aL = np.abs(phi - 1.0)
+        spin = (T * np.diff(w) > 1.0) & (np.maximum(aL[1:], aL[:-1]) > 0.5)
+        bad = np.nonzero((d > 0.3) | spin)[0]
         if bad.size == 0:
             break
         bad = bad[:4000]
@@ -651,7 +674,7 @@ def _argument_principle(ev: _Evaluator, ol_poles: np.ndarray, w_hi: float, eps: 
     d_one_plus_L = ang[-1] - ang[0]
     # tail to infinity: |L| < 1 there keeps 1 + L in the right half-plane
     far = 1.0 + ev(np.array([w_hi * 1e4]), shift=eps)[-1, 0]
-    tail_ok = abs(far - 1.0) < 1.0
+    tail_ok = tail_proven or abs(far - 1.0) < 1.0
     d_one_plus_L += np.angle(far / phi[-1])
     c = -eps - ol_poles.real
     y0 = -ol_poles.imag
@@ -664,7 +687,11 @@ def _argument_principle(ev: _Evaluator, ol_poles: np.ndarray, w_hi: float, eps: 
     return z, abs(z_real - z), tail_ok, float(np.abs(far - 1.0))
 
 
-def _stability(ev: _Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel, w_hi: float, n_freq: int):
+def _stability(ev: _Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel, w_hi: float, n_freq: int,
+               capped: bool = False) -> Stability | None:
+    """Closed-loop stability. ``capped``: the grid stops at ``w_hi``, short of where |L| is
+    negligible; the Nyquist contour is then closed with a proven bound |L_u| < 1 above
+    ``w_hi``, and None is returned when that bound cannot be proven."""
     notes: list[str] = []
     has_delay = delay.T > 0
     exact_delay = has_delay and delay.pade_order is None
@@ -684,7 +711,15 @@ def _stability(ev: _Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel
     max_re = float(np.max(poles.real)) if poles.size else -math.inf
     rhp_poles = int(np.sum(poles.real > -1e-12 * scale))
     ol = cas.open_loop_poles(lin, pade if not exact_delay else None)[0]
-    nyq, frac_err, tail_ok, l_inf = _argument_principle(ev, ol, w_hi, eps, n_freq)
+    proven = False
+    if capped:
+        # |L_u(-eps + jw)| < 1 above the band. On this contour the delay factor (exact or Padé)
+        # has modulus 1 + O(eps T), with eps T < 1e-6 in practice: 0.999 leaves room for it.
+        g_u = chain_ss(cas, lin, 0, len(cas.loops) - 1, "u")
+        proven = level_clear(g_u, 0.999 * math.exp(-2.0 * eps * max(delay.T, 0.0)), w_hi, shift=eps)
+        if not proven:
+            return None
+    nyq, frac_err, tail_ok, l_inf = _argument_principle(ev, ol, w_hi, eps, n_freq, proven)
     if exact_delay:
         method = "nyquist"
         rhp = nyq
@@ -715,10 +750,56 @@ def _stability(ev: _Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel
     return Stability(rhp == 0, method, int(rhp), int(nyq), poles, poles_method, max_re, notes)
 
 
-def analyse(cas: Cascade, lin: LinearModel, delay: DelayModel, n_freq: int = 2000) -> Analysis:
-    """Margins at every break point and closed-loop stability for a one-member cascade."""
+#: Band widenings tried (x10 each) when the tail above the band cannot be proven harmless.
+_BAND_TRIES = 3
+
+
+def _tail_clear(cas: Cascade, lin: LinearModel, figs: list[BreakFigures], w_cap: float) -> bool:
+    """Proven: above ``w_cap`` no break point's |L| can change its figures (see :mod:`gaintune.verify.tail`)."""
+    n = len(cas.loops)
+    if cas.measured is not None:
+        lin = observable_part(lin, cas.measured)[0]
+    g_u = chain_ss(cas, lin, 0, n - 1, "u")  # rows n-1 (innermost) and n (plant input): |L| = |G_u|
+    if not level_clear(g_u, min(tail_levels(figs[n - 1], MAG_FLOOR), tail_levels(figs[n], MAG_FLOOR)), w_cap):
+        return False
+    for i in range(n - 1):  # outer rows: |L_i| <= |G_i Phi_{i+1}| / (1 - |Gin_{i+1}|)
+        tau = tail_levels(figs[i], MAG_FLOOR)
+        g_in = chain_ss(cas, lin, i + 1, n - 1, "u")
+        if not level_clear(g_in, INNER_LEVEL, w_cap):
+            return False
+        g_i = series(chain_ss(cas, lin, 0, i, "u"), chain_ss(cas, lin, i + 1, n - 1, "r"))
+        if not level_clear(g_i, tau * (1.0 - INNER_LEVEL), w_cap):
+            return False
+    return True
+
+
+def analyse(cas: Cascade, lin: LinearModel, delay: DelayModel, n_freq: int = 2000, band: float | None = None) -> Analysis:
+    """Margins at every break point and closed-loop stability for a one-member cascade.
+
+    ``band``: upper end (rad/s) of the analysis band, normally a multiple of the controller's
+    Nyquist frequency. The grid stops there only when the frequencies above are proven unable
+    to change any figure or the stability count (:mod:`gaintune.verify.tail`); otherwise the
+    band is widened x10 (a few times), and finally the grid runs to where |L| < MAG_FLOOR, as
+    without ``band``. Crossings above the band are neither listed nor counted.
+    """
     ev = _Evaluator(cas, lin, delay)
-    w, L, aL = _grid(ev, cas, lin, delay, n_freq)
+    lo, hi = _band_ends(ev, cas, lin)
+    caps = []
+    if band is not None and cas.batch == 1 and math.isfinite(band) and band > 0:
+        c = max(float(band), lo * 10.0)
+        while c < hi and len(caps) < _BAND_TRIES:
+            caps.append(c)
+            c *= 10.0
+    n_ap = max(400, n_freq // 2)
+    for cap in caps:
+        w, L, aL = _grid(ev, lo, cap, n_freq)
+        figs = _margins(ev, w, L, aL, cas.break_names)
+        if not _tail_clear(cas, lin, figs, cap):
+            continue
+        stab = _stability(ev, cas, lin, delay, cap, n_ap, capped=True)
+        if stab is not None:
+            return Analysis(figs, stab, (float(w[0]), float(w[-1])))
+    w, L, aL = _grid(ev, lo, hi, n_freq)
     figs = _margins(ev, w, L, aL, cas.break_names)
-    stab = _stability(ev, cas, lin, delay, float(w[-1]), max(400, n_freq // 2))
+    stab = _stability(ev, cas, lin, delay, float(w[-1]), n_ap)
     return Analysis(figs, stab, (float(w[0]), float(w[-1])))

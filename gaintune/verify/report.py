@@ -63,9 +63,9 @@ class LoopFigures(_Out):
     disk_pm_deg: float = Field(description="Disk-based phase margin in degrees.")
     disk_freq: float | None = None
     gain_crossovers: list[float] = Field(default_factory=list, description="All gain-crossover frequencies (rad/s).")
-    phase_crossovers: list[float] = Field(default_factory=list, description="All phase-crossover frequencies (rad/s).")
+    phase_crossovers: list[float] = Field(default_factory=list, description="Listed phase-crossover frequencies (rad/s), within the analysis band.")
     crossings: list[CrossingModel] = Field(default_factory=list)
-    crossings_omitted: int = Field(0, description="Phase crossings not listed (only the 20 of smallest |GM| are kept).")
+    crossings_omitted: int = Field(0, description="Phase crossings in the analysis band not listed (only the 20 of smallest |GM| are kept).")
 
 
 class StabilityReport(_Out):
@@ -151,6 +151,10 @@ class VerificationReport(_Out):
     pade: PadeCheck | None = None
     operating_point: dict[str, float] = Field(default_factory=dict, description="x0 and u0 of the linearisation.")
     stability: StabilityReport
+    analysis_band: tuple[float, float] | None = Field(
+        None, description="Frequency band (rad/s) of the nominal analysis. It ends at 10 x the Nyquist frequency pi/dt when "
+        "the frequencies above are proven unable to change any figure or the stability count, else higher; crossings "
+        "above it are neither listed nor counted.")
     loops: list[LoopFigures]
     robust: RobustReport | None = None
     nonlinear: NonlinearReport | None = None
