@@ -45,9 +45,26 @@ METRICS = (
     "sse", "sat_frac", "peak_u", "load_iae", "diverged", "tripped", "trip_time", "y_final",
 )
 (M_IAE, M_ISE, M_ITAE, M_EFFORT, M_TV, M_OVERSHOOT, M_RISE, M_SETTLE, M_SSE, M_SAT,
- M_PEAKU, M_LOAD, M_DIV, M_TRIP, M_TRIPT, M_YFIN) = range(len(METRICS))
+ M_PEAKU, M_LOAD, M_DIV, M_TRIP, M_TRIPT, M_YFIN) = map(np.uint64, range(len(METRICS)))
 
 AW_NONE, AW_CLAMP, AW_BACKCALC = 0, 1, 2
+
+# Indices into the chunk state are unsigned: with signed ones numba emits a
+# negative-index wrap-around select, which hides the affine address from LLVM
+# and stops it from vectorising the per-lane loops.
+_U = np.uint64
+
+
+@nb.njit(cache=True, inline="always")
+def _max(a, b):
+    """``max(a, b)`` exactly as numba's builtin, but as a plain select that LLVM can vectorise."""
+    return b if b > a else a
+
+
+@nb.njit(cache=True, inline="always")
+def _min(a, b):
+    """``min(a, b)`` exactly as numba's builtin, but as a plain select that LLVM can vectorise."""
+    return b if b < a else a
 
 
 @nb.njit(cache=True)
@@ -99,7 +116,7 @@ def _run_tape(op, ta, tb, to, tc, inp, w, out, m):
                 w[o, j] = -w[a, j]
         elif code == T.EXP:
             for j in range(m):
-                w[o, j] = math.exp(min(w[a, j], 700.0))
+                w[o, j] = math.exp(_min(w[a, j], 700.0))
         elif code == T.LOG:
             for j in range(m):
                 w[o, j] = math.log(w[a, j]) if w[a, j] > 0 else np.nan
@@ -138,10 +155,10 @@ def _run_tape(op, ta, tb, to, tc, inp, w, out, m):
                 w[o, j] = math.atan2(w[a, j], w[b, j])
         elif code == T.SINH:
             for j in range(m):
-                w[o, j] = math.sinh(min(max(w[a, j], -700.0), 700.0))
+                w[o, j] = math.sinh(_min(_max(w[a, j], -700.0), 700.0))
         elif code == T.COSH:
             for j in range(m):
-                w[o, j] = math.cosh(min(max(w[a, j], -700.0), 700.0))
+                w[o, j] = math.cosh(_min(_max(w[a, j], -700.0), 700.0))
         elif code == T.TANH:
             for j in range(m):
                 w[o, j] = math.tanh(w[a, j])
@@ -154,10 +171,10 @@ def _run_tape(op, ta, tb, to, tc, inp, w, out, m):
                 w[o, j] = 1.0 if x > 0 else (-1.0 if x < 0 else 0.0)
         elif code == T.FMIN:
             for j in range(m):
-                w[o, j] = min(w[a, j], w[b, j])
+                w[o, j] = _min(w[a, j], w[b, j])
         elif code == T.FMAX:
             for j in range(m):
-                w[o, j] = max(w[a, j], w[b, j])
+                w[o, j] = _max(w[a, j], w[b, j])
         elif code == T.INV:
             for j in range(m):
                 w[o, j] = 1.0 / w[a, j]
@@ -191,14 +208,27 @@ def _run_tape(op, ta, tb, to, tc, inp, w, out, m):
 
 
 
-# Per-candidate scalar fields of the chunk state ``ls[field, lane]``.
+# ---------------------------------------------------------------- chunk state layout
+# All mutable state of a chunk lives in ONE flat float array ``S`` of rows of
+# ``CHUNK`` lanes: value ``(row, lane j)`` is ``S[row * CHUNK + j]``. Because
+# ``CHUNK`` is a compile-time constant, two rows of the same loop body are a
+# known constant distance apart, which lets LLVM prove the per-lane loops free
+# of overlap and vectorise them (AVX2: 4 candidates per instruction). With 2-D
+# chunk arrays (runtime strides, separate allocations) it could not, and this
+# layout measured about 3x faster per core on the reference case.
+
+# Per-candidate scalar fields: rows 0 .. N_F-1.
 (F_UPREV, F_ALIVE, F_TRIP, F_Z, F_Y0, F_SPAN, F_INVSPAN, F_PEAK, F_T10, F_T90, F_LAST, F_ULO, F_UHI,
- F_UOP, F_KST, F_KLD, F_R, F_DIN, F_DOUT, F_UA, F_UB) = range(21)
-N_F = 21
-# Per-loop fields ``lp[field, loop, lane]``.
+ F_UOP, F_KST, F_KLD, F_R, F_DIN, F_DOUT, F_UA, F_UB) = map(_U, range(21))
+N_F = _U(21)
+#: Metric accumulators: rows A0 + metric index.
+A0 = N_F
+#: Per-loop fields: rows LP0 + loop * N_P + field.
+LP0 = A0 + _U(len(METRICS))
 (P_YM, P_YT, P_I, P_D, P_EDP, P_AWE, P_VOUT, P_SP, P_KP, P_KI, P_KD, P_KB, P_AL, P_BE, P_BW, P_CW,
- P_LO, P_HI) = range(18)
-N_P = 18
+ P_LO, P_HI) = map(_U, range(18))
+N_P = _U(18)
+_1 = _U(1)
 
 
 @nb.njit(cache=True)
@@ -213,7 +243,7 @@ def _signal(s, k, b, sk0, sk1, soff, sslope, dt):
 
 
 def _kernel(
-    CHUNK, n_steps, dt, nonlinear,
+    n_steps, dt, nonlinear,
     Ad, G0, G1, Cm, Dm,
     f_op, f_a, f_b, f_o, f_c, f_nw, h_op, h_a, h_b, h_o, h_c, h_nw, h_nout, P, meas_idx,
     x_op, u_op, y_op,
@@ -227,10 +257,13 @@ def _kernel(
     target, k_step, k_load,
     want_traces, tr_y, tr_sp, tr_u,
 ):
+    C = _U(CHUNK)
     n = x_op.shape[0]
     L = kp.shape[0]
+    un = _U(n)
+    uL = _U(L)
     B = u_op.shape[0]
-    nchunks = (B + CHUNK - 1) // CHUNK
+    nchunks = (B + C - 1) // C
     out = np.zeros((len(METRICS), B))
     dmax = 0
     any_noise = False
@@ -255,13 +288,15 @@ def _kernel(
                 if sk0[sg, p, b] <= n_steps:
                     has_sig[sg] = True
     monitor = max_err < np.inf or max_out < np.inf
-    for i in range(n):
+    for i in range(un):
         monitor = monitor or xbound[i] < np.inf
     has_rate = rate < np.inf
     n_in = n + 1 + P.shape[0]
+    X0 = LP0 + uL * N_P  # plant state rows X0 + i, next state rows X0 + n + i
+    n_rows = X0 + _U(2) * un
     for c in nb.prange(nchunks):
-        b0 = c * CHUNK
-        m = min(CHUNK, B - b0)
+        b0 = _U(c) * C
+        m = min(C, _U(B) - b0)
         # Signals identical across the chunk (no randomised references) are evaluated once per step.
         shared = True
         for sg in range(3):
@@ -274,57 +309,58 @@ def _kernel(
         # A plant identical across the chunk (e.g. B gain sets on the nominal plant) is read as scalars.
         shared_plant = not nonlinear
         if shared_plant:
-            for j in range(1, m):
+            for j in range(_1, m):
                 b = b0 + j
-                for i in range(n):
+                for i in range(un):
                     shared_plant = shared_plant and G0[i, b] == G0[i, b0] and G1[i, b] == G1[i, b0]
-                    for q in range(n):
+                    for q in range(un):
                         shared_plant = shared_plant and Ad[i, q, b] == Ad[i, q, b0]
-                    for l in range(L):
+                    for l in range(uL):
                         shared_plant = shared_plant and Cm[l, i, b] == Cm[l, i, b0]
-        x = np.zeros((n, CHUNK))
-        xn = np.zeros((n, CHUNK))
-        ls = np.zeros((N_F, CHUNK))
-        lp = np.zeros((N_P, L, CHUNK))
-        acc = np.zeros((len(METRICS), CHUNK))
-        buf = np.zeros((M, CHUNK))
-        inp = np.zeros((n_in, CHUNK))
-        wf = np.zeros((max(f_nw, 1), CHUNK))
-        wh = np.zeros((max(h_nw, 1), CHUNK))
-        k1 = np.zeros((n, CHUNK))
-        k2 = np.zeros((n, CHUNK))
-        k3 = np.zeros((n, CHUNK))
-        k4 = np.zeros((n, CHUNK))
-        hout = np.zeros((max(h_nout, 1), CHUNK))
+        # A delay common to the chunk reads the ring buffer at one row for all lanes (vectorisable).
+        shared_delay = True
+        for j in range(m):
+            shared_delay = shared_delay and dsteps[b0 + j] == dsteps[b0]
+        S = np.zeros(n_rows * C)
+        buf = np.zeros(M * C)
+        inp = np.zeros((n_in, C))
+        wf = np.zeros((max(f_nw, 1), C))
+        wh = np.zeros((max(h_nw, 1), C))
+        k1 = np.zeros((n, C))
+        k2 = np.zeros((n, C))
+        k3 = np.zeros((n, C))
+        k4 = np.zeros((n, C))
+        hout = np.zeros((max(h_nout, 1), C))
         for j in range(m):
             b = b0 + j
-            for i in range(n):
-                x[i, j] = x_op[i, b]
-            for q in range(M):
-                buf[q, j] = u_op[b]
-            ls[F_UPREV, j] = u_op[b]
-            ls[F_ALIVE, j] = 1.0
-            ls[F_T10, j] = -1.0
-            ls[F_T90, j] = -1.0
-            ls[F_LAST, j] = -1.0
-            ls[F_ULO, j] = u_lo[b]
-            ls[F_UHI, j] = u_hi[b]
-            ls[F_UOP, j] = u_op[b]
-            ls[F_KST, j] = k_step[b]
-            ls[F_KLD, j] = k_load[b]
-            for l in range(L):
-                lp[P_KP, l, j] = kp[l, b]
-                lp[P_KI, l, j] = ki[l, b]
-                lp[P_KD, l, j] = kd[l, b]
-                lp[P_KB, l, j] = kb[l, b]
-                lp[P_AL, l, j] = tf[l, b] / (tf[l, b] + dt)
-                lp[P_BE, l, j] = kd[l, b] / (tf[l, b] + dt)
-                lp[P_BW, l, j] = bw[l, b]
-                lp[P_CW, l, j] = cw[l, b]
-                lp[P_LO, l, j] = u_lo[b] if l == L - 1 else lo[l, b]
-                lp[P_HI, l, j] = u_hi[b] if l == L - 1 else hi[l, b]
+            for i in range(un):
+                S[(X0 + i) * C + j] = x_op[i, b]
+            for q in range(np.uint64(M)):
+                buf[q * C + j] = u_op[b]
+            S[F_UPREV * C + j] = u_op[b]
+            S[F_ALIVE * C + j] = 1.0
+            S[F_T10 * C + j] = -1.0
+            S[F_T90 * C + j] = -1.0
+            S[F_LAST * C + j] = -1.0
+            S[F_ULO * C + j] = u_lo[b]
+            S[F_UHI * C + j] = u_hi[b]
+            S[F_UOP * C + j] = u_op[b]
+            S[F_KST * C + j] = k_step[b]
+            S[F_KLD * C + j] = k_load[b]
+            for l in range(uL):
+                p = (LP0 + l * N_P) * C + j
+                S[p + P_KP * C] = kp[l, b]
+                S[p + P_KI * C] = ki[l, b]
+                S[p + P_KD * C] = kd[l, b]
+                S[p + P_KB * C] = kb[l, b]
+                S[p + P_AL * C] = tf[l, b] / (tf[l, b] + dt)
+                S[p + P_BE * C] = kd[l, b] / (tf[l, b] + dt)
+                S[p + P_BW * C] = bw[l, b]
+                S[p + P_CW * C] = cw[l, b]
+                S[p + P_LO * C] = u_lo[b] if l == uL - _1 else lo[l, b]
+                S[p + P_HI * C] = u_hi[b] if l == uL - _1 else hi[l, b]
                 # bumpless start at the operating point: integrators hold the next setpoint / u0
-                lp[P_I, l, j] = y_op[l + 1, b] if l + 1 < L else u_op[b]
+                S[p + P_I * C] = y_op[l + _1, b] if l + _1 < uL else u_op[b]
             if nonlinear:
                 for q in range(P.shape[0]):
                     inp[n + 1 + q, j] = P[q, b]
@@ -332,6 +368,7 @@ def _kernel(
         for k in range(n_steps):
             t = k * dt
             pos = k % M
+            upos = _U(pos)
             check_div = (k & 7) == 0 or k == n_steps - 1
             rs = dins = douts = 0.0
             if shared:
@@ -341,274 +378,309 @@ def _kernel(
             # ---- plant input seen by the outputs (only the delayed u[k-1-d] is known before u[k])
             if nonlinear:
                 for j in range(m):
-                    b = b0 + j
-                    idd = pos - 1 - dsteps[b]
-                    ls[F_UB, j] = buf[idd + M if idd < 0 else idd, j]
+                    idd = pos - 1 - dsteps[b0 + j]
+                    S[F_UB * C + j] = buf[_U(idd + M if idd < 0 else idd) * C + j]
             # ---- signals
             if shared:
                 for j in range(m):
-                    ls[F_R, j] = rs + y_op[0, b0 + j]
+                    S[F_R * C + j] = rs + y_op[0, b0 + j]
                 if has_sig[1]:
                     for j in range(m):
-                        ls[F_DIN, j] = dins
+                        S[F_DIN * C + j] = dins
                 if has_sig[2]:
                     for j in range(m):
-                        ls[F_DOUT, j] = douts
+                        S[F_DOUT * C + j] = douts
             else:
                 for j in range(m):
                     b = b0 + j
-                    ls[F_R, j] = _signal(0, k, b, sk0, sk1, soff, sslope, dt) + y_op[0, b]
-                    ls[F_DIN, j] = _signal(1, k, b, sk0, sk1, soff, sslope, dt) if has_sig[1] else 0.0
-                    ls[F_DOUT, j] = _signal(2, k, b, sk0, sk1, soff, sslope, dt) if has_sig[2] else 0.0
+                    S[F_R * C + j] = _signal(0, k, b, sk0, sk1, soff, sslope, dt) + y_op[0, b]
+                    S[F_DIN * C + j] = _signal(1, k, b, sk0, sk1, soff, sslope, dt) if has_sig[1] else 0.0
+                    S[F_DOUT * C + j] = _signal(2, k, b, sk0, sk1, soff, sslope, dt) if has_sig[2] else 0.0
             # ---- true outputs
             if nonlinear:
                 for j in range(m):
-                    for i in range(n):
-                        inp[i, j] = x[i, j]
-                    inp[n, j] = ls[F_UB, j] + ls[F_DIN, j]
+                    for i in range(un):
+                        inp[i, j] = S[(X0 + i) * C + j]
+                    inp[n, j] = S[F_UB * C + j] + S[F_DIN * C + j]
                 _run_tape(h_op, h_a, h_b, h_o, h_c, inp, wh, hout, m)
-                for l in range(L):
+                for l in range(uL):
                     mi = meas_idx[l]
                     dl = dist_out_loops[l]
+                    yt = (LP0 + l * N_P + P_YT) * C
                     for j in range(m):
-                        lp[P_YT, l, j] = hout[mi, j] + dl * ls[F_DOUT, j]
+                        S[yt + j] = hout[mi, j] + dl * S[F_DOUT * C + j]
             else:
-                for l in range(L):
+                for l in range(uL):
                     dl = dist_out_loops[l]
+                    yt = (LP0 + l * N_P + P_YT) * C
                     if has_sig[2]:
                         for j in range(m):
-                            lp[P_YT, l, j] = dl * ls[F_DOUT, j]
+                            S[yt + j] = dl * S[F_DOUT * C + j]
                     else:
                         for j in range(m):
-                            lp[P_YT, l, j] = 0.0
-                    for i in range(n):
+                            S[yt + j] = 0.0
+                    for i in range(un):
+                        xi = (X0 + i) * C
                         if shared_plant:
                             cli = Cm[l, i, b0]
                             if cli != 0.0:
                                 for j in range(m):
-                                    lp[P_YT, l, j] += cli * x[i, j]
+                                    S[yt + j] += cli * S[xi + j]
                         else:
                             for j in range(m):
-                                lp[P_YT, l, j] += Cm[l, i, b0 + j] * x[i, j]
+                                S[yt + j] += Cm[l, i, b0 + j] * S[xi + j]
                     if has_D:  # feedthrough sees only delayed inputs (d >= 1 is enforced)
                         for j in range(m):
                             b = b0 + j
                             idd = pos - dsteps[b]
-                            lp[P_YT, l, j] += Dm[l, b] * (buf[idd + M if idd < 0 else idd, j] + ls[F_DIN, j])
+                            S[yt + j] += Dm[l, b] * (buf[_U(idd + M if idd < 0 else idd) * C + j] + S[F_DIN * C + j])
             if any_noise:
-                for l in range(L):
+                for l in range(uL):
+                    p = (LP0 + l * N_P) * C
                     for j in range(m):
-                        lp[P_YM, l, j] = lp[P_YT, l, j]
-                for l in range(L):
+                        S[p + P_YM * C + j] = S[p + P_YT * C + j]
                     for j in range(m):
                         b = b0 + j
                         if noise_std[b] > 0:
-                            lp[P_YM, l, j] += noise_std[b] * _normal(noise_seed[b], k, l)
+                            S[p + P_YM * C + j] += noise_std[b] * _normal(noise_seed[b], k, l)
             # ---- divergence (NaN/inf or beyond the bound), every 8 steps: NaN and inf propagate
             if check_div:
-                for j in range(m):
-                    ok = 1.0
-                    for i in range(n):
-                        ok = ok if abs(x[i, j]) <= div_bound else 0.0
-                    for l in range(L):
-                        ok = ok if abs(lp[P_YT, l, j]) <= div_bound else 0.0
-                    ls[F_ALIVE, j] *= ok
+                for i in range(un):
+                    xi = (X0 + i) * C
+                    for j in range(m):
+                        S[F_ALIVE * C + j] *= 1.0 if abs(S[xi + j]) <= div_bound else 0.0
+                for l in range(uL):
+                    yt = (LP0 + l * N_P + P_YT) * C
+                    for j in range(m):
+                        S[F_ALIVE * C + j] *= 1.0 if abs(S[yt + j]) <= div_bound else 0.0
             # ---- safety monitor
             if monitor:
                 for j in range(m):
-                    if ls[F_TRIP, j] != 0.0 or ls[F_ALIVE, j] == 0.0:
+                    if S[F_TRIP * C + j] != 0.0 or S[F_ALIVE * C + j] == 0.0:
                         continue
                     b = b0 + j
-                    trip = abs(ls[F_R, j] - lp[P_YT, 0, j]) > max_err
-                    for l in range(L):
-                        trip = trip or abs(lp[P_YT, l, j]) > max_out
-                    for i in range(n):
-                        trip = trip or abs(x[i, j]) > xbound[i]
+                    trip = abs(S[F_R * C + j] - S[(LP0 + P_YT) * C + j]) > max_err
+                    for l in range(uL):
+                        trip = trip or abs(S[(LP0 + l * N_P + P_YT) * C + j]) > max_out
+                    for i in range(un):
+                        trip = trip or abs(S[(X0 + i) * C + j]) > xbound[i]
                     if trip:
-                        ls[F_TRIP, j] = 1.0
-                        acc[M_TRIP, j] = 1.0
-                        acc[M_TRIPT, j] = t
+                        S[F_TRIP * C + j] = 1.0
+                        S[(A0 + M_TRIP) * C + j] = 1.0
+                        S[(A0 + M_TRIPT) * C + j] = t
                         if safe_mode == 1:
-                            for l in range(L):
-                                lp[P_KP, l, j] = fb_kp[l, b]
-                                lp[P_KI, l, j] = fb_ki[l, b]
-                                lp[P_KB, l, j] = fb_kb[l, b]
-                                lp[P_AL, l, j] = fb_tf[l, b] / (fb_tf[l, b] + dt)
-                                lp[P_BE, l, j] = fb_kd[l, b] / (fb_tf[l, b] + dt)
+                            for l in range(uL):
+                                p = (LP0 + l * N_P) * C + j
+                                S[p + P_KP * C] = fb_kp[l, b]
+                                S[p + P_KI * C] = fb_ki[l, b]
+                                S[p + P_KB * C] = fb_kb[l, b]
+                                S[p + P_AL * C] = fb_tf[l, b] / (fb_tf[l, b] + dt)
+                                S[p + P_BE * C] = fb_kd[l, b] / (fb_tf[l, b] + dt)
             # ---- controllers, outer loop first; each output is the next loop's setpoint
-            for l in range(L):
-                if l == L - 1 and sf:
+            for l in range(uL):
+                p = (LP0 + l * N_P) * C
+                # the setpoint row: the reference, or the outer loop's output
+                sprow = F_R * C if l == 0 else (LP0 + (l - _1) * N_P + P_VOUT) * C
+                if l == uL - _1 and sf:
                     for j in range(m):
                         b = b0 + j
-                        sp = ls[F_R, j] if l == 0 else lp[P_VOUT, l - 1, j]
-                        e = sp - lp[ymf, l, j]
-                        v = ls[F_UOP, j] + nr[b] * (sp - y_op[l, b])
-                        for i in range(n):
-                            v -= K[i, b] * (x[i, j] - x_op[i, b])
-                        zt = ls[F_Z, j] + dt * e
+                        sp = S[sprow + j]
+                        e = sp - S[p + ymf * C + j]
+                        v = S[F_UOP * C + j] + nr[b] * (sp - y_op[l, b])
+                        for i in range(un):
+                            v -= K[i, b] * (S[(X0 + i) * C + j] - x_op[i, b])
+                        zt = S[F_Z * C + j] + dt * e
                         vu = v + kint[b] * zt
-                        vs = min(max(vu, ls[F_ULO, j]), ls[F_UHI, j])
+                        vs = _min(_max(vu, S[F_ULO * C + j]), S[F_UHI * C + j])
                         if vs != vu and e * kint[b] * (vu - vs) > 0:
-                            vs = min(max(v + kint[b] * ls[F_Z, j], ls[F_ULO, j]), ls[F_UHI, j])
+                            vs = _min(_max(v + kint[b] * S[F_Z * C + j], S[F_ULO * C + j]), S[F_UHI * C + j])
                         else:
-                            ls[F_Z, j] = zt
-                        lp[P_SP, l, j] = sp
-                        lp[P_VOUT, l, j] = vs
+                            S[F_Z * C + j] = zt
+                        S[p + P_SP * C + j] = sp
+                        S[p + P_VOUT * C + j] = vs
                     continue
                 mode = aw[l]
+                if k == 0:
+                    for j in range(m):  # no derivative kick at start (inner setpoints are known only now)
+                        S[p + P_EDP * C + j] = S[p + P_CW * C + j] * S[sprow + j] - S[p + ymf * C + j]
+                backcalc = mode == AW_BACKCALC
+                clamp = mode == AW_CLAMP
                 for j in range(m):
-                    sp = ls[F_R, j] if l == 0 else lp[P_VOUT, l - 1, j]
-                    y = lp[ymf, l, j]
+                    sp = S[sprow + j]
+                    y = S[p + ymf * C + j]
                     e = sp - y
-                    ed = lp[P_CW, l, j] * sp - y
-                    if k == 0:
-                        lp[P_EDP, l, j] = ed  # no derivative kick at start (inner setpoints are known only now)
-                    dterm = lp[P_AL, l, j] * lp[P_D, l, j] + lp[P_BE, l, j] * (ed - lp[P_EDP, l, j])
-                    lp[P_EDP, l, j] = ed
-                    lp[P_D, l, j] = dterm
-                    pterm = lp[P_KP, l, j] * (lp[P_BW, l, j] * sp - y)
-                    iold = lp[P_I, l, j]
-                    it = iold + lp[P_KI, l, j] * dt * e
-                    if mode == AW_BACKCALC:
-                        it += lp[P_KB, l, j] * dt * lp[P_AWE, l, j]
+                    ed = S[p + P_CW * C + j] * sp - y
+                    dterm = S[p + P_AL * C + j] * S[p + P_D * C + j] + S[p + P_BE * C + j] * (ed - S[p + P_EDP * C + j])
+                    S[p + P_EDP * C + j] = ed
+                    S[p + P_D * C + j] = dterm
+                    pterm = S[p + P_KP * C + j] * (S[p + P_BW * C + j] * sp - y)
+                    iold = S[p + P_I * C + j]
+                    it = iold + S[p + P_KI * C + j] * dt * e
+                    if backcalc:
+                        it += S[p + P_KB * C + j] * dt * S[p + P_AWE * C + j]
                     vu = pterm + it + dterm
-                    vlo = lp[P_LO, l, j]
-                    vhi = lp[P_HI, l, j]
-                    vs = min(max(vu, vlo), vhi)
-                    if mode == AW_CLAMP:
+                    vlo = S[p + P_LO * C + j]
+                    vhi = S[p + P_HI * C + j]
+                    vs = _min(_max(vu, vlo), vhi)
+                    if clamp:
                         # conditional integration: do not integrate further into saturation
-                        hold = (vs != vu) and (e * (vu - vs) * lp[P_KI, l, j] > 0)
+                        hold = (vs != vu) and (e * (vu - vs) * S[p + P_KI * C + j] > 0)
                         it = iold if hold else it
                         vu = pterm + it + dterm
-                        vs = min(max(vu, vlo), vhi)
-                    lp[P_I, l, j] = it
-                    lp[P_AWE, l, j] = vs - vu
-                    lp[P_SP, l, j] = sp
-                    lp[P_VOUT, l, j] = vs
+                        vs = _min(_max(vu, vlo), vhi)
+                    S[p + P_I * C + j] = it
+                    S[p + P_AWE * C + j] = vs - vu
+                    S[p + P_SP * C + j] = sp
+                    S[p + P_VOUT * C + j] = vs
             # ---- actuator: rate limit, safety hold, dead candidates at rest
+            vout = (LP0 + (uL - _1) * N_P + P_VOUT) * C
+            hold_safe = monitor and safe_mode == 0
             for j in range(m):
-                uprev = ls[F_UPREV, j]
-                u = lp[P_VOUT, L - 1, j]
+                uprev = S[F_UPREV * C + j]
+                u = S[vout + j]
                 if has_rate:
-                    u = min(max(u, uprev - rate * dt), uprev + rate * dt)
-                u = u_safe if (ls[F_TRIP, j] > 0.0 and safe_mode == 0) else u
-                u = u if ls[F_ALIVE, j] > 0.0 else ls[F_UOP, j]
-                buf[pos, j] = u
+                    u = _min(_max(u, uprev - rate * dt), uprev + rate * dt)
+                if hold_safe:
+                    u = u_safe if S[F_TRIP * C + j] > 0.0 else u
+                u = u if S[F_ALIVE * C + j] > 0.0 else S[F_UOP * C + j]
+                buf[upos * C + j] = u
             if aw[L - 1] == AW_BACKCALC:
+                awe = (LP0 + (uL - _1) * N_P + P_AWE) * C
                 for j in range(m):
-                    lp[P_AWE, L - 1, j] += buf[pos, j] - lp[P_VOUT, L - 1, j]  # track what was applied
+                    S[awe + j] += buf[upos * C + j] - S[vout + j]  # track what was applied
             # ---- metrics, masked by alive (streaming: no trace kept)
+            y0row = (LP0 + P_YT) * C
             if k == 0:
                 for j in range(m):
-                    ls[F_Y0, j] = lp[P_YT, 0, j]
-                    span = target[b0 + j] - ls[F_Y0, j]
-                    ls[F_INVSPAN, j] = 1.0 / span if span != 0.0 else 0.0
+                    S[F_Y0 * C + j] = S[y0row + j]
+                    span = target[b0 + j] - S[F_Y0 * C + j]
+                    S[F_INVSPAN * C + j] = 1.0 / span if span != 0.0 else 0.0
             for j in range(m):
-                a = ls[F_ALIVE, j]
-                u = buf[pos, j]
-                y0 = lp[P_YT, 0, j]
-                e0 = ls[F_R, j] - y0
+                a = S[F_ALIVE * C + j]
+                u = buf[upos * C + j]
+                y0 = S[y0row + j]
+                e0 = S[F_R * C + j] - y0
                 ae = abs(e0)
-                du = u - ls[F_UOP, j]
-                acc[M_IAE, j] += a * ae * dt
-                acc[M_ISE, j] += a * e0 * e0 * dt
-                acc[M_ITAE, j] += a * t * ae * dt
-                acc[M_EFFORT, j] += a * du * du * dt
-                acc[M_TV, j] += a * abs(u - ls[F_UPREV, j])
-                acc[M_PEAKU, j] = max(acc[M_PEAKU, j], a * abs(du))
-                acc[M_SAT, j] += a * ((u <= ls[F_ULO, j]) or (u >= ls[F_UHI, j]))
-                acc[M_LOAD, j] += a * (k >= ls[F_KLD, j]) * ae * dt
-                acc[M_YFIN, j] = y0
-                ls[F_UPREV, j] = u
+                du = u - S[F_UOP * C + j]
+                S[(A0 + M_IAE) * C + j] += a * ae * dt
+                S[(A0 + M_ISE) * C + j] += a * e0 * e0 * dt
+                S[(A0 + M_ITAE) * C + j] += a * t * ae * dt
+                S[(A0 + M_EFFORT) * C + j] += a * du * du * dt
+                S[(A0 + M_TV) * C + j] += a * abs(u - S[F_UPREV * C + j])
+                S[(A0 + M_PEAKU) * C + j] = _max(S[(A0 + M_PEAKU) * C + j], a * abs(du))
+                S[(A0 + M_SAT) * C + j] += a * ((u <= S[F_ULO * C + j]) or (u >= S[F_UHI * C + j]))
+                S[(A0 + M_LOAD) * C + j] += a * (k >= S[F_KLD * C + j]) * ae * dt
+                S[(A0 + M_YFIN) * C + j] = y0
+                S[F_UPREV * C + j] = u
                 # step metrics relative to the final reference value
-                dev = (y0 - ls[F_Y0, j]) * ls[F_INVSPAN, j]
-                act = (k >= ls[F_KST, j]) and (ls[F_INVSPAN, j] != 0.0) and (a > 0.0)
-                ls[F_PEAK, j] = max(ls[F_PEAK, j], dev) if act else ls[F_PEAK, j]
-                ls[F_T10, j] = t if (act and ls[F_T10, j] < 0 and dev >= 0.1) else ls[F_T10, j]
-                ls[F_T90, j] = t if (act and ls[F_T90, j] < 0 and dev >= 0.9) else ls[F_T90, j]
-                ls[F_LAST, j] = k if (act and abs(dev - 1.0) >= 0.02) else ls[F_LAST, j]
+                dev = (y0 - S[F_Y0 * C + j]) * S[F_INVSPAN * C + j]
+                act = (k >= S[F_KST * C + j]) and (S[F_INVSPAN * C + j] != 0.0) and (a > 0.0)
+                pk = S[F_PEAK * C + j]
+                S[F_PEAK * C + j] = _max(pk, dev) if act else pk
+                t10 = S[F_T10 * C + j]
+                S[F_T10 * C + j] = t if (act and t10 < 0 and dev >= 0.1) else t10
+                t90 = S[F_T90 * C + j]
+                S[F_T90 * C + j] = t if (act and t90 < 0 and dev >= 0.9) else t90
+                last = S[F_LAST * C + j]
+                S[F_LAST * C + j] = k if (act and abs(dev - 1.0) >= 0.02) else last
             # ---- plant input held over this sample: ua = u[k-d], ub = u[k-d-1] (+ input disturbance)
-            for j in range(m):
-                b = b0 + j
-                ia = pos - dsteps[b]
+            if shared_delay:
+                ia = pos - dsteps[b0]
                 ia = ia + M if ia < 0 else ia
                 ib = ia - 1 if ia > 0 else M - 1
-                ls[F_UA, j] = buf[ia, j] + ls[F_DIN, j]
-                ls[F_UB, j] = buf[ib, j] + ls[F_DIN, j]
-            # ---- plant update
+                for j in range(m):
+                    S[F_UA * C + j] = buf[_U(ia) * C + j] + S[F_DIN * C + j]
+                    S[F_UB * C + j] = buf[_U(ib) * C + j] + S[F_DIN * C + j]
+            else:
+                for j in range(m):
+                    ia = pos - dsteps[b0 + j]
+                    ia = ia + M if ia < 0 else ia
+                    ib = ia - 1 if ia > 0 else M - 1
+                    S[F_UA * C + j] = buf[_U(ia) * C + j] + S[F_DIN * C + j]
+                    S[F_UB * C + j] = buf[_U(ib) * C + j] + S[F_DIN * C + j]
+            # ---- plant update into the next-state rows
+            XN = X0 + un
             if nonlinear:
                 # RK4 with the input held over the sample (whole-sample delays)
                 for j in range(m):
-                    inp[n, j] = ls[F_UA, j]
-                    for i in range(n):
-                        inp[i, j] = x[i, j]
+                    inp[n, j] = S[F_UA * C + j]
+                    for i in range(un):
+                        inp[i, j] = S[(X0 + i) * C + j]
                 _run_tape(f_op, f_a, f_b, f_o, f_c, inp, wf, k1, m)
-                for i in range(n):
+                for i in range(un):
                     for j in range(m):
-                        inp[i, j] = x[i, j] + 0.5 * dt * k1[i, j]
+                        inp[i, j] = S[(X0 + i) * C + j] + 0.5 * dt * k1[i, j]
                 _run_tape(f_op, f_a, f_b, f_o, f_c, inp, wf, k2, m)
-                for i in range(n):
+                for i in range(un):
                     for j in range(m):
-                        inp[i, j] = x[i, j] + 0.5 * dt * k2[i, j]
+                        inp[i, j] = S[(X0 + i) * C + j] + 0.5 * dt * k2[i, j]
                 _run_tape(f_op, f_a, f_b, f_o, f_c, inp, wf, k3, m)
-                for i in range(n):
+                for i in range(un):
                     for j in range(m):
-                        inp[i, j] = x[i, j] + dt * k3[i, j]
+                        inp[i, j] = S[(X0 + i) * C + j] + dt * k3[i, j]
                 _run_tape(f_op, f_a, f_b, f_o, f_c, inp, wf, k4, m)
-                for i in range(n):
+                for i in range(un):
+                    xi = (X0 + i) * C
                     for j in range(m):
-                        xn[i, j] = x[i, j] + dt / 6.0 * (k1[i, j] + 2.0 * k2[i, j] + 2.0 * k3[i, j] + k4[i, j])
+                        S[(XN + i) * C + j] = S[xi + j] + dt / 6.0 * (k1[i, j] + 2.0 * k2[i, j] + 2.0 * k3[i, j] + k4[i, j])
             elif shared_plant:
-                for i in range(n):
+                for i in range(un):
+                    xn = (XN + i) * C
                     g0 = G0[i, b0]
                     g1 = G1[i, b0]
                     if has_G1:
                         for j in range(m):
-                            xn[i, j] = g0 * ls[F_UA, j] + g1 * ls[F_UB, j]
+                            S[xn + j] = g0 * S[F_UA * C + j] + g1 * S[F_UB * C + j]
                     else:
                         for j in range(m):
-                            xn[i, j] = g0 * ls[F_UA, j]
-                    for q in range(n):
+                            S[xn + j] = g0 * S[F_UA * C + j]
+                    for q in range(un):
                         a = Ad[i, q, b0]
                         if a != 0.0:
+                            xq = (X0 + q) * C
                             for j in range(m):
-                                xn[i, j] += a * x[q, j]
+                                S[xn + j] += a * S[xq + j]
             else:
-                for i in range(n):
+                for i in range(un):
+                    xn = (XN + i) * C
                     if has_G1:
                         for j in range(m):
-                            xn[i, j] = G0[i, b0 + j] * ls[F_UA, j] + G1[i, b0 + j] * ls[F_UB, j]
+                            S[xn + j] = G0[i, b0 + j] * S[F_UA * C + j] + G1[i, b0 + j] * S[F_UB * C + j]
                     else:
                         for j in range(m):
-                            xn[i, j] = G0[i, b0 + j] * ls[F_UA, j]
-                    for q in range(n):
+                            S[xn + j] = G0[i, b0 + j] * S[F_UA * C + j]
+                    for q in range(un):
+                        xq = (X0 + q) * C
                         for j in range(m):
-                            xn[i, j] += Ad[i, q, b0 + j] * x[q, j]
-            for i in range(n):
+                            S[xn + j] += Ad[i, q, b0 + j] * S[xq + j]
+            for i in range(un):
+                xi = (X0 + i) * C
+                xn = (XN + i) * C
                 for j in range(m):
-                    x[i, j] = xn[i, j] * ls[F_ALIVE, j]  # dead candidates are frozen at 0
+                    S[xi + j] = S[xn + j] * S[F_ALIVE * C + j]  # dead candidates are frozen at 0
             if want_traces:
                 for j in range(m):
                     b = b0 + j
-                    tr_u[k, b] = buf[pos, j]
-                    for l in range(L):
-                        tr_y[l, k, b] = lp[P_YT, l, j]
-                        tr_sp[l, k, b] = lp[P_SP, l, j]
+                    tr_u[k, b] = buf[upos * C + j]
+                    for l in range(uL):
+                        p = (LP0 + l * N_P) * C + j
+                        tr_y[l, k, b] = S[p + P_YT * C]
+                        tr_sp[l, k, b] = S[p + P_SP * C]
 
         # finish metrics
         for j in range(m):
             b = b0 + j
-            for q in range(len(METRICS)):
-                out[q, b] = acc[q, j]
-            span = target[b] - ls[F_Y0, j]
-            out[M_SAT, b] = acc[M_SAT, j] / n_steps
-            out[M_SSE, b] = abs(target[b] - acc[M_YFIN, j])
+            for q in range(_U(len(METRICS))):
+                out[q, b] = S[(A0 + q) * C + j]
+            span = target[b] - S[F_Y0 * C + j]
+            out[M_SAT, b] = S[(A0 + M_SAT) * C + j] / n_steps
+            out[M_SSE, b] = abs(target[b] - S[(A0 + M_YFIN) * C + j])
             if span != 0.0:
-                out[M_OVERSHOOT, b] = max(0.0, ls[F_PEAK, j] - 1.0) * 100.0
-                t10 = ls[F_T10, j]
-                t90 = ls[F_T90, j]
+                out[M_OVERSHOOT, b] = _max(0.0, S[F_PEAK * C + j] - 1.0) * 100.0
+                t10 = S[F_T10 * C + j]
+                t90 = S[F_T90 * C + j]
                 out[M_RISE, b] = (t90 - t10) if (t10 >= 0 and t90 >= 0) else np.nan
-                last = ls[F_LAST, j]
+                last = S[F_LAST * C + j]
                 if last < n_steps - 1:
                     out[M_SETTLE, b] = (last + 1) * dt - k_step[b] * dt if last >= 0 else 0.0
                 else:
@@ -617,13 +689,13 @@ def _kernel(
                 out[M_OVERSHOOT, b] = 0.0
                 out[M_RISE, b] = np.nan
                 out[M_SETTLE, b] = np.nan
-            if ls[F_ALIVE, j] == 0.0:
+            if S[F_ALIVE * C + j] == 0.0:
                 out[M_DIV, b] = 1.0
                 for q in (M_IAE, M_ISE, M_ITAE, M_EFFORT, M_TV, M_LOAD, M_PEAKU, M_SSE):
                     out[q, b] = np.inf
                 out[M_OVERSHOOT, b] = np.nan
                 out[M_YFIN, b] = np.nan
-            if ls[F_TRIP, j] == 0.0:
+            if S[F_TRIP * C + j] == 0.0:
                 out[M_TRIPT, b] = np.nan
     return out
 
@@ -640,10 +712,8 @@ simulate_kernel_parallel = _compile(True)
 simulate_kernel_serial = _compile(False)
 
 
-def simulate_kernel(*args, chunk: int | None = None):
-    """Run the kernel: serially on one chunk for small batches, else in parallel over chunks."""
+def simulate_kernel(*args):
+    """Run the kernel: serially for a batch of at most one chunk, else in parallel over chunks."""
     B = args[24].shape[0]  # u_op
-    if chunk is None:
-        chunk = B if B <= CHUNK else CHUNK
-    fn = simulate_kernel_parallel if B > chunk else simulate_kernel_serial
-    return fn(chunk, *args)
+    fn = simulate_kernel_parallel if B > CHUNK else simulate_kernel_serial
+    return fn(*args)
