@@ -52,13 +52,15 @@ _CACHE: OrderedDict[str, SpecContext] = OrderedDict()
 _LOCK = threading.Lock()
 
 
-def spec_context(spec: TuningSpec, plant: Plant | None = None, layout: GainLayout | None = None) -> SpecContext:
+def spec_context(spec: TuningSpec, plant: Plant | None = None, layout: GainLayout | None = None, *,
+                 spec_hash: str | None = None) -> SpecContext:
     """The cached context of ``spec`` (built on a miss, from ``plant``/``layout`` when given).
 
     A cached entry wins over ``plant``/``layout`` passed in: both are built from the spec
-    (the key is the hash of its full content), so they are equivalent.
+    (the key is the hash of its full content), so they are equivalent. ``spec_hash``:
+    ``spec.content_hash()`` when the caller has it already.
     """
-    key = spec.content_hash()
+    key = spec_hash or spec.content_hash()
     with _LOCK:
         hit = _CACHE.get(key)
         if hit is not None:

@@ -185,6 +185,7 @@ def verify(
     plant: Plant | None = None,
     layout: GainLayout | None = None,
     cache: bool = True,
+    spec_hash: str | None = None,
 ) -> VerificationReport:
     """Verify frozen gains against the spec's requirements.
 
@@ -205,6 +206,8 @@ def verify(
         Reuse the per-spec objects (plant, layout, linearisation, simulator) of earlier calls
         on the same spec (keyed by ``spec.content_hash()``; see :mod:`gaintune.verify.context`).
         A cached entry takes precedence over ``plant``/``layout``.
+    spec_hash
+        ``spec.content_hash()`` when the caller has computed it already (saves hashing the spec again).
 
     Raises
     ------
@@ -212,7 +215,7 @@ def verify(
         For NaN, non-positive, missing/unknown gains or a wrong count.
     """
     t0 = time.perf_counter()
-    ctx = spec_context(spec, plant, layout) if cache else None
+    ctx = spec_context(spec, plant, layout, spec_hash=spec_hash) if cache else None
     if ctx is not None:
         plant, layout, lin = ctx.plant, ctx.layout, ctx.lin
     else:
@@ -275,7 +278,8 @@ def verify(
     op["u0"] = float(lin.u0)
     verdict = "pass" if not reasons else "fail"
     return VerificationReport(
-        spec_name=spec.name, spec_hash=spec.content_hash(), gains=layout.to_dict(full), verdict=verdict,
+        spec_name=spec.name, spec_hash=ctx.spec_hash if ctx is not None else (spec_hash or spec.content_hash()),
+        gains=layout.to_dict(full), verdict=verdict,
         reasons=reasons, delay=float(lin.delay), sampling_delay=t_s,
         delay_method="none" if delay.T <= 0 else ("pade" if delay.pade_order else "exact"), pade=pade,
         operating_point=op, stability=stab, analysis_band=nom.omega_range, loops=loops, robust=rob, nonlinear=nl, requirements=req, notes=notes,

@@ -277,10 +277,14 @@ class _Evaluator:
         return L
 
 
+#: Convergence of the crossing refinement, in log w.
+_ROOT_TOL = 1e-10
+
+
 def _zoom_roots(ev: _Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray, fn, iters: int = 12,
                 La: np.ndarray | None = None, Lb: np.ndarray | None = None):
-    """Refine brackets [lo, hi] (per row) of a sign change of fn(L): vectorised Illinois
-    (modified regula falsi) in log w, one evaluation of the unconverged brackets per iteration.
+    """Refine brackets [lo, hi] (per row) of a sign change of fn(L): vectorised modified regula
+    falsi (Anderson-Bjorck) in log w, one evaluation of the unconverged brackets per iteration.
 
     ``La``/``Lb``: L at the bracket ends when known (grid values), else evaluated.
     ``fn`` maps (L values, bracket indices) to the function values. Returns (w, L at w).
@@ -311,22 +315,36 @@ def _zoom_roots(ev: _Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray
         Lc[act] = Lcc
         left = np.sign(fc) == np.sign(FA)  # root in [c, b]
         sd = side[act]
-        # Illinois: halve the retained end's value when the same side is kept twice
-        FB = np.where(left & (sd == 1), FB * 0.5, FB)
-        FA = np.where(~left & (sd == -1), FA * 0.5, FA)
+        # Anderson-Bjorck: when the same end is kept twice, scale its value by 1 - f(c)/f(replaced
+        # end) (by 1/2, as Illinois, when that is not positive); converges faster than halving
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mb = np.where(FA != 0, 1.0 - fc / FA, 0.5)
+            ma = np.where(FB != 0, 1.0 - fc / FB, 0.5)
+        FB = np.where(left & (sd == 1), FB * np.where(mb > 0, mb, 0.5), FB)
+        FA = np.where(~left & (sd == -1), FA * np.where(ma > 0, ma, 0.5), FA)
         a[act], fa[act] = np.where(left, cc, A), np.where(left, fc, FA)
         b[act], fb[act] = np.where(left, Bv, cc), np.where(left, FB, fc)
         side[act] = np.where(left, 1, -1)
-        done = (np.abs(cc - c_prev) < 1e-12) | (np.abs(b[act] - a[act]) < 1e-12) | (fc == 0)
+        # 1e-10 in log w: frequencies to 1e-10 relative; tighter only chases round-off
+        # or a residual at round-off level (both functions are O(1): log|L| and sin(arg L))
+        done = (np.abs(cc - c_prev) < _ROOT_TOL) | (np.abs(b[act] - a[act]) < _ROOT_TOL) | (np.abs(fc) < 1e-13)
         act = act[~done]
         if act.size == 0:
             break
     return np.exp(c), Lc
 
 
-def _zoom_peaks(ev: _Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray, fns, q: np.ndarray, rounds: int = 3):
-    """Refine the maximum of fns[q_i](L) inside [lo_i, hi_i] (row rows_i), all peaks in one
-    evaluation per round. Returns (w, value)."""
+def _peak_values(Z: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Row i of Z: |S| (q_i = 0), |T| = |L S| (1) or |S - 1/2| (2, 1/disk alpha), S = 1/(1 + L); NaN -> inf."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        S = 1.0 / (1.0 + Z)
+        V = np.abs(np.where((q == 0)[:, None], S, np.where((q == 1)[:, None], Z * S, S - 0.5)))
+    return np.where(V == V, V, np.inf)
+
+
+def _zoom_peaks(ev: _Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray, q: np.ndarray, rounds: int = 3):
+    """Refine the maximum of :func:`_peak_values` (figure q_i) inside [lo_i, hi_i] (row rows_i),
+    all peaks in one evaluation per round. Returns (w, value)."""
     best_w = np.sqrt(lo * hi)
     best_v = np.full(lo.size, -np.inf)
     k = np.arange(lo.size)
@@ -334,12 +352,7 @@ def _zoom_peaks(ev: _Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray
     for _ in range(rounds):
         W = np.exp(np.log(lo)[:, None] + (np.log(hi) - np.log(lo))[:, None] * t[None, :])
         L = ev(W.ravel())
-        Lr = L[rows[:, None], np.arange(W.size).reshape(W.shape)]
-        f = np.empty(W.shape)
-        for qi, fn in enumerate(fns):
-            sel = q == qi
-            if np.any(sel):
-                f[sel] = fn(Lr[sel])
+        f = _peak_values(L[rows[:, None], np.arange(W.size).reshape(W.shape)], q)
         j = np.argmax(f, axis=1)
         better = f[k, j] > best_v
         best_v = np.where(better, f[k, j], best_v)
@@ -408,9 +421,9 @@ def _grid(ev: _Evaluator, lo: float, hi: float, n_freq: int):
     rest = (np.zeros(0), np.zeros(0), np.zeros((R, 0), complex), np.zeros((R, 0), complex), np.zeros((R, 0)), np.zeros((R, 0)))
     for _ in range(4):
         m, k = E.shape[0], E.shape[1] - 1
-        z = LE[:, :, 1:] * LE[:, :, :-1].conj()
-        zr = rest[3] * rest[2].conj()
         with np.errstate(all="ignore"):
+            z = LE[:, :, 1:] * LE[:, :, :-1].conj()
+            zr = rest[3] * rest[2].conj()
             turn = z.real < _COS_DPH * np.abs(z)  # |arg(L_right/L_left)| > 0.5
             big = (AE[:, :, 1:] > MAG_FLOOR) | (AE[:, :, :-1] > MAG_FLOOR)
             turn_r = zr.real < _COS_DPH * np.abs(zr)
@@ -558,7 +571,7 @@ def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names
 
         def fn(Z, kk, ng=ng):
             with np.errstate(divide="ignore", invalid="ignore"):
-                return np.where(kk < ng, fn_gain(Z), Z.imag)
+                return np.where(kk < ng, fn_gain(Z), Z.imag / np.abs(Z))  # log|L|; sin(arg L)
 
         wz, Lz = _zoom_roots(ev, lo, hi, rows, fn, La=La, Lb=Lb)
         if first:
@@ -604,27 +617,16 @@ def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names
     pm_w = [wg[r_g == r] for r in range(R)]
     pm_deg = [np.degrees(np.angle(Lg[r_g == r])) for r in range(R)]
     # ---- peaks: Ms, Mt, 1/alpha (all rows and figures zoomed together)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        S = 1.0 / (1.0 + L)
-        vals = [np.abs(S), np.abs(L * S), np.abs(S - 0.5)]
-    fns = [
-        lambda Z: np.nan_to_num(np.abs(1.0 / (1.0 + Z)), nan=np.inf),
-        lambda Z: np.nan_to_num(np.abs(Z / (1.0 + Z)), nan=np.inf),
-        lambda Z: np.nan_to_num(np.abs(1.0 / (1.0 + Z) - 0.5), nan=np.inf),
-    ]
-    js, Vj = [], []
-    for V in vals:
-        V = np.nan_to_num(V, nan=np.inf)
-        j = np.argmax(V, axis=1)
-        js.append(j)
-        Vj.append(V[np.arange(R), j])
-    jj = np.concatenate(js)
-    lo = w[np.maximum(jj - 1, 0)]
-    hi = w[np.minimum(jj + 1, w.size - 1)]
     rows = np.tile(np.arange(R), 3)
     q = np.repeat(np.arange(3), R)
+    V = _peak_values(np.tile(L, (3, 1)), q)  # (3R, W): figure-major
+    jj = np.argmax(V, axis=1)
+    Vmax = V[np.arange(3 * R), jj]
+    Vj = [Vmax[qi * R : (qi + 1) * R] for qi in range(3)]
+    lo = w[np.maximum(jj - 1, 0)]
+    hi = w[np.minimum(jj + 1, w.size - 1)]
     with np.errstate(divide="ignore", invalid="ignore"):
-        pw, pv = _zoom_peaks(ev, lo, hi, rows, fns, q)
+        pw, pv = _zoom_peaks(ev, lo, hi, rows, q)
     peaks = [[(float(pw[qi * R + r]), float(max(pv[qi * R + r], Vj[qi][r]))) for qi in range(3)] for r in range(R)]
     return [_figures_for_row(names[r], gm_w[r], gm_k[r], pm_w[r], pm_deg[r], peaks[r], omitted[r]) for r in range(R)]
 

@@ -134,12 +134,27 @@ def _response(g: SS, s: complex) -> complex:
     A, B, C, D = g
     if A.shape[0] == 0:
         return complex(D)
-    x = np.linalg.solve(s * np.eye(A.shape[0]) - A, B[:, 0])
+    M = -A.astype(complex)
+    M.flat[:: A.shape[0] + 1] += s
+    x = np.linalg.solve(M, B[:, 0].astype(complex))
     return complex(C[0] @ x + D)
 
 
 #: An eigenvalue of M_gamma within this relative distance of the imaginary axis counts as on it.
 _AXIS_TOL = 1e-6
+
+
+def _balance(A: np.ndarray) -> np.ndarray:
+    """Diagonal scaling d (powers of 2) with D^-1 A D balanced (LAPACK gebal, no permutation); ones if unavailable."""
+    try:
+        from scipy.linalg.lapack import dgebal
+
+        _, _, _, d, info = dgebal(A, scale=1, permute=0)
+        if info == 0 and np.all(np.isfinite(d)) and np.all(d > 0):
+            return d
+    except ImportError:  # pragma: no cover - scipy is a dependency
+        pass
+    return np.ones(A.shape[0])
 
 
 def level_clear(g: SS, gamma: float, w_lo: float, shift: float = 0.0) -> bool:
@@ -154,33 +169,29 @@ def level_clear(g: SS, gamma: float, w_lo: float, shift: float = 0.0) -> bool:
         return False
     if not abs(_response(g, complex(-shift, w_lo))) < gamma:
         return False
-    # frequency in units of w_lo (tail: p >= 1), contour shift folded into A, B and C balanced
-    As = (A + shift * np.eye(n)) / w_lo
-    Bs = B[:, 0] / w_lo
-    Cs = C[0].copy()
-    nb, nc = float(np.linalg.norm(Bs)), float(np.linalg.norm(Cs))
+    # frequency in units of w_lo (tail: p >= 1), contour shift folded into A; B and C balanced
+    As = A / w_lo
+    if shift:
+        As.flat[:: n + 1] += shift / w_lo
+    d = _balance(As)
+    As = As * (1.0 / d)[:, None] * d[None, :]
+    Bs = B[:, 0] / (w_lo * d)
+    Cs = C[0] * d
+    nb, nc = float(np.sqrt(Bs @ Bs)), float(np.sqrt(Cs @ Cs))
     if nb == 0.0 or nc == 0.0:
         return True  # G = D
     k = math.sqrt(nc / nb)
     Bs, Cs = Bs * k, Cs / k
-    try:
-        import scipy.linalg
-
-        with np.errstate(all="ignore"):  # scipy casts an unused permutation vector (NaN without permute)
-            Ab, T = scipy.linalg.matrix_balance(As, permute=False)
-        if np.all(np.isfinite(T)) and np.all(np.isfinite(Ab)):
-            As, Bs, Cs = Ab, np.linalg.solve(T, Bs), Cs @ T
-    except (ImportError, ValueError, np.linalg.LinAlgError):
-        pass
     R = gamma * gamma - D * D
-    bc = np.outer(Bs, Cs)
-    M = np.block([
-        [As + (D / R) * bc, np.outer(Bs, Bs) / R],
-        [-(1.0 + D * D / R) * np.outer(Cs, Cs), -(As + (D / R) * bc).T],
-    ])
-    if not np.all(np.isfinite(M)):
+    H = np.empty((2 * n, 2 * n))
+    top = As + (D / R) * np.outer(Bs, Cs)
+    H[:n, :n] = top
+    H[:n, n:] = np.outer(Bs, Bs) / R
+    H[n:, :n] = -(1.0 + D * D / R) * np.outer(Cs, Cs)
+    H[n:, n:] = -top.T
+    if not np.all(np.isfinite(H)):
         return False
-    lam = np.linalg.eigvals(M)
+    lam = np.linalg.eigvals(H)
     scale = max(1.0, float(np.max(np.abs(lam))))
     on_axis = np.abs(lam.real) <= _AXIS_TOL * scale
     return not bool(np.any(on_axis & (np.abs(lam.imag) >= 1.0 - 1e-6)))
