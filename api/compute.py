@@ -7,9 +7,11 @@ instead; each keeps the per-spec caches of :mod:`gaintune.verify.context` (plant
 layout, linearisation, simulator) between requests. ``compute_processes = 0``
 computes in the server process, in at most ``compute_threads`` threads.
 
-Workers die with the server (``PR_SET_PDEATHSIG`` plus a parent watch), and the pool
-is shut down (workers joined) when the app stops. A broken pool (a worker killed)
-is replaced on the next request, which is computed in a thread meanwhile.
+Each worker has its own pipe, watched by the server's event loop (``loop.add_reader``):
+no executor threads and no shared result queue on the request path. Workers die with the
+server (``PR_SET_PDEATHSIG`` plus a parent watch), and the pool is shut down (workers
+joined) when the app stops. A worker that dies is replaced at once; the request it was
+computing is computed in a thread instead.
 """
 
 from __future__ import annotations
@@ -18,9 +20,10 @@ import asyncio
 import logging
 import multiprocessing as mp
 import os
+import pickle
 import threading
-from concurrent.futures import Future, ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
+from collections import deque
+from concurrent.futures import Future
 from typing import Any, Callable
 
 __all__ = ["ComputePool", "compute_verify", "compute_simulate", "warm_up_compute"]
@@ -59,16 +62,17 @@ def warm_up_compute() -> int:
     return os.getpid()
 
 
-def compute_verify(spec, gains, robust, nonlinear, plant=None, layout=None) -> tuple[str, Any]:
+def compute_verify(spec, gains, robust, nonlinear, plant=None, layout=None, spec_hash=None) -> tuple[str, Any]:
     """``("ok", report JSON bytes)`` | ``("gains", problem details)`` | ``("error", message)``.
 
-    Never raises for bad input: the caller maps the tags to HTTP problems.
+    Never raises for bad input: the caller maps the tags to HTTP problems. ``spec_hash``:
+    ``spec.content_hash()``, already computed by the server.
     """
     from gaintune.errors import GaintuneError, problem_details
     from gaintune.verify import verify
 
     try:
-        report = verify(spec, gains, robust=robust, nonlinear=nonlinear, plant=plant, layout=layout)
+        report = verify(spec, gains, robust=robust, nonlinear=nonlinear, plant=plant, layout=layout, spec_hash=spec_hash)
     except GaintuneError as exc:
         return "gains", problem_details(exc)
     except Exception as exc:  # noqa: BLE001 - user input must never produce a 500
@@ -91,45 +95,189 @@ def compute_simulate(spec, gains, chosen: list[int], max_points: int, plant=None
         return "error", f"{type(exc).__name__}: {str(exc)[:300]}"
 
 
+# ------------------------------------------------------------------ worker loop
+
+
+def _worker_main(conn, parent: int) -> None:
+    """A compute worker: warm up, report ``("warm", pid)``, then answer ``(fn, args)`` messages with
+    ``("ok", fn(*args))`` (or ``("exc", exception)``) until an empty message or EOF."""
+    import pickle
+
+    _init_worker(parent)
+    try:
+        conn.send_bytes(pickle.dumps(("warm", warm_up_compute()), pickle.HIGHEST_PROTOCOL))
+    except Exception as exc:  # noqa: BLE001 - warm-up is an optimisation only
+        log.warning("compute worker warm-up failed", exc_info=True)
+        conn.send_bytes(pickle.dumps(("warm", exc), pickle.HIGHEST_PROTOCOL))
+    while True:
+        try:
+            data = conn.recv_bytes()
+        except (EOFError, OSError):
+            break
+        if not data:
+            break
+        try:
+            fn, args = pickle.loads(data)
+            msg = ("ok", fn(*args))
+        except Exception as exc:  # noqa: BLE001 - reported to the server, which computes in a thread
+            msg = ("exc", exc)
+        try:
+            conn.send_bytes(pickle.dumps(msg, pickle.HIGHEST_PROTOCOL))
+        except (EOFError, OSError):
+            break
+
+
 # ------------------------------------------------------------------ server side
 
 
+class _Worker:
+    __slots__ = ("proc", "conn", "warm", "ready", "pending")
+
+    def __init__(self, proc, conn, warm: Future) -> None:
+        self.proc, self.conn, self.warm = proc, conn, warm
+        self.ready = False  # warmed up and not computing
+        self.pending: asyncio.Future | None = None
+
+
 class ComputePool:
-    """``n`` spawned worker processes; :meth:`start` and :meth:`shutdown` from the main thread."""
+    """``n`` spawned worker processes, each on its own pipe watched by the event loop.
+
+    No executor threads: a request is pickled onto an idle worker's pipe from the event
+    loop, and the loop's reader callback resolves the request's future when the answer
+    arrives. :meth:`start` and :meth:`shutdown` run on the event loop's thread, which is the
+    main thread under uvicorn (PDEATHSIG follows the spawning thread).
+    """
 
     def __init__(self, n: int) -> None:
         self.n = n
-        self._ex: ProcessPoolExecutor | None = None
-        self._lock = threading.Lock()
+        self._workers: list[_Worker] = []
+        self._waiters: deque[asyncio.Future] = deque()
+        self._loop: asyncio.AbstractEventLoop | None = None
         self.warm: list[Future] = []
+        self.restarts = 0
 
     def start(self) -> None:
-        """Create the pool and spawn every worker now (PDEATHSIG follows the spawning thread)."""
-        self._ex = ProcessPoolExecutor(self.n, mp_context=mp.get_context("spawn"), initializer=_init_worker,
-                                       initargs=(os.getpid(),))
-        self.warm = [self._ex.submit(warm_up_compute) for _ in range(self.n)]
+        """Spawn every worker now; ``warm[i]`` resolves (to the worker's pid) once it is warmed up."""
+        self._loop = asyncio.get_running_loop()
+        self._workers = [self._spawn() for _ in range(self.n)]
+        self.warm = [w.warm for w in self._workers]
+
+    def _spawn(self) -> _Worker:
+        ctx = mp.get_context("spawn")
+        here, there = ctx.Pipe(duplex=True)
+        proc = ctx.Process(target=_worker_main, args=(there, os.getpid()), name="gaintune-compute", daemon=True)
+        proc.start()
+        there.close()  # the worker's end: EOF here when the worker dies
+        w = _Worker(proc, here, Future())
+        self._loop.add_reader(here.fileno(), self._on_message, w)
+        return w
 
     @property
     def pids(self) -> list[int]:
-        ex = self._ex
-        return sorted(p.pid for p in (getattr(ex, "_processes", None) or {}).values()) if ex else []
+        return sorted(w.proc.pid for w in self._workers)
+
+    # ---------------------------------------------------------------- dispatch
+    def _release(self, w: _Worker) -> None:
+        w.pending = None
+        while self._waiters:
+            f = self._waiters.popleft()
+            if not f.done():
+                f.set_result(w)
+                return
+        w.ready = True
+
+    async def _acquire(self) -> _Worker:
+        for w in self._workers:
+            if w.ready:
+                w.ready = False
+                return w
+        f = self._loop.create_future()
+        self._waiters.append(f)
+        try:
+            return await f
+        except asyncio.CancelledError:
+            if f.done() and not f.cancelled():  # handed a worker, then cancelled: pass it on
+                self._release(f.result())
+            raise
 
     async def run(self, fn: Callable, *args) -> Any:
-        """``fn(*args)`` in a worker; None when the pool is broken (the caller computes in a thread)."""
-        ex = self._ex
-        if ex is None:
+        """``fn(*args)`` in a worker; None when that worker died (the caller computes in a thread)."""
+        if self._loop is None:
             return None
+        w = await self._acquire()
+        fut = self._loop.create_future()
+        w.pending = fut
         try:
-            return await asyncio.wrap_future(ex.submit(fn, *args))
-        except BrokenProcessPool:
-            log.warning("compute pool broken (a worker died); starting a new one")
-            with self._lock:
-                if self._ex is ex:
-                    ex.shutdown(wait=False, cancel_futures=True)
-                    self.start()
+            w.conn.send_bytes(pickle.dumps((fn, args), pickle.HIGHEST_PROTOCOL))
+        except (OSError, ValueError):
+            self._lost(w)
             return None
+        # a cancelled request leaves the worker busy until its answer arrives (then discarded)
+        return await fut
+
+    def _on_message(self, w: _Worker) -> None:
+        try:
+            kind, value = pickle.loads(w.conn.recv_bytes())
+        except (EOFError, OSError, pickle.UnpicklingError):
+            self._lost(w)
+            return
+        if kind == "warm":
+            if not w.warm.done():
+                if isinstance(value, BaseException):
+                    w.warm.set_exception(value)
+                else:
+                    w.warm.set_result(value)
+            self._release(w)
+            return
+        fut = w.pending
+        if fut is not None and not fut.done():
+            if kind == "ok":
+                fut.set_result(value)
+            else:
+                log.warning("compute worker raised %r; computing in a thread", value)
+                fut.set_result(None)
+        self._release(w)
+
+    def _lost(self, w: _Worker) -> None:
+        """A worker died (or its pipe broke): answer its request with None and start a new one."""
+        if w not in self._workers:
+            return
+        log.warning("compute worker %s died; starting a new one", w.proc.pid)
+        self._loop.remove_reader(w.conn.fileno())
+        w.conn.close()
+        w.proc.join(timeout=0.1)
+        if w.pending is not None and not w.pending.done():
+            w.pending.set_result(None)
+        if not w.warm.done():
+            w.warm.set_exception(RuntimeError("compute worker died during warm-up"))
+        i = self._workers.index(w)
+        self._workers[i] = self._spawn()
+        self.restarts += 1
 
     def shutdown(self) -> None:
-        ex, self._ex = self._ex, None
-        if ex is not None:
-            ex.shutdown(wait=True, cancel_futures=True)
+        """Stop and join every worker; waiting requests get None (computed in a thread)."""
+        loop, self._loop = self._loop, None
+        workers, self._workers = self._workers, []
+        for w in workers:
+            try:
+                loop.remove_reader(w.conn.fileno())
+            except (ValueError, OSError):
+                pass
+            try:
+                w.conn.send_bytes(b"")
+            except (OSError, ValueError):
+                pass
+        for w in workers:
+            w.proc.join(timeout=5)
+            if w.proc.is_alive():
+                w.proc.kill()
+                w.proc.join(timeout=5)
+            w.conn.close()
+            if w.pending is not None and not w.pending.done():
+                w.pending.set_result(None)
+            if not w.warm.done():
+                w.warm.set_exception(RuntimeError("compute pool shut down"))
+        while self._waiters:
+            f = self._waiters.popleft()
+            if not f.done():
+                f.cancel()

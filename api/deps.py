@@ -13,7 +13,8 @@ from api.problems import ApiError
 from api.settings import Settings
 from api.store import JobStore
 
-__all__ = ["SettingsDep", "StoreDep", "OwnerDep", "require_key", "owner_of", "api_key_header", "run_compute", "run_pooled"]
+__all__ = ["SettingsDep", "StoreDep", "OwnerDep", "require_key", "owner_of", "check_key", "api_key_header", "run_compute",
+           "run_pooled"]
 
 api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False, description="API key (when the server has keys configured).")
 
@@ -37,11 +38,15 @@ async def run_pooled(request: Request, fn, *args):
     return await pool.run(fn, *args)
 
 
-def get_settings(request: Request) -> Settings:
+# The dependencies are ``async def``: FastAPI runs a plain ``def`` dependency in a worker thread,
+# a thread hop on every request for what is an attribute lookup or a key comparison.
+
+
+async def get_settings(request: Request) -> Settings:
     return request.app.state.settings
 
 
-def get_store(request: Request) -> JobStore:
+async def get_store(request: Request) -> JobStore:
     return request.app.state.store
 
 
@@ -56,8 +61,13 @@ def owner_of(key: str | None) -> str:
     return "key:" + hashlib.sha256(key.encode()).hexdigest()[:32]
 
 
-def authenticate(settings: SettingsDep, key: Annotated[str | None, Security(api_key_header)] = None) -> str:
+async def authenticate(settings: SettingsDep, key: Annotated[str | None, Security(api_key_header)] = None) -> str:
     """The caller's owner id; 401 when keys are configured and none (or a wrong one) is given."""
+    return check_key(settings, key)
+
+
+def check_key(settings: Settings, key: str | None) -> str:
+    """:func:`authenticate` for plain functions: the owner id, or ApiError 401."""
     if not settings.api_keys:
         return owner_of(None)
     if key:

@@ -127,11 +127,12 @@ def _check_cache(request) -> "OrderedDict[tuple, Checked]":
     return c
 
 
-def cached_check(request, spec: TuningSpec, purpose: Purpose, prefix: str = "") -> Checked | None:
+def cached_check(request, spec: TuningSpec, purpose: Purpose, prefix: str = "", spec_hash: str | None = None) -> Checked | None:
     """The result of an earlier successful :func:`check_spec` of the same spec content, or None.
 
-    Only successes are kept (the limits are the app's settings, fixed for its lifetime)."""
-    key = (purpose, prefix, spec.content_hash())
+    Only successes are kept (the limits are the app's settings, fixed for its lifetime).
+    ``spec_hash``: ``spec.content_hash()`` when the caller has it already."""
+    key = (purpose, prefix, spec_hash or spec.content_hash())
     c = _check_cache(request)
     with _CHECK_LOCK:
         hit = c.get(key)
@@ -141,20 +142,20 @@ def cached_check(request, spec: TuningSpec, purpose: Purpose, prefix: str = "") 
     return None
 
 
-def check_and_remember(request, spec: TuningSpec, purpose: Purpose, prefix: str = "") -> Checked:
+def check_and_remember(request, spec: TuningSpec, purpose: Purpose, prefix: str = "", spec_hash: str | None = None) -> Checked:
     """:func:`check_spec` with the app's settings, remembering a success for :func:`cached_check`."""
     checked = check_spec(spec, request.app.state.settings, purpose, prefix=prefix)
     c = _check_cache(request)
     with _CHECK_LOCK:
-        c[(purpose, prefix, spec.content_hash())] = checked
+        c[(purpose, prefix, spec_hash or spec.content_hash())] = checked
         while len(c) > CHECK_CACHE_SIZE:
             c.popitem(last=False)
     return checked
 
 
-async def checked_spec(request, spec: TuningSpec, purpose: Purpose, prefix: str = "spec") -> Checked:
+async def checked_spec(request, spec: TuningSpec, purpose: Purpose, prefix: str = "spec", spec_hash: str | None = None) -> Checked:
     """The spec's semantic check: from the per-spec cache, else computed off the event loop and remembered."""
-    checked = cached_check(request, spec, purpose, prefix)
+    checked = cached_check(request, spec, purpose, prefix, spec_hash)
     if checked is None:
-        checked = await run_compute(request, check_and_remember, request, spec, purpose, prefix)
+        checked = await run_compute(request, check_and_remember, request, spec, purpose, prefix, spec_hash)
     return checked

@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Request, Security
 from fastapi.responses import JSONResponse, PlainTextResponse
 
-from api.deps import SettingsDep, api_key_header, authenticate
+from api.deps import SettingsDep, api_key_header, check_key
 from api.schemas import Health, Ready
 
 router = APIRouter(tags=["ops"])
@@ -42,7 +42,7 @@ def readyz(request: Request) -> JSONResponse:
 def metrics(request: Request, settings: SettingsDep,
             key: Annotated[str | None, Security(api_key_header)] = None) -> PlainTextResponse:
     if not settings.metrics_public:
-        authenticate(settings, key)
+        check_key(settings, key)
     st = request.app.state
     counts = st.store.counts()
     sup = st.supervisor

@@ -63,18 +63,19 @@ def _cache(request: Request) -> ReportCache:
 async def verify_gains(body: VerifyRequest, request: Request, settings: SettingsDep) -> Response:
     """Returns the VerificationReport. Non-finite figures (e.g. an infinite gain margin) are the strings
     ``"Infinity"``/``"-Infinity"``."""
-    checked = await checked_spec(request, body.spec, "verify")
+    spec_hash = body.spec.content_hash()
+    checked = await checked_spec(request, body.spec, "verify", spec_hash=spec_hash)
     key = hashlib.sha256(
-        json.dumps([body.spec.content_hash(), body.gains, body.robust, body.nonlinear], sort_keys=True).encode()
+        json.dumps([spec_hash, body.gains, body.robust, body.nonlinear], sort_keys=True).encode()
     ).hexdigest()
     cache = _cache(request)
     hit = cache.get(key)
     if hit is not None:
         return Response(hit, media_type="application/json", headers={"X-Cache": "hit"})
     args = (body.spec, body.gains, body.robust, body.nonlinear)
-    out = await run_pooled(request, compute_verify, *args)
+    out = await run_pooled(request, compute_verify, *args, None, None, spec_hash)
     if out is None:  # no pool: compute here (in a thread), reusing the validated plant and layout
-        out = await run_compute(request, compute_verify, *args, checked.plant, checked.layout)
+        out = await run_compute(request, compute_verify, *args, checked.plant, checked.layout, spec_hash)
     tag, data = out
     if tag == "gains":
         raise ApiError(422, "The gains are invalid for this spec.", errors=data)

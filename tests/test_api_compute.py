@@ -1,0 +1,99 @@
+"""The compute pool of the synchronous endpoints (api.compute.ComputePool), without HTTP."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import time
+
+import pytest
+
+from api.compute import ComputePool
+
+
+async def _warm(pool: ComputePool) -> list[int]:
+    return list(await asyncio.wait_for(asyncio.gather(*(asyncio.wrap_future(f) for f in pool.warm)), 180))
+
+
+def _gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+def test_pool_queues_recovers_and_shuts_down():
+    async def main():
+        pool = ComputePool(2)
+        pool.start()
+        pids = await _warm(pool)
+        assert sorted(pids) == pool.pids and os.getpid() not in pids
+        # more requests than workers: queued, all answered, spread over both workers
+        got = await asyncio.gather(*(pool.run(os.getpid) for _ in range(8)))
+        assert set(got) <= set(pids) and len(got) == 8
+        t0 = time.perf_counter()
+        await asyncio.gather(*(pool.run(time.sleep, 0.3) for _ in range(4)))
+        assert 0.55 < time.perf_counter() - t0 < 3.0  # two at a time
+        # a cancelled request frees its worker once the answer arrives
+        task = asyncio.create_task(pool.run(time.sleep, 0.5))
+        await asyncio.sleep(0.1)
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        assert len(await asyncio.gather(*(pool.run(os.getpid) for _ in range(4)))) == 4
+        # a worker killed while computing: its request gets None (the caller computes in a thread),
+        # and a new worker takes its place
+        task = asyncio.create_task(pool.run(time.sleep, 5))
+        await asyncio.sleep(0.3)
+        busy = [w for w in pool._workers if w.pending is not None and not w.pending.done()]
+        assert len(busy) == 1
+        victim = busy[0].proc.pid
+        os.kill(victim, signal.SIGKILL)
+        assert await asyncio.wait_for(task, 10) is None
+        assert pool.restarts == 1 and victim not in pool.pids and len(pool.pids) == 2
+        await _warm(pool)
+        # a worker killed while idle is replaced too
+        idle = pool.pids[0]
+        os.kill(idle, signal.SIGKILL)
+        for _ in range(100):
+            if pool.restarts == 2:
+                break
+            await asyncio.sleep(0.05)
+        assert pool.restarts == 2 and idle not in pool.pids
+        await _warm(pool)
+        assert set(await asyncio.gather(*(pool.run(os.getpid) for _ in range(6)))) <= set(pool.pids)
+        final = pool.pids
+        pool.shutdown()
+        assert await pool.run(os.getpid) is None  # a shut-down pool computes nothing
+        return final
+
+    final = asyncio.run(main())
+    assert all(_gone(p) for p in final)  # joined: not even a zombie
+
+
+def test_pool_verify_matches_in_process():
+    from api.compute import compute_verify
+    from gaintune.spec import load_spec
+    from gaintune.verify import verify
+
+    spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}], "scenario": {"dt": 0.01}})
+    gains = {"loop0": {"Kp": 1.14, "Ki": 0.454}}
+
+    async def main():
+        pool = ComputePool(1)
+        pool.start()
+        try:
+            await _warm(pool)
+            return await pool.run(compute_verify, spec, gains, None, True)
+        finally:
+            pool.shutdown()
+
+    tag, data = asyncio.run(main())
+    assert tag == "ok"
+    from gaintune.verify.report import VerificationReport
+
+    a = VerificationReport.model_validate_json(data)
+    b = verify(spec, gains)
+    assert a.loops == b.loops and a.verdict == b.verdict and a.stability == b.stability
