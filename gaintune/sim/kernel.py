@@ -322,6 +322,9 @@ def _kernel(
         for j in range(m):
             shared_delay = shared_delay and dsteps[b0 + j] == dsteps[b0]
         S = np.zeros(n_rows * C)
+        xa = X0  # rows of the current state; the next state goes to rows xb (swapped every step)
+        xb = X0 + un
+        all_alive = True
         buf = np.zeros(M * C)
         inp = np.zeros((n_in, C))
         wf = np.zeros((max(f_nw, 1), C))
@@ -334,7 +337,7 @@ def _kernel(
         for j in range(m):
             b = b0 + j
             for i in range(un):
-                S[(X0 + i) * C + j] = x_op[i, b]
+                S[(xa + i) * C + j] = x_op[i, b]
             for q in range(np.uint64(M)):
                 buf[q * C + j] = u_op[b]
             S[F_UPREV * C + j] = u_op[b]
@@ -350,9 +353,9 @@ def _kernel(
             for l in range(uL):
                 p = (LP0 + l * N_P) * C + j
                 S[p + P_KP * C] = kp[l, b]
-                S[p + P_KI * C] = ki[l, b]
+                S[p + P_KI * C] = ki[l, b] * dt  # stored times dt: one multiply less per step
                 S[p + P_KD * C] = kd[l, b]
-                S[p + P_KB * C] = kb[l, b]
+                S[p + P_KB * C] = kb[l, b] * dt
                 S[p + P_AL * C] = tf[l, b] / (tf[l, b] + dt)
                 S[p + P_BE * C] = kd[l, b] / (tf[l, b] + dt)
                 S[p + P_BW * C] = bw[l, b]
@@ -400,7 +403,7 @@ def _kernel(
             if nonlinear:
                 for j in range(m):
                     for i in range(un):
-                        inp[i, j] = S[(X0 + i) * C + j]
+                        inp[i, j] = S[(xa + i) * C + j]
                     inp[n, j] = S[F_UB * C + j] + S[F_DIN * C + j]
                 _run_tape(h_op, h_a, h_b, h_o, h_c, inp, wh, hout, m)
                 for l in range(uL):
@@ -420,7 +423,7 @@ def _kernel(
                         for j in range(m):
                             S[yt + j] = 0.0
                     for i in range(un):
-                        xi = (X0 + i) * C
+                        xi = (xa + i) * C
                         if shared_plant:
                             cli = Cm[l, i, b0]
                             if cli != 0.0:
@@ -446,13 +449,16 @@ def _kernel(
             # ---- divergence (NaN/inf or beyond the bound), every 8 steps: NaN and inf propagate
             if check_div:
                 for i in range(un):
-                    xi = (X0 + i) * C
+                    xi = (xa + i) * C
                     for j in range(m):
                         S[F_ALIVE * C + j] *= 1.0 if abs(S[xi + j]) <= div_bound else 0.0
                 for l in range(uL):
                     yt = (LP0 + l * N_P + P_YT) * C
                     for j in range(m):
                         S[F_ALIVE * C + j] *= 1.0 if abs(S[yt + j]) <= div_bound else 0.0
+                if all_alive:
+                    for j in range(m):
+                        all_alive = all_alive and S[F_ALIVE * C + j] != 0.0
             # ---- safety monitor
             if monitor:
                 for j in range(m):
@@ -463,7 +469,7 @@ def _kernel(
                     for l in range(uL):
                         trip = trip or abs(S[(LP0 + l * N_P + P_YT) * C + j]) > max_out
                     for i in range(un):
-                        trip = trip or abs(S[(X0 + i) * C + j]) > xbound[i]
+                        trip = trip or abs(S[(xa + i) * C + j]) > xbound[i]
                     if trip:
                         S[F_TRIP * C + j] = 1.0
                         S[(A0 + M_TRIP) * C + j] = 1.0
@@ -472,8 +478,8 @@ def _kernel(
                             for l in range(uL):
                                 p = (LP0 + l * N_P) * C + j
                                 S[p + P_KP * C] = fb_kp[l, b]
-                                S[p + P_KI * C] = fb_ki[l, b]
-                                S[p + P_KB * C] = fb_kb[l, b]
+                                S[p + P_KI * C] = fb_ki[l, b] * dt
+                                S[p + P_KB * C] = fb_kb[l, b] * dt
                                 S[p + P_AL * C] = fb_tf[l, b] / (fb_tf[l, b] + dt)
                                 S[p + P_BE * C] = fb_kd[l, b] / (fb_tf[l, b] + dt)
             # ---- controllers, outer loop first; each output is the next loop's setpoint
@@ -488,7 +494,7 @@ def _kernel(
                         e = sp - S[p + ymf * C + j]
                         v = S[F_UOP * C + j] + nr[b] * (sp - y_op[l, b])
                         for i in range(un):
-                            v -= K[i, b] * (S[(X0 + i) * C + j] - x_op[i, b])
+                            v -= K[i, b] * (S[(xa + i) * C + j] - x_op[i, b])
                         zt = S[F_Z * C + j] + dt * e
                         vu = v + kint[b] * zt
                         vs = _min(_max(vu, S[F_ULO * C + j]), S[F_UHI * C + j])
@@ -515,22 +521,24 @@ def _kernel(
                     S[p + P_D * C + j] = dterm
                     pterm = S[p + P_KP * C + j] * (S[p + P_BW * C + j] * sp - y)
                     iold = S[p + P_I * C + j]
-                    it = iold + S[p + P_KI * C + j] * dt * e
+                    it = iold + S[p + P_KI * C + j] * e
                     if backcalc:
-                        it += S[p + P_KB * C + j] * dt * S[p + P_AWE * C + j]
+                        it += S[p + P_KB * C + j] * S[p + P_AWE * C + j]
                     vu = pterm + it + dterm
                     vlo = S[p + P_LO * C + j]
                     vhi = S[p + P_HI * C + j]
                     vs = _min(_max(vu, vlo), vhi)
                     if clamp:
                         # conditional integration: do not integrate further into saturation
-                        hold = (vs != vu) and (e * (vu - vs) * S[p + P_KI * C + j] > 0)
+                        hold = (vs != vu) & (e * (vu - vs) * S[p + P_KI * C + j] > 0)
                         it = iold if hold else it
                         vu = pterm + it + dterm
                         vs = _min(_max(vu, vlo), vhi)
                     S[p + P_I * C + j] = it
-                    S[p + P_AWE * C + j] = vs - vu
-                    S[p + P_SP * C + j] = sp
+                    if backcalc:
+                        S[p + P_AWE * C + j] = vs - vu
+                    if want_traces:
+                        S[p + P_SP * C + j] = sp
                     S[p + P_VOUT * C + j] = vs
             # ---- actuator: rate limit, safety hold, dead candidates at rest
             vout = (LP0 + (uL - _1) * N_P + P_VOUT) * C
@@ -548,7 +556,8 @@ def _kernel(
                 awe = (LP0 + (uL - _1) * N_P + P_AWE) * C
                 for j in range(m):
                     S[awe + j] += buf[upos * C + j] - S[vout + j]  # track what was applied
-            # ---- metrics, masked by alive (streaming: no trace kept)
+            # ---- metrics, masked by alive (streaming: no trace kept). Conditions combine
+            # with & and | (not and/or): short-circuit branches cost 2x in the vectorised loop.
             y0row = (LP0 + P_YT) * C
             if k == 0:
                 for j in range(m):
@@ -562,27 +571,28 @@ def _kernel(
                 e0 = S[F_R * C + j] - y0
                 ae = abs(e0)
                 du = u - S[F_UOP * C + j]
-                S[(A0 + M_IAE) * C + j] += a * ae * dt
-                S[(A0 + M_ISE) * C + j] += a * e0 * e0 * dt
-                S[(A0 + M_ITAE) * C + j] += a * t * ae * dt
-                S[(A0 + M_EFFORT) * C + j] += a * du * du * dt
-                S[(A0 + M_TV) * C + j] += a * abs(u - S[F_UPREV * C + j])
-                S[(A0 + M_PEAKU) * C + j] = _max(S[(A0 + M_PEAKU) * C + j], a * abs(du))
-                S[(A0 + M_SAT) * C + j] += a * ((u <= S[F_ULO * C + j]) or (u >= S[F_UHI * C + j]))
-                S[(A0 + M_LOAD) * C + j] += a * (k >= S[F_KLD * C + j]) * ae * dt
+                # integrals of a candidate that dies are replaced by inf at the end: no alive mask needed
+                S[(A0 + M_IAE) * C + j] += ae * dt
+                S[(A0 + M_ISE) * C + j] += e0 * e0 * dt
+                S[(A0 + M_ITAE) * C + j] += t * ae * dt
+                S[(A0 + M_EFFORT) * C + j] += du * du * dt
+                S[(A0 + M_TV) * C + j] += abs(u - S[F_UPREV * C + j])
+                S[(A0 + M_PEAKU) * C + j] = _max(S[(A0 + M_PEAKU) * C + j], abs(du))
+                S[(A0 + M_SAT) * C + j] += a * ((u <= S[F_ULO * C + j]) | (u >= S[F_UHI * C + j]))
+                S[(A0 + M_LOAD) * C + j] += (k >= S[F_KLD * C + j]) * ae * dt
                 S[(A0 + M_YFIN) * C + j] = y0
                 S[F_UPREV * C + j] = u
                 # step metrics relative to the final reference value
                 dev = (y0 - S[F_Y0 * C + j]) * S[F_INVSPAN * C + j]
-                act = (k >= S[F_KST * C + j]) and (S[F_INVSPAN * C + j] != 0.0) and (a > 0.0)
+                act = (k >= S[F_KST * C + j]) & (S[F_INVSPAN * C + j] != 0.0) & (a > 0.0)
                 pk = S[F_PEAK * C + j]
                 S[F_PEAK * C + j] = _max(pk, dev) if act else pk
                 t10 = S[F_T10 * C + j]
-                S[F_T10 * C + j] = t if (act and t10 < 0 and dev >= 0.1) else t10
+                S[F_T10 * C + j] = t if (act & (t10 < 0) & (dev >= 0.1)) else t10
                 t90 = S[F_T90 * C + j]
-                S[F_T90 * C + j] = t if (act and t90 < 0 and dev >= 0.9) else t90
+                S[F_T90 * C + j] = t if (act & (t90 < 0) & (dev >= 0.9)) else t90
                 last = S[F_LAST * C + j]
-                S[F_LAST * C + j] = k if (act and abs(dev - 1.0) >= 0.02) else last
+                S[F_LAST * C + j] = k if (act & (abs(dev - 1.0) >= 0.02)) else last
             # ---- plant input held over this sample: ua = u[k-d], ub = u[k-d-1] (+ input disturbance)
             if shared_delay:
                 ia = pos - dsteps[b0]
@@ -599,33 +609,32 @@ def _kernel(
                     S[F_UA * C + j] = buf[_U(ia) * C + j] + S[F_DIN * C + j]
                     S[F_UB * C + j] = buf[_U(ib) * C + j] + S[F_DIN * C + j]
             # ---- plant update into the next-state rows
-            XN = X0 + un
             if nonlinear:
                 # RK4 with the input held over the sample (whole-sample delays)
                 for j in range(m):
                     inp[n, j] = S[F_UA * C + j]
                     for i in range(un):
-                        inp[i, j] = S[(X0 + i) * C + j]
+                        inp[i, j] = S[(xa + i) * C + j]
                 _run_tape(f_op, f_a, f_b, f_o, f_c, inp, wf, k1, m)
                 for i in range(un):
                     for j in range(m):
-                        inp[i, j] = S[(X0 + i) * C + j] + 0.5 * dt * k1[i, j]
+                        inp[i, j] = S[(xa + i) * C + j] + 0.5 * dt * k1[i, j]
                 _run_tape(f_op, f_a, f_b, f_o, f_c, inp, wf, k2, m)
                 for i in range(un):
                     for j in range(m):
-                        inp[i, j] = S[(X0 + i) * C + j] + 0.5 * dt * k2[i, j]
+                        inp[i, j] = S[(xa + i) * C + j] + 0.5 * dt * k2[i, j]
                 _run_tape(f_op, f_a, f_b, f_o, f_c, inp, wf, k3, m)
                 for i in range(un):
                     for j in range(m):
-                        inp[i, j] = S[(X0 + i) * C + j] + dt * k3[i, j]
+                        inp[i, j] = S[(xa + i) * C + j] + dt * k3[i, j]
                 _run_tape(f_op, f_a, f_b, f_o, f_c, inp, wf, k4, m)
                 for i in range(un):
-                    xi = (X0 + i) * C
+                    xi = (xa + i) * C
                     for j in range(m):
-                        S[(XN + i) * C + j] = S[xi + j] + dt / 6.0 * (k1[i, j] + 2.0 * k2[i, j] + 2.0 * k3[i, j] + k4[i, j])
+                        S[(xb + i) * C + j] = S[xi + j] + dt / 6.0 * (k1[i, j] + 2.0 * k2[i, j] + 2.0 * k3[i, j] + k4[i, j])
             elif shared_plant:
                 for i in range(un):
-                    xn = (XN + i) * C
+                    xn = (xb + i) * C
                     g0 = G0[i, b0]
                     g1 = G1[i, b0]
                     if has_G1:
@@ -637,12 +646,12 @@ def _kernel(
                     for q in range(un):
                         a = Ad[i, q, b0]
                         if a != 0.0:
-                            xq = (X0 + q) * C
+                            xq = (xa + q) * C
                             for j in range(m):
                                 S[xn + j] += a * S[xq + j]
             else:
                 for i in range(un):
-                    xn = (XN + i) * C
+                    xn = (xb + i) * C
                     if has_G1:
                         for j in range(m):
                             S[xn + j] = G0[i, b0 + j] * S[F_UA * C + j] + G1[i, b0 + j] * S[F_UB * C + j]
@@ -650,14 +659,15 @@ def _kernel(
                         for j in range(m):
                             S[xn + j] = G0[i, b0 + j] * S[F_UA * C + j]
                     for q in range(un):
-                        xq = (X0 + q) * C
+                        xq = (xa + q) * C
                         for j in range(m):
                             S[xn + j] += Ad[i, q, b0 + j] * S[xq + j]
-            for i in range(un):
-                xi = (X0 + i) * C
-                xn = (XN + i) * C
-                for j in range(m):
-                    S[xi + j] = S[xn + j] * S[F_ALIVE * C + j]  # dead candidates are frozen at 0
+            if not all_alive:  # dead candidates are frozen at 0
+                for i in range(un):
+                    xn = (xb + i) * C
+                    for j in range(m):
+                        S[xn + j] *= S[F_ALIVE * C + j]
+            xa, xb = xb, xa
             if want_traces:
                 for j in range(m):
                     b = b0 + j
