@@ -178,7 +178,7 @@ class Cascade:
     def open_loop_poles(self, lin: LinearModel, pade: tuple[float, int] | None) -> np.ndarray:
         """Poles of the system cut at the plant input (same for every batch member): plant,
         Padé, controller integrators (0) and derivative filters (-1/Tf, per batch)."""
-        base = list(np.linalg.eigvals(lin.A)) if lin.A.size else []
+        base = list(plant_eigvals(lin))
         if pade is not None:
             base += list(pade_poles(*pade))
         poles = np.tile(np.array(base, dtype=complex), (self.batch, 1))
@@ -288,6 +288,21 @@ class Cascade:
         for j, sig in derivs.items():
             Acl[:, j, :] = resolve(sig)
         return Acl
+
+
+_EIGVALS_CACHE: dict[int, tuple[LinearModel, np.ndarray]] = {}
+
+
+def plant_eigvals(lin: LinearModel) -> np.ndarray:
+    """Eigenvalues of ``lin.A``, remembered per model object (only the gains change between verifications)."""
+    hit = _EIGVALS_CACHE.get(id(lin))
+    if hit is not None and hit[0] is lin:
+        return hit[1]
+    v = np.linalg.eigvals(lin.A) if lin.A.size else np.zeros(0, dtype=complex)
+    if len(_EIGVALS_CACHE) > 512:
+        _EIGVALS_CACHE.clear()
+    _EIGVALS_CACHE[id(lin)] = (lin, v)
+    return v
 
 
 _SCHUR_CACHE: dict[int, tuple[LinearModel, np.ndarray, np.ndarray, np.ndarray]] = {}

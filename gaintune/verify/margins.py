@@ -30,7 +30,7 @@ decide and the two are cross-checked.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -338,7 +338,7 @@ def _peak_values(Z: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Row i of Z: |S| (q_i = 0), |T| = |L S| (1) or |S - 1/2| (2, 1/disk alpha), S = 1/(1 + L); NaN -> inf."""
     with np.errstate(divide="ignore", invalid="ignore"):
         S = 1.0 / (1.0 + Z)
-        V = np.abs(np.where((q == 0)[:, None], S, np.where((q == 1)[:, None], Z * S, S - 0.5)))
+        V = np.abs(np.where((q == 0)[:, None], S, np.where((q == 1)[:, None], 1.0 - S, S - 0.5)))  # |L S| = |1 - S|
     return np.where(V == V, V, np.inf)
 
 
@@ -389,19 +389,22 @@ def disk_from_alpha(alpha: float) -> tuple[float, float]:
 _COS_DPH = math.cos(0.5)
 
 
-def _band_ends(ev: _Evaluator, cas, lin) -> tuple[float, float]:
-    """(lo, hi) of the full grid: every frequency where max|L| >= MAG_FLOOR (end probes in one call)."""
+def _band_ends(ev: _Evaluator, cas, lin) -> tuple[float, float, np.ndarray]:
+    """(lo, hi) of the full grid: every frequency where max|L| >= MAG_FLOOR (end probes in one
+    call), and L(0) per row (the same call)."""
     cf = _char_freqs(cas, lin, DelayModel(0.0))
     lo, hi = cf.min() * 1e-3, cf.max() * 1e3
     his = hi * 10.0 ** np.arange(8)
     los = lo / 100.0 ** np.arange(3)
-    P = np.abs(ev(np.concatenate([his, los])))
+    Lp = ev(np.concatenate([his, los, [0.0]]))
+    L0 = Lp[:, -1]
+    P = np.abs(Lp[:, :-1])
     ok_hi = np.all(P[:, :8] < MAG_FLOOR, axis=0)
     hi = his[int(np.argmax(ok_hi))] if ok_hi.any() else hi * 1e8
     Plo = P[:, 8:]
     ok_lo = np.all((Plo > 1e3) | (Plo < MAG_FLOOR), axis=0)
     lo = los[int(np.argmax(ok_lo))] if ok_lo.any() else lo / 1e6
-    return float(lo), float(hi)
+    return float(lo), float(hi), L0
 
 
 def _grid(ev: _Evaluator, lo: float, hi: float, n_freq: int):
@@ -518,7 +521,8 @@ def _crit_gain(z: np.ndarray) -> np.ndarray:
         return np.where(z.real < 0, k, np.nan)
 
 
-def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names) -> list[BreakFigures]:
+def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names, L0: np.ndarray) -> list[BreakFigures]:
+    """Figures per row from the grid (w, L, |L|); ``L0``: L at w = 0 per row."""
     R = L.shape[0]
     im, re = L.imag, L.real
     with np.errstate(invalid="ignore"):
@@ -607,7 +611,6 @@ def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names
         # unrefined: clearly on the negative real axis, |L| clearly inside (MAG_FLOOR, GM_INF_LIMIT)
         omitted[r] = int(np.count_nonzero(un & (lo_m > MAG_FLOOR) & (hi_m < GM_INF_LIMIT)))
     # w = 0: finite negative real DC gain is a phase crossing too
-    L0 = ev(np.array([0.0]))[:, 0]
     for r in range(R):
         z = L0[r]
         if np.isfinite(z) and 0 < abs(z) < 1e8 and z.real < 0 and abs(z.imag) < 1e-9 * abs(z):
@@ -619,7 +622,10 @@ def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names
     # ---- peaks: Ms, Mt, 1/alpha (all rows and figures zoomed together)
     rows = np.tile(np.arange(R), 3)
     q = np.repeat(np.arange(3), R)
-    V = _peak_values(np.tile(L, (3, 1)), q)  # (3R, W): figure-major
+    with np.errstate(divide="ignore", invalid="ignore"):
+        S = 1.0 / (1.0 + L)
+        V = np.abs(np.concatenate([S, 1.0 - S, S - 0.5]))  # (3R, W), figure-major; |L S| = |1 - S|
+    V = np.where(V == V, V, np.inf)
     jj = np.argmax(V, axis=1)
     Vmax = V[np.arange(3 * R), jj]
     Vj = [Vmax[qi * R : (qi + 1) * R] for qi in range(3)]
@@ -690,10 +696,11 @@ def _argument_principle(ev: _Evaluator, ol_poles: np.ndarray, w_hi: float, eps: 
 
 
 def _stability(ev: _Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel, w_hi: float, n_freq: int,
-               capped: bool = False) -> Stability | None:
+               capped: bool = False, g_u=None) -> Stability | None:
     """Closed-loop stability. ``capped``: the grid stops at ``w_hi``, short of where |L| is
     negligible; the Nyquist contour is then closed with a proven bound |L_u| < 1 above
-    ``w_hi``, and None is returned when that bound cannot be proven."""
+    ``w_hi``, and None is returned when that bound cannot be proven. ``g_u``: the delay-free
+    plant-input realisation on the observable part, when already built."""
     notes: list[str] = []
     has_delay = delay.T > 0
     exact_delay = has_delay and delay.pade_order is None
@@ -717,7 +724,8 @@ def _stability(ev: _Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel
     if capped:
         # |L_u(-eps + jw)| < 1 above the band. On this contour the delay factor (exact or Padé)
         # has modulus 1 + O(eps T), with eps T < 1e-6 in practice: 0.999 leaves room for it.
-        g_u = chain_ss(cas, lin, 0, len(cas.loops) - 1, "u")
+        if g_u is None:
+            g_u = chain_ss(cas, lin, 0, len(cas.loops) - 1, "u")
         proven = level_clear(g_u, 0.999 * math.exp(-2.0 * eps * max(delay.T, 0.0)), w_hi, shift=eps)
         if not proven:
             return None
@@ -752,27 +760,41 @@ def _stability(ev: _Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel
     return Stability(rhp == 0, method, int(rhp), int(nyq), poles, poles_method, max_re, notes)
 
 
+def _all_margins(ev: _Evaluator, w, L, aL, cas: Cascade, L0) -> list[BreakFigures]:
+    """Figures of every break point. The plant-input row is the innermost loop's controller-output
+    row (L_{n-1} = -g_{n-1} H_n with H_n = 1, bit for bit): analysed once, copied."""
+    n = len(cas.loops)
+    names = cas.break_names
+    figs = _margins(ev, w, L[:n], aL[:n], names[:n], L0[:n])
+    inner = figs[n - 1]
+    figs.append(replace(inner, loop=names[n][0], break_point=names[n][1],
+                        crossings=[replace(c) for c in inner.crossings]))
+    return figs
+
+
 #: Band widenings tried (x10 each) when the tail above the band cannot be proven harmless.
 _BAND_TRIES = 3
 
 
-def _tail_clear(cas: Cascade, lin: LinearModel, figs: list[BreakFigures], w_cap: float) -> bool:
-    """Proven: above ``w_cap`` no break point's |L| can change its figures (see :mod:`gaintune.verify.tail`)."""
+def _tail_clear(cas: Cascade, lin: LinearModel, figs: list[BreakFigures], w_cap: float):
+    """Proven: above ``w_cap`` no break point's |L| can change its figures (see :mod:`gaintune.verify.tail`).
+
+    Returns the plant-input realisation G_u (reused by the stability test) when proven, else None."""
     n = len(cas.loops)
     if cas.measured is not None:
         lin = observable_part(lin, cas.measured)[0]
     g_u = chain_ss(cas, lin, 0, n - 1, "u")  # rows n-1 (innermost) and n (plant input): |L| = |G_u|
     if not level_clear(g_u, min(tail_levels(figs[n - 1], MAG_FLOOR), tail_levels(figs[n], MAG_FLOOR)), w_cap):
-        return False
+        return None
     for i in range(n - 1):  # outer rows: |L_i| <= |G_i Phi_{i+1}| / (1 - |Gin_{i+1}|)
         tau = tail_levels(figs[i], MAG_FLOOR)
         g_in = chain_ss(cas, lin, i + 1, n - 1, "u")
         if not level_clear(g_in, INNER_LEVEL, w_cap):
-            return False
+            return None
         g_i = series(chain_ss(cas, lin, 0, i, "u"), chain_ss(cas, lin, i + 1, n - 1, "r"))
         if not level_clear(g_i, tau * (1.0 - INNER_LEVEL), w_cap):
-            return False
-    return True
+            return None
+    return g_u
 
 
 def analyse(cas: Cascade, lin: LinearModel, delay: DelayModel, n_freq: int = 2000, band: float | None = None) -> Analysis:
@@ -785,7 +807,7 @@ def analyse(cas: Cascade, lin: LinearModel, delay: DelayModel, n_freq: int = 200
     without ``band``. Crossings above the band are neither listed nor counted.
     """
     ev = _Evaluator(cas, lin, delay)
-    lo, hi = _band_ends(ev, cas, lin)
+    lo, hi, L0 = _band_ends(ev, cas, lin)
     caps = []
     if band is not None and cas.batch == 1 and math.isfinite(band) and band > 0:
         c = max(float(band), lo * 10.0)
@@ -795,13 +817,14 @@ def analyse(cas: Cascade, lin: LinearModel, delay: DelayModel, n_freq: int = 200
     n_ap = max(400, n_freq // 2)
     for cap in caps:
         w, L, aL = _grid(ev, lo, cap, n_freq)
-        figs = _margins(ev, w, L, aL, cas.break_names)
-        if not _tail_clear(cas, lin, figs, cap):
+        figs = _all_margins(ev, w, L, aL, cas, L0)
+        g_u = _tail_clear(cas, lin, figs, cap)
+        if g_u is None:
             continue
-        stab = _stability(ev, cas, lin, delay, cap, n_ap, capped=True)
+        stab = _stability(ev, cas, lin, delay, cap, n_ap, capped=True, g_u=g_u)
         if stab is not None:
             return Analysis(figs, stab, (float(w[0]), float(w[-1])))
     w, L, aL = _grid(ev, lo, hi, n_freq)
-    figs = _margins(ev, w, L, aL, cas.break_names)
+    figs = _all_margins(ev, w, L, aL, cas, L0)
     stab = _stability(ev, cas, lin, delay, float(w[-1]), n_ap)
     return Analysis(figs, stab, (float(w[0]), float(w[-1])))
