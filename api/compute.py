@@ -22,7 +22,7 @@ import multiprocessing as mp
 import os
 import pickle
 import threading
-from collections import deque
+from collections import OrderedDict, deque
 from concurrent.futures import Future
 from typing import Any, Callable
 
@@ -97,6 +97,56 @@ def compute_simulate(spec, gains, chosen: list[int], max_points: int, plant=None
 
 # ------------------------------------------------------------------ worker loop
 
+#: Objects (specs) each worker keeps by key, so that a known one is sent as a reference only.
+#: The server mirrors every worker's LRU exactly (same operations, in message order).
+KNOWN_SIZE = 32
+
+
+class _Store:
+    """An argument to remember under ``key`` (in the worker's LRU) and pass on."""
+
+    __slots__ = ("key", "obj")
+
+    def __init__(self, key: str, obj: Any) -> None:
+        self.key, self.obj = key, obj
+
+    def __reduce__(self):
+        return (_Store, (self.key, self.obj))
+
+
+class _Ref:
+    """An argument the worker has remembered under ``key``."""
+
+    __slots__ = ("key",)
+
+    def __init__(self, key: str) -> None:
+        self.key = key
+
+    def __reduce__(self):
+        return (_Ref, (self.key,))
+
+
+def _lru_touch(known: "OrderedDict[str, Any]", key: str, obj: Any = None, store: bool = False) -> None:
+    if store:
+        known[key] = obj
+    known.move_to_end(key)
+    while len(known) > KNOWN_SIZE:
+        known.popitem(last=False)
+
+
+def _resolve(args: tuple, known: "OrderedDict[str, Any]") -> tuple:
+    out = []
+    for a in args:
+        if isinstance(a, _Store):
+            _lru_touch(known, a.key, a.obj, store=True)
+            a = a.obj
+        elif isinstance(a, _Ref):
+            obj = known[a.key]  # KeyError: the mirror broke; answered as an error, computed in a thread
+            _lru_touch(known, a.key)
+            a = obj
+        out.append(a)
+    return tuple(out)
+
 
 def _worker_main(conn, parent: int) -> None:
     """A compute worker: warm up, report ``("warm", pid)``, then answer ``(fn, args)`` messages with
@@ -109,6 +159,7 @@ def _worker_main(conn, parent: int) -> None:
     except Exception as exc:  # noqa: BLE001 - warm-up is an optimisation only
         log.warning("compute worker warm-up failed", exc_info=True)
         conn.send_bytes(pickle.dumps(("warm", exc), pickle.HIGHEST_PROTOCOL))
+    known: OrderedDict[str, Any] = OrderedDict()
     while True:
         try:
             data = conn.recv_bytes()
@@ -118,7 +169,7 @@ def _worker_main(conn, parent: int) -> None:
             break
         try:
             fn, args = pickle.loads(data)
-            msg = ("ok", fn(*args))
+            msg = ("ok", fn(*_resolve(args, known)))
         except Exception as exc:  # noqa: BLE001 - reported to the server, which computes in a thread
             msg = ("exc", exc)
         try:
@@ -131,12 +182,14 @@ def _worker_main(conn, parent: int) -> None:
 
 
 class _Worker:
-    __slots__ = ("proc", "conn", "warm", "ready", "pending")
+    __slots__ = ("proc", "conn", "warm", "ready", "pending", "known", "pending_key")
 
     def __init__(self, proc, conn, warm: Future) -> None:
         self.proc, self.conn, self.warm = proc, conn, warm
         self.ready = False  # warmed up and not computing
         self.pending: asyncio.Future | None = None
+        self.known: OrderedDict[str, None] = OrderedDict()  # mirror of the worker's LRU
+        self.pending_key: str | None = None
 
 
 class ComputePool:
@@ -200,13 +253,28 @@ class ComputePool:
                 self._release(f.result())
             raise
 
-    async def run(self, fn: Callable, *args) -> Any:
-        """``fn(*args)`` in a worker; None when that worker died (the caller computes in a thread)."""
+    async def run(self, fn: Callable, *args, ref: tuple[int, str] | None = None) -> Any:
+        """``fn(*args)`` in a worker; None when that worker died (the caller computes in a thread).
+
+        ``ref = (i, key)``: ``args[i]`` is fully determined by ``key`` (a spec and its content
+        hash); a worker that has it already gets only the key.
+        """
         if self._loop is None:
             return None
         w = await self._acquire()
         fut = self._loop.create_future()
         w.pending = fut
+        w.pending_key = ref[1] if ref is not None else None
+        if ref is not None:
+            i, key = ref
+            args = list(args)
+            if key in w.known:
+                args[i] = _Ref(key)
+                _lru_touch(w.known, key)
+            else:
+                args[i] = _Store(key, args[i])
+                _lru_touch(w.known, key, None, store=True)
+            args = tuple(args)
         try:
             w.conn.send_bytes(pickle.dumps((fn, args), pickle.HIGHEST_PROTOCOL))
         except (OSError, ValueError):
@@ -236,6 +304,8 @@ class ComputePool:
             else:
                 log.warning("compute worker raised %r; computing in a thread", value)
                 fut.set_result(None)
+        if kind != "ok" and w.pending_key is not None:
+            w.known.pop(w.pending_key, None)  # resend it in full next time (heals a broken mirror)
         self._release(w)
 
     def _lost(self, w: _Worker) -> None:

@@ -29,13 +29,14 @@ async def run_compute(request: Request, fn, *args):
     return await anyio.to_thread.run_sync(fn, *args, limiter=st.compute_limiter)
 
 
-async def run_pooled(request: Request, fn, *args):
+async def run_pooled(request: Request, fn, *args, ref: tuple[int, str] | None = None):
     """``fn(*args)`` in the compute process pool; None when there is none (or it just broke):
-    the caller then uses :func:`run_compute`. ``fn`` must be picklable and never raise for bad input."""
+    the caller then uses :func:`run_compute`. ``fn`` must be picklable and never raise for bad input.
+    ``ref``: see :meth:`api.compute.ComputePool.run` (send a known spec by its hash only)."""
     pool = getattr(request.app.state, "compute_pool", None)
     if pool is None:
         return None
-    return await pool.run(fn, *args)
+    return await pool.run(fn, *args, ref=ref)
 
 
 # The dependencies are ``async def``: FastAPI runs a plain ``def`` dependency in a worker thread,

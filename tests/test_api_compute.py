@@ -97,3 +97,38 @@ def test_pool_verify_matches_in_process():
     a = VerificationReport.model_validate_json(data)
     b = verify(spec, gains)
     assert a.loops == b.loops and a.verdict == b.verdict and a.stability == b.stability
+
+
+def _identity(x):
+    return x
+
+
+def test_known_objects_are_sent_once_and_the_mirror_heals():
+    """A spec (by its hash) crosses the pipe once per worker; a broken mirror is repaired."""
+    from api.compute import KNOWN_SIZE, _Ref
+
+    async def main():
+        pool = ComputePool(1)
+        pool.start()
+        try:
+            await _warm(pool)
+            w = pool._workers[0]
+            big = list(range(1000))
+            assert await pool.run(_identity, big, ref=(0, "k1")) == big
+            assert list(w.known) == ["k1"]
+            # the second time only the key travels, and the worker returns its stored object
+            assert await pool.run(_identity, ["ignored"], ref=(0, "k1")) == big
+            for k in range(KNOWN_SIZE + 3):
+                assert await pool.run(_identity, k, ref=(0, f"x{k}")) == k
+            assert len(w.known) == KNOWN_SIZE and "k1" not in w.known
+            assert await pool.run(_identity, "fresh", ref=(0, "k1")) == "fresh"  # evicted: sent again
+            # break the mirror: the server believes the worker knows "ghost"
+            w.known["ghost"] = None
+            assert await pool.run(_identity, "v", ref=(0, "ghost")) is None  # KeyError in the worker -> None
+            assert "ghost" not in w.known
+            assert await pool.run(_identity, "v", ref=(0, "ghost")) == "v"
+            assert isinstance(_Ref("a"), _Ref)
+        finally:
+            pool.shutdown()
+
+    asyncio.run(main())

@@ -73,7 +73,7 @@ async def verify_gains(body: VerifyRequest, request: Request, settings: Settings
     if hit is not None:
         return Response(hit, media_type="application/json", headers={"X-Cache": "hit"})
     args = (body.spec, body.gains, body.robust, body.nonlinear)
-    out = await run_pooled(request, compute_verify, *args, None, None, spec_hash)
+    out = await run_pooled(request, compute_verify, *args, None, None, spec_hash, ref=(0, spec_hash))
     if out is None:  # no pool: compute here (in a thread), reusing the validated plant and layout
         out = await run_compute(request, compute_verify, *args, checked.plant, checked.layout, spec_hash)
     tag, data = out
