@@ -251,7 +251,7 @@ def prepare_numpy(sim: Any, full: np.ndarray, scenario: int = 0) -> dict[str, An
     full = np.atleast_2d(np.asarray(full, dtype=float))
     B = full.shape[0]
     d = sim.nominal_draws(B)
-    pa, sg = sim._draw_arrays(d, sc)
+    pa, sg = sim.problem.plant_arrays(d, sc), sim.problem.signal_arrays(d, sc)
     ca = sim.problem.controller_arrays(full, pa)
     if ca["sf"]:
         raise NotImplementedError("numpy_rollout: LQ loops are not supported")

@@ -50,25 +50,29 @@ def pid_params(loop: LoopSpec, gains: Mapping[str, Any]) -> PidParams:
     t = loop.type
     has_i, has_d = "i" in t[1:], "d" in t[1:]
     kp = np.asarray(gains.get("Kp", 0.0), dtype=float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if loop.form == "ideal":
-            ki = kp / np.asarray(gains["Ti"], dtype=float) if has_i else np.zeros_like(kp)
-            kd = kp * np.asarray(gains["Td"], dtype=float) if has_d else np.zeros_like(kp)
+    zero = np.zeros_like(kp)
+    # (plain arithmetic where no division by zero can occur: this runs once per simulation call)
+    if loop.form == "ideal":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ki = kp / np.asarray(gains["Ti"], dtype=float) if has_i else zero
+        kd = kp * np.asarray(gains["Td"], dtype=float) if has_d else zero
+    else:
+        ki = np.asarray(gains["Ki"], dtype=float) if has_i else zero
+        kd = np.asarray(gains["Kd"], dtype=float) if has_d else zero
+    if not has_d:
+        tf = zero
+    elif loop.filter.Tf is not None:
+        tf = np.where(kd > 0, loop.filter.Tf, 0.0)
+    else:
+        tf = np.where((kd > 0) & (kp > 0), kd / np.where(kp > 0, kp, 1.0) / (loop.filter.N or 10.0), 0.0)
+    tt = np.full_like(kp, np.inf)
+    if loop.anti_windup == "back_calculation" and has_i:
+        if loop.tracking_time is not None:
+            tt = np.full_like(kp, loop.tracking_time)
         else:
-            ki = np.asarray(gains["Ki"], dtype=float) if has_i else np.zeros_like(kp)
-            kd = np.asarray(gains["Kd"], dtype=float) if has_d else np.zeros_like(kp)
-        if loop.filter.Tf is not None:
-            tf = np.where(kd > 0, loop.filter.Tf, 0.0)
-        else:
-            tf = np.where((kd > 0) & (kp > 0), kd / np.where(kp > 0, kp, 1.0) / (loop.filter.N or 10.0), 0.0)
-        tt = np.full_like(kp, np.inf)
-        if loop.anti_windup == "back_calculation" and has_i:
-            if loop.tracking_time is not None:
-                tt = np.full_like(kp, loop.tracking_time)
-            else:
-                ti = np.where(ki > 0, kp / ki, 1.0)
-                td = np.where(kp > 0, kd / np.where(kp > 0, kp, 1.0), 0.0)
-                tt = np.where(td > 0, np.sqrt(ti * td), ti)
+            ti = np.where(ki > 0, kp / np.where(ki > 0, ki, 1.0), 1.0)
+            td = np.where(kp > 0, kd / np.where(kp > 0, kp, 1.0), 0.0)
+            tt = np.where(td > 0, np.sqrt(ti * td), ti)
     scalar = np.ndim(kp) == 0
     conv = (lambda a: float(a)) if scalar else (lambda a: a)
     return PidParams(conv(kp), conv(ki), conv(kd), conv(tf), loop.b, loop.c, conv(tt))

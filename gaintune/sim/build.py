@@ -100,6 +100,8 @@ class Problem:
     meas: list[int]
     f_tape: Tape | None
     h_tape: Tape | None
+    #: Per loop: (column in the full gain vector, gain name) of its gains.
+    loop_columns: list[list[tuple[int, str]]]
 
     @classmethod
     def build(cls, spec: TuningSpec, plant: Plant, layout: GainLayout) -> "Problem":
@@ -113,7 +115,10 @@ class Problem:
         for name in spec.safety.state_bounds:
             if name not in plant.states:
                 raise SpecError(f"safety.state_bounds.{name}", f"unknown state; the plant has {plant.states}")
-        return cls(spec, plant, layout, meas, f_tape, h_tape)
+        columns: list[list[tuple[int, str]]] = [[] for _ in spec.loops]
+        for k, slot in enumerate(layout.slots):
+            columns[slot.loop].append((k, slot.name))
+        return cls(spec, plant, layout, meas, f_tape, h_tape, columns)
 
     # ------------------------------------------------------------- plant
     def _linear_models(self, draws: Draws) -> tuple[list[LinearModel], np.ndarray]:
@@ -187,21 +192,21 @@ class Problem:
         B = full.shape[0]
         L = len(spec.loops)
         n = self.plant.order
-        if not np.all(np.isfinite(full)):
+        if not np.isfinite(full).all():
             raise GainError("gains", "gains must be finite numbers")
-        names = [(s.loop, s.name) for s in self.layout.slots]
-        arrs = {k: np.zeros((L, B)) for k in ("kp", "ki", "kd", "tf", "kb")}
-        arrs["bw"] = np.ones((L, B))
-        arrs["cw"] = np.zeros((L, B))
-        arrs["lo"] = np.full((L, B), -np.inf)
-        arrs["hi"] = np.full((L, B), np.inf)
+        # One block for the per-loop rows (one allocation; this runs once per simulation call).
+        block = np.zeros((9, L, B))
+        block[5] = 1.0
+        block[7] = -np.inf
+        block[8] = np.inf
+        arrs = dict(zip(("kp", "ki", "kd", "tf", "kb", "bw", "cw", "lo", "hi"), block))
         aw = np.zeros(L, dtype=np.int64)
         sf = False
         K = np.zeros((n, B))
         kint = np.zeros(B)
         nr = np.zeros(B)
         for li, loop in enumerate(spec.loops):
-            cols = {nm: full[:, k] for k, (l2, nm) in enumerate(names) if l2 == li}
+            cols = {nm: full[:, k] for k, nm in self.loop_columns[li]}
             if loop.is_lq:
                 sf = True
                 lins, inv = plant_arr["lins"], plant_arr["lin_index"]
@@ -220,7 +225,7 @@ class Problem:
             arrs["ki"][li] = p.Ki
             arrs["kd"][li] = p.Kd
             arrs["tf"][li] = p.Tf
-            arrs["kb"][li] = np.where(np.isfinite(p.Tt), 1.0 / np.asarray(p.Tt), 0.0)
+            arrs["kb"][li] = 1.0 / np.asarray(p.Tt)  # Tt = inf (no back-calculation) gives 0
             arrs["bw"][li] = p.b
             arrs["cw"][li] = p.c
             aw[li] = AW_CODES[loop.anti_windup]

@@ -368,9 +368,10 @@ def _kernel(
                 for q in range(P.shape[0]):
                     inp[n + 1 + q, j] = P[q, b]
 
+        pos = M - 1
         for k in range(n_steps):
             t = k * dt
-            pos = k % M
+            pos = pos + 1 if pos + 1 < M else 0  # k % M, without a division per step
             upos = _U(pos)
             check_div = (k & 7) == 0 or k == n_steps - 1
             rs = dins = douts = 0.0
@@ -422,7 +423,15 @@ def _kernel(
                     else:
                         for j in range(m):
                             S[yt + j] = 0.0
-                    for i in range(un):
+                    if shared_plant and CHUNK == 1 and m > 0:
+                        # one lane: the same sum, accumulated in a register
+                        v = S[yt]
+                        for i in range(un):
+                            cli = Cm[l, i, b0]
+                            if cli != 0.0:
+                                v += cli * S[xa + i]
+                        S[yt] = v
+                    for i in range(un if not (shared_plant and CHUNK == 1) else 0):
                         xi = (xa + i) * C
                         if shared_plant:
                             cli = Cm[l, i, b0]
@@ -564,6 +573,8 @@ def _kernel(
                     S[F_Y0 * C + j] = S[y0row + j]
                     span = target[b0 + j] - S[F_Y0 * C + j]
                     S[F_INVSPAN * C + j] = 1.0 / span if span != 0.0 else 0.0
+                    if span == 0.0:  # no step to measure: step metrics never start
+                        S[F_KST * C + j] = np.inf
             for j in range(m):
                 a = S[F_ALIVE * C + j]
                 u = buf[upos * C + j]
@@ -584,7 +595,7 @@ def _kernel(
                 S[F_UPREV * C + j] = u
                 # step metrics relative to the final reference value
                 dev = (y0 - S[F_Y0 * C + j]) * S[F_INVSPAN * C + j]
-                act = (k >= S[F_KST * C + j]) & (S[F_INVSPAN * C + j] != 0.0) & (a > 0.0)
+                act = (k >= S[F_KST * C + j]) & (a > 0.0)
                 pk = S[F_PEAK * C + j]
                 S[F_PEAK * C + j] = _max(pk, dev) if act else pk
                 t10 = S[F_T10 * C + j]
@@ -600,7 +611,9 @@ def _kernel(
                 ib = ia - 1 if ia > 0 else M - 1
                 for j in range(m):
                     S[F_UA * C + j] = buf[_U(ia) * C + j] + S[F_DIN * C + j]
-                    S[F_UB * C + j] = buf[_U(ib) * C + j] + S[F_DIN * C + j]
+                if has_G1:  # the previous input only matters with a fractional delay
+                    for j in range(m):
+                        S[F_UB * C + j] = buf[_U(ib) * C + j] + S[F_DIN * C + j]
             else:
                 for j in range(m):
                     ia = pos - dsteps[b0 + j]
@@ -632,6 +645,18 @@ def _kernel(
                     xi = (xa + i) * C
                     for j in range(m):
                         S[(xb + i) * C + j] = S[xi + j] + dt / 6.0 * (k1[i, j] + 2.0 * k2[i, j] + 2.0 * k3[i, j] + k4[i, j])
+            elif shared_plant and CHUNK == 1:
+                # one lane: the same sums, accumulated in a register instead of through memory
+                if m > 0:
+                    for i in range(un):
+                        v = G0[i, b0] * S[F_UA]
+                        if has_G1:
+                            v = G0[i, b0] * S[F_UA] + G1[i, b0] * S[F_UB]
+                        for q in range(un):
+                            a = Ad[i, q, b0]
+                            if a != 0.0:
+                                v += a * S[xa + q]
+                        S[xb + i] = v
             elif shared_plant:
                 for i in range(un):
                     xn = (xb + i) * C
@@ -710,20 +735,34 @@ def _kernel(
     return out
 
 
-def _compile(parallel: bool):
-    # A distinct function object and qualname per variant keeps numba's on-disk caches apart.
-    fn = types.FunctionType(_kernel.__code__, _kernel.__globals__, "_kernel")
-    fn.__qualname__ = "simulate_kernel_parallel" if parallel else "simulate_kernel_serial"
+def _compile(parallel: bool, lanes: int = CHUNK, name: str = ""):
+    """Compile a variant of :func:`_kernel` with ``lanes`` candidates per chunk.
+
+    A distinct function object and qualname per variant keeps numba's on-disk
+    caches apart; ``CHUNK`` is frozen into the variant as a compile-time constant.
+    """
+    glb = dict(_kernel.__globals__, CHUNK=lanes)
+    fn = types.FunctionType(_kernel.__code__, glb, "_kernel")
+    fn.__qualname__ = name
     return nb.njit(cache=True, parallel=parallel, error_model="numpy", fastmath={"contract"})(fn)
 
 
 #: Parallel over chunks (large batches) and serial (small batches: no thread start-up cost).
-simulate_kernel_parallel = _compile(True)
-simulate_kernel_serial = _compile(False)
+simulate_kernel_parallel = _compile(True, name="simulate_kernel_parallel")
+simulate_kernel_serial = _compile(False, name="simulate_kernel_serial")
+#: One lane per chunk: every per-lane loop collapses to straight-line code, so a
+#: single simulation runs as one fused scalar pass per time step (no loop set-up
+#: or overlap checks per stage). Same source, so the same control law.
+simulate_kernel_single = _compile(False, lanes=1, name="simulate_kernel_single")
+
+#: Batches up to this size run lane by lane on :data:`simulate_kernel_single`.
+SINGLE_MAX = 1
 
 
 def simulate_kernel(*args):
-    """Run the kernel: serially for a batch of at most one chunk, else in parallel over chunks."""
+    """Run the kernel: lane by lane for tiny batches, serially for one chunk, else in parallel."""
     B = args[24].shape[0]  # u_op
+    if B <= SINGLE_MAX:
+        return simulate_kernel_single(*args)
     fn = simulate_kernel_parallel if B > CHUNK else simulate_kernel_serial
     return fn(*args)
