@@ -295,6 +295,9 @@ def _kernel(
     X0 = LP0 + uL * N_P  # plant state rows X0 + i, next state rows X0 + n + i
     n_rows = X0 + _U(2) * un
     for c in nb.prange(nchunks):
+        # re-bound inside the parallel body: numba passes outer variables into the outlined
+        # body as arguments, which would hide the compile-time row stride from LLVM
+        C = _U(CHUNK)
         b0 = _U(c) * C
         m = min(C, _U(B) - b0)
         # Signals identical across the chunk (no randomised references) are evaluated once per step.
@@ -591,7 +594,6 @@ def _kernel(
                 S[(A0 + M_PEAKU) * C + j] = _max(S[(A0 + M_PEAKU) * C + j], abs(du))
                 S[(A0 + M_SAT) * C + j] += a * ((u <= S[F_ULO * C + j]) | (u >= S[F_UHI * C + j]))
                 S[(A0 + M_LOAD) * C + j] += (k >= S[F_KLD * C + j]) * ae * dt
-                S[(A0 + M_YFIN) * C + j] = y0
                 S[F_UPREV * C + j] = u
                 # step metrics relative to the final reference value
                 dev = (y0 - S[F_Y0 * C + j]) * S[F_INVSPAN * C + j]
@@ -709,7 +711,8 @@ def _kernel(
                 out[q, b] = S[(A0 + q) * C + j]
             span = target[b] - S[F_Y0 * C + j]
             out[M_SAT, b] = S[(A0 + M_SAT) * C + j] / n_steps
-            out[M_SSE, b] = abs(target[b] - S[(A0 + M_YFIN) * C + j])
+            out[M_YFIN, b] = S[(LP0 + P_YT) * C + j]  # the output at the last step
+            out[M_SSE, b] = abs(target[b] - out[M_YFIN, b])
             if span != 0.0:
                 out[M_OVERSHOOT, b] = _max(0.0, S[F_PEAK * C + j] - 1.0) * 100.0
                 t10 = S[F_T10 * C + j]
