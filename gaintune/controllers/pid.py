@@ -64,7 +64,7 @@ def pid_params(loop: LoopSpec, gains: Mapping[str, Any]) -> PidParams:
     elif loop.filter.Tf is not None:
         tf = np.where(kd > 0, loop.filter.Tf, 0.0)
     else:
-        tf = np.where((kd > 0) & (kp > 0), kd / np.where(kp > 0, kp, 1.0) / (loop.filter.N or 10.0), 0.0)
+        tf = np.divide(kd, kp, out=np.zeros_like(kd), where=(kd > 0) & (kp > 0)) / (loop.filter.N or 10.0)
     tt = np.full_like(kp, np.inf)
     if loop.anti_windup == "back_calculation" and has_i:
         if loop.tracking_time is not None:

@@ -108,6 +108,7 @@ class Simulator:
             ),
             anchors=(sg["target"] + pa["y_op"][0], sg["k_step"], sg["k_load"]),
             rate=act.rate_limit if act.rate_limit is not None else np.inf,
+            no_traces=(np.zeros((len(spec.loops), 0, len(d))), np.zeros((len(spec.loops), 0, len(d))), np.zeros((0, len(d)))),
         )
 
     def run(
@@ -147,7 +148,7 @@ class Simulator:
         if traces:
             tr_y, tr_sp, tr_u = np.zeros((L, T, B)), np.zeros((L, T, B)), np.zeros((T, B))
         else:
-            tr_y, tr_sp, tr_u = np.zeros((L, 0, B)), np.zeros((L, 0, B)), np.zeros((0, B))
+            tr_y, tr_sp, tr_u = prep["no_traces"]
         out = simulate_kernel(
             T, sc.dt, pb.f_tape is not None,
             pa["Ad"], pa["G0"], pa["G1"], pa["Cm"], pa["Dm"],
