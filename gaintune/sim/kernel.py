@@ -195,13 +195,14 @@ def _run_tape(op, ta, tb, to, tc, inp, w, out, m):
                 w[o, j] = 1.0 if w[a, j] == 0 else 0.0
         elif code == T.AND:
             for j in range(m):
-                w[o, j] = 1.0 if (w[a, j] != 0 and w[b, j] != 0) else 0.0
+                w[o, j] = 1.0 if ((w[a, j] != 0) & (w[b, j] != 0)) else 0.0
         elif code == T.OR:
             for j in range(m):
-                w[o, j] = 1.0 if (w[a, j] != 0 or w[b, j] != 0) else 0.0
+                w[o, j] = 1.0 if ((w[a, j] != 0) | (w[b, j] != 0)) else 0.0
         elif code == T.IF_ELSE_ZERO:
             for j in range(m):
-                w[o, j] = w[b, j] if w[a, j] != 0 else 0.0
+                v = w[b, j]  # loaded unconditionally: no masked load in the vector loop
+                w[o, j] = v if w[a, j] != 0 else 0.0
         elif code == T.ASSIGN:
             for j in range(m):
                 w[o, j] = w[a, j]
@@ -543,15 +544,15 @@ def _kernel(
                     if clamp:
                         # conditional integration: do not integrate further into saturation
                         hold = (vs != vu) & (e * (vu - vs) * S[p + P_KI * C + j] > 0)
-                        it = iold if hold else it
+                        it = (iold + 0.0) if hold else it  # + 0.0: see the step metrics below
                         vu = pterm + it + dterm
                         vs = _min(_max(vu, vlo), vhi)
                     S[p + P_I * C + j] = it
-                    if backcalc:
-                        S[p + P_AWE * C + j] = vs - vu
-                    if want_traces:
-                        S[p + P_SP * C + j] = sp
+                    S[p + P_AWE * C + j] = vs - vu
                     S[p + P_VOUT * C + j] = vs
+                if want_traces:
+                    for j in range(m):
+                        S[p + P_SP * C + j] = S[sprow + j]
             # ---- actuator: rate limit, safety hold, dead candidates at rest
             vout = (LP0 + (uL - _1) * N_P + P_VOUT) * C
             hold_safe = monitor and safe_mode == 0
@@ -591,20 +592,22 @@ def _kernel(
                 S[(A0 + M_ITAE) * C + j] += t * ae * dt
                 S[(A0 + M_EFFORT) * C + j] += du * du * dt
                 S[(A0 + M_TV) * C + j] += abs(u - S[F_UPREV * C + j])
-                S[(A0 + M_PEAKU) * C + j] = _max(S[(A0 + M_PEAKU) * C + j], abs(du))
+                S[(A0 + M_PEAKU) * C + j] = _max(S[(A0 + M_PEAKU) * C + j] + 0.0, abs(du))
                 S[(A0 + M_SAT) * C + j] += a * ((u <= S[F_ULO * C + j]) | (u >= S[F_UHI * C + j]))
                 S[(A0 + M_LOAD) * C + j] += (k >= S[F_KLD * C + j]) * ae * dt
                 S[F_UPREV * C + j] = u
                 # step metrics relative to the final reference value
                 dev = (y0 - S[F_Y0 * C + j]) * S[F_INVSPAN * C + j]
                 act = (k >= S[F_KST * C + j]) & (a > 0.0)
-                pk = S[F_PEAK * C + j]
+                # "+ 0.0" (exact here) keeps LLVM from turning "store the new value or the old one"
+                # into a masked store, which is microcoded and several times slower on AMD cores
+                pk = S[F_PEAK * C + j] + 0.0
                 S[F_PEAK * C + j] = _max(pk, dev) if act else pk
-                t10 = S[F_T10 * C + j]
+                t10 = S[F_T10 * C + j] + 0.0
                 S[F_T10 * C + j] = t if (act & (t10 < 0) & (dev >= 0.1)) else t10
-                t90 = S[F_T90 * C + j]
+                t90 = S[F_T90 * C + j] + 0.0
                 S[F_T90 * C + j] = t if (act & (t90 < 0) & (dev >= 0.9)) else t90
-                last = S[F_LAST * C + j]
+                last = S[F_LAST * C + j] + 0.0
                 S[F_LAST * C + j] = k if (act & (abs(dev - 1.0) >= 0.02)) else last
             # ---- plant input held over this sample: ua = u[k-d], ub = u[k-d-1] (+ input disturbance)
             if shared_delay:
