@@ -421,21 +421,22 @@ def _kernel(
                 for l in range(uL):
                     dl = dist_out_loops[l]
                     yt = (LP0 + l * N_P + P_YT) * C
-                    if has_sig[2]:
-                        for j in range(m):
-                            S[yt + j] = dl * S[F_DOUT * C + j]
-                    else:
-                        for j in range(m):
-                            S[yt + j] = 0.0
-                    if shared_plant and CHUNK == 1 and m > 0:
+                    single = shared_plant and CHUNK == 1
+                    if single and m > 0:
                         # one lane: the same sum, accumulated in a register
-                        v = S[yt]
+                        v = dl * S[F_DOUT] if has_sig[2] else 0.0
                         for i in range(un):
                             cli = Cm[l, i, b0]
                             if cli != 0.0:
                                 v += cli * S[xa + i]
                         S[yt] = v
-                    for i in range(un if not (shared_plant and CHUNK == 1) else 0):
+                    elif has_sig[2]:
+                        for j in range(m):
+                            S[yt + j] = dl * S[F_DOUT * C + j]
+                    else:
+                        for j in range(m):
+                            S[yt + j] = 0.0
+                    for i in range(0 if single else un):
                         xi = (xa + i) * C
                         if shared_plant:
                             cli = Cm[l, i, b0]
@@ -563,7 +564,8 @@ def _kernel(
                     u = _min(_max(u, uprev - rate * dt), uprev + rate * dt)
                 if hold_safe:
                     u = u_safe if S[F_TRIP * C + j] > 0.0 else u
-                u = u if S[F_ALIVE * C + j] > 0.0 else S[F_UOP * C + j]
+                uop = S[F_UOP * C + j]  # loaded unconditionally: no masked load
+                u = u if S[F_ALIVE * C + j] > 0.0 else uop
                 buf[upos * C + j] = u
             if aw[L - 1] == AW_BACKCALC:
                 awe = (LP0 + (uL - _1) * N_P + P_AWE) * C
