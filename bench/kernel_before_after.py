@@ -1,0 +1,85 @@
+"""Side-by-side timing of the simulator kernel against an earlier revision of it.
+
+Run (from the repository root)::
+
+    python bench/kernel_before_after.py [--rev e0e478f3] [--batch 512] [--min-time 0.4]
+
+The kernel source of ``--rev`` is taken from git into a temporary module, so both
+kernels run in one process on the same prebuilt arguments (captured from
+``Simulator.run``). For each case of ``gaintune bench sim`` it prints:
+
+* serial kernel, CPU seconds of this thread per simulation (one core; robust to
+  other load on the machine), best of interleaved repetitions, at batch 1 and ``--batch``;
+* the speed-up ratio, and whether the two kernels return identical metrics.
+
+The old kernel at ``e0e478f3`` takes a leading ``chunk`` argument; it is passed 64.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import inspect
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from gaintune.bench import sim as bench_sim
+from gaintune.sim import kernel as new_kernel
+
+
+def _load_old(rev: str):
+    src = subprocess.run(["git", "show", f"{rev}:gaintune/sim/kernel.py"], capture_output=True, text=True, check=True).stdout
+    path = Path(tempfile.mkdtemp()) / f"kernel_{rev}.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location(f"kernel_{rev}", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    serial = mod.simulate_kernel_serial
+    takes_chunk = "CHUNK" in inspect.signature(mod._kernel).parameters
+    return (lambda *a: serial(64, *a)) if takes_chunk else serial
+
+
+def _cpu_per_call(fn, min_time: float) -> float:
+    n, t0 = 0, time.thread_time()
+    while True:
+        fn()
+        n += 1
+        el = time.thread_time() - t0
+        if el >= min_time:
+            return el / n
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rev", default="e0e478f3")
+    ap.add_argument("--batch", type=int, default=512)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--min-time", type=float, default=0.4)
+    a = ap.parse_args(argv)
+    old = _load_old(a.rev)
+    print(f"serial kernel, one core (thread CPU time), old = {a.rev}, new = working tree")
+    print("| case | batch | old sims/s | new sims/s | new ms/sim | speed-up | identical |")
+    print("|---|---:|---:|---:|---:|---:|---|")
+    for name in bench_sim.CASES:
+        for B in (1, a.batch):
+            case = bench_sim.make_case(name, B)
+            args = bench_sim._capture_kernel_args(case.sim, case.full)
+            new = new_kernel.simulate_kernel_single if B == 1 else new_kernel.simulate_kernel_serial
+            o_old, o_new = old(*args), new(*args)
+            same = np.array_equal(np.nan_to_num(o_old, nan=-7.0), np.nan_to_num(o_new, nan=-7.0))
+            t_old, t_new = [], []
+            for _ in range(a.repeat):  # interleaved
+                t_old.append(_cpu_per_call(lambda: old(*args), a.min_time))
+                t_new.append(_cpu_per_call(lambda: new(*args), a.min_time))
+            to, tn = min(t_old), min(t_new)
+            print(f"| {name} | {B} | {B / to:,.0f} | {B / tn:,.0f} | {1e3 * tn / B:.4f} | {to / tn:.2f}x | {same} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
