@@ -44,16 +44,6 @@ def _load_old(rev: str):
     return (lambda *a: serial(64, *a)) if takes_chunk else serial
 
 
-def _cpu_per_call(fn, min_time: float) -> float:
-    n, t0 = 0, time.thread_time()
-    while True:
-        fn()
-        n += 1
-        el = time.thread_time() - t0
-        if el >= min_time:
-            return el / n
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rev", default="e0e478f3")
@@ -74,8 +64,8 @@ def main(argv: list[str] | None = None) -> int:
             same = np.array_equal(np.nan_to_num(o_old, nan=-7.0), np.nan_to_num(o_new, nan=-7.0))
             t_old, t_new = [], []
             for _ in range(a.repeat):  # interleaved
-                t_old.append(_cpu_per_call(lambda: old(*args), a.min_time))
-                t_new.append(_cpu_per_call(lambda: new(*args), a.min_time))
+                t_old.append(bench_sim._per_call(lambda: old(*args), a.min_time, clock=time.thread_time))
+                t_new.append(bench_sim._per_call(lambda: new(*args), a.min_time, clock=time.thread_time))
             to, tn = min(t_old), min(t_new)
             print(f"| {name} | {B} | {B / to:,.0f} | {B / tn:,.0f} | {1e3 * tn / B:.4f} | {to / tn:.2f}x | {same} |", flush=True)
     return 0

@@ -323,14 +323,14 @@ def _capture_kernel_args(sim: Any, full: np.ndarray) -> tuple:
     return captured["args"]
 
 
-def _per_call(fn: Callable[[], Any], min_time: float) -> float:
-    """Seconds per call of ``fn``, calling it back to back for at least ``min_time`` seconds."""
+def _per_call(fn: Callable[[], Any], min_time: float, clock: Callable[[], float] = time.perf_counter) -> float:
+    """Seconds per call of ``fn``, calling it back to back for at least ``min_time`` seconds of ``clock``."""
     n = 0
-    t0 = time.perf_counter()
+    t0 = clock()
     while True:
         fn()
         n += 1
-        el = time.perf_counter() - t0
+        el = clock() - t0
         if el >= min_time:
             return el / n
 

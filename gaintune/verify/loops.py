@@ -83,6 +83,22 @@ def pade_ss(T: float, order: int):
     return Ad / T, Bd / T, Cd, Dd
 
 
+def controller_state_index(loops, start: int) -> tuple[list[tuple[int | None, int | None]], int]:
+    """State indices of each loop's integrator and derivative filter, numbered from ``start``.
+
+    Returns ``[(integrator index or None, filter index or None) per loop]`` and the total count.
+    """
+    idx = start
+    out = []
+    for lp in loops:
+        ii = idx if lp.has_i else None
+        idx += int(lp.has_i)
+        di = idx if (lp.kind == "pid" and lp.has_d) else None
+        idx += int(lp.kind == "pid" and lp.has_d)
+        out.append((ii, di))
+    return out, idx
+
+
 @dataclass
 class LoopCtl:
     """One loop's controller, batched: every array has a leading axis B."""
@@ -207,15 +223,7 @@ class Cascade:
             Cd = np.zeros((1, 0))
             Dd = 1.0
         npd = Ad.shape[0]
-        idx = n + npd
-        ctl_idx = []
-        for lp in self.loops:
-            ii = idx if lp.has_i else None
-            idx += int(lp.has_i)
-            di = idx if (lp.kind == "pid" and lp.has_d) else None
-            idx += int(lp.kind == "pid" and lp.has_d)
-            ctl_idx.append((ii, di))
-        N = idx
+        ctl_idx, N = controller_state_index(self.loops, n + npd)
 
         def zero():
             return np.zeros((Bsz, N)), np.zeros(Bsz)

@@ -36,6 +36,7 @@ import math
 import numpy as np
 
 from gaintune.plants.plant import LinearModel
+from gaintune.verify.loops import controller_state_index
 
 __all__ = ["chain_ss", "series", "level_clear", "tail_levels"]
 
@@ -55,15 +56,7 @@ def chain_ss(cas, lin: LinearModel, j0: int, j1: int, drive: str) -> SS:
     plant = drive == "u"
     n = lin.A.shape[0] if plant else 0
     loops = cas.loops[j0 : j1 + 1]
-    idx = n
-    ctl = []
-    for lp in loops:
-        ii = idx if lp.has_i else None
-        idx += int(lp.has_i)
-        di = idx if (lp.kind == "pid" and lp.has_d) else None
-        idx += int(lp.kind == "pid" and lp.has_d)
-        ctl.append((ii, di))
-    N = idx
+    ctl, N = controller_state_index(loops, n)
     # a signal is (row over the states, coefficient of the input)
     zero = (np.zeros(N), 0.0)
 
