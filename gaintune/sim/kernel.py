@@ -228,8 +228,8 @@ def _run_tape(op, ta, tb, to, tc, inp, w, out, m):
 
 # Per-candidate scalar fields: rows 0 .. N_F-1.
 (F_UPREV, F_ALIVE, F_TRIP, F_Z, F_Y0, F_SPAN, F_INVSPAN, F_PEAK, F_T10, F_T90, F_LAST, F_ULO, F_UHI,
- F_UOP, F_KST, F_KLD, F_R, F_DIN, F_DOUT, F_UA, F_UB) = map(_U, range(21))
-N_F = _U(21)
+ F_UOP, F_KST, F_KLD, F_R, F_DIN, F_DOUT, F_UA, F_UB, F_U) = map(_U, range(22))
+N_F = _U(22)
 #: Metric accumulators: rows A0 + metric index.
 A0 = N_F
 #: Per-loop fields: rows LP0 + loop * N_P + field.
@@ -285,7 +285,6 @@ def _kernel(
         for i in range(G1.shape[0]):
             for b in range(G1.shape[1]):
                 has_G1 = has_G1 or G1[i, b] != 0.0
-    ymf = P_YM if any_noise else P_YT  # measured = true output unless there is noise
     has_D = False
     for l in range(Dm.shape[0]):
         for b in range(Dm.shape[1]):
@@ -307,6 +306,10 @@ def _kernel(
         # re-bound inside the parallel body: numba passes outer variables into the outlined
         # body as arguments, which would hide the compile-time row stride from LLVM
         C = _U(CHUNK)
+        # measured = true output unless there is noise. Bound here for the same reason: as an
+        # argument of the outlined body, this row offset made the controller loop's memory checks
+        # opaque, and the parallel kernel ran ~1.45x slower per thread than the serial one.
+        ymf = P_YM if any_noise else P_YT
         b0 = _U(c) * C
         m = min(C, _U(B) - b0)
         # Signals identical across the chunk (no randomised references) are evaluated once per step.
@@ -533,8 +536,12 @@ def _kernel(
                         S[p + P_EDP * C + j] = S[p + P_CW * C + j] * S[sprow + j] - S[p + ymf * C + j]
                 backcalc = mode == AW_BACKCALC
                 clamp = mode == AW_CLAMP
+                # the setpoint is copied into this loop's own rows first: the stage loop then touches
+                # only rows at compile-time distances from p, and it measured ~1.4x faster per core
                 for j in range(m):
-                    sp = S[sprow + j]
+                    S[p + P_SP * C + j] = S[sprow + j]
+                for j in range(m):
+                    sp = S[p + P_SP * C + j]
                     y = S[p + ymf * C + j]
                     e = sp - y
                     ed = S[p + P_CW * C + j] * sp - y
@@ -559,9 +566,6 @@ def _kernel(
                     S[p + P_I * C + j] = it
                     S[p + P_AWE * C + j] = vs - vu
                     S[p + P_VOUT * C + j] = vs
-                if want_traces:
-                    for j in range(m):
-                        S[p + P_SP * C + j] = S[sprow + j]
             # ---- actuator: rate limit, safety hold, dead candidates at rest
             vout = (LP0 + (uL - _1) * N_P + P_VOUT) * C
             hold_safe = monitor and safe_mode == 0
@@ -574,11 +578,15 @@ def _kernel(
                     u = u_safe if S[F_TRIP * C + j] > 0.0 else u
                 uop = S[F_UOP * C + j]  # loaded unconditionally: no masked load
                 u = u if S[F_ALIVE * C + j] > 0.0 else uop
-                buf[upos * C + j] = u
+                S[F_U * C + j] = u
+            # the applied input also goes to the delay line, in a loop of its own, so that the
+            # actuator and metrics loops touch only the chunk state ``S``
+            for j in range(m):
+                buf[upos * C + j] = S[F_U * C + j]
             if aw[L - 1] == AW_BACKCALC:
                 awe = (LP0 + (uL - _1) * N_P + P_AWE) * C
                 for j in range(m):
-                    S[awe + j] += buf[upos * C + j] - S[vout + j]  # track what was applied
+                    S[awe + j] += S[F_U * C + j] - S[vout + j]  # track what was applied
             # ---- metrics, masked by alive (streaming: no trace kept). Conditions combine
             # with & and | (not and/or): short-circuit branches cost 2x in the vectorised loop.
             y0row = (LP0 + P_YT) * C
@@ -591,7 +599,7 @@ def _kernel(
                         S[F_KST * C + j] = np.inf
             for j in range(m):
                 a = S[F_ALIVE * C + j]
-                u = buf[upos * C + j]
+                u = S[F_U * C + j]
                 y0 = S[y0row + j]
                 e0 = S[F_R * C + j] - y0
                 ae = abs(e0)
@@ -711,7 +719,7 @@ def _kernel(
             if want_traces:
                 for j in range(m):
                     b = b0 + j
-                    tr_u[k, b] = buf[upos * C + j]
+                    tr_u[k, b] = S[F_U * C + j]
                     for l in range(uL):
                         p = (LP0 + l * N_P) * C + j
                         tr_y[l, k, b] = S[p + P_YT * C]
