@@ -235,6 +235,56 @@ def test_kernel_variants_agree_bit_for_bit(model: str, monkeypatch: pytest.Monke
             np.testing.assert_array_equal(np.nan_to_num(o, nan=-7.0), np.nan_to_num(outs[0], nan=-7.0))
 
 
+HELD_SIGNAL_SCENARIOS = [
+    {"reference": {"kind": "sequence", "points": [[0, 0], [1, 1], [2.5, 0.3], [4, -0.5]]},
+     "disturbance": {"kind": "ramp", "slope": 0.2, "time": 3.0, "entry": "output"}},
+    {"reference": {"kind": "ramp", "slope": 0.5, "time": 0.5},
+     "disturbance": {"kind": "step", "amplitude": -0.4, "time": 2.0, "entry": "input"}},
+    {"reference": {"kind": "impulse", "amplitude": 0.2, "width": 0.05, "time": 0.3},
+     "disturbance": {"kind": "sequence", "points": [[1, 0.1], [2, -0.2], [3, 0.0]], "entry": "input"}},
+]
+
+
+@pytest.mark.parametrize("scenario", HELD_SIGNAL_SCENARIOS)
+def test_held_shared_signals_equal_per_step_evaluation(scenario: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> None:
+    """A chunk-shared signal is re-evaluated only when a piece starts or ends (or under a ramp).
+
+    Breaking the sharing (one inactive extra piece that differs between lanes) forces the
+    per-lane evaluation at every step; traces and metrics must agree bit for bit.
+    """
+    import gaintune.sim as sim_pkg
+    from gaintune.sim import kernel as K
+
+    spec = {"plant": LAG3, "loops": [{"type": "pid"}], "scenario": {"dt": 0.01, "horizon": 5.0, **scenario}}
+    sim = make(spec)
+    full = np.tile(sim.layout.from_dict({"loop0": {"Kp": 2.0, "Ki": 1.0, "Kd": 0.5}}), (2, 1))
+    captured: dict[str, tuple] = {}
+
+    def spy(*args: Any) -> np.ndarray:
+        captured["args"] = args
+        return K.simulate_kernel(*args)
+
+    monkeypatch.setattr(sim_pkg, "simulate_kernel", spy)
+    held = sim.run(full, traces=True)
+    args = list(captured["args"])
+    i0 = next(i for i, a in enumerate(args) if isinstance(a, np.ndarray) and a.ndim == 3 and a.dtype == np.int64)
+    T = args[0]
+    extra = np.full((3, 1, 2), T + 1, dtype=np.int64)
+    extra[:, :, 1] = T + 2  # never active, but differs between the two lanes
+    args[i0] = np.concatenate([args[i0], extra], axis=1)  # sk0
+    args[i0 + 1] = np.concatenate([args[i0 + 1], np.full((3, 1, 2), T + 1, dtype=np.int64)], axis=1)  # sk1
+    for j in (i0 + 2, i0 + 3):  # soff, sslope
+        args[j] = np.concatenate([args[j], np.zeros((3, 1, 2))], axis=1)
+    tr_y, tr_sp, tr_u = np.zeros((1, T, 2)), np.zeros((1, T, 2)), np.zeros((T, 2))
+    args[-4:] = [True, tr_y, tr_sp, tr_u]
+    per_step = K.simulate_kernel_serial(*args)
+    np.testing.assert_array_equal(tr_sp[0].T, held.traces["sp.loop0"])
+    np.testing.assert_array_equal(tr_y[0].T, held.traces["y.loop0"])
+    np.testing.assert_array_equal(tr_u.T, held.traces["u"])
+    held_out = np.stack([held.metrics[m].astype(float) for m in K.METRICS])
+    np.testing.assert_array_equal(np.nan_to_num(per_step, nan=-7.0), np.nan_to_num(held_out, nan=-7.0))
+
+
 def test_identical_rows_in_a_batch_give_identical_results() -> None:
     spec = {"plant": LAG3, "loops": [{"type": "pid"}], "scenario": {"dt": 0.01, "horizon": 5.0}}
     sim = make(spec)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -92,19 +91,16 @@ def test_penalty_zero_when_met_grows_with_violation_large_when_unstable():
     assert list(pen2[:3]) == [0.0, 0.0, 0.0] and pen2[3] >= UNSTABLE_PENALTY
 
 
-def test_penalty_is_fast_for_a_batched_three_loop_cascade():
+def test_batched_three_loop_penalty_equals_one_at_a_time():
+    # (its speed is a benchmark figure, python bench/bench_verify.py, not a timed test)
     spec, p, lay = setup(MOTOR, MOTOR_LOOPS, 1e-4)
     lin = p.linearize()
     base = lay.from_dict(MOTOR_GAINS)
     G = base * np.exp(np.random.default_rng(0).normal(0, 0.3, size=(64, lay.n_gains)))
     pen = requirement_penalty(spec, p, lay, G, lin)
     assert pen.shape == (64,) and np.all(np.isfinite(pen))
-    best = math.inf
-    for _ in range(7):
-        t0 = time.perf_counter()
-        requirement_penalty(spec, p, lay, G, lin)
-        best = min(best, time.perf_counter() - t0)
-    assert best < 0.020, f"B=64 3-loop penalty took {best * 1e3:.1f} ms"
+    for i in (0, 17, 63):
+        assert requirement_penalty(spec, p, lay, G[i:i + 1], lin)[0] == pytest.approx(pen[i], rel=1e-9, abs=1e-12)
 
 
 def test_vectorised_pid_conversion_matches_pid_params():

@@ -21,9 +21,9 @@ by :mod:`gaintune.sim.kernel`, the C export and the tests:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -32,9 +32,11 @@ from gaintune.spec import LoopSpec
 __all__ = ["PidParams", "pid_params", "pid_tf_coeffs"]
 
 
-@dataclass(frozen=True)
-class PidParams:
-    """Parallel-form PID parameters of one loop (floats, or arrays over a batch)."""
+class PidParams(NamedTuple):
+    """Parallel-form PID parameters of one loop (floats, or arrays over a batch).
+
+    A named tuple rather than a dataclass: it is built on every simulation call.
+    """
 
     Kp: Any
     Ki: Any
@@ -50,8 +52,8 @@ def pid_params(loop: LoopSpec, gains: Mapping[str, Any]) -> PidParams:
     t = loop.type
     has_i, has_d = "i" in t[1:], "d" in t[1:]
     kp = np.asarray(gains.get("Kp", 0.0), dtype=float)
-    zero = np.zeros_like(kp)
-    # (plain arithmetic where no division by zero can occur: this runs once per simulation call)
+    zero = np.zeros(kp.shape)
+    # Few, plain NumPy calls: this runs once per simulation call, also for a single candidate.
     if loop.form == "ideal":
         with np.errstate(divide="ignore", invalid="ignore"):
             ki = kp / np.asarray(gains["Ti"], dtype=float) if has_i else zero
@@ -64,8 +66,9 @@ def pid_params(loop: LoopSpec, gains: Mapping[str, Any]) -> PidParams:
     elif loop.filter.Tf is not None:
         tf = np.where(kd > 0, loop.filter.Tf, 0.0)
     else:
-        tf = np.divide(kd, kp, out=np.zeros_like(kd), where=(kd > 0) & (kp > 0)) / (loop.filter.N or 10.0)
-    tt = np.full_like(kp, np.inf)
+        # Tf = Td/N = Kd/(N*Kp), and 0 (no filter, no derivative) unless both gains are positive
+        tf = np.where((kd > 0) & (kp > 0), kd / ((loop.filter.N or 10.0) * np.where(kp > 0, kp, 1.0)), 0.0)
+    tt: Any = math.inf
     if loop.anti_windup == "back_calculation" and has_i:
         if loop.tracking_time is not None:
             tt = np.full_like(kp, loop.tracking_time)
@@ -73,9 +76,11 @@ def pid_params(loop: LoopSpec, gains: Mapping[str, Any]) -> PidParams:
             ti = np.where(ki > 0, kp / np.where(ki > 0, ki, 1.0), 1.0)
             td = np.where(kp > 0, kd / np.where(kp > 0, kp, 1.0), 0.0)
             tt = np.where(td > 0, np.sqrt(ti * td), ti)
-    scalar = np.ndim(kp) == 0
-    conv = (lambda a: float(a)) if scalar else (lambda a: a)
-    return PidParams(conv(kp), conv(ki), conv(kd), conv(tf), loop.b, loop.c, conv(tt))
+    if kp.ndim == 0:
+        return PidParams(float(kp), float(ki), float(kd), float(tf), loop.b, loop.c, float(tt))
+    if np.ndim(tt) == 0:
+        tt = np.full(kp.shape, tt)
+    return PidParams(kp, ki, kd, tf, loop.b, loop.c, tt)
 
 
 def pid_tf_coeffs(p: PidParams) -> tuple[np.ndarray, np.ndarray]:

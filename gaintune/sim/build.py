@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -129,10 +130,7 @@ class Problem:
         return lins, inverse.ravel()
 
     def plant_arrays(self, draws: Draws, sc: ScenarioSpec) -> dict[str, Any]:
-        B = len(draws)
-        L = len(self.spec.loops)
         lins, inv = self._linear_models(draws)
-        n = self.plant.order
         out: dict[str, Any] = {"lins": lins, "lin_index": inv}
         x_op = np.stack([lin.x0 for lin in lins])[inv].T.copy()
         u_op = np.array([lin.u0 for lin in lins])[inv]
@@ -168,7 +166,6 @@ class Problem:
             # Nonlinear plants use whole-sample delays (rounded), documented in docs/simulation.md.
             out["dsteps"] = np.round(draws.delay / sc.dt).astype(np.int64)
         out.update(x_op=x_op, u_op=u_op, y_op=y_op)
-        _ = (B, L, n)
         return out
 
     def _discretize_cached(self, A: np.ndarray, Bm: np.ndarray, dt: float, delay: np.ndarray):
@@ -187,51 +184,65 @@ class Problem:
                 np.stack([p[2] for p in parts]), np.array([p[3] for p in parts], dtype=np.int64))
 
     # ------------------------------------------------------- controllers
+    def _controller_template(self, B: int) -> dict[str, Any]:
+        """The gain-independent controller arrays for batch size B, built once per size.
+
+        The kernel only reads them, so every call with this B shares them. Only
+        the gain rows are computed per call, which keeps a single simulation cheap.
+        """
+        cache = self.__dict__.setdefault("_ctrl_templates", {})
+        tpl = cache.get(B)
+        if tpl is None:
+            spec = self.spec
+            L = len(spec.loops)
+            bw, cw = np.ones((L, B)), np.ones((L, B))
+            lo, hi = np.full((L, B), -np.inf), np.full((L, B), np.inf)
+            aw = np.zeros(L, dtype=np.int64)
+            for li, loop in enumerate(spec.loops):
+                if loop.is_lq:
+                    aw[li] = AW_CODES["clamping"]
+                    continue
+                bw[li], cw[li] = loop.b, loop.c
+                aw[li] = AW_CODES[loop.anti_windup]
+                if loop.output_limits is not None:
+                    lo[li], hi[li] = loop.output_limits
+            n = self.plant.order
+            tpl = dict(bw=bw, cw=cw, lo=lo, hi=hi, aw=aw, sf=any(lp.is_lq for lp in spec.loops),
+                       K=np.zeros((n, B)), kint=np.zeros(B), nr=np.zeros(B))
+            if len(cache) > 16:
+                cache.clear()
+            cache[B] = tpl
+        return tpl
+
     def controller_arrays(self, full: np.ndarray, plant_arr: dict[str, Any]) -> dict[str, np.ndarray]:
-        spec = self.spec
+        """Kernel controller arrays for B full gain vectors (B, n_gains): PID rows per loop, LQ gains."""
         B = full.shape[0]
-        L = len(spec.loops)
-        n = self.plant.order
-        if not np.isfinite(full).all():
+        # (a NaN or inf gives a non-finite sum; only then is the element-wise check needed)
+        if not math.isfinite(float(full.sum())) and not np.isfinite(full).all():
             raise GainError("gains", "gains must be finite numbers")
-        # One block for the per-loop rows (one allocation; this runs once per simulation call).
-        block = np.zeros((9, L, B))
-        block[5] = 1.0
-        block[7] = -np.inf
-        block[8] = np.inf
-        arrs = dict(zip(("kp", "ki", "kd", "tf", "kb", "bw", "cw", "lo", "hi"), block))
-        aw = np.zeros(L, dtype=np.int64)
-        sf = False
-        K = np.zeros((n, B))
-        kint = np.zeros(B)
-        nr = np.zeros(B)
-        for li, loop in enumerate(spec.loops):
+        arrs = dict(self._controller_template(B))
+        gain_rows = np.zeros((5, len(self.spec.loops), B))  # fresh per call: kp, ki, kd, tf, kb
+        kp, ki, kd, tf, kb = gain_rows
+        arrs.update(kp=kp, ki=ki, kd=kd, tf=tf, kb=kb)
+        for li, loop in enumerate(self.spec.loops):
             cols = {nm: full[:, k] for k, nm in self.loop_columns[li]}
             if loop.is_lq:
-                sf = True
                 lins, inv = plant_arr["lins"], plant_arr["lin_index"]
                 keys = np.concatenate([np.stack(list(cols.values()), 1), inv[:, None].astype(float)], 1)
                 ukeys, kinv = np.unique(keys, axis=0, return_inverse=True)
                 sols = [
                     lq_gains(loop, dict(zip(cols, row[:-1])), lins[int(row[-1])], self.meas[li]) for row in ukeys
                 ]
-                K[:] = np.stack([s.K for s in sols])[kinv.ravel()].T
-                kint[:] = np.array([s.Kint for s in sols])[kinv.ravel()]
-                nr[:] = np.array([s.Nr for s in sols])[kinv.ravel()]
-                aw[li] = AW_CODES["clamping"]
+                arrs.update(
+                    K=np.stack([s.K for s in sols])[kinv.ravel()].T,
+                    kint=np.array([s.Kint for s in sols])[kinv.ravel()],
+                    nr=np.array([s.Nr for s in sols])[kinv.ravel()],
+                )
                 continue
             p = pid_params(loop, cols)
-            arrs["kp"][li] = p.Kp
-            arrs["ki"][li] = p.Ki
-            arrs["kd"][li] = p.Kd
-            arrs["tf"][li] = p.Tf
-            arrs["kb"][li] = 1.0 / np.asarray(p.Tt)  # Tt = inf (no back-calculation) gives 0
-            arrs["bw"][li] = p.b
-            arrs["cw"][li] = p.c
-            aw[li] = AW_CODES[loop.anti_windup]
-            if loop.output_limits is not None:
-                arrs["lo"][li], arrs["hi"][li] = loop.output_limits
-        arrs.update(aw=aw, sf=sf, K=K, kint=kint, nr=nr)
+            kp[li], ki[li], kd[li], tf[li] = p.Kp, p.Ki, p.Kd, p.Tf
+            if loop.anti_windup == "back_calculation":
+                kb[li] = 1.0 / np.asarray(p.Tt)  # Tt = inf (no integral action) gives 0
         return arrs
 
     def fallback_arrays(self, B: int, ctrl: dict[str, np.ndarray], plant_arr: dict[str, Any]) -> dict[str, np.ndarray]:

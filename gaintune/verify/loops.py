@@ -33,6 +33,7 @@ from functools import lru_cache
 import numpy as np
 
 from gaintune.controllers.layout import GainLayout
+from gaintune.controllers.pid import pid_params
 from gaintune.errors import GainError, SpecError
 from gaintune.plants.plant import LinearModel
 from gaintune.spec import TuningSpec
@@ -402,29 +403,9 @@ def _out_index(spec: TuningSpec, lin: LinearModel, i: int) -> int:
 
 
 def pid_arrays(loop, G: np.ndarray, names: list[str]) -> dict[str, np.ndarray]:
-    """Vectorised :func:`gaintune.controllers.pid.pid_params` (G: (B, n_loop_gains))."""
-    col = {nm: G[:, j] for j, nm in enumerate(names)}
-    Bsz = G.shape[0]
-    t = loop.type
-    zeros = np.zeros(Bsz)
-    kp = col.get("Kp", zeros)
-    if loop.form == "ideal":
-        ti = col.get("Ti")
-        td = col.get("Td")
-        ki = kp / ti if ("i" in t[1:] and ti is not None) else zeros
-        kd = kp * td if ("d" in t[1:] and td is not None) else zeros
-    else:
-        ki = col.get("Ki", zeros) if "i" in t[1:] else zeros
-        kd = col.get("Kd", zeros) if "d" in t[1:] else zeros
-    if "d" in t[1:]:
-        if loop.filter.Tf is not None:
-            tf = np.full(Bsz, float(loop.filter.Tf))
-        else:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                tf = np.where(kp > 0, kd / kp / (loop.filter.N or 10.0), 0.0)
-    else:
-        tf = zeros
-    return {"Kp": kp, "Ki": ki, "Kd": kd, "Tf": tf}
+    """:func:`gaintune.controllers.pid.pid_params` over a batch (G: (B, n_loop_gains)), as a dict."""
+    p = pid_params(loop, {nm: G[:, j] for j, nm in enumerate(names)})
+    return {"Kp": p.Kp, "Ki": p.Ki, "Kd": p.Kd, "Tf": p.Tf}
 
 
 def build_cascade(
