@@ -10,7 +10,9 @@ kernels run in one process on the same prebuilt arguments (captured from
 
 * serial kernel, CPU seconds of this thread per simulation (one core; robust to
   other load on the machine), best of interleaved repetitions, at batch 1 and ``--batch``;
-* the speed-up ratio, and whether the two kernels return identical metrics.
+* the speed-up ratio, and whether the two kernels return identical metrics;
+* with ``--parallel-batch N`` (default 4,096), the parallel kernels on all cores at
+  batch N, wall-clock time (the issue's throughput figure, side by side).
 
 The old kernel at ``e0e478f3`` takes a leading ``chunk`` argument; it is passed 64.
 """
@@ -32,16 +34,16 @@ from gaintune.bench import sim as bench_sim
 from gaintune.sim import kernel as new_kernel
 
 
-def _load_old(rev: str):
+def _load_old(rev: str, variant: str = "simulate_kernel_serial"):
     src = subprocess.run(["git", "show", f"{rev}:gaintune/sim/kernel.py"], capture_output=True, text=True, check=True).stdout
     path = Path(tempfile.mkdtemp()) / f"kernel_{rev}.py"
     path.write_text(src)
     spec = importlib.util.spec_from_file_location(f"kernel_{rev}", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    serial = mod.simulate_kernel_serial
+    fn = getattr(mod, variant)
     takes_chunk = "CHUNK" in inspect.signature(mod._kernel).parameters
-    return (lambda *a: serial(64, *a)) if takes_chunk else serial
+    return (lambda *a: fn(64, *a)) if takes_chunk else fn
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -50,6 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--batch", type=int, default=512)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--min-time", type=float, default=0.4)
+    ap.add_argument("--parallel-batch", type=int, default=4096, help="0 skips the parallel rows")
     a = ap.parse_args(argv)
     old = _load_old(a.rev)
     print(f"serial kernel, one core (thread CPU time), old = {a.rev}, new = working tree")
@@ -68,6 +71,24 @@ def main(argv: list[str] | None = None) -> int:
                 t_new.append(bench_sim._per_call(lambda: new(*args), a.min_time, clock=time.thread_time))
             to, tn = min(t_old), min(t_new)
             print(f"| {name} | {B} | {B / to:,.0f} | {B / tn:,.0f} | {1e3 * tn / B:.4f} | {to / tn:.2f}x | {same} |", flush=True)
+    if a.parallel_batch:
+        B = a.parallel_batch
+        old_par = _load_old(a.rev, "simulate_kernel_parallel")
+        print(f"\nparallel kernel, all cores (wall clock), batch {B}")
+        print("| case | old sims/s | new sims/s | speed-up | identical |")
+        print("|---|---:|---:|---:|---|")
+        for name in bench_sim.CASES:
+            case = bench_sim.make_case(name, B)
+            args = bench_sim._capture_kernel_args(case.sim, case.full)
+            new = new_kernel.simulate_kernel_parallel
+            o_old, o_new = old_par(*args), new(*args)
+            same = np.array_equal(np.nan_to_num(o_old, nan=-7.0), np.nan_to_num(o_new, nan=-7.0))
+            t_old, t_new = [], []
+            for _ in range(a.repeat):
+                t_old.append(bench_sim._per_call(lambda: old_par(*args), a.min_time))
+                t_new.append(bench_sim._per_call(lambda: new(*args), a.min_time))
+            to, tn = min(t_old), min(t_new)
+            print(f"| {name} | {B / to:,.0f} | {B / tn:,.0f} | {to / tn:.2f}x | {same} |", flush=True)
     return 0
 
 

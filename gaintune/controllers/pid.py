@@ -44,7 +44,7 @@ class PidParams(NamedTuple):
     Tf: Any
     b: float
     c: float
-    Tt: Any  # back-calculation tracking time (inf when unused)
+    Tt: Any  # back-calculation tracking time (the float inf when unused, also for a batch)
 
 
 def pid_params(loop: LoopSpec, gains: Mapping[str, Any]) -> PidParams:
@@ -78,8 +78,6 @@ def pid_params(loop: LoopSpec, gains: Mapping[str, Any]) -> PidParams:
             tt = np.where(td > 0, np.sqrt(ti * td), ti)
     if kp.ndim == 0:
         return PidParams(float(kp), float(ki), float(kd), float(tf), loop.b, loop.c, float(tt))
-    if np.ndim(tt) == 0:
-        tt = np.full(kp.shape, tt)
     return PidParams(kp, ki, kd, tf, loop.b, loop.c, tt)
 
 
