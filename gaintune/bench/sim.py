@@ -387,7 +387,12 @@ def _memory_worker(name: str, impl: str, batch: int) -> dict[str, Any]:
     """Run in a fresh process: peak RSS above the pre-run level of one batch run."""
     import gc
 
-    warm = make_case(name, 1)
+    # warm up on a small batch that takes the same kernel variant (single, serial or parallel),
+    # so that loading or compiling it is not counted; a small one, so its freed memory cannot
+    # hide the measured run's peak
+    from gaintune.sim.kernel import CHUNK
+
+    warm = make_case(name, min(batch, CHUNK + 1))
     if impl == "kernel":
         warm.sim.run(warm.full)
     else:

@@ -17,16 +17,23 @@ took, each measured on the reference case (see docs/simulation.md):
 * ``_min``/``_max`` as plain selects (numba's builtins block vectorisation);
 * no conditional stores: "store the new value or the old one" turns into a
   masked store, which is microcoded on AMD cores;
-* the stride re-bound inside the ``prange`` body, whose outlined function
-  would otherwise receive it as a runtime argument.
+* the stride, and the measured-output row, re-bound inside the ``prange``
+  body, whose outlined function would otherwise receive them as runtime
+  arguments;
+* every row a stage loop touches at a compile-time distance from one base:
+  the controller loop first copies its setpoint into its own rows, and the
+  applied input is kept in the chunk state (``F_U``) beside the delay line.
+  Runtime-offset rows left LLVM with memory checks that cost the controller
+  loop its speed (1.4x per core on the reference case).
 
 Per-step work is trimmed where results are unchanged bit for bit: a plant
 identical across a chunk (many gain sets on the nominal plant) is read as
 scalars and its zero entries skipped; the measured output is the true output
 when there is no noise; disturbance, fractional-delay and feedthrough terms are
-only computed when present. A batch of one runs on a single-lane variant of the
-same source (``CHUNK = 1``), where every stage loop collapses to straight-line
-code.
+only computed when present; a signal shared by the chunk is evaluated again only
+when one of its pieces starts or ends, or while a ramp is active. A batch of one
+runs on a single-lane variant of the same source (``CHUNK = 1``, a compile-time
+lane count), where every stage loop collapses to straight-line code.
 
 The discrete-time controller law is documented in :mod:`gaintune.controllers.pid`;
 the plant update is exact ZOH with a fractional input delay for LTI plants,
