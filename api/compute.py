@@ -110,9 +110,6 @@ class _Store:
     def __init__(self, key: str, obj: Any) -> None:
         self.key, self.obj = key, obj
 
-    def __reduce__(self):
-        return (_Store, (self.key, self.obj))
-
 
 class _Ref:
     """An argument the worker has remembered under ``key``."""
@@ -121,9 +118,6 @@ class _Ref:
 
     def __init__(self, key: str) -> None:
         self.key = key
-
-    def __reduce__(self):
-        return (_Ref, (self.key,))
 
 
 def _lru_touch(known: "OrderedDict[str, Any]", key: str, obj: Any = None, store: bool = False) -> None:
@@ -151,8 +145,6 @@ def _resolve(args: tuple, known: "OrderedDict[str, Any]") -> tuple:
 def _worker_main(conn, parent: int) -> None:
     """A compute worker: warm up, report ``("warm", pid)``, then answer ``(fn, args)`` messages with
     ``("ok", fn(*args))`` (or ``("exc", exception)``) until an empty message or EOF."""
-    import pickle
-
     _init_worker(parent)
     try:
         conn.send_bytes(pickle.dumps(("warm", warm_up_compute()), pickle.HIGHEST_PROTOCOL))
@@ -308,6 +300,14 @@ class ComputePool:
             w.known.pop(w.pending_key, None)  # resend it in full next time (heals a broken mirror)
         self._release(w)
 
+    @staticmethod
+    def _settle(w: _Worker, warm_error: str) -> None:
+        """A retired worker: its request gets None (computed in a thread), an unfinished warm-up fails."""
+        if w.pending is not None and not w.pending.done():
+            w.pending.set_result(None)
+        if not w.warm.done():
+            w.warm.set_exception(RuntimeError(warm_error))
+
     def _lost(self, w: _Worker) -> None:
         """A worker died (or its pipe broke): answer its request with None and start a new one."""
         if w not in self._workers:
@@ -316,10 +316,7 @@ class ComputePool:
         self._loop.remove_reader(w.conn.fileno())
         w.conn.close()
         w.proc.join(timeout=0.1)
-        if w.pending is not None and not w.pending.done():
-            w.pending.set_result(None)
-        if not w.warm.done():
-            w.warm.set_exception(RuntimeError("compute worker died during warm-up"))
+        self._settle(w, "compute worker died during warm-up")
         i = self._workers.index(w)
         self._workers[i] = self._spawn()
         self.restarts += 1
@@ -343,10 +340,7 @@ class ComputePool:
                 w.proc.kill()
                 w.proc.join(timeout=5)
             w.conn.close()
-            if w.pending is not None and not w.pending.done():
-                w.pending.set_result(None)
-            if not w.warm.done():
-                w.warm.set_exception(RuntimeError("compute pool shut down"))
+            self._settle(w, "compute pool shut down")
         while self._waiters:
             f = self._waiters.popleft()
             if not f.done():

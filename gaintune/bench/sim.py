@@ -250,8 +250,11 @@ def prepare_numpy(sim: Any, full: np.ndarray, scenario: int = 0) -> dict[str, An
     sc = spec.scenarios[scenario]
     full = np.atleast_2d(np.asarray(full, dtype=float))
     B = full.shape[0]
-    d = sim.nominal_draws(B)
-    pa, sg = sim.problem.plant_arrays(d, sc), sim.problem.signal_arrays(d, sc)
+    prep = sim._prepared(sim.nominal_draws(B), sc)  # the kernel's own gain-independent arguments
+    pa = prep["pa"]
+    sk0, sk1, soff, sslope, _ = prep["signals"]
+    max_err, max_out, xb, bound, _, u_safe = prep["safety"]
+    target, k_step, _ = prep["anchors"]
     ca = sim.problem.controller_arrays(full, pa)
     if ca["sf"]:
         raise NotImplementedError("numpy_rollout: LQ loops are not supported")
@@ -262,17 +265,14 @@ def prepare_numpy(sim: Any, full: np.ndarray, scenario: int = 0) -> dict[str, An
     sf = spec.safety
     if sf.action != "hold":
         raise NotImplementedError("numpy_rollout: only the 'hold' safety action is supported")
-    xb = np.full(sim.plant.order, np.inf)
-    for name, bound in sf.state_bounds.items():
-        xb[sim.plant.states.index(name)] = bound
     T, dt = sc.n_steps, sc.dt
     L = len(spec.loops)
-    lo, hi = spec.actuator.limits if spec.actuator.limits is not None else (-np.inf, np.inf)
+    lo, hi = prep["u_lo"][0], prep["u_hi"][0]  # nominal draws: the spec's limits
     clo, chi = ca["lo"].copy(), ca["hi"].copy()
     clo[L - 1], chi[L - 1] = lo, hi
     k = np.arange(T)
     # reference, shared by the candidates (nominal draws): (T,) + operating point
-    k0, k1, off, slope = sg["sk0"][0, :, 0], sg["sk1"][0, :, 0], sg["soff"][0, :, 0], sg["sslope"][0, :, 0]
+    k0, k1, off, slope = sk0[0, :, 0], sk1[0, :, 0], soff[0, :, 0], sslope[0, :, 0]
     act = (k[:, None] >= k0[None, :]) & (k[:, None] < k1[None, :])
     r = (act * (off[None, :] + slope[None, :] * (k[:, None] - k0[None, :]) * dt)).sum(axis=1) + pa["y_op"][0, 0]
     y_op = pa["y_op"][:, 0]
@@ -283,11 +283,11 @@ def prepare_numpy(sim: Any, full: np.ndarray, scenario: int = 0) -> dict[str, An
     out: dict[str, Any] = dict(
         T=T, dt=dt, L=L, B=B, kp=ca["kp"], ki=ca["ki"], al=tf / (tf + dt), be=ca["kd"] / (tf + dt),
         bw=ca["bw"], cw=ca["cw"], kb=ca["kb"], lo=clo, hi=chi, aw=ca["aw"], meas=np.array(sim.problem.meas),
-        r=r, rate=spec.actuator.rate_limit or np.inf, u_lo=lo, u_hi=hi, u_op=float(pa["u_op"][0]),
-        target=float(sg["target"][0] + pa["y_op"][0, 0]), k_step=int(sg["k_step"][0]),
-        x0=np.repeat(pa["x_op"][:, :1], B, axis=1), I0=I0, bound=spec.safety.divergence_bound,
-        max_err=sf.max_abs_error or np.inf, max_out=sf.max_abs_output or np.inf, xb=xb[:, None],
-        monitor=bool(sf.max_abs_error or sf.max_abs_output or sf.state_bounds), u_safe=spec.actuator.safe_value,
+        r=r, rate=prep["rate"], u_lo=lo, u_hi=hi, u_op=float(pa["u_op"][0]),
+        target=float(target[0]), k_step=int(k_step[0]),
+        x0=np.repeat(pa["x_op"][:, :1], B, axis=1), I0=I0, bound=bound,
+        max_err=max_err, max_out=max_out, xb=xb[:, None],
+        monitor=bool(sf.max_abs_error or sf.max_abs_output or sf.state_bounds), u_safe=u_safe,
         rhs=None, out=None, Ad=None, G0=None, Cm=None,
     )
     if sim.plant.kind == "lti":

@@ -69,12 +69,15 @@ class Simulator:
         h = hashlib.blake2b(digest_size=16)
         for name in Draws.__dataclass_fields__:
             h.update(np.ascontiguousarray(getattr(d, name)).tobytes())
-        key = (h.hexdigest(), sc.model_dump_json())
+        return self._memoised((h.hexdigest(), sc.model_dump_json()), lambda: self._prepare(d, sc))
+
+    def _memoised(self, key: tuple, build) -> dict:
+        """The prepared arguments under ``key``, built on a miss (the memo is bounded)."""
         hit = self._memo.get(key)
         if hit is None:
             if len(self._memo) > 64:
                 self._memo.clear()
-            hit = self._memo[key] = self._prepare(d, sc)
+            hit = self._memo[key] = build()
         return hit
 
     def _prepare(self, d: Draws, sc: ScenarioSpec) -> dict:
@@ -127,13 +130,8 @@ class Simulator:
         B = full.shape[0]
         sc = self.spec.scenarios[scenario] if isinstance(scenario, int) else scenario
         if draws is None and isinstance(scenario, int):
-            # nominal draws: a fast path without hashing (the single-simulation case)
-            key = ("nominal", B, scenario)
-            prep = self._memo.get(key)
-            if prep is None:
-                if len(self._memo) > 64:
-                    self._memo.clear()
-                prep = self._memo[key] = self._prepare(self.nominal_draws(B), sc)
+            # nominal draws: keyed without hashing them (the single-simulation case)
+            prep = self._memoised(("nominal", B, scenario), lambda: self._prepare(self.nominal_draws(B), sc))
         else:
             d = draws if draws is not None else self.nominal_draws(B)
             if len(d) != B:

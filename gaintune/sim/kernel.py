@@ -234,16 +234,16 @@ def _run_tape(op, ta, tb, to, tc, inp, w, out, m):
 # layout measured about 3x faster per core on the reference case.
 
 # Per-candidate scalar fields: rows 0 .. N_F-1.
-(F_UPREV, F_ALIVE, F_TRIP, F_Z, F_Y0, F_SPAN, F_INVSPAN, F_PEAK, F_T10, F_T90, F_LAST, F_ULO, F_UHI,
- F_UOP, F_KST, F_KLD, F_R, F_DIN, F_DOUT, F_UA, F_UB, F_U) = map(_U, range(22))
-N_F = _U(22)
+(F_UPREV, F_ALIVE, F_TRIP, F_Z, F_Y0, F_INVSPAN, F_PEAK, F_T10, F_T90, F_LAST, F_ULO, F_UHI,
+ F_UOP, F_KST, F_KLD, F_R, F_DIN, F_DOUT, F_UA, F_UB, F_U) = map(_U, range(21))
+N_F = _U(21)
 #: Metric accumulators: rows A0 + metric index.
 A0 = N_F
 #: Per-loop fields: rows LP0 + loop * N_P + field.
 LP0 = A0 + _U(len(METRICS))
-(P_YM, P_YT, P_I, P_D, P_EDP, P_AWE, P_VOUT, P_SP, P_KP, P_KI, P_KD, P_KB, P_AL, P_BE, P_BW, P_CW,
- P_LO, P_HI) = map(_U, range(18))
-N_P = _U(18)
+(P_YM, P_YT, P_I, P_D, P_EDP, P_AWE, P_VOUT, P_SP, P_KP, P_KI, P_KB, P_AL, P_BE, P_BW, P_CW,
+ P_LO, P_HI) = map(_U, range(17))
+N_P = _U(17)
 _1 = _U(1)
 
 
@@ -400,7 +400,6 @@ def _kernel(
                 p = (LP0 + l * N_P) * C + j
                 S[p + P_KP * C] = kp[l, b]
                 S[p + P_KI * C] = ki[l, b] * dt  # stored times dt: one multiply less per step
-                S[p + P_KD * C] = kd[l, b]
                 S[p + P_KB * C] = kb[l, b] * dt
                 S[p + P_AL * C] = tf[l, b] / (tf[l, b] + dt)
                 S[p + P_BE * C] = kd[l, b] / (tf[l, b] + dt)
@@ -472,22 +471,13 @@ def _kernel(
                 for l in range(uL):
                     dl = dist_out_loops[l]
                     yt = (LP0 + l * N_P + P_YT) * C
-                    single = shared_plant and CHUNK == 1
-                    if single and m > 0:
-                        # one lane: the same sum, accumulated in a register
-                        v = dl * S[F_DOUT] if has_sig[2] else 0.0
-                        for i in range(un):
-                            cli = Cm[l, i, b0]
-                            if cli != 0.0:
-                                v += cli * S[xa + i]
-                        S[yt] = v
-                    elif has_sig[2]:
+                    if has_sig[2]:
                         for j in range(m):
                             S[yt + j] = dl * S[F_DOUT * C + j]
                     else:
                         for j in range(m):
                             S[yt + j] = 0.0
-                    for i in range(0 if single else un):
+                    for i in range(un):
                         xi = (xa + i) * C
                         if shared_plant:
                             cli = Cm[l, i, b0]
@@ -708,18 +698,6 @@ def _kernel(
                     xi = (xa + i) * C
                     for j in range(m):
                         S[(xb + i) * C + j] = S[xi + j] + dt / 6.0 * (k1[i, j] + 2.0 * k2[i, j] + 2.0 * k3[i, j] + k4[i, j])
-            elif shared_plant and CHUNK == 1:
-                # one lane: the same sums, accumulated in a register instead of through memory
-                if m > 0:
-                    for i in range(un):
-                        v = G0[i, b0] * S[F_UA]
-                        if has_G1:
-                            v = G0[i, b0] * S[F_UA] + G1[i, b0] * S[F_UB]
-                        for q in range(un):
-                            a = Ad[i, q, b0]
-                            if a != 0.0:
-                                v += a * S[xa + q]
-                        S[xb + i] = v
             elif shared_plant:
                 for i in range(un):
                     xn = (xb + i) * C
@@ -814,19 +792,16 @@ def _compile(parallel: bool, lanes: int = CHUNK, name: str = ""):
 #: Parallel over chunks (large batches) and serial (small batches: no thread start-up cost).
 simulate_kernel_parallel = _compile(True, name="simulate_kernel_parallel")
 simulate_kernel_serial = _compile(False, name="simulate_kernel_serial")
-#: One lane per chunk: every per-lane loop collapses to straight-line code, so a
-#: single simulation runs as one fused scalar pass per time step (no loop set-up
-#: or overlap checks per stage). Same source, so the same control law.
+#: One lane per chunk, a compile-time count: every per-lane loop collapses to
+#: straight-line code (no loop set-up or overlap checks per stage). Same source,
+#: so the same control law.
 simulate_kernel_single = _compile(False, lanes=1, name="simulate_kernel_single")
-
-#: Batches up to this size run lane by lane on :data:`simulate_kernel_single`.
-SINGLE_MAX = 1
 
 
 def simulate_kernel(*args):
-    """Run the kernel: lane by lane for tiny batches, serially for one chunk, else in parallel."""
+    """Run the kernel: the single-lane variant for one candidate, serially for one chunk, else in parallel."""
     B = args[24].shape[0]  # u_op
-    if B <= SINGLE_MAX:
+    if B == 1:
         return simulate_kernel_single(*args)
     fn = simulate_kernel_parallel if B > CHUNK else simulate_kernel_serial
     return fn(*args)

@@ -35,7 +35,13 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from gaintune.plants.plant import LinearModel
-from gaintune.verify.loops import Cascade, _schur, observable_part, pade_response
+from gaintune.verify.loops import (
+    Cascade,
+    _schur,
+    observable_part,
+    pade_response,
+    plant_eigvals,
+)
 from gaintune.verify.tail import INNER_LEVEL, chain_ss, level_clear, series, tail_levels
 
 __all__ = ["DelayModel", "BreakFigures", "Analysis", "analyse"]
@@ -123,18 +129,8 @@ class Analysis:
 # ------------------------------------------------------------------ helpers
 
 
-_EIG_CACHE: dict[int, tuple[LinearModel, np.ndarray]] = {}
-
-
 def _plant_eig_abs(lin: LinearModel) -> list[float]:
-    hit = _EIG_CACHE.get(id(lin))
-    if hit is not None and hit[0] is lin:
-        return list(hit[1])
-    v = np.abs(np.linalg.eigvals(lin.A)) if lin.A.size else np.zeros(0)
-    if len(_EIG_CACHE) > 512:
-        _EIG_CACHE.clear()
-    _EIG_CACHE[id(lin)] = (lin, v)
-    return list(v)
+    return list(np.abs(plant_eigvals(lin)))
 
 
 def _char_freqs(cas: Cascade, lin: LinearModel, delay: DelayModel) -> np.ndarray:
@@ -334,12 +330,18 @@ def _zoom_roots(ev: _Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray
     return np.exp(c), Lc
 
 
+def _figure_values(S: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Row i of S = 1/(1 + L): |S| (q_i = 0), |T| = |L S| = |1 - S| (1) or |S - 1/2| (2, 1/disk alpha); NaN -> inf."""
+    with np.errstate(invalid="ignore"):
+        V = np.abs(np.where((q == 0)[:, None], S, np.where((q == 1)[:, None], 1.0 - S, S - 0.5)))
+    return np.where(V == V, V, np.inf)
+
+
 def _peak_values(Z: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Row i of Z: |S| (q_i = 0), |T| = |L S| (1) or |S - 1/2| (2, 1/disk alpha), S = 1/(1 + L); NaN -> inf."""
+    """:func:`_figure_values` of the loop responses Z (row i for figure q_i)."""
     with np.errstate(divide="ignore", invalid="ignore"):
         S = 1.0 / (1.0 + Z)
-        V = np.abs(np.where((q == 0)[:, None], S, np.where((q == 1)[:, None], 1.0 - S, S - 0.5)))  # |L S| = |1 - S|
-    return np.where(V == V, V, np.inf)
+    return _figure_values(S, q)
 
 
 def _zoom_peaks(ev: _Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray, q: np.ndarray, rounds: int = 3):
@@ -624,8 +626,7 @@ def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names
     q = np.repeat(np.arange(3), R)
     with np.errstate(divide="ignore", invalid="ignore"):
         S = 1.0 / (1.0 + L)
-        V = np.abs(np.concatenate([S, 1.0 - S, S - 0.5]))  # (3R, W), figure-major; |L S| = |1 - S|
-    V = np.where(V == V, V, np.inf)
+    V = _figure_values(np.tile(S, (3, 1)), q)  # (3R, W), figure-major
     jj = np.argmax(V, axis=1)
     Vmax = V[np.arange(3 * R), jj]
     Vj = [Vmax[qi * R : (qi + 1) * R] for qi in range(3)]
@@ -746,7 +747,7 @@ def _stability(ev: _Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel
         if nyq != rhp_poles:
             notes.append(f"Nyquist count ({nyq}) differs from the pole count ({rhp_poles}); poles decide")
     if unobs.size:
-        tol = 1e-9 * max(1.0, float(np.max(np.abs(np.linalg.eigvals(lin_full.A)))))
+        tol = 1e-9 * max(1.0, float(np.max(np.abs(plant_eigvals(lin_full)))))
         bad = unobs[unobs.real > tol]
         marginal = unobs[np.abs(unobs.real) <= tol]
         if bad.size:

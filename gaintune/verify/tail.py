@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.linalg.lapack import dgebal
 
 from gaintune.plants.plant import LinearModel
 from gaintune.verify.loops import controller_state_index
@@ -141,15 +142,13 @@ _AXIS_TOL = 1e-6
 
 
 def _balance(A: np.ndarray) -> np.ndarray:
-    """Diagonal scaling d (powers of 2) with D^-1 A D balanced (LAPACK gebal, no permutation); ones if unavailable."""
-    try:
-        from scipy.linalg.lapack import dgebal
+    """Diagonal scaling d (powers of 2) with D^-1 A D balanced (LAPACK gebal, no permutation); ones if it fails.
 
-        _, _, _, d, info = dgebal(A, scale=1, permute=0)
-        if info == 0 and np.all(np.isfinite(d)) and np.all(d > 0):
-            return d
-    except ImportError:  # pragma: no cover - scipy is a dependency
-        pass
+    (LAPACK directly rather than ``scipy.linalg.matrix_balance``: only the scaling is needed, per call.)
+    """
+    _, _, _, d, info = dgebal(A, scale=1, permute=0)
+    if info == 0 and np.all(np.isfinite(d)) and np.all(d > 0):
+        return d
     return np.ones(A.shape[0])
 
 
