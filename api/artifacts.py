@@ -6,13 +6,12 @@ Missing modules give 501 problems rather than import errors at start-up.
 from __future__ import annotations
 
 import importlib
-import inspect
 from pathlib import Path
 from typing import Any
 
 from api.problems import ApiError
 
-__all__ = ["render_report", "export_gains", "EXPORT_MEDIA"]
+__all__ = ["render_report", "export_gains", "export_verdict", "EXPORT_MEDIA"]
 
 EXPORT_MEDIA = {
     "json": ("application/json", "json"),
@@ -38,14 +37,23 @@ def render_report(result: Any, path: Path) -> Path:
     return Path(out) if isinstance(out, (str, Path)) else path
 
 
-def export_gains(result: Any, fmt: str) -> str | bytes:
-    """Text of ``result``'s gains in ``fmt`` via :mod:`gaintune.export`."""
+def export_verdict(result: Any, dt: float | None, max_steps: int | None = None) -> tuple[str | None, Any]:
+    """``(verdict, report)`` of ``result``'s gains at sample time ``dt`` (re-verified unless it is the
+    verified one), via :func:`gaintune.export.result_verdict_at_dt`. Raises its ``ExportError`` for a bad ``dt``."""
     mod = _module("gaintune.export", "Gain export")
-    for name in ("export_result", "export_gains", "export", "render", "dumps", "to_format"):
-        fn = getattr(mod, name, None)
-        if callable(fn) and not inspect.isclass(fn):
-            return fn(result, fmt)
-    per_format = getattr(mod, f"to_{fmt}", None)
-    if callable(per_format):
-        return per_format(result)
-    raise ApiError(501, "Gain export is not available in this installation (no export function in gaintune.export).")
+    fn = getattr(mod, "result_verdict_at_dt", None)
+    if fn is None:
+        raise ApiError(501, "Gain export is not available in this installation (gaintune.export.result_verdict_at_dt missing).")
+    return fn(result, dt, max_steps=max_steps)
+
+
+def export_gains(result: Any, fmt: str, dt: float | None = None, checked: tuple[str | None, Any] | None = None) -> str | bytes:
+    """Text of ``result``'s gains in ``fmt`` at sample time ``dt`` via :mod:`gaintune.export`.
+
+    ``checked``: the ``(verdict, report)`` of :func:`export_verdict` for the same ``dt``.
+    """
+    mod = _module("gaintune.export", "Gain export")
+    fn = getattr(mod, "export_result", None)
+    if callable(fn):
+        return fn(result, fmt, dt=dt, checked=checked)
+    raise ApiError(501, "Gain export is not available in this installation (gaintune.export.export_result missing).")

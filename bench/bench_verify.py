@@ -17,7 +17,7 @@ import numpy as np
 from gaintune.controllers.layout import GainLayout
 from gaintune.plants.plant import build_plant
 from gaintune.spec import load_spec
-from gaintune.verify import requirement_penalty, verify
+from gaintune.verify import requirement_violation, verify
 
 R, Lm, J, b, Kt = 1.0, 0.01, 0.01, 0.001, 0.5
 
@@ -90,7 +90,7 @@ def main() -> None:
         print(f"verify {label:<15} incl. plant build: mean {mean:6.1f} ms  p95 {p95:6.1f} ms")
         full = np.tile(layout.from_dict(gains), (64, 1)) * np.exp(np.random.default_rng(0).normal(0, 0.3, (64, layout.n_gains)))
         lin = plant.linearize()
-        mean, p95 = _time(lambda: requirement_penalty(spec, plant, layout, full, lin), args.repeat)
+        mean, p95 = _time(lambda: requirement_violation(spec, plant, layout, full, lin), args.repeat)
         print(f"quick penalty B=64 {label:<15}: mean {mean:6.1f} ms  p95 {p95:6.1f} ms")
 
 

@@ -251,6 +251,14 @@ def _write_outputs(result, out_dir: Path, console: Console = out) -> None:
     render_report(result, out_dir / "report.html")
     paths = write_exports(result, out_dir)
     console.print(f"wrote {out_dir / 'result.json'}, {out_dir / 'report.html'}, " + ", ".join(str(p) for p in paths))
+    withheld = getattr(paths, "withheld", [])
+    if withheld:
+        why = getattr(paths, "reason", None) or "no reason recorded"
+        verdict = getattr(paths, "verdict", None) or "unverified"
+        console.print(f"not written: {', '.join(withheld)} - the gains are not accepted (verdict {verdict}: {why}); "
+                      "gains.json/gains.yaml are marked accepted: false", markup=False, highlight=False)
+        for p in getattr(paths, "removed", []):
+            console.print(f"removed stale {p} from an earlier run", markup=False, highlight=False)
 
 
 def _get_tune() -> Callable:
@@ -533,30 +541,64 @@ def plants_show(name: str = typer.Argument(..., help="Model name, e.g. dc_motor.
 @app.command()
 @handle_errors
 def export(
-    result_path: Path = typer.Argument(..., metavar="RESULT.json", help="A result.json (or a spec with --gains)."),
+    result_path: Path = typer.Argument(..., metavar="RESULT.json", help="A result.json written by 'gaintune tune --out'."),
     fmt: str = typer.Option("json", "--format", "-f", help="json | yaml | c | matlab | python"),
-    dt: Optional[float] = typer.Option(None, "--dt", help="Sample time of the discrete controller (default: the first scenario's dt)."),
+    dt: Optional[float] = typer.Option(
+        None, "--dt",
+        help="Sample time (s) of the exported discrete controller. Default: the dt the result was verified at "
+             "(its largest scenario dt). At any other dt the gains are re-verified first, at that dt."),
     output: Optional[Path] = typer.Option(None, "--output", "-o", help="File to write (default: stdout)."),
-    force: bool = typer.Option(False, "--force", help="Export gains that FAILED verification (they are marked FAILED in the file)."),
+    allow_unverified: bool = typer.Option(
+        False, "--allow-unverified",
+        help="Export gains whose verdict at this dt is not PASS (the file is then marked FAILED, with the reason)."),
+    force: bool = typer.Option(False, "--force", hidden=True, help="Old name of --allow-unverified."),
 ) -> None:
-    """Export the gains of a result as JSON, YAML, a C header, a MATLAB/Octave snippet or a Python dict."""
-    from gaintune.export import FORMATS, export_result
+    """Export the gains of a result as JSON, YAML, a C header, a MATLAB/Octave snippet or a Python dict.
+
+    The file carries the verification verdict AT the exported sample time: at the dt the result was
+    verified at, the stored verdict; at any other --dt, the gains are re-verified at that dt first.
+    Exit 3 (nothing written) when that verdict is not PASS, unless --allow-unverified.
+    """
+    from gaintune.export import FORMATS, export_result, first_reason, result_verdict_at_dt, verified_dt
+    from gaintune.spec import TuningSpec
 
     fmt = fmt.lower()
     if fmt not in FORMATS:
         raise InputError("format", f"unknown format {fmt!r}; choose from {', '.join(FORMATS)}")
     result = load_result(result_path)
-    if result.verdict == "fail" and not force:
-        err.print("error: these gains FAILED verification and are not accepted; use --force to export them anyway "
-                  "(the file is then marked FAILED)", markup=False)
+    spec = TuningSpec.model_validate(result.spec)
+    vdt = verified_dt(spec)
+    at = vdt if dt is None else dt
+    checked = result_verdict_at_dt(result, at)  # ExportError("dt", ...) -> exit 2
+    verdict, report = checked
+    reverified = report is not result.verification
+    if reverified:
+        was = f"the result was verified at dt = {vdt:g} s" if result.verdict is not None else "the result was not verified"
+        err.print(f"re-verified at dt = {at:g} s ({was}): {'PASS' if verdict == 'pass' else 'FAILED'}",
+                  markup=False, highlight=False)
+    if verdict != "pass" and not (allow_unverified or force):
+        reason = first_reason(report) or "no reason recorded in the verification report"
+        label = "FAILED verification" if verdict == "fail" else f"are not verified (verdict: {verdict})"
+        hint = ("" if _close(at, vdt) or result.verdict is None
+                else f" They were verified at dt = {vdt:g} s ({result.verdict}), not at this sample time.")
+        err.print(
+            f"error: not exporting: at dt = {at:g} s these gains {label}: {reason}.{hint} "
+            f"Re-tune at dt = {at:g} s (set scenarios[].dt: {at:g} in the spec and run 'gaintune tune'), "
+            "or pass --allow-unverified to export them anyway (the file is then marked FAILED).",
+            markup=False, highlight=False,
+        )
         raise typer.Exit(EXIT_VERIFY)
-    text = export_result(result, fmt, dt=dt)
+    text = export_result(result, fmt, dt=at, checked=checked)
     if output is None:
         sys.stdout.write(text)
     else:
         output.parent.mkdir(parents=True, exist_ok=True)
         output.write_text(text)
         err.print(f"wrote {output}")
+
+
+def _close(a: float, b: float) -> bool:
+    return math.isclose(a, b, rel_tol=1e-9, abs_tol=0.0)
 
 
 @app.command()

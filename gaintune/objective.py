@@ -1,4 +1,4 @@
-"""Cost of a gain set: performance vs effort plus penalties, over scenarios and plant draws.
+"""The one evaluation path: gains in, plain cost and requirement violation out.
 
 Per scenario::
 
@@ -9,42 +9,108 @@ Per scenario::
 ``perf`` is IAE, ISE or ITAE of the outer loop. Scenario costs are summed by
 scenario weight. A diverged simulation costs :data:`DIVERGED_COST`. With
 several plant draws per gain set (robust mode) the draws are aggregated by
-their mean, worst case or CVaR. The search objective multiplies the cost by
-``1 + margin_weight * requirement_penalty`` (:func:`penalized`), so every
-optimiser is steered to gains that pass verification and compares like with like.
+their mean, worst case or CVaR.
 
-:class:`Evaluator` is the one batched cost function that the RL search, the
-black-box baselines and the reference optimum all share.
+The spec's requirements (and closed-loop stability) are **constraints**, not
+terms of the cost. :meth:`Evaluator.evaluate` returns both, as :class:`Scores`:
+the plain cost and a non-negative *violation* (0 when every requirement holds on
+the nominal plant and every corner of the randomisation box, graded otherwise,
+see :func:`gaintune.verify.quick.requirement_violation`). Every consumer ranks
+candidates the same way, **feasibility first** (:attr:`Scores.merit`):
+
+1. a feasible candidate always ranks above an infeasible one;
+2. among feasible candidates the plain cost decides;
+3. among infeasible candidates the violation decides.
+
+The RL reward (:mod:`gaintune.envs.problem`), every optimiser
+(:mod:`gaintune.baselines`), the reference optimum, the search monitor and the
+final answer all call :meth:`Evaluator.evaluate`; tables, reports and the API
+show the plain cost, never a penalised figure.
 """
 
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
+
 import numpy as np
 
-from gaintune.plants.plant import Plant
+from gaintune.plants.plant import LinearModel, Plant
 from gaintune.sim import SimResult, Simulator
 from gaintune.sim import draws as draws_mod
 from gaintune.sim.draws import Draws
 from gaintune.spec import ObjectiveSpec, ScenarioSpec, TuningSpec
 
-__all__ = ["DIVERGED_COST", "MAX_PENALTY_CORNERS", "scenario_cost", "aggregate", "penalized", "Evaluator"]
+__all__ = [
+    "DIVERGED_COST",
+    "INFEASIBLE_MERIT",
+    "DIVERGED_VIOLATION",
+    "TRIP_VIOLATION",
+    "MAX_PENALTY_CORNERS",
+    "Scores",
+    "scenario_cost",
+    "aggregate",
+    "merit",
+    "Evaluator",
+]
 
 #: Cost given to a diverged run: finite, so optimisers can rank it, and far above any real cost.
 DIVERGED_COST = 1e6
-#: At most this many corners of the randomisation box enter the requirement penalty.
+#: Merit of an infeasible candidate is this plus its violation: above every feasible cost.
+INFEASIBLE_MERIT = 1e7
+#: Smallest violation of a run whose simulation diverged (as an unstable closed loop).
+DIVERGED_VIOLATION = 10.0
+#: Violation added when the safety monitor tripped (a trip is never an acceptable answer).
+TRIP_VIOLATION = 1.0
+#: At most this many corners of the randomisation box enter the violation.
 MAX_PENALTY_CORNERS = 8
-#: How far inside the spec's limits the search aims (the penalty is an estimate; verification is exact).
-DESIGN_MARGIN = {"gm_db": 0.5, "pm_deg": 2.0, "dm_factor": 1.05, "peak_factor": 0.97}
 
 
-def penalized(cost: np.ndarray, penalty: np.ndarray, weight: float) -> np.ndarray:
-    """The search objective: ``cost * (1 + weight * penalty)``; equal to the cost when the requirements hold.
+def merit(cost: np.ndarray, violation: np.ndarray) -> np.ndarray:
+    """Feasibility-first scalar (lower is better): the cost when feasible, else INFEASIBLE_MERIT + violation.
 
-    ``penalty`` is the cheap requirement estimate of :func:`gaintune.verify.quick.requirement_penalty`
-    (0 when every requirement passes). Diverged runs stay at DIVERGED_COST.
+    Every optimiser here (CMA-ES, DE, Nelder-Mead, random search, the monitor's best-so-far)
+    only compares values, so this scalar encodes the ranking exactly.
     """
-    out = np.minimum(cost * (1.0 + weight * np.asarray(penalty)), DIVERGED_COST)
-    return np.where(cost >= DIVERGED_COST, DIVERGED_COST, out)
+    cost = np.asarray(cost, dtype=float)
+    violation = np.asarray(violation, dtype=float)
+    return np.where(violation > 0, INFEASIBLE_MERIT + violation, np.minimum(cost, DIVERGED_COST))
+
+
+@dataclass
+class Scores:
+    """Scores of B gain sets from :meth:`Evaluator.evaluate`.
+
+    Attributes
+    ----------
+    cost
+        (B,) plain cost aggregated over the robust draws; DIVERGED_COST when any draw diverged.
+    violation
+        (B,) requirement violation, >= 0; 0 means feasible.
+    diverged, tripped
+        (B,) any draw diverged / tripped the safety monitor.
+    metrics
+        First scenario's metrics of each gain set's first draw, each (B,).
+    results
+        The raw per-scenario simulation results (B*K rows, draw-major per gain set).
+    """
+
+    cost: np.ndarray
+    violation: np.ndarray
+    diverged: np.ndarray
+    tripped: np.ndarray
+    metrics: dict[str, np.ndarray]
+    results: list[SimResult]
+
+    @property
+    def feasible(self) -> np.ndarray:
+        """(B,) bool: every requirement met, stable, not diverged, no trip."""
+        return self.violation <= 0
+
+    @property
+    def merit(self) -> np.ndarray:
+        """(B,) feasibility-first scalar, see :func:`merit`."""
+        return merit(self.cost, self.violation)
 
 
 def scenario_cost(m: dict[str, np.ndarray], obj: ObjectiveSpec, sc: ScenarioSpec) -> np.ndarray:
@@ -73,12 +139,13 @@ def aggregate(costs: np.ndarray, how: str, alpha: float = 0.2) -> np.ndarray:
 
 
 class Evaluator:
-    """Batched cost of tuned-gain vectors for one spec.
+    """Batched cost and requirement violation of tuned-gain vectors for one spec.
 
     Each gain set is simulated on every scenario and on K plant draws (K =
-    ``spec.search.robust.samples``; K = 1 uses the nominal plant). The draws are
-    fixed at construction (common random numbers), so the cost is a
-    deterministic function of the gains: what the optimisers need.
+    ``spec.search.robust.samples``; K = 1 uses the nominal plant). The default
+    draws are fixed at construction (common random numbers), so the scores are a
+    deterministic function of the gains: what the optimisers need. The RL
+    environments pass their own episode draws.
 
     Attributes
     ----------
@@ -106,21 +173,20 @@ class Evaluator:
                 draws = self.sim.nominal_draws(1)
         self.draws = draws
         self.n_sims = 0
+        self._constraint_models: list[LinearModel] | None = None
 
     @property
     def dim(self) -> int:
         return self.layout.n_tuned
 
     @property
-    def penalty_models(self) -> list:
-        """Linear models the requirement penalty is checked on: nominal plus the randomisation box corners.
+    def constraint_models(self) -> list[LinearModel]:
+        """Linear models the requirements are checked on: nominal plus the randomisation box corners.
 
         Verification gates on the worst case over these corners (and Monte-Carlo draws), so the
-        search objective sees the same corners.
+        search constraint sees the same corners.
         """
-        if getattr(self, "_penalty_models", None) is None:
-            import dataclasses
-
+        if self._constraint_models is None:
             spec, plant = self.spec, self.plant
             models = [plant.linearize()]
             if spec.randomize.params or spec.randomize.delay:
@@ -128,75 +194,66 @@ class Evaluator:
                 for i in range(len(c)):
                     lin = plant.linearize(dict(zip(plant.param_names, c.params[i])))
                     models.append(dataclasses.replace(lin, delay=float(c.delay[i])))
-            self._penalty_models = models
-        return self._penalty_models
+            self._constraint_models = models
+        return self._constraint_models
 
-    def _design_spec(self) -> TuningSpec:
-        """The spec with requirements tightened by :data:`DESIGN_MARGIN`.
+    def requirement_violation(self, tuned: np.ndarray) -> np.ndarray:
+        """(B,) worst-case requirement violation over :attr:`constraint_models` (0 when all hold)."""
+        from gaintune.verify.quick import requirement_violation
 
-        The penalty is a cheap estimate (coarse frequency grid, box corners only) while
-        verification also checks Monte-Carlo draws: aiming slightly inside the limits
-        makes the frozen gains pass instead of landing on the boundary.
-        """
-        if getattr(self, "_design", None) is None:
-            r = self.spec.requirements
-            m = DESIGN_MARGIN
-            tight = r.model_copy(update={
-                "gm_min_db": None if r.gm_min_db is None else r.gm_min_db + m["gm_db"],
-                "pm_min_deg": None if r.pm_min_deg is None else r.pm_min_deg + m["pm_deg"],
-                "dm_min": None if r.dm_min is None else r.dm_min * m["dm_factor"],
-                "ms_max": None if r.ms_max is None else max(1.0 + 1e-6, r.ms_max * m["peak_factor"]),
-                "mt_max": None if r.mt_max is None else r.mt_max * m["peak_factor"],
-            })
-            self._design = self.spec.model_copy(update={"requirements": tight})
-        return self._design
-
-    def requirement_penalty(self, tuned: np.ndarray) -> np.ndarray:
-        """(B,) worst-case requirement penalty over :attr:`penalty_models` (0 when all requirements hold)."""
         tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
-        if self.spec.objective.margin_weight <= 0:
-            return np.zeros(tuned.shape[0])
-        from gaintune.verify.quick import requirement_penalty
-
         full = self.layout.full(tuned)
-        spec = self._design_spec()
-        pens = [requirement_penalty(spec, self.plant, self.layout, full, lin) for lin in self.penalty_models]
-        return np.nan_to_num(np.max(pens, axis=0), nan=10.0, posinf=10.0)
+        v = [requirement_violation(self.spec, self.plant, self.layout, full, lin) for lin in self.constraint_models]
+        return np.nan_to_num(np.max(v, axis=0), nan=DIVERGED_VIOLATION, posinf=DIVERGED_VIOLATION)
 
-    def run(
-        self, tuned: np.ndarray, traces: bool = False, penalize: bool = True
-    ) -> tuple[np.ndarray, list[SimResult]]:
-        """Costs (B,) and the raw per-scenario results (batch of B*K rows, draw-major per gain set).
+    def evaluate(self, tuned: np.ndarray, draws: Draws | None = None, traces: bool = False) -> Scores:
+        """Scores of B tuned-gain vectors: plain cost, violation, divergence, trips, metrics.
 
-        With ``penalize`` (default) the cost is the search objective :func:`penalized`;
-        otherwise the plain objective.
+        Parameters
+        ----------
+        tuned
+            (B, n_tuned) gains, or one vector.
+        draws
+            B*K draws (K per gain set, draw-major); default: this evaluator's fixed draws for every gain set.
+        traces
+            Keep the time traces in ``Scores.results``.
         """
         tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
-        B, K = tuned.shape[0], len(self.draws)
+        B = tuned.shape[0]
+        if draws is None:
+            K = len(self.draws)
+            draws = draws_mod.take(self.draws, np.tile(np.arange(K), B))
+        else:
+            K = len(draws) // B
         full = np.repeat(self.layout.full(tuned), K, axis=0)
-        d = draws_mod.take(self.draws, np.tile(np.arange(K), B))
         total = np.zeros(B * K)
         diverged = np.zeros(B * K, dtype=bool)
+        tripped = np.zeros(B * K, dtype=bool)
         results = []
         for i, sc in enumerate(self.spec.scenarios):
-            res = self.sim.run(full, d, i, traces=traces)
+            res = self.sim.run(full, draws, i, traces=traces)
             cost = scenario_cost(res.metrics, self.spec.objective, sc)
             total += sc.weight * cost
             diverged |= cost >= DIVERGED_COST
+            tripped |= res.metrics["tripped"]
             results.append(res)
         self.n_sims += B * K * len(self.spec.scenarios)
         # a diverged simulation costs DIVERGED_COST whatever its scenario's weight
         total = np.where(diverged, DIVERGED_COST, np.minimum(total, DIVERGED_COST))
         rob = self.spec.search.robust
         cost = aggregate(total.reshape(B, K), rob.aggregate, rob.alpha)
-        if penalize and self.spec.objective.margin_weight > 0:
-            cost = penalized(cost, self.requirement_penalty(tuned), self.spec.objective.margin_weight)
-        return cost, results
+        div = diverged.reshape(B, K).any(axis=1)
+        trip = tripped.reshape(B, K).any(axis=1)
+        violation = self.requirement_violation(tuned)
+        violation = np.where(div, np.maximum(violation, DIVERGED_VIOLATION), violation)
+        violation = violation + TRIP_VIOLATION * trip
+        metrics = {k: v[::K] for k, v in results[0].metrics.items()}
+        return Scores(cost, violation, div, trip, metrics, results)
 
     def __call__(self, tuned: np.ndarray) -> np.ndarray:
-        """Search objective (B,) of B tuned-gain vectors (lower is better)."""
-        return self.run(tuned)[0]
+        """Feasibility-first merit (B,) of B tuned-gain vectors (lower is better)."""
+        return self.evaluate(tuned).merit
 
     def cost_of_action(self, action: np.ndarray) -> np.ndarray:
-        """Costs of actions in [-1, 1]^d (the RL parameterisation)."""
+        """Merit of actions in [-1, 1]^d (the RL parameterisation)."""
         return self(self.layout.action_to_tuned(action))

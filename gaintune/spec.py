@@ -385,8 +385,24 @@ class ScenarioSpec(_Model):
 # ------------------------------------------------------- objective and reqs
 
 
+_REMOVED_OBJECTIVE_FIELDS = ("margin_weight", "divergence_penalty", "trip_penalty")
+
+
 class ObjectiveSpec(_Model):
-    """cost = performance + effort_weight*int(u^2) + tv_weight*TV(u) + penalties."""
+    """cost = performance + effort_weight*int(u^2) + tv_weight*TV(u) + penalties.
+
+    The requirements are not part of the cost: every search treats them as hard constraints.
+    """
+
+    @model_validator(mode="before")
+    @classmethod
+    def _removed_margin_weight(cls, data: Any) -> Any:
+        # margin_weight, divergence_penalty and trip_penalty (soft reward terms) were removed when
+        # requirements, stability and trips became hard constraints; specs and stored results that
+        # still carry them load unchanged.
+        if isinstance(data, dict):
+            data = {k: v for k, v in data.items() if k not in _REMOVED_OBJECTIVE_FIELDS}
+        return data
 
     measure: Literal["iae", "ise", "itae"] = "iae"
     effort_weight: float = Field(0.01, ge=0, description="Weight on the integral of (u - u0)^2.")
@@ -394,11 +410,6 @@ class ObjectiveSpec(_Model):
     overshoot_limit: float = Field(100.0, ge=0, description="Overshoot (%) allowed before the penalty starts.")
     overshoot_weight: float = Field(0.0, ge=0, description="Penalty per % of overshoot above the limit.")
     settling_weight: float = Field(0.0, ge=0, description="Penalty per second of 2 % settling time.")
-    margin_weight: float = Field(
-        1.0, ge=0, description="RL reward: penalty weight for failing the requirements (cheap estimate)."
-    )
-    divergence_penalty: float = Field(10.0, gt=0, description="Reward penalty (in reward units) for a diverged run.")
-    trip_penalty: float = Field(5.0, gt=0, description="Reward penalty (in reward units) for a safety-monitor trip.")
 
 
 class RequirementsSpec(_Model):

@@ -161,6 +161,65 @@ def test_export_unknown_format_is_422(client):
     assert r.status_code == 422 and r.json()["errors"][0]["loc"] == "query.format"
 
 
+#: dc_motor cascade gains that pass verification at the example's dt = 1 ms and are unstable at dt = 10 ms.
+FLIP_GAINS = {"position": {"Kp": 10.0}, "speed": {"Kp": 1.2, "Ki": 14.4}, "current": {"Kp": 3.0, "Ki": 300.0}}
+
+
+def _motor_spec() -> dict:
+    from gaintune.plants.library import load_model
+
+    spec = load_model("dc_motor").example_spec()
+    spec["search"] = {"budget": 200}
+    return spec
+
+
+def test_api_export_dt_reverifies(client):
+    pytest.importorskip("gaintune.export")
+    job = submit(client, _motor_spec())
+    assert run_next(client, make_fake_tune(FLIP_GAINS)) == "succeeded"
+    url = f"/v1/jobs/{job['id']}/export"
+    assert client.get(f"/v1/jobs/{job['id']}").json()["result"]["verdict"] == "pass"  # at 1 ms
+    r = client.get(url, params={"format": "c"})  # default: the verified dt, stored verdict
+    assert r.status_code == 200, r.text
+    assert "#define GT_DT 0.001\n" in r.text and "#define GT_VERIFIED 1\n" in r.text and "#define GT_VERIFIED_DT 0.001 " in r.text
+    r = client.get(url, params={"format": "c", "dt": 0.01})  # 10 ms: re-verified, unstable -> refused
+    assert r.status_code == 409 and r.headers["content-type"] == "application/problem+json"
+    detail = r.json()["detail"]
+    assert "dt = 0.01 s" in detail and "verdict: fail" in detail and "closed loop unstable" in detail
+    assert "allow_unverified=true" in detail
+    r = client.get(url, params={"format": "c", "dt": 0.01, "allow_unverified": "true"})
+    assert r.status_code == 200, r.text
+    assert "#define GT_DT 0.01\n" in r.text and "#define GT_VERIFIED 0\n" in r.text and '#define GT_VERDICT "fail"' in r.text
+    assert "verification: FAILED at dt = 0.01 s - closed loop unstable" in r.text
+    r = client.get(url, params={"format": "json", "dt": 0.0005})  # finer: re-verified, passes
+    assert r.status_code == 200, r.text
+    doc = r.json()
+    assert doc["verdict"] == "pass" and doc["accepted"] is True and doc["dt"] == doc["verified_dt"] == 0.0005
+    r = client.get(url, params={"format": "matlab", "dt": 0.0005})
+    assert r.status_code == 200 and "Ts = 0.0005;" in r.text and "'IFormula', 'BackwardEuler'" in r.text
+
+
+@pytest.mark.parametrize(("dt", "msg"), [("0", "greater than 0"), ("-0.01", "greater than 0"), ("abc", "number"),
+                                         ("inf", "finite"), ("1e-7", "steps"), ("1.5", "fewer than 2 samples")])
+def test_api_export_bad_dt_is_422_naming_dt(client, dt, msg):
+    pytest.importorskip("gaintune.export")
+    job = submit(client, _motor_spec())
+    run_next(client, make_fake_tune(FLIP_GAINS))
+    r = client.get(f"/v1/jobs/{job['id']}/export", params={"format": "c", "dt": dt})
+    assert r.status_code == 422, r.text
+    err = r.json()["errors"][0]
+    assert err["loc"] == "query.dt" and msg in err["msg"], err
+
+
+def test_api_export_dt_over_server_step_limit_is_422(make_client):
+    pytest.importorskip("gaintune.export")
+    client = make_client(max_steps=5000)
+    job = submit(client, _motor_spec())  # 2 s at 1 ms = 2000 steps
+    run_next(client, make_fake_tune(FLIP_GAINS))
+    r = client.get(f"/v1/jobs/{job['id']}/export", params={"format": "c", "dt": 0.0001})  # 20000 steps
+    assert r.status_code == 422 and r.json()["errors"][0]["loc"] == "query.dt" and "5000" in r.json()["errors"][0]["msg"]
+
+
 def test_report_html(client):
     pytest.importorskip("gaintune.report")
     job = submit(client)

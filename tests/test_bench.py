@@ -82,11 +82,14 @@ def test_unknown_suite_and_problem_names():
     assert [p.name for p in U.select(U.get_suite("quick"), ["q_lq_msd", "q_lag2_pi"])] == ["q_lq_msd", "q_lag2_pi"]
 
 
-def test_reference_key_ignores_budget_seed_and_requirements():
+def test_reference_key_ignores_budget_and_seed_but_not_requirements():
+    """Regression: requirements are constraints now, so a changed limit changes the constrained optimum."""
     p = U.get_suite("quick")[0]
-    spec = dict(p.spec, search={"budget": 999, "seed": 5}, requirements={"ms_max": 1.3})
+    spec = dict(p.spec, search={"budget": 999, "seed": 5})
     q = U.Problem(p.name, p.title, spec, p.family, reference=p.reference)
     assert U.reference_key(q) == U.reference_key(p)
+    tight = dict(p.spec, requirements={"ms_max": 1.3})
+    assert U.reference_key(U.Problem(p.name, p.title, tight, p.family, reference=p.reference)) != U.reference_key(p)
     other = dict(p.spec, objective={"measure": "iae", "effort_weight": 0.02})
     assert U.reference_key(U.Problem(p.name, p.title, other, p.family, reference=p.reference)) != U.reference_key(p)
 

@@ -9,8 +9,8 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 from gaintune.envs import ENV_IDS, BatchedGainVecEnv, GainProblem, GainTuningEnv, IterativeGainTuningEnv
-from gaintune.envs.problem import COST_CAP
-from gaintune.objective import scenario_cost
+from gaintune.envs.problem import COST_CAP, VIOLATION_CAP
+from gaintune.objective import DIVERGED_VIOLATION, TRIP_VIOLATION, scenario_cost
 from gaintune.spec import load_spec
 
 LAG3 = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pid"}], "scenario": {"horizon": 15}}
@@ -93,27 +93,30 @@ def test_reward_arithmetic_matches_hand_computation(lag3):
     m = res.metrics
     cost = m["iae"][0] + 0.01 * m["effort"][0]
     assert cost == pytest.approx(scenario_cost(m, lag3.spec.objective, sc)[0], rel=1e-12)
-    assert info["cost"] == pytest.approx(cost * (1 + lag3.spec.objective.margin_weight * info["margin_penalty"]), rel=1e-12)
-    w = lag3.spec.objective.margin_weight
-    expected = -(cost * (1 + w * info["margin_penalty"]) / lag3.cost_scale)
-    assert reward == pytest.approx(expected, rel=1e-9)
+    assert info["cost"] == pytest.approx(cost, rel=1e-12)  # the plain cost, no penalty terms
+    assert info["violation"] == 0.0  # these gains meet the default requirements
+    assert reward == pytest.approx(-cost / lag3.cost_scale, rel=1e-9)
+    # an aggressive gain set violates them: rewarded below every feasible one, graded by the violation
+    tuned2 = lay.action_to_tuned(np.array([[0.9, 0.9, -1.0]]))
+    s2 = lag3.score(tuned2, lag3.draw(np.random.default_rng(0), 1))
+    assert s2.violation[0] > 0
+    assert s2.reward[0] == pytest.approx(-(COST_CAP + min(s2.violation[0], VIOLATION_CAP)))
 
 
 def test_diverged_gains_get_capped_cost_plus_penalty():
-    spec = load_spec({**LAG3, "objective": {"margin_weight": 0.0}, "loops": [{"type": "p", "gains": {"Kp": {"bounds": [50, 500]}}}]})
+    spec = load_spec({**LAG3, "loops": [{"type": "p", "gains": {"Kp": {"bounds": [50, 500]}}}]})
     problem = GainProblem(spec)
     env = GainTuningEnv(spec, problem=problem)
     env.reset(seed=0)
     _, reward, *_, info = env.step(np.array([1.0]))  # Kp = 500: far beyond the ultimate gain 8
-    assert info["diverged"]
-    assert reward == pytest.approx(-(COST_CAP + spec.objective.divergence_penalty))
+    assert info["diverged"] and info["violation"] >= DIVERGED_VIOLATION
+    assert reward == pytest.approx(-(COST_CAP + min(info["violation"], VIOLATION_CAP)))
 
 
 def test_safety_monitor_trips_on_unstable_gains():
     spec = load_spec(
         {
             **LAG3,
-            "objective": {"margin_weight": 0.0},
             "loops": [{"type": "p", "gains": {"Kp": {"bounds": [0.5, 40]}}}],
             "safety": {"max_abs_output": 5.0},
             "actuator": {"safe_value": 0.0},
@@ -125,7 +128,7 @@ def test_safety_monitor_trips_on_unstable_gains():
     _, reward, *_, info = env.step(np.array([1.0]))  # Kp = 40 > Ku = 8: oscillation grows past |y| = 5
     assert info["tripped"] and not info["diverged"]
     assert info["metrics"]["trip_time"] is not None
-    assert reward <= -spec.objective.trip_penalty
+    assert info["violation"] >= TRIP_VIOLATION and reward <= -(COST_CAP + TRIP_VIOLATION)
     # a stable gain never trips
     env.reset(seed=0)
     _, _, *_, info = env.step(np.array([-1.0]))
@@ -157,10 +160,10 @@ def test_vec_env_uses_one_batched_simulation_per_scenario(lag3, monkeypatch):
 def test_iterative_env_return_is_total_improvement(lag3):
     env = IterativeGainTuningEnv(lag3.spec, problem=lag3, horizon=3)
     obs, info0 = env.reset(seed=0)
-    start_value = -float(obs[lag3.dim])
+    start_value = -COST_CAP * float(obs[lag3.dim])  # the observation holds -value / COST_CAP
     total = 0.0
     for _ in range(3):
         obs, r, terminated, truncated, info = env.step(np.full(lag3.dim, 0.3))
         total += r
     assert truncated and not terminated
-    assert total == pytest.approx(-float(obs[lag3.dim]) - start_value, abs=1e-6)
+    assert total == pytest.approx(-COST_CAP * float(obs[lag3.dim]) - start_value, abs=1e-5)

@@ -5,7 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gaintune.objective import DIVERGED_COST, Evaluator, aggregate, scenario_cost
+from gaintune.objective import (
+    DIVERGED_COST,
+    DIVERGED_VIOLATION,
+    INFEASIBLE_MERIT,
+    Evaluator,
+    aggregate,
+    merit,
+    scenario_cost,
+)
 from gaintune.sim import Simulator
 from gaintune.sim import draws as draws_mod
 from gaintune.spec import ObjectiveSpec, ScenarioSpec, load_spec
@@ -77,7 +85,8 @@ def test_evaluator_weights_scenarios_by_hand() -> None:
     spec = load_spec(SPEC)
     ev = Evaluator(spec)
     tuned = np.array([[1.0, 0.4], [0.5, 0.2], [30.0, 30.0]])  # the last one diverges
-    cost = ev(tuned)
+    scores = ev.evaluate(tuned)
+    cost = scores.cost
     sim = Simulator(spec)
     expect = np.zeros(3)
     for sc in spec.scenarios:
@@ -90,6 +99,7 @@ def test_evaluator_weights_scenarios_by_hand() -> None:
     expect = np.minimum(expect, DIVERGED_COST)
     np.testing.assert_allclose(cost[:2], expect[:2], rtol=1e-12)
     assert cost[2] == DIVERGED_COST
+    assert scores.diverged.tolist() == [False, False, True] and scores.violation[2] >= DIVERGED_VIOLATION
     assert ev.n_sims == 3 * 2
 
 
@@ -101,7 +111,7 @@ def test_evaluator_robust_aggregate_over_draws(how: str, alpha: float) -> None:
     ev = Evaluator(spec)
     assert len(ev.draws) == 8 and len(np.unique(ev.draws.params[:, 0])) == 8
     tuned = np.array([[1.0, 0.4], [0.6, 0.3]])
-    cost, _ = ev.run(tuned, penalize=False)  # the plain objective; the penalty is tested below
+    cost = ev.evaluate(tuned).cost  # the plain objective
     sim = Simulator(spec)
     sc = spec.scenarios[0]
     for i in range(2):
@@ -110,21 +120,23 @@ def test_evaluator_robust_aggregate_over_draws(how: str, alpha: float) -> None:
         ref = {"mean": per_draw.mean(), "worst": per_draw.max(), "cvar": np.sort(per_draw)[-2:].mean()}[how]
         assert cost[i] == pytest.approx(ref, rel=1e-12)
     # common random numbers: the same tuned gains always cost the same
-    np.testing.assert_array_equal(ev.run(tuned, penalize=False)[0], cost)
-    # the search objective is the cost times (1 + w * requirement penalty)
-    w = spec.objective.margin_weight
-    np.testing.assert_allclose(ev(tuned), cost * (1 + w * ev.requirement_penalty(tuned)), rtol=1e-12)
+    np.testing.assert_array_equal(ev.evaluate(tuned).cost, cost)
+    # feasible gain sets rank by their plain cost: the merit is the cost itself
+    s = ev.evaluate(tuned)
+    np.testing.assert_array_equal(ev(tuned)[s.feasible], cost[s.feasible])
 
 
-def test_penalized_objective_equals_cost_when_requirements_hold() -> None:
-    from gaintune.objective import DIVERGED_COST, penalized
-
-    cost = np.array([2.0, 2.0, DIVERGED_COST])
-    np.testing.assert_allclose(penalized(cost, np.array([0.0, 0.5, 0.0]), 1.0), [2.0, 3.0, DIVERGED_COST])
-    # a loose loop passes the requirements: no penalty; an aggressive one does not
+def test_merit_ranks_every_feasible_candidate_above_every_infeasible_one() -> None:
+    cost = np.array([2.0, 500.0, 1.0, 0.5, DIVERGED_COST])
+    violation = np.array([0.0, 0.0, 0.01, 3.0, DIVERGED_VIOLATION])
+    m = merit(cost, violation)
+    assert list(np.argsort(m)) == [0, 1, 2, 3, 4]  # feasible by cost, then infeasible by violation
+    # a loose loop meets the requirements (violation 0); an aggressive one does not
     ev = Evaluator(load_spec(dict(SPEC, loops=[{"type": "pi"}], requirements={"gm_min_db": 6, "pm_min_deg": 45})))
-    pen = ev.requirement_penalty(np.array([[0.3, 0.1], [6.0, 5.0]]))
-    assert pen[0] == 0.0 and pen[1] > 0.0
+    v = ev.requirement_violation(np.array([[0.3, 0.1], [6.0, 5.0]]))
+    assert v[0] == 0.0 and v[1] > 0.0
+    s = ev.evaluate(np.array([[0.3, 0.1], [6.0, 5.0]]))
+    assert s.feasible.tolist() == [True, False] and s.merit[1] > INFEASIBLE_MERIT
 
 
 def test_cost_of_action_maps_through_log_bounds() -> None:
@@ -142,6 +154,7 @@ def test_diverged_draw_costs_the_cap_whatever_the_scenario_weight() -> None:
     sim = Simulator(spec)
     ev = Evaluator(spec, sim, draws=draws_mod.corners(spec, sim.plant))  # K = 0.2 and K = 8
     tuned = np.array([[20.0, 1.0]])  # stable at K = 0.2 (loop gain 4 < 8), unstable at K = 8
-    res = ev.run(tuned)[1][0]
+    s = ev.evaluate(tuned)
+    res = s.results[0]
     assert res.metrics["diverged"].any() and not res.metrics["diverged"].all()
-    assert ev(tuned)[0] == DIVERGED_COST
+    assert s.cost[0] == DIVERGED_COST and s.violation[0] >= DIVERGED_VIOLATION

@@ -11,9 +11,9 @@ from gaintune.controllers.layout import GainLayout
 from gaintune.controllers.pid import pid_params
 from gaintune.plants.plant import build_plant
 from gaintune.spec import load_spec
-from gaintune.verify import quick_margins, requirement_penalty, verify
+from gaintune.verify import quick_margins, requirement_violation, verify
 from gaintune.verify.loops import pid_arrays
-from gaintune.verify.quick import UNSTABLE_PENALTY
+from gaintune.verify.quick import UNSTABLE_VIOLATION
 from plant_fixtures import MOTOR
 
 MOTOR_LOOPS = [
@@ -75,10 +75,10 @@ def test_penalty_zero_when_met_grows_with_violation_large_when_unstable():
     spec, p, lay = setup({"tf": {"num": [1], "den": "(s+1)^3"}}, [{"type": "pi"}],
                          requirements={"gm_min_db": 6, "pm_min_deg": 45, "ms_max": 1.7})
     G = np.array([[1.14, 0.454], [2.0, 0.8], [3.0, 1.5], [20.0, 10.0]])
-    pen = requirement_penalty(spec, p, lay, G)
+    pen = requirement_violation(spec, p, lay, G)
     assert pen.shape == (4,) and np.all(pen >= 0)
     assert pen[0] == 0.0
-    assert 0 < pen[1] < pen[2] < UNSTABLE_PENALTY <= pen[3]
+    assert 0 < pen[1] < pen[2] < UNSTABLE_VIOLATION <= pen[3]
     # relative violation: PM 11.95 vs 45 -> 0.73, Ms 5.9 vs 1.7 -> 2.5, GM 3.1 vs 6 dB -> 0.48
     rep = verify(spec, {"loop0": {"Kp": 3.0, "Ki": 1.5}}, nonlinear=False)
     f = rep.loops[0]
@@ -87,8 +87,8 @@ def test_penalty_zero_when_met_grows_with_violation_large_when_unstable():
     # no requirements: only instability is penalised
     spec2, p2, lay2 = setup({"tf": {"num": [1], "den": "(s+1)^3"}}, [{"type": "pi"}],
                             requirements={"gm_min_db": None, "pm_min_deg": None, "ms_max": None})
-    pen2 = requirement_penalty(spec2, p2, lay2, G)
-    assert list(pen2[:3]) == [0.0, 0.0, 0.0] and pen2[3] >= UNSTABLE_PENALTY
+    pen2 = requirement_violation(spec2, p2, lay2, G)
+    assert list(pen2[:3]) == [0.0, 0.0, 0.0] and pen2[3] >= UNSTABLE_VIOLATION
 
 
 def test_batched_three_loop_penalty_equals_one_at_a_time():
@@ -97,10 +97,10 @@ def test_batched_three_loop_penalty_equals_one_at_a_time():
     lin = p.linearize()
     base = lay.from_dict(MOTOR_GAINS)
     G = base * np.exp(np.random.default_rng(0).normal(0, 0.3, size=(64, lay.n_gains)))
-    pen = requirement_penalty(spec, p, lay, G, lin)
+    pen = requirement_violation(spec, p, lay, G, lin)
     assert pen.shape == (64,) and np.all(np.isfinite(pen))
     for i in (0, 17, 63):
-        assert requirement_penalty(spec, p, lay, G[i:i + 1], lin)[0] == pytest.approx(pen[i], rel=1e-9, abs=1e-12)
+        assert requirement_violation(spec, p, lay, G[i:i + 1], lin)[0] == pytest.approx(pen[i], rel=1e-9, abs=1e-12)
 
 
 def test_vectorised_pid_conversion_matches_pid_params():

@@ -9,7 +9,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Body, Header, Query, Response
 from fastapi.responses import FileResponse, HTMLResponse
 
-from api.artifacts import EXPORT_MEDIA, export_gains, render_report
+from api.artifacts import EXPORT_MEDIA, export_gains, export_verdict, render_report
 from api.deps import OwnerDep, SettingsDep, StoreDep
 from api.jsonbody import StrictJSONRoute
 from api.problems import ApiError
@@ -213,8 +213,10 @@ def job_agent(job_id: str, settings: SettingsDep, store: StoreDep, owner: OwnerD
     return FileResponse(path, media_type="application/zip", filename=f"agent_{row.id}.zip")
 
 
-@router.get("/jobs/{job_id}/export", summary="Gains exported as json, yaml, C or MATLAB",
-            responses={**NOT_FOUND, 409: {"description": "No result, or verification did not pass.", **_PROBLEM},
+@router.get("/jobs/{job_id}/export", summary="Gains exported as json, yaml, C or MATLAB, verified at the export dt",
+            responses={**NOT_FOUND,
+                       409: {"description": "No result, or the gains' verdict at this dt is not pass.", **_PROBLEM},
+                       422: {"description": "Bad format or dt (the field is named in `errors`).", **_PROBLEM},
                        501: {"description": "Exports not installed.", **_PROBLEM}})
 def job_export(
     job_id: str,
@@ -222,15 +224,33 @@ def job_export(
     store: StoreDep,
     owner: OwnerDep,
     format: ExportFormat = "json",
-    allow_unverified: Annotated[bool, Query(description="Export gains whose verification did not pass.")] = False,
+    dt: Annotated[float | None, Query(gt=0, allow_inf_nan=False, description=(
+        "Sample time (s) of the exported controller. Default: the dt the job's result was verified at (its largest "
+        "scenario dt). At any other dt the gains are re-verified at that dt before they are exported."))] = None,
+    allow_unverified: Annotated[bool, Query(description=(
+        "Export gains whose verdict at this dt is not pass; the file is then marked FAILED, with the reason."))] = False,
 ) -> Response:
+    """The file carries the verdict at ``dt``: the stored one at the verified dt, else a fresh verification."""
+    from gaintune.errors import GaintuneError
+
     row = _get(store, job_id, owner)
     r = _finished_result(row)
-    verdict = (r.get("verification") or {}).get("verdict")
+    result = _tune_result(r)
+    try:
+        checked = export_verdict(result, dt, settings.max_steps)
+    except GaintuneError as exc:
+        if exc.field != "dt":
+            raise
+        raise ApiError(422, f"Cannot export at dt = {dt:g} s.", errors=[{"loc": "query.dt", "msg": exc.message}]) from None
+    verdict, report = checked
     if verdict != "pass" and not allow_unverified:
-        raise ApiError(409, f"Job {job_id}'s gains were not accepted (verdict: {verdict}); "
-                            "pass allow_unverified=true to export them anyway.")
-    text = export_gains(_tune_result(r), format)
+        reasons = (report or {}).get("reasons") if isinstance(report, dict) else None
+        reason = reasons[0] if reasons else "no reason recorded"
+        where = "at the dt it was verified at" if dt is None else f"at dt = {dt:g} s"
+        raise ApiError(409, f"Job {job_id}'s gains are not accepted {where} (verdict: {verdict}; {reason}). "
+                            "Re-tune at this sample time, or pass allow_unverified=true to export them anyway "
+                            "(the file is then marked FAILED).")
+    text = export_gains(result, format, dt, checked)
     media, ext = EXPORT_MEDIA[format]
     return Response(content=text, media_type=media,
                     headers={"Content-Disposition": f'attachment; filename="gains_{row.id}.{ext}"'})

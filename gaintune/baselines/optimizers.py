@@ -9,7 +9,13 @@ The evaluator interface (see :mod:`gaintune.objective`)::
 
     ev.layout          GainLayout (log_lo, log_hi, n_tuned, initial_tuned())
     ev.n_sims          simulations done so far
-    ev(tuned)          (B, d) tuned gains -> (B,) costs, lower is better; inf when diverged
+    ev.evaluate(tuned) (B, d) tuned gains -> Scores (plain cost, violation, merit)
+    ev(tuned)          (B, d) tuned gains -> (B,) merit, lower is better (used when there is no evaluate)
+
+Every optimiser minimises the **feasibility-first merit**: it only compares values,
+so a feasible candidate always wins over an infeasible one, feasible candidates
+compare by plain cost and infeasible ones by their requirement violation. The
+result carries the plain cost and feasibility of the best candidate.
 
 Settings (defaults):
 
@@ -55,6 +61,8 @@ class OptResult:
     wall_time: float
     history: list[tuple[int, float]] = field(default_factory=list)
     details: dict[str, Any] = field(default_factory=dict)
+    feasible: bool = True
+    violation: float = 0.0
 
 
 def _n_sims(ev) -> int | None:
@@ -75,7 +83,9 @@ class Budgeted:
         self._start = _n_sims(ev)
         self.n_evals = 0
         self.sims_per_eval: float | None = None
-        self.best_cost = math.inf
+        self.best_merit = math.inf
+        self.best_cost = math.inf  # plain cost of the best-ranked candidate
+        self.best_violation = math.inf
         self.best_z: np.ndarray | None = None
         self.history: list[tuple[int, float]] = []
 
@@ -113,14 +123,22 @@ class Budgeted:
             raise BudgetExhausted
         z = z[:left]
         before = self.used
-        c = np.asarray(self.ev(self.to_tuned(z)), dtype=float).reshape(-1)
+        evaluate = getattr(self.ev, "evaluate", None)
+        if evaluate is not None:
+            s = evaluate(self.to_tuned(z))
+            c, cost, viol = s.merit, s.cost, s.violation
+        else:  # a plain cost function: every candidate counts as feasible
+            c = np.asarray(self.ev(self.to_tuned(z)), dtype=float).reshape(-1)
+            cost, viol = c, np.zeros_like(c)
         spent = self.used - before
         self.n_evals += len(z)
         if self.sims_per_eval is None and spent > 0:
             self.sims_per_eval = spent / len(z)
         k = int(np.argmin(np.where(np.isfinite(c), c, np.inf)))
-        if np.isfinite(c[k]) and c[k] < self.best_cost:
-            self.best_cost = float(c[k])
+        if np.isfinite(c[k]) and c[k] < self.best_merit:
+            self.best_merit = float(c[k])
+            self.best_cost = float(cost[k])
+            self.best_violation = float(viol[k])
             self.best_z = z[k].copy()
         self.history.append((self.used, self.best_cost))
         return np.where(np.isfinite(c), c, BAD_COST)
@@ -130,7 +148,8 @@ class Budgeted:
             tuned = self.ev.layout.initial_tuned()
         else:
             tuned = self.to_tuned(self.best_z)
-        return OptResult(method, tuned, self.best_cost, self.used, self.n_evals, time.perf_counter() - t0, self.history, details)
+        return OptResult(method, tuned, self.best_cost, self.used, self.n_evals, time.perf_counter() - t0, self.history,
+                         details, feasible=self.best_violation <= 0, violation=self.best_violation)
 
 
 # ------------------------------------------------------------------ random

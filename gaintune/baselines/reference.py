@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from gaintune.baselines.optimizers import BAD_COST, OptResult, cmaes_search
+from gaintune.objective import merit
 from gaintune.spec import TuningSpec
 
 __all__ = ["reference_optimum", "differentiable_reason", "casadi_closed_loop", "casadi_polish", "riccati_candidate"]
@@ -270,19 +271,26 @@ def reference_optimum(
     rng = np.random.default_rng(seed)
     layout = ev.layout
     parts: dict[str, Any] = {}
-    best_t, best_c, best_src = None, math.inf, None
+    # ranked feasibility first, like every search (gaintune.objective.merit)
+    best_t, best_m, best_c, best_v, best_src = None, math.inf, math.inf, math.inf, None
     history: list[tuple[int, float]] = []
+
+    def score(tuned: np.ndarray) -> tuple[float, float, float]:
+        s = ev.evaluate(tuned[None, :])
+        return float(s.merit[0]), float(s.cost[0]), float(s.violation[0])
+
     for i in range(restarts):
         x0 = None
         if i > 0:
             z = rng.uniform(size=layout.n_tuned)
             x0 = np.exp(layout.log_lo + z * (layout.log_hi - layout.log_lo))
         r = cmaes_search(ev, sims_per_restart, seed=seed + i, popsize=popsize, sigma0=0.3, x0=x0, restarts=False)
-        parts[f"cmaes_{i}"] = r.cost
+        parts[f"cmaes_{i}"] = {"cost": r.cost, "feasible": r.feasible}
         offset = history[-1][0] if history else 0
-        history.extend((offset + u, min(c, best_c)) for u, c in r.history)
-        if r.cost < best_c:
-            best_t, best_c, best_src = r.tuned, r.cost, f"cmaes_{i}"
+        history.extend((offset + u, c) for u, c in r.history)
+        m = float(merit(r.cost, r.violation))
+        if m < best_m:
+            best_t, best_m, best_c, best_v, best_src = r.tuned, m, r.cost, r.violation, f"cmaes_{i}"
     plant = getattr(ev, "plant", None)
     if plant is None:
         from gaintune.plants import build_plant
@@ -290,20 +298,20 @@ def reference_optimum(
         plant = build_plant(spec.plant)
     cand = riccati_candidate(spec, plant, layout)
     if cand is not None:
-        c = float(np.asarray(ev(cand[None, :])).ravel()[0])
-        parts["riccati"] = c
-        if c < best_c:
-            best_t, best_c, best_src = cand, c, "riccati"
+        m, c, v = score(cand)
+        parts["riccati"] = {"cost": c, "feasible": v <= 0}
+        if m < best_m:
+            best_t, best_m, best_c, best_v, best_src = cand, m, c, v, "riccati"
     why = differentiable_reason(spec, plant)
     if polish and why is None and best_t is not None:
         try:
             tuned, info = casadi_polish(spec, plant, layout, best_t)
-            c = float(np.asarray(ev(tuned[None, :])).ravel()[0])
-            c = c if math.isfinite(c) else BAD_COST
-            info["cost"] = c
+            m, c, v = score(tuned)
+            info["cost"] = c if math.isfinite(c) else BAD_COST
+            info["feasible"] = v <= 0
             parts["casadi_polish"] = info
-            if c < best_c:
-                best_t, best_c, best_src = tuned, c, "casadi_polish"
+            if m < best_m:
+                best_t, best_m, best_c, best_v, best_src = tuned, m, c, v, "casadi_polish"
         except Exception as exc:  # IPOPT/casadi failures must not lose the CMA-ES answer
             parts["casadi_polish"] = {"error": f"{type(exc).__name__}: {exc}"}
     elif polish:
@@ -314,4 +322,5 @@ def reference_optimum(
     return OptResult(
         "reference", np.asarray(best_t, float), float(best_c), used, used, time.perf_counter() - t0, history,
         {"parts": parts, "winner": best_src, "restarts": restarts, "sims_per_restart": sims_per_restart},
+        feasible=best_v <= 0, violation=float(best_v),
     )

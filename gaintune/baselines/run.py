@@ -12,6 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from gaintune.baselines.classical import CLASSICAL_METHODS, tune_classical
 from gaintune.baselines.fotd import NoModelError
 from gaintune.baselines.optimizers import optimize
+from gaintune.boundary import settle
 from gaintune.spec import TuningSpec
 
 __all__ = ["METHODS", "BaselineResult", "run_baseline", "make_evaluator"]
@@ -32,7 +33,10 @@ class BaselineResult(BaseModel):
     ultimate: dict[str, dict[str, float]] = Field(default_factory=dict, description="Ku, Pu per loop (zn_ultimate).")
     n_sims: int = Field(0, description="Simulations spent (search and scoring).")
     wall_time: float = 0.0
-    cost: float | None = Field(None, description="Evaluator cost of the gains (lower is better); None without evaluator.")
+    cost: float | None = Field(None, description="Plain cost of the gains (lower is better); None without evaluator.")
+    feasible: bool | None = Field(None, description="The gains met every requirement (search estimate); None without evaluator.")
+    violation: float | None = Field(None, description="Requirement violation of the gains (0 = feasible).")
+    settle: dict[str, Any] | None = Field(None, description="What the exact boundary step did (optimisers only).")
     history: list[tuple[int, float]] = Field(default_factory=list, description="(simulations, best cost) for optimisers.")
     details: dict[str, Any] = Field(default_factory=dict)
 
@@ -70,6 +74,7 @@ def run_baseline(
     budget: int | None = None,
     seed: int | None = None,
     evaluator=None,
+    settle_answer: bool = True,
     **options: Any,
 ) -> BaselineResult:
     """Run baseline ``method`` (one of :data:`METHODS`) on ``spec``.
@@ -84,6 +89,9 @@ def run_baseline(
     evaluator
         Cost function (default ``gaintune.objective.Evaluator(spec)``). Rules are
         scored with it when available; optimisers need it.
+    settle_answer
+        Settle an optimiser's answer on the requirements by exact verification
+        (:func:`gaintune.boundary.settle`), as the RL search does.
     options
         Passed to the optimiser (e.g. ``popsize``) or :func:`reference_optimum`.
 
@@ -113,7 +121,9 @@ def run_baseline(
         if ev is not None:
             before = int(getattr(ev, "n_sims", 0))
             tuned = _tuned_from_gains(ev.layout, res.gains)
-            out.cost = _finite(float(np.asarray(ev(tuned[None, :])).ravel()[0]))
+            sc = ev.evaluate(tuned[None, :])
+            out.cost = _finite(float(sc.cost[0]))
+            out.violation, out.feasible = float(sc.violation[0]), bool(sc.feasible[0])
             out.n_sims = int(getattr(ev, "n_sims", 0)) - before
             if out.cost is None or out.cost >= _diverged_cost():
                 out.details["diverged"] = True
@@ -130,13 +140,24 @@ def run_baseline(
     else:
         r = optimize(ev, method, budget or spec.search.budget, seed, **options)
     layout = ev.layout
-    gains = layout.to_dict(layout.full(r.tuned))
+    tuned, cost, violation, settled = r.tuned, r.cost, r.violation, None
+    if settle_answer:
+        # the same exact last step as the RL search (gaintune.boundary), so methods compare alike
+        st = settle(ev, r.tuned, cost=r.cost if r.feasible else None)
+        settled = {"action": st.action, "alpha": st.alpha, "loop": st.loop, "margin": st.margin, "checks": st.checks}
+        if st.action in ("pulled_inside", "pushed_to_boundary"):
+            sc = ev.evaluate(st.tuned[None, :])
+            tuned, cost, violation = st.tuned, float(sc.cost[0]), float(sc.violation[0])
+    gains = layout.to_dict(layout.full(tuned))
     return BaselineResult(
         method=method,
         gains=gains,
         n_sims=r.n_sims,
         wall_time=time.perf_counter() - t0,
-        cost=_finite(r.cost),
+        cost=_finite(cost),
+        violation=violation,
+        feasible=violation <= 0,
+        settle=settled,
         history=[(int(a), float(b)) for a, b in r.history if math.isfinite(b)],
         details={**_jsonable(r.details), "n_evals": r.n_evals, "seed": seed},
     )

@@ -162,8 +162,9 @@ def gain_figures(problem_obj, gains: dict[str, dict[str, float]], report: dict[s
     spec = problem_obj.spec
     tuned = np.asarray(layout.from_dict(gains))[layout.tuned_idx]
     n0 = ev.n_sims
-    costs, results = ev.run(tuned[None, :])
+    scores = ev.evaluate(tuned[None, :])
     ev.n_sims = n0  # scoring for the table is not part of any method's budget
+    costs, results = scores.cost, scores.results
     iae = effort = perf = 0.0
     measure = spec.objective.measure
     over: list[float] = []
@@ -183,7 +184,8 @@ def gain_figures(problem_obj, gains: dict[str, dict[str, float]], report: dict[s
         except Exception as exc:  # a gain set verification rejects is reported, not fatal
             report = {"verdict": "fail", "reasons": [f"verification error: {type(exc).__name__}: {exc}"]}
     out = {
-        "cost": float(costs[0]),
+        "cost": float(costs[0]),  # the plain cost, never a penalised figure
+        "feasible": bool(scores.feasible[0]),
         "iae": None if diverged else iae,
         "perf": None if diverged else perf,
         "measure": measure,

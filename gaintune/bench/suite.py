@@ -304,10 +304,17 @@ def _quick() -> list[Problem]:
     ]
 
 
+def _standard() -> list[Problem]:
+    from gaintune.bench.standard import standard_problems
+
+    return standard_problems(Problem)
+
+
 SUITES: dict[str, Any] = {
     "default": _default,
     "quick": _quick,
     "full": lambda: _default() + _extra(),
+    "standard": _standard,
 }
 
 
@@ -338,15 +345,16 @@ def reference_key(problem: Problem) -> str:
 
     The spec's non-default fields (so that schema additions and default-preserving
     refactors keep the key) without its name, description, search budget/seed/agent
-    settings, requirements and verification settings (none of which change the
-    cost function), plus the search box (which a rule change may move), the
+    settings and verification settings (none of which change the constrained
+    problem), with its requirements (they are constraints), plus the search box (which a rule change may move), the
     reference options and exactness. :func:`reference_for` also re-scores a cached
     answer, so a changed cost function is caught even when the key is unchanged.
     """
     spec = problem.tuning_spec()
     d = spec.model_dump(mode="json", exclude_defaults=True)
-    for k in ("name", "description", "requirements", "verify", "search"):
+    for k in ("name", "description", "verify", "search"):
         d.pop(k, None)
+    d["_requirements"] = spec.requirements.model_dump(mode="json")
     d["_robust"] = spec.search.robust.model_dump(mode="json")
     d["_box"] = _search_box(spec)
     d["_reference"] = {"options": problem.reference, "exact": problem.exact}
@@ -374,6 +382,10 @@ def exact_optimum(problem: Problem, evaluator) -> dict[str, Any] | None:
     ``u = -K x`` after an input impulse is x1' P_K x1 (x1 = Bd/dt), which that
     gain minimises over all K for every x1 (up to the horizon truncation).
     """
+    if problem.exact == "migo":
+        from gaintune.bench.standard import migo_reference
+
+        return migo_reference(problem, evaluator)
     if problem.exact != "dlqr":
         return None
     from scipy.linalg import expm, solve_discrete_are
@@ -398,11 +410,13 @@ def exact_optimum(problem: Problem, evaluator) -> dict[str, Any] | None:
     gains = {loop.name: {f"k_{s}": float(k) for s, k in zip(lin.states, K)}}
     layout = evaluator.layout
     tuned = np.asarray(layout.from_dict(gains))[layout.tuned_idx]
-    cost = float(np.asarray(evaluator(tuned[None, :])).ravel()[0])
+    scores = evaluator.evaluate(tuned[None, :])
+    cost = float(scores.cost[0])
     x1 = Bd[:, 0] / sc.dt
     return {
         "gains": gains,
         "cost": cost if math.isfinite(cost) else None,
+        "feasible": bool(scores.feasible[0]),
         "riccati_cost": float(x1 @ P @ x1),
         "method": "dlqr (discrete Riccati on the exact ZOH model)",
     }
@@ -488,12 +502,14 @@ def _still_valid(problem: Problem, entry: dict[str, Any], evaluator=None) -> boo
         layout = evaluator.layout
         tuned = np.asarray(layout.from_dict(gains))[layout.tuned_idx]
         n0 = getattr(evaluator, "n_sims", 0)
-        now = float(np.asarray(evaluator(tuned[None, :])).ravel()[0])
+        scores = evaluator.evaluate(tuned[None, :])
+        now, feasible = float(scores.cost[0]), bool(scores.feasible[0])
         if hasattr(evaluator, "n_sims"):
             evaluator.n_sims = n0
     except Exception:  # gains no longer fit the layout, etc.
         return False
-    return math.isfinite(now) and abs(now - cost) <= RESCORE_RTOL * max(abs(cost), 1e-300)
+    same = math.isfinite(now) and abs(now - cost) <= RESCORE_RTOL * max(abs(cost), 1e-300)
+    return same and feasible == entry.get("feasible", True)
 
 
 def _write_entry(path, key: str, entry: dict[str, Any]) -> None:
@@ -523,19 +539,20 @@ def compute_reference(problem: Problem, *, evaluator=None, log=None) -> dict[str
     ex = exact_optimum(problem, ev)
     entry: dict[str, Any] = {
         "problem": problem.name,
-        "search": {"cost": r.cost, "gains": r.gains, "n_sims": r.n_sims, "wall_time": r.wall_time,
+        "search": {"cost": r.cost, "feasible": r.feasible, "gains": r.gains, "n_sims": r.n_sims, "wall_time": r.wall_time,
                    "winner": r.details.get("winner"), "options": problem.reference},
         "exact": ex,
     }
-    cands = [("search", r.cost, r.gains)]
+    cands = [("search", r.cost, bool(r.feasible), r.gains)]
     if ex is not None:
-        cands.append(("exact", ex["cost"], ex["gains"]))
+        cands.append(("exact", ex["cost"], bool(ex.get("feasible", True)), ex["gains"]))
     cands = [c for c in cands if c[1] is not None]
-    if cands:
-        src, cost, gains = min(cands, key=lambda c: c[1])
+    if cands:  # feasibility first, then the plain cost (as every search ranks)
+        src, cost, feasible, gains = min(cands, key=lambda c: (not c[2], c[1]))
     else:
-        src, cost, gains = "none", None, None
-    entry.update(cost=cost, gains=gains, source=src, n_sims=r.n_sims, wall_time=time.perf_counter() - t0)
+        src, cost, feasible, gains = "none", None, False, None
+    entry.update(cost=cost, feasible=feasible, gains=gains, source=src, n_sims=r.n_sims,
+                 wall_time=time.perf_counter() - t0)
     return entry
 
 

@@ -1,11 +1,12 @@
 """Iterative gain-tuning environment: the agent refines the gains over a few steps.
 
 The observation is the current gains (as actions in [-1, 1]) plus their
-normalised cost, margin penalty and the episode context; the action is a
-bounded multiplicative change of every tuned gain (at most a factor
-``exp(max_step * log-range / 2)`` per step). The reward is the cost
-improvement of each step, so an episode's return is the total improvement
-from the starting gains (the classical-rule centre of the bounds).
+value (the one-shot reward of :mod:`gaintune.envs.problem`, feasibility first)
+and requirement violation, both divided by COST_CAP, and the episode context;
+the action is a bounded multiplicative change of every tuned gain (at most a
+factor ``exp(max_step * log-range / 2)`` per step). The reward is the
+improvement of that value in each step, so an episode's return is the total
+improvement from the starting gains (the classical-rule centre of the bounds).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from gaintune.envs.problem import COST_CAP, GainProblem
+from gaintune.envs.problem import COST_CAP, VIOLATION_CAP, GainProblem
 from gaintune.spec import TuningSpec
 
 __all__ = ["IterativeGainTuningEnv"]
@@ -45,12 +46,12 @@ class IterativeGainTuningEnv(gym.Env):
         self._margin = 0.0
 
     def _obs(self) -> np.ndarray:
-        return np.clip(np.concatenate([self._a, [-self._value, self._margin], self._ctx]), -5, 5).astype(np.float32)
+        return np.clip(np.concatenate([self._a, [-self._value / COST_CAP, self._margin / COST_CAP], self._ctx]), -5, 5).astype(np.float32)
 
     def _evaluate(self, a: np.ndarray) -> tuple[float, dict[str, Any]]:
         tuned = self.problem.layout.action_to_tuned(a[None])
         s = self.problem.score(tuned, self._draw)
-        self._margin = float(s.margin_penalty[0])
+        self._margin = float(min(s.violation[0], VIOLATION_CAP))
         info = {"cost": float(s.cost[0]), "diverged": bool(s.diverged[0]), "tripped": bool(s.tripped[0]),
                 "gains": self.problem.layout.to_dict(self.problem.layout.full(tuned[0]))}
         return float(s.reward[0]), info
@@ -70,7 +71,8 @@ class IterativeGainTuningEnv(gym.Env):
         step = self.max_step * np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
         self._a = np.clip(self._a + step, -1.0, 1.0)
         value, info = self._evaluate(self._a)
-        reward = float(np.clip(value - self._value, -COST_CAP, COST_CAP))
+        span = COST_CAP + VIOLATION_CAP  # the whole reward range
+        reward = float(np.clip(value - self._value, -span, span))
         self._value = value
         self._t += 1
         return self._obs(), reward, False, self._t >= self.horizon, info

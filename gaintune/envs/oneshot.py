@@ -26,7 +26,7 @@ class GainTuningEnv(gym.Env):
     Reward              ``-(cost/cost_scale + penalties)``, see
                         :mod:`gaintune.envs.problem`; O(1) for sensible gains
     Episode end         after one step (one closed-loop simulation per scenario)
-    Info                ``cost``, ``diverged``, ``tripped``, ``margin_penalty``,
+    Info                ``cost``, ``diverged``, ``tripped``, ``violation``,
                         ``gains`` (nested dict) and the first scenario's metrics
     ==================  ==========================================================
 
@@ -62,7 +62,7 @@ class GainTuningEnv(gym.Env):
             "cost": float(s.cost[0]),
             "diverged": bool(s.diverged[0]),
             "tripped": bool(s.tripped[0]),
-            "margin_penalty": float(s.margin_penalty[0]),
+            "violation": float(s.violation[0]),
             "gains": self.problem.layout.to_dict(self.problem.layout.full(tuned[0])),
             # NaN (e.g. no trip time) becomes None, so infos compare equal across identical rollouts.
             "metrics": {k: (float(v[0]) if np.isfinite(v[0]) else None) for k, v in s.metrics.items()},

@@ -1,30 +1,33 @@
-"""The tuning problem as the environments see it: gains in, reward and metrics out, batched.
+"""The tuning problem as the environments see it: gains in, reward and scores out, batched.
 
 :class:`GainProblem` builds the plant, the gain layout (bounds from a classical
-rule when the spec gives none), the simulator and the cost evaluator once, and
-scores a batch of gain sets in ONE simulator call per scenario. Every env in
-:mod:`gaintune.envs` and the search share it, so reward arithmetic lives here only.
+rule when the spec gives none), the simulator and the evaluator once, and
+scores a batch of gain sets with :meth:`gaintune.objective.Evaluator.evaluate`
+(ONE simulator call per scenario). Every env in :mod:`gaintune.envs` and the
+search share it, so reward arithmetic lives here only.
 
-Reward of one gain set (all terms are O(1))::
+Reward of one gain set, feasibility first like every other ranking here::
 
-    reward = -( min(cost * (1 + margin_weight * requirement_penalty) / cost_scale, COST_CAP)
-                + divergence_penalty * diverged
-                + trip_penalty * tripped )
+    feasible:    reward = -min(cost / cost_scale, COST_CAP)
+    infeasible:  reward = -(COST_CAP + min(violation, VIOLATION_CAP))
 
-``cost`` is the objective of :mod:`gaintune.objective` (aggregated over the
-robust draws), ``cost_scale`` the cost of the classical-rule gains on the
-nominal plant, and ``requirement_penalty`` the cheap frequency-domain estimate
-of how far the gains are from the spec's requirements (0 when they pass).
+``cost`` is the plain objective of :mod:`gaintune.objective` (aggregated over
+the robust draws), ``cost_scale`` the cost of the start gains on the nominal
+plant, and ``violation`` the graded requirement violation (0 when every
+requirement holds; >= 10 for an unstable loop or a diverged run). Every
+infeasible gain set is rewarded below every feasible one, so the policy learns
+the feasible region first and the cost inside it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from gaintune.controllers.layout import GainLayout, search_layout
-from gaintune.objective import DIVERGED_COST, Evaluator, aggregate, penalized, scenario_cost
+from gaintune.objective import DIVERGED_COST, Evaluator, Scores
 from gaintune.plants import build_plant
 from gaintune.plants.checks import validate_against_plant
 from gaintune.sim import Simulator
@@ -32,23 +35,19 @@ from gaintune.sim import draws as draws_mod
 from gaintune.sim.draws import Draws
 from gaintune.spec import TuningSpec
 
-__all__ = ["COST_CAP", "GainProblem", "Scored"]
+__all__ = ["COST_CAP", "VIOLATION_CAP", "GainProblem", "Scored"]
 
 #: Cost ratios above this are clipped, so failures cannot swamp the learning signal.
 COST_CAP = 10.0
-
+#: Violations above this are clipped in the reward (an unstable loop scores 10 and up).
+VIOLATION_CAP = 20.0
 
 
 @dataclass
-class Scored:
-    """Scores of B gain sets."""
+class Scored(Scores):
+    """:class:`~gaintune.objective.Scores` of B gain sets plus their RL reward (B,)."""
 
-    reward: np.ndarray  # (B,)
-    cost: np.ndarray  # (B,) search objective: aggregated cost x (1 + w * penalty); DIVERGED_COST when diverged
-    diverged: np.ndarray  # (B,) bool: any draw diverged
-    tripped: np.ndarray  # (B,) bool: the safety monitor tripped on any draw
-    margin_penalty: np.ndarray  # (B,)
-    metrics: dict[str, np.ndarray]  # first scenario, first draw of each gain set
+    reward: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
 
 
 class GainProblem:
@@ -72,7 +71,6 @@ class GainProblem:
         self.evaluator = Evaluator(spec, self.sim)
         self.lin = plant.linearize()
         self.k = spec.search.robust.samples
-        self._score_sims = 0
         self.randomized = spec.randomize.active
         self.obs_size = draws_mod.context_size(spec)
         self.cost_scale = self._cost_scale()
@@ -82,19 +80,19 @@ class GainProblem:
     @property
     def n_sims(self) -> int:
         """Every closed-loop simulation run for this problem (env batches and evaluator calls)."""
-        return self._score_sims + self.evaluator.n_sims
+        return self.evaluator.n_sims
 
     @property
     def dim(self) -> int:
         return self.layout.n_tuned
 
     def _cost_scale(self) -> float:
-        """Cost of the initial (classical-rule) gains, or the median of random finite costs."""
-        c = float(self.evaluator(self.layout.initial_tuned()[None])[0])
+        """Plain cost of the start (classical-rule) gains, or the median of random finite costs."""
+        c = float(self.evaluator.evaluate(self.layout.initial_tuned()[None]).cost[0])
         if 0 < c < DIVERGED_COST:
             return c
         rng = np.random.default_rng(self.spec.search.seed)
-        costs = self.evaluator(self.layout.action_to_tuned(rng.uniform(-1, 1, (64, self.dim))))
+        costs = self.evaluator.evaluate(self.layout.action_to_tuned(rng.uniform(-1, 1, (64, self.dim)))).cost
         ok = costs[costs < DIVERGED_COST]
         return float(np.median(ok)) if ok.size else 1.0
 
@@ -111,36 +109,16 @@ class GainProblem:
         return draws_mod.context(self.spec, self.plant, d)
 
     # ------------------------------------------------------------- score
+    def reward(self, s: Scores) -> np.ndarray:
+        """(B,) reward of scores: feasibility first, see the module docstring."""
+        ratio = np.minimum(s.cost / self.cost_scale, COST_CAP)
+        return np.where(s.feasible, -ratio, -(COST_CAP + np.minimum(s.violation, VIOLATION_CAP)))
+
     def score(self, tuned: np.ndarray, draws: Draws) -> Scored:
         """Score B tuned-gain vectors; ``draws`` has B*K rows (K robust draws per gain set, draw-major)."""
         tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
-        B = tuned.shape[0]
-        K = len(draws) // B
-        full = np.repeat(self.layout.full(tuned), K, axis=0)
-        total = np.zeros(B * K)
-        diverged = np.zeros(B * K, dtype=bool)
-        tripped = np.zeros(B * K, dtype=bool)
-        first = None
-        spec = self.spec
-        for i, sc in enumerate(spec.scenarios):
-            res = self.sim.run(full, draws, i)
-            total += sc.weight * scenario_cost(res.metrics, spec.objective, sc)
-            diverged |= res.metrics["diverged"]
-            tripped |= res.metrics["tripped"]
-            if first is None:
-                first = {k: v[::K] for k, v in res.metrics.items()}
-        self._score_sims += B * K * len(spec.scenarios)
-        rob = spec.search.robust
-        cost = aggregate(np.minimum(total, DIVERGED_COST).reshape(B, K), rob.aggregate, rob.alpha)
-        div = diverged.reshape(B, K).any(axis=1)
-        trip = tripped.reshape(B, K).any(axis=1)
-        obj = spec.objective
-        margin = self.evaluator.requirement_penalty(tuned)
-        cost = penalized(cost, margin, obj.margin_weight)
-        ratio = np.minimum(cost / self.cost_scale, COST_CAP)
-        reward = -(ratio + obj.divergence_penalty * div + obj.trip_penalty * trip)
-        assert first is not None
-        scored = Scored(reward.astype(np.float64), cost, div, trip, margin, first)
+        s = self.evaluator.evaluate(tuned, draws)
+        scored = Scored(**{f.name: getattr(s, f.name) for f in dataclasses.fields(Scores)}, reward=self.reward(s))
         if self.on_score is not None:
             self.on_score(tuned, scored)
         return scored

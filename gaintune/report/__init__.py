@@ -155,14 +155,15 @@ def result_from_gains(spec: Any, gains: dict[str, dict[str, float]], *, algo: st
     ev = Evaluator(spec)
     full = ev.layout.from_dict(gains)
     named = ev.layout.to_dict(full)
-    cost, _ = ev.run(full[ev.layout.tuned_idx][None, :])
-    metrics = {}
-    for i, sc in enumerate(spec.scenarios):
-        m = ev.sim.run(full[None, :], scenario=i).metrics
-        metrics[sc.name] = {k: (float(v[0]) if math.isfinite(float(v[0])) else None) for k, v in m.items()}
+    scores = ev.evaluate(full[ev.layout.tuned_idx][None, :])
+    metrics = {
+        r.scenario: {k: (float(v[0]) if math.isfinite(float(v[0])) else None) for k, v in r.metrics.items()}
+        for r in scores.results
+    }
     rep = json.loads(run_verify(spec, named).model_dump_json()) if verify else None
     return TuneResult(
-        spec=json.loads(spec.model_dump_json()), algo=algo, gains=named, gains_source="best_seen", cost=float(cost[0]),
+        spec=json.loads(spec.model_dump_json()), algo=algo, gains=named, gains_source="best_seen", cost=float(scores.cost[0]),
+        violation=float(scores.violation[0]),
         metrics=metrics, sims=ev.n_sims, wall_time=time.perf_counter() - t0, stopped="budget", verification=rep,
         baselines=baselines or [],
         provenance=Provenance(spec_hash=spec.content_hash(), seed=spec.search.seed, versions=_versions(), command=command),

@@ -6,17 +6,39 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-__all__ = ["CurvePoint", "Progress", "Provenance", "TuneResult"]
+__all__ = ["CurvePoint", "Progress", "Provenance", "SettleInfo", "Diagnosis", "TuneResult"]
 
 Gains = dict[str, dict[str, float]]
 
 
 class CurvePoint(BaseModel):
-    """Best cost found after a number of simulations."""
+    """Best candidate found after a number of simulations (ranked feasibility first)."""
 
     sims: int
-    best_cost: float
+    best_cost: float = Field(description="Plain cost of the best-ranked candidate so far.")
+    feasible: bool = Field(True, description="Whether that candidate met every requirement (search estimate).")
     wall_time: float
+
+
+class SettleInfo(BaseModel):
+    """What the exact boundary step (:func:`gaintune.boundary.settle`) did to the search's answer."""
+
+    action: Literal["unchanged", "pulled_inside", "pushed_to_boundary", "not_settled"]
+    alpha: float = Field(description="Loop-gain scale applied to the binding loop (1 = unchanged).")
+    loop: str | None = None
+    margin: float = Field(description="Tightest requirement margin / |limit| after settling (>= 0 passes).")
+    checks: int = Field(description="Exact verifications run.")
+
+
+class Diagnosis(BaseModel):
+    """What a result means, in words an engineer can act on."""
+
+    status: Literal["pass", "fail", "unverified"]
+    summary: str
+    binding: str | None = Field(None, description="The requirement that decides the verdict (most violated, or tightest).")
+    value: float | None = Field(None, description="Its figure for the returned gains.")
+    limit: float | None = None
+    hints: list[str] = Field(default_factory=list)
 
 
 class Progress(BaseModel):
@@ -52,11 +74,11 @@ class TuneResult(BaseModel):
     gains_source: Literal["policy", "best_seen", "refined"] = "best_seen"
     policy_gains: Gains | None = Field(None, description="Deterministic policy output for the nominal context.")
     best_seen_gains: Gains | None = None
-    cost: float = Field(
-        description="Search objective of `gains`: the cost x (1 + margin_weight x requirement penalty); "
-        "equal to the plain cost when the requirements are met."
-    )
-    rl_cost: float | None = Field(None, description="Cost reached by the RL agent alone (before any refinement).")
+    cost: float = Field(description="Plain cost of `gains` (the objective, no penalty terms), on the robust draws.")
+    violation: float = Field(0.0, description="Requirement violation of `gains` by the search's estimate (0 = feasible).")
+    rl_cost: float | None = Field(None, description="Plain cost reached by the RL agent alone (before any refinement).")
+    rl_feasible: bool | None = Field(None, description="Whether the RL agent's own answer met every requirement (search estimate).")
+    settle: SettleInfo | None = None
     policy_cost: float | None = None
     metrics: dict[str, dict[str, float | None]] = Field(
         default_factory=dict, description="Per-scenario metrics of `gains` on the nominal plant."
@@ -71,6 +93,7 @@ class TuneResult(BaseModel):
     agent_path: str | None = None
     verification: dict[str, Any] | None = Field(None, description="VerificationReport as JSON, when verified.")
     baselines: list[dict[str, Any]] = Field(default_factory=list, description="Baseline results for comparison.")
+    diagnosis: Diagnosis | None = None
     provenance: Provenance
 
     @property

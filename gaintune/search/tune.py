@@ -22,7 +22,9 @@ from gaintune.envs.problem import GainProblem, Scored
 from gaintune.envs.vec import BatchedGainVecEnv
 from gaintune.objective import DIVERGED_COST
 from gaintune.search.agents import load_agent, make_agent
-from gaintune.search.result import CurvePoint, Progress, Provenance, TuneResult
+from gaintune.boundary import settle
+from gaintune.search.diagnosis import diagnose
+from gaintune.search.result import CurvePoint, Progress, Provenance, SettleInfo, TuneResult
 from gaintune.spec import TuningSpec
 
 __all__ = ["tune", "policy_gains", "versions", "SearchMonitor"]
@@ -65,7 +67,9 @@ class SearchMonitor:
         self.patience = patience
         self.t0 = time.perf_counter()
         self.sims0 = problem.n_sims
-        self.best_cost = np.inf
+        self.best_merit = np.inf
+        self.best_cost = np.inf  # plain cost of the best-ranked candidate
+        self.best_feasible = False
         self.best_tuned: np.ndarray | None = None
         self.best_at = 0
         self.curve: list[CurvePoint] = []
@@ -83,18 +87,20 @@ class SearchMonitor:
         return time.perf_counter() - self.t0
 
     def on_batch(self, tuned: np.ndarray, s: Scored) -> None:
-        """Record the batch's best *nominal-objective* cost (diverged/tripped runs never count as best)."""
+        """Record the batch's best candidate, feasibility first (see :func:`gaintune.objective.merit`)."""
         self.n_diverged += int(s.diverged.sum())
         self.n_tripped += int(s.tripped.sum())
-        ok = ~(s.diverged | s.tripped)
-        if ok.any():
-            i = int(np.argmin(np.where(ok, s.cost, np.inf)))
-            if s.cost[i] < self.best_cost * (1 - 1e-3):
-                self.best_at = self.sims
-            if s.cost[i] < self.best_cost:
-                self.best_cost = float(s.cost[i])
-                self.best_tuned = tuned[i].copy()
-        self.curve.append(CurvePoint(sims=self.sims, best_cost=float(min(self.best_cost, DIVERGED_COST)), wall_time=self.elapsed))
+        m = s.merit
+        i = int(np.argmin(m))
+        if m[i] < self.best_merit * (1 - 1e-3):
+            self.best_at = self.sims
+        if m[i] < self.best_merit:
+            self.best_merit = float(m[i])
+            self.best_cost = float(s.cost[i])
+            self.best_feasible = bool(s.feasible[i])
+            self.best_tuned = tuned[i].copy()
+        self.curve.append(CurvePoint(sims=self.sims, best_cost=float(min(self.best_cost, DIVERGED_COST)),
+                                     feasible=self.best_feasible, wall_time=self.elapsed))
         self.report()
 
     def report(self, force: bool = False, phase: str = "search") -> None:
@@ -107,7 +113,7 @@ class SearchMonitor:
         rate = self.sims / now if now > 0 else 0.0
         eta = (self.budget - self.sims) / rate if rate > 0 else None
         keep = self.progress(
-            Progress(sims=self.sims, budget=self.budget, best_cost=None if not np.isfinite(self.best_cost) else self.best_cost,
+            Progress(sims=self.sims, budget=self.budget, best_cost=self.best_cost if self.best_feasible else None,
                      elapsed=now, eta=eta, phase=phase)
         )
         if keep is False:
@@ -223,9 +229,9 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     per_candidate = problem.k * len(spec.scenarios)
     n_envs = s.n_envs
     batch = n_envs * per_candidate
-    # Hard budget: set-up sims already spent + RL + the 3 final evaluations + the refinement reserve.
+    # Hard budget: set-up sims already spent + RL + the final evaluations (up to 5) + the refinement reserve.
     reserve = min(int(0.1 * s.budget), 1000) if s.refine else 0
-    rl_budget = max(s.budget - problem.n_sims - reserve - 3 * per_candidate, 0)
+    rl_budget = max(s.budget - problem.n_sims - reserve - 5 * per_candidate, 0)
     monitor = SearchMonitor(problem, rl_budget, s.wall_time, progress, cancel, s.early_stop_patience)
     problem.on_score = monitor.on_batch
     horizon = 1
@@ -264,21 +270,41 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     cand = {"policy": policy_action}
     if monitor.best_tuned is not None:
         cand["best_seen"] = layout.tuned_to_action(monitor.best_tuned)
-    costs = {k: float(ev.cost_of_action(a[None])[0]) for k, a in cand.items()}
-    source = min(costs, key=costs.get)
-    action, rl_cost = cand[source], costs[source]
-    final_cost = rl_cost
-    refine_sims = 0
+    names = list(cand)
+    first = ev.evaluate(layout.action_to_tuned(np.array([cand[k] for k in names])))
+    k = int(np.argmin(first.merit))  # feasibility first, then the plain cost
+    source, action = names[k], cand[names[k]]
+    policy_cost = float(first.cost[names.index("policy")])
+    tuned = layout.action_to_tuned(action)
+    settled = None
+    if verify:
+        # Close the gap between the fast requirement estimate and the exact verdict (gaintune.boundary).
+        # Every method gets this exact step, so the RL-only figure includes it (but no local polish).
+        monitor.report(force=True, phase="settle")
+        settled = settle(ev, tuned, cost=float(first.cost[k]) if first.feasible[k] else None)
+        if settled.action in ("pulled_inside", "pushed_to_boundary"):
+            tuned = settled.tuned
+            rl = ev.evaluate(tuned[None])
+            rl_cost, rl_feasible, best_merit = float(rl.cost[0]), bool(rl.feasible[0]), float(rl.merit[0])
+        else:
+            rl_cost, rl_feasible, best_merit = float(first.cost[k]), bool(first.feasible[k]), float(first.merit[k])
+    else:
+        rl_cost, rl_feasible, best_merit = float(first.cost[k]), bool(first.feasible[k]), float(first.merit[k])
     if s.refine and monitor.stopped != "cancelled" and reserve > 0:
         monitor.report(force=True, phase="refine")
-        ra, rc, refine_sims = _refine(problem, action, min(reserve, s.budget - problem.n_sims - per_candidate), s.seed)
-        if rc < final_cost:
-            action, final_cost, source = ra, rc, "refined"
-    full = layout.full(layout.action_to_tuned(action))
+        start = layout.tuned_to_action(tuned)
+        ra, rm, _ = _refine(problem, start, min(reserve, s.budget - problem.n_sims - per_candidate), s.seed)
+        if rm < best_merit:
+            tuned, source = layout.action_to_tuned(ra), "refined"
+            if verify:
+                settled = settle(ev, tuned)
+                if settled.action in ("pulled_inside", "pushed_to_boundary"):
+                    tuned = settled.tuned
+    final = ev.evaluate(tuned[None])
+    full = layout.full(tuned)
     gains = layout.to_dict(full)
-    _, results = ev.run(layout.action_to_tuned(action)[None])
     metrics = {
-        r.scenario: {k: (float(v[0]) if np.isfinite(v[0]) else None) for k, v in r.metrics.items()} for r in results
+        r.scenario: {k: (float(v[0]) if np.isfinite(v[0]) else None) for k, v in r.metrics.items()} for r in final.results
     }
     agent_path = None
     if out_dir is not None:
@@ -293,9 +319,13 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
         gains_source=source,
         policy_gains=layout.to_dict(layout.full(layout.action_to_tuned(policy_action))),
         best_seen_gains=layout.to_dict(layout.full(monitor.best_tuned)) if monitor.best_tuned is not None else None,
-        cost=final_cost,
+        cost=float(final.cost[0]),
+        violation=float(final.violation[0]),
         rl_cost=rl_cost,
-        policy_cost=costs["policy"],
+        rl_feasible=rl_feasible,
+        policy_cost=policy_cost,
+        settle=None if settled is None else SettleInfo(action=settled.action, alpha=settled.alpha, loop=settled.loop,
+                                                       margin=settled.margin, checks=settled.checks),
         metrics=metrics,
         curve=monitor.curve,
         sims=problem.n_sims,
@@ -320,8 +350,8 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
         for method in ("simc", "amigo", "zn_step", "imc"):
             res = run_baseline(spec, method, evaluator=ev)
             result.baselines.append(res.model_dump(mode="json"))
+    result.diagnosis = diagnose(result, layout, tuned)
     result.wall_time = time.perf_counter() - t0
-    _ = refine_sims
     return result
 
 

@@ -6,7 +6,7 @@ delay, infinity handling, exact delay vs Padé, robust sampling).
 
 from gaintune.verify.core import coerce_gains, verify
 from gaintune.verify.nonlinear import nonlinear_check
-from gaintune.verify.quick import QuickMargins, quick_margins, requirement_penalty
+from gaintune.verify.quick import QuickMargins, quick_margins, requirement_violation
 from gaintune.verify.report import VerificationReport, format_table
 
 __all__ = [
@@ -16,6 +16,6 @@ __all__ = [
     "format_table",
     "nonlinear_check",
     "quick_margins",
-    "requirement_penalty",
+    "requirement_violation",
     "QuickMargins",
 ]

@@ -1,0 +1,153 @@
+"""The ``standard`` suite: constrained PI/PID tuning on the Åström–Hägglund test batch.
+
+Two sets, both with requirements that bind (the suite separates methods only when
+the unconstrained optimum lies beyond a limit):
+
+* **load**: a unit load step at the plant input, cost = load-disturbance IAE (no
+  effort term), requirement **Ms <= 1.4** (MIGO/AMIGO; **2.0** for the unstable
+  process), PI and PID on the processes of Åström & Hägglund, "Benchmark systems
+  for PID control" (2000): lags, spread lags, non-minimum phase, FOTD with L/T
+  0.1 to 10, oscillatory, integrating, unstable, the fast/slow process of
+  issue 12 and the thermal FOTD 2e^{-10s}/(60s+1).
+* **track**: a unit setpoint step, cost = IAE + 0.01 int u^2, requirement
+  **PM >= 60 deg** (pidtune's default target), PI.
+
+The reference of every PI problem with an Ms limit is the constrained **MIGO
+optimum** (:mod:`gaintune.baselines.migo`): max ki subject to Ms <= limit, then the
+load IAE minimised along the constraint boundary ``ki = ki_max(kp)``, computed on
+the same loop as verification (plant, delay, dt/2 sample-and-hold) and scored by
+the simulator. It is independent of the searches; the multistart reference search
+runs as well and the better of the two (feasibility first) is the reference.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["standard_problems", "migo_reference", "STANDARD_MS", "STANDARD_MS_UNSTABLE"]
+
+#: The sensitivity limit of the load set (MIGO / AMIGO).
+STANDARD_MS = 1.4
+#: The limit for the open-loop unstable process.
+STANDARD_MS_UNSTABLE = 2.0
+
+#: (name, title, num, den, delay, dt, horizon, family)
+_PROCESSES: list[tuple[str, str, Any, Any, float, float, float, str]] = [
+    ("lag3", "1/(s+1)^3", [1], "(s+1)^3", 0.0, 0.05, 40.0, "lag"),
+    ("lag8", "1/(s+1)^8", [1], "(s+1)^8", 0.0, 0.1, 120.0, "lag"),
+    ("lags02", "1/((1+s)(1+0.2s)(1+0.04s)(1+0.008s))", [1], "(s+1)*(0.2*s+1)*(0.04*s+1)*(0.008*s+1)", 0.0, 0.004, 12.0, "lag"),
+    ("nmp05", "(1-0.5s)/(s+1)^3", [-0.5, 1], "(s+1)^3", 0.0, 0.05, 40.0, "nmp"),
+    ("fotd01", "e^{-s}/(1+10s) (L/T = 0.1)", [1], [10, 1], 1.0, 0.05, 60.0, "delay"),
+    ("fotd1", "e^{-s}/(1+s) (L/T = 1)", [1], [1, 1], 1.0, 0.02, 30.0, "delay"),
+    ("fotd10", "e^{-s}/(1+0.1s) (L/T = 10)", [1], [0.1, 1], 1.0, 0.01, 30.0, "delay"),
+    ("osc2", "4/((s+1)(s^2+0.4s+4)) (w0 = 2, zeta = 0.1)", [4], "(s+1)*(s^2+0.4*s+4)", 0.0, 0.02, 60.0, "oscillatory"),
+    ("integ", "e^{-s}/(s(1+0.5s))", [1], "s*(0.5*s+1)", 1.0, 0.02, 60.0, "integrating"),
+    ("unstable", "e^{-0.1s}/(s-1)", [1], [1, -1], 0.1, 0.005, 15.0, "unstable"),
+    ("fastslow", "(100(s+0.05)+50(s+1))/((s+10)^2(s+1)(s+0.05))", [150, 55], "(s+10)^2*(s+1)*(s+0.05)", 0.0, 0.02, 60.0, "lag"),
+    ("thermal", "2e^{-10s}/(60s+1)", [2], [60, 1], 10.0, 0.5, 600.0, "delay"),
+]
+
+#: Processes of the tracking set (PM >= 60 deg).
+_TRACK = ("lag3", "nmp05", "fotd1", "thermal")
+
+
+def _plant(num: Any, den: Any, delay: float) -> dict[str, Any]:
+    p: dict[str, Any] = {"tf": {"num": num, "den": den}}
+    if delay:
+        p["delay"] = delay
+    return p
+
+
+def standard_problems(problem_cls) -> list:
+    """The suite's problems as ``problem_cls(name, title, spec, family, reference=..., exact=..., note=...)``."""
+    out = []
+    ref_opts = {"restarts": 3, "sims_per_restart": 4000, "polish": False}
+    for name, title, num, den, delay, dt, horizon, family in _PROCESSES:
+        ms = STANDARD_MS_UNSTABLE if family == "unstable" else STANDARD_MS
+        for kind in ("pi", "pid"):
+            spec = {
+                "plant": _plant(num, den, delay),
+                "loops": [{"name": "main", "type": kind}],
+                "scenarios": [{"name": "load", "dt": dt, "horizon": horizon, "reference": {"kind": "none"},
+                               "disturbance": {"kind": "step", "entry": "input", "amplitude": 1.0, "time": 0.0}}],
+                "objective": {"measure": "iae", "effort_weight": 0.0},
+                "requirements": {"gm_min_db": None, "pm_min_deg": None, "ms_max": ms},
+                "search": {"budget": 5000, "n_envs": 32},
+            }
+            exact = "migo" if kind == "pi" and family != "unstable" else None
+            out.append(problem_cls(f"std_{name}_{kind}", f"{title}, {kind.upper()}, load step, Ms <= {ms:g}", spec,
+                                   family, reference=dict(ref_opts), exact=exact,
+                                   note="reference: MIGO boundary optimum vs multistart search" if exact else ""))
+    for name, title, num, den, delay, dt, horizon, family in _PROCESSES:
+        if name not in _TRACK:
+            continue
+        spec = {
+            "plant": _plant(num, den, delay),
+            "loops": [{"name": "main", "type": "pi"}],
+            "scenarios": [{"name": "step", "dt": dt, "horizon": horizon,
+                           "reference": {"kind": "step", "amplitude": 1.0, "time": 0.0}}],
+            "objective": {"measure": "iae", "effort_weight": 0.01},
+            "requirements": {"gm_min_db": None, "pm_min_deg": 60.0, "ms_max": None},
+            "search": {"budget": 5000, "n_envs": 32},
+        }
+        out.append(problem_cls(f"std_{name}_pi_track", f"{title}, PI, setpoint step, PM >= 60 deg", spec, family,
+                               reference=dict(ref_opts)))
+    return out
+
+
+def migo_reference(problem, evaluator) -> dict[str, Any] | None:
+    """The MIGO boundary optimum of a PI problem with an Ms limit, scored by ``evaluator``.
+
+    The loop is the one verification analyses: the plant's linearisation, its delay plus
+    the dt/2 sample-and-hold delay, and C = kp + ki/s. Returns ``{"gains", "cost", "method",
+    "migo": {...}, "feasible"}`` or None when the problem is not a single parallel PI loop
+    with an Ms limit.
+    """
+    from gaintune.baselines.migo import boundary_optimum
+    from gaintune.verify.loops import plant_state_response, sampling_delay
+
+    spec = evaluator.spec
+    loop = spec.loops[0]
+    ms = spec.requirements.ms_max
+    if len(spec.loops) != 1 or loop.type != "pi" or loop.form != "parallel" or ms is None:
+        return None
+    lin = evaluator.plant.linearize()
+    T = lin.delay + sampling_delay(spec)
+    m = lin.output_index(loop.measure) if loop.measure else 0
+
+    def G(w: np.ndarray) -> np.ndarray:
+        w = np.asarray(w, dtype=float)
+        s = 1j * w.ravel()
+        X = plant_state_response(lin, s)  # (W, n)
+        y = X @ lin.C[m] + lin.D[m, 0]
+        return (y * np.exp(-s * T)).reshape(w.shape)
+
+    poles = np.linalg.eigvals(lin.A) if lin.A.size else np.zeros(0)
+    fast = max([abs(p) for p in poles if abs(p) > 1e-9] + ([1.0 / T] if T > 0 else []) + [1e-3])
+    slow = min([abs(p) for p in poles if abs(p) > 1e-9] + [fast])
+    w = np.geomspace(slow / 1000.0, min(fast * 100.0, 10 * np.pi / max(sc.dt for sc in spec.scenarios)), 2000)
+    layout = evaluator.layout
+
+    def cost(kp: np.ndarray, ki: np.ndarray) -> np.ndarray:
+        tuned = np.column_stack([kp, ki])
+        n0 = evaluator.n_sims
+        s = evaluator.evaluate(tuned)
+        evaluator.n_sims = n0  # the reference's own scoring is not a search budget
+        return np.where(s.diverged, np.nan, s.cost)
+
+    names = [sl.name for sl in layout.tuned_slots]
+    if names != ["Kp", "Ki"]:
+        return None
+    migo, best = boundary_optimum(G, ms, w, cost)
+    gains = {loop.name: {"Kp": float(best.kp), "Ki": float(best.ki)}}
+    s = evaluator.evaluate(np.array([[best.kp, best.ki]]))
+    return {
+        "gains": gains,
+        "cost": float(s.cost[0]),
+        "feasible": bool(s.feasible[0]),
+        "method": "MIGO boundary optimum (max ki s.t. Ms <= limit, then IAE along ki = ki_max(kp))",
+        "migo": {"kp": migo.kp, "ki": migo.ki, "ms": migo.ms, "cost": migo.cost},
+        "ms": float(best.ms),
+    }

@@ -1,0 +1,108 @@
+"""Say what a tuning result means: the verdict, the binding requirement, how far off, and what to try.
+
+A result must always tell the engineer something useful. With a pass, that is the
+tightest requirement and any gain that sits on its search bound. With a fail, it is
+the requirement that decides, the figure the best gains reach, whether the search saw
+any candidate that met every requirement, and a concrete next step.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from gaintune.controllers.layout import GainLayout
+from gaintune.search.result import Diagnosis, TuneResult
+
+__all__ = ["diagnose", "bound_hints", "REQUIREMENT_TEXT"]
+
+#: requirement field -> (figure label, comparison) used in messages.
+REQUIREMENT_TEXT: dict[str, tuple[str, str]] = {
+    "gm_min_db": ("GM (dB)", ">="),
+    "pm_min_deg": ("PM (deg)", ">="),
+    "dm_min": ("delay margin (s)", ">="),
+    "ms_max": ("Ms", "<="),
+    "mt_max": ("Mt", "<="),
+    "mks_max": ("Mks", "<="),
+}
+
+#: A gain within this relative distance (in log scale) of a bound counts as on the bound.
+ON_BOUND = 0.01
+
+
+def bound_hints(layout: GainLayout, tuned: np.ndarray) -> list[str]:
+    """One hint per tuned gain that lies on (within 1 % of) its search bound."""
+    hints = []
+    t = np.log(np.asarray(tuned, dtype=float))
+    span = np.maximum(layout.log_hi - layout.log_lo, 1e-12)
+    for slot, x, lo, hi, w in zip(layout.tuned_slots, t, layout.log_lo, layout.log_hi, span):
+        for side, b in (("lower", lo), ("upper", hi)):
+            if abs(x - b) <= ON_BOUND * w:
+                hints.append(
+                    f"{slot.loop_name}.{slot.name} = {math.exp(x):.4g} lies on its {side} search bound; "
+                    f"widen loops[{slot.loop}].gains.{slot.name}.bounds and tune again"
+                )
+    return hints
+
+
+def _failing_lines(ver: dict[str, Any]) -> list[dict[str, Any]]:
+    lines = [q for q in ver.get("requirements", []) if not q.get("passed")]
+    return sorted(lines, key=lambda q: q["margin"] / max(abs(q["limit"]), 1e-12))
+
+
+def _fmt(x: Any) -> str:
+    return "inf" if isinstance(x, str) else f"{float(x):.4g}"
+
+
+def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray) -> Diagnosis:
+    """Build the :class:`Diagnosis` of a finished tune (its verification included, when run)."""
+    hints = bound_hints(layout, tuned)
+    ver = result.verification
+    if ver is None:
+        return Diagnosis(status="unverified", summary="the gains were not verified; they are not accepted", hints=hints)
+    if ver["verdict"] == "pass":
+        lines = ver.get("requirements", [])
+        tight = min(lines, key=lambda q: q["margin"] / max(abs(q["limit"]), 1e-12)) if lines else None
+        summary = "the gains pass verification"
+        if tight is not None:
+            label, op = REQUIREMENT_TEXT.get(tight["requirement"], (tight["figure"], "vs"))
+            summary += f"; tightest requirement {label} {op} {_fmt(tight['limit'])}: {_fmt(tight['value'])}"
+        if tight is None:
+            return Diagnosis(status="pass", summary=summary, hints=hints)
+        value = None if isinstance(tight["value"], str) else float(tight["value"])
+        return Diagnosis(status="pass", summary=summary, binding=tight["requirement"], value=value,
+                         limit=float(tight["limit"]), hints=hints)
+    stable = ver["stability"]["stable"]
+    searched_feasible = result.violation <= 0
+    failing = _failing_lines(ver)
+    if not stable:
+        summary = "no stabilising gains were found" if not searched_feasible else "the closed loop is unstable"
+        hints.insert(0, "check the plant sign and model, or widen the gain bounds; the search never saw a stable loop"
+                     if not searched_feasible else "the exact verification found the loop unstable; raise verify.n_freq or report a bug")
+        return Diagnosis(status="fail", summary=summary, hints=hints)
+    if failing:
+        q = failing[0]
+        label, op = REQUIREMENT_TEXT.get(q["requirement"], (q["figure"], "vs"))
+        summary = (f"{label} {op} {_fmt(q['limit'])} is not met: the best gains found give {_fmt(q['value'])} "
+                   f"at {q['loop']}/{q['break_point']} ({q['case']})")
+        if not searched_feasible:
+            kinds = {lp.type.upper() for lp in _spec_loops(result)}
+            hints.insert(0, f"no candidate in {result.sims} simulations met every requirement, so the answer is the "
+                            f"least-violating one: {label} {op} {_fmt(q['limit'])} may not be reachable with "
+                            f"{'/'.join(sorted(kinds))} on this plant within the gain bounds (best {_fmt(q['value'])}). "
+                            "Relax the requirement, add derivative action, or widen the bounds")
+        else:
+            hints.insert(0, "the search estimate and the exact verification disagree at these gains; "
+                            "raise search.budget or report the spec")
+        return Diagnosis(status="fail", summary=summary, binding=q["requirement"],
+                         value=None if isinstance(q["value"], str) else float(q["value"]), limit=float(q["limit"]), hints=hints)
+    reasons = ver.get("reasons", [])
+    return Diagnosis(status="fail", summary=reasons[0] if reasons else "verification failed", hints=hints)
+
+
+def _spec_loops(result: TuneResult):
+    from gaintune.spec import TuningSpec
+
+    return TuningSpec.model_validate(result.spec).loops
