@@ -36,6 +36,8 @@ __all__ = ["Settled", "settle", "normalised_margin", "ALPHA_TOL", "PUSH_BAND"]
 ALPHA_TOL = 5e-4
 #: A passing answer whose tightest requirement is within this relative margin is pushed to the boundary.
 PUSH_BAND = 0.05
+#: Relative gain reductions tried in turn when an answer must be pulled inside (then bisection).
+PULL_STEPS = (1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.2, 0.35, 0.5, 0.7, 0.85, 0.95)
 #: Largest outward push tried (alpha up to this factor).
 MAX_PUSH = 1.5
 
@@ -142,12 +144,14 @@ def settle(ev: Evaluator, tuned: np.ndarray, cost: float | None = None) -> Settl
         return ok, m_ok
 
     loop_name = loop if loop in [lp.name for lp in spec.loops] else spec.loops[-1].name
-    if m0 < 0:  # pull inside
-        a, m = 1.0, m0
-        while m < 0 and a > a_min:
-            bad = a
-            a = max(a / 2.0, a_min)
+    if m0 < 0:  # pull inside: small steps first, since a peak can be non-monotone in alpha far from 1
+        bad, a, m = 1.0, 1.0, m0
+        for step in PULL_STEPS:
+            a = max(1.0 - step, a_min)
             m, _ = margin_of(scaled(a))
+            if m >= 0 or a <= a_min:
+                break
+            bad = a
         if m < 0:
             return Settled(tuned, 1.0, loop_name, "not_settled", m0, checks)
         a, m = bisect(a, bad, m)

@@ -231,7 +231,8 @@ def _print_summary(result, console: Console = out) -> None:
         for sc, vals in result.metrics.items():
             mt.add_row(sc, *[_f(vals.get(k)) for k in keys])
         console.print(mt)
-    console.print(f"cost {_f(result.cost)} after {result.sims} simulations in {result.wall_time:.1f} s ({result.algo}, stopped: {result.stopped})")
+    console.print(f"cost {_f(result.cost)} (plain objective) after {result.sims} simulations in {result.wall_time:.1f} s "
+                  f"({result.algo}, stopped: {result.stopped})")
     if verdict == "pass":
         console.print("[bold green]verdict: PASS[/]")
     elif verdict == "fail":
@@ -240,6 +241,10 @@ def _print_summary(result, console: Console = out) -> None:
             console.print(f"  - {r}", markup=False)
     else:
         console.print("verdict: not verified")
+    if result.diagnosis is not None:
+        console.print(result.diagnosis.summary, markup=False)
+        for h in result.diagnosis.hints:
+            console.print(f"  hint: {h}", markup=False)
 
 
 def _write_outputs(result, out_dir: Path, console: Console = out) -> None:
@@ -623,6 +628,7 @@ BENCH = {
     "search": "RL search vs baselines on the benchmark processes.",
     "verify": "Verification speed and accuracy (wraps bench/bench_verify.py).",
     "compare": "Compare gaintune with classical rules and optimisers.",
+    "constraints": "Agreement of the searched requirement estimate with the verdict near the boundary.",
     "api": "REST API load test.",
 }
 

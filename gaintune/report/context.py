@@ -293,6 +293,13 @@ def _search_section(result, spec: TuningSpec) -> dict[str, Any]:
             "svg": plots.curve_figure(series) if series else None}
 
 
+def _gains_text(gains: dict[str, dict[str, float]] | None) -> str:
+    """Gains as one short line per table cell, e.g. ``loop0: Kp 1.14, Ki 0.454``."""
+    if not gains:
+        return "-"
+    return "; ".join(f"{lp}: " + ", ".join(f"{k} {_fmt(v, 4)}" for k, v in g.items()) for lp, g in gains.items())
+
+
 def _baselines_section(result, rep0, spec, plant, sim, full, nominal_res, units) -> dict[str, Any]:
     from gaintune.verify import verify
 
@@ -307,7 +314,7 @@ def _baselines_section(result, rep0, spec, plant, sim, full, nominal_res, units)
                 entries.append(run_baseline(spec, m).model_dump())
             except Exception as exc:  # a baseline that cannot run is reported, never fatal
                 entries.append({"method": m, "gains": None, "reason": str(exc)})
-    rows = [{"method": f"gaintune ({result.algo})", "cost": _fmt(result.cost), "sims": _fmt(result.sims),
+    rows = [{"method": f"gaintune ({result.algo})", "gains": _gains_text(result.gains), "cost": _fmt(result.cost), "sims": _fmt(result.sims),
              "verdict": rep0.verdict, "gm": "", "pm": "", "ms": "", "note": "this result", "self": True}]
     if rep0.loops:
         rows[0].update(gm=_fmt(min(f.gm_db for f in rep0.loops), 3), pm=_fmt(min(f.pm_deg for f in rep0.loops), 3),
@@ -317,7 +324,7 @@ def _baselines_section(result, rep0, spec, plant, sim, full, nominal_res, units)
     runs = [(f"gaintune ({result.algo})", nom.traces[f"y.{lp0.name}"][0], nom.traces["u"][0])]
     for b in entries:
         g = b.get("gains")
-        row = {"method": b.get("method", "?"), "cost": _fmt(b.get("cost")), "sims": _fmt(b.get("n_sims")),
+        row = {"method": b.get("method", "?"), "gains": _gains_text(g), "cost": _fmt(b.get("cost")), "sims": _fmt(b.get("n_sims")),
                "verdict": "-", "gm": "-", "pm": "-", "ms": "-", "note": b.get("reason") or "", "self": False}
         if g:
             try:
@@ -379,6 +386,7 @@ def build_context(result, *, command: str | None = None) -> dict[str, Any]:
         "spec_name": spec.name,
         "description": spec.description,
         "passed": passed,
+        "diagnosis": result.diagnosis.model_dump() if result.diagnosis is not None else None,
         "verdict": rep.verdict,
         "verified_now": verified_now,
         "reasons": rep.reasons,

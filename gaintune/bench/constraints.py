@@ -1,0 +1,124 @@
+"""``gaintune bench constraints``: does the searched constraint agree with the verdict near the boundary?
+
+Every search ranks candidates on the fast requirement estimate
+(:func:`gaintune.verify.quick.requirement_violation`, through
+:meth:`gaintune.objective.Evaluator.requirement_violation`); the verdict comes from the
+exact :func:`gaintune.verify.verify`. They must agree where it matters: close to the
+constraint boundary, where a constrained optimum lies.
+
+For each problem the benchmark finds a point on the boundary (the layout's start gains,
+scaled by :func:`gaintune.boundary.settle`'s exact bisection), samples candidates
+around it (independent log-normal perturbations of every tuned gain, ``--spread``
+relative, default 3 %), and compares "feasible by the search estimate" with "meets every
+requirement and is stable by the exact verification" (nominal plant and, for randomised
+specs, the robust set; the nonlinear simulation check is not part of the requirements).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gaintune.bench.compare import md_table
+from gaintune.bench.suite import default_out_dir, get_suite, select, suite_names
+
+__all__ = ["agreement", "main"]
+
+
+def _boundary_point(ev) -> np.ndarray | None:
+    """Start gains pushed or pulled onto the boundary of the requirements (exact), or None."""
+    from gaintune.boundary import normalised_margin, settle
+    from gaintune.verify import verify
+
+    t = ev.layout.initial_tuned()
+    for _ in range(2):  # settle moves at most to the boundary of one requirement per call
+        st = settle(ev, t)
+        t = st.tuned
+    m, _ = normalised_margin(verify(ev.spec, ev.layout.full(t), nonlinear=False, plant=ev.plant, layout=ev.layout))
+    return t if math.isfinite(m) and m < 0.02 else None
+
+
+def agreement(problem, n: int = 200, spread: float = 0.03, seed: int = 0) -> dict[str, Any]:
+    """Agreement of the searched constraint with the verdict on ``n`` candidates near the boundary."""
+    from gaintune.boundary import normalised_margin
+    from gaintune.envs.problem import GainProblem
+    from gaintune.verify import verify
+
+    gp = GainProblem(problem.tuning_spec())
+    ev = gp.evaluator
+    t0 = time.perf_counter()
+    centre = _boundary_point(ev)
+    if centre is None:
+        return {"problem": problem.name, "n": 0, "note": "no boundary point found from the start gains"}
+    rng = np.random.default_rng(seed)
+    cands = centre * np.exp(rng.normal(0.0, spread, (n, centre.size)))
+    searched = ev.requirement_violation(cands) <= 0
+    exact = np.empty(n, dtype=bool)
+    margins = np.empty(n)
+    for i, t in enumerate(cands):
+        rep = verify(ev.spec, ev.layout.full(t), nonlinear=False, plant=ev.plant, layout=ev.layout)
+        margins[i] = normalised_margin(rep)[0]
+        exact[i] = margins[i] >= 0
+    agree = searched == exact
+    wrong = np.abs(margins[~agree])
+    return {
+        "problem": problem.name,
+        "n": n,
+        "agree": int(agree.sum()),
+        "agree_pct": 100.0 * float(agree.mean()),
+        "feasible_exact": int(exact.sum()),
+        "search_says_feasible_exact_fails": int((searched & ~exact).sum()),
+        "search_says_infeasible_exact_passes": int((~searched & exact).sum()),
+        "max_abs_margin_of_disagreement": float(wrong.max()) if wrong.size else None,
+        "wall_time": time.perf_counter() - t0,
+    }
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="gaintune bench constraints", description=__doc__.splitlines()[0])
+    ap.add_argument("--suite", default="standard", choices=suite_names())
+    ap.add_argument("--problems", nargs="+", metavar="NAME")
+    ap.add_argument("--n", type=int, default=200, help="candidates per problem (default 200)")
+    ap.add_argument("--spread", type=float, default=0.03, help="relative log-normal spread of each gain (default 0.03)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, help="output folder (default: bench/results)")
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        problems = select(get_suite(args.suite), args.problems)
+    except ValueError as exc:
+        print(f"error: {exc}")
+        return 2
+    rows = []
+    for p in problems:
+        r = agreement(p, args.n, args.spread, args.seed)
+        rows.append(r)
+        print(f"  {p.name:<24} " + (f"{r['agree']}/{r['n']} agree ({r['agree_pct']:.1f} %)" if r["n"] else r["note"]),
+              flush=True)
+    total = sum(r["n"] for r in rows)
+    agree = sum(r.get("agree", 0) for r in rows)
+    table = md_table(
+        ["problem", "candidates", "agree %", "exact feasible", "search feasible / exact fails",
+         "search infeasible / exact passes", "max |margin| where they disagree"],
+        [[r["problem"], r["n"], r.get("agree_pct"), r.get("feasible_exact"), r.get("search_says_feasible_exact_fails"),
+          r.get("search_says_infeasible_exact_passes"), r.get("max_abs_margin_of_disagreement")] for r in rows],
+    )
+    summary = f"overall: {agree}/{total} candidates agree ({100.0 * agree / max(total, 1):.2f} %), spread {args.spread:g}"
+    print(table)
+    print(summary)
+    out = args.out or default_out_dir()
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"constraints_{args.suite}.json").write_text(json.dumps({"rows": rows, "summary": summary,
+                                                                     "spread": args.spread, "n": args.n}, indent=1))
+    (out / f"constraints_{args.suite}.md").write_text(f"# gaintune bench constraints --suite {args.suite}\n\n{table}\n\n{summary}\n")
+    return 0
