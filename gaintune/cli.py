@@ -401,15 +401,18 @@ def simulate(
 ) -> None:
     """Simulate GAINS on every scenario of SPEC (nominal plant) and print the metrics."""
     from gaintune.sim import Simulator
+    from gaintune.sim.chatter import CHATTER_SWITCHES, saturation_switches
 
     spec = load_spec_file(spec_path)
     sim = Simulator(spec)
     full = sim.layout.from_dict(load_gains(gains))
     results = [sim.run(full[None], scenario=i, traces=True) for i in range(len(spec.scenarios))]
+    switches = [saturation_switches(r.traces["u"][0], spec.actuator.limits) for r in results]
     if json_out:
         doc = {}
-        for r in results:
+        for r, n in zip(results, switches):
             d: dict[str, Any] = {"metrics": {k: _json_num(v[0]) for k, v in r.metrics.items()}}
+            d["metrics"].update(saturation_switches=n, chattering=n >= CHATTER_SWITCHES)
             if traces:
                 d["t"] = r.t.tolist()
                 d["traces"] = {k: [_json_num(x) for x in v[0]] for k, v in r.traces.items()}
@@ -424,7 +427,13 @@ def simulate(
             t.add_column(r.scenario, justify="right")
         for k in keys:
             t.add_row(k, *[str(bool(r.metrics[k][0])) if r.metrics[k].dtype == bool else _f(float(r.metrics[k][0])) for r in results])
+        t.add_row("saturation_switches", *[str(n) for n in switches])
+        t.add_row("chattering", *[str(n >= CHATTER_SWITCHES) for n in switches])
         out.print(t)
+        for r, n in zip(results, switches):
+            if n >= CHATTER_SWITCHES:
+                out.print(f"warning: scenario {r.scenario!r}: the actuator chatters between its limits ({n} limit-to-limit "
+                          "switches); the run is bounded but this is not a working loop", markup=False)
     if plot is not None:
         _plot_runs(spec, sim, results, plot)
         (err if json_out else out).print(f"wrote {plot}")

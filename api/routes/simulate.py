@@ -71,6 +71,7 @@ async def simulate(body: SimulateRequest, request: Request, settings: SettingsDe
 
 def simulate_response(spec, gains, chosen: list[int], max_points: int, plant=None, layout=None) -> SimulateResponse:
     """Traces and metrics of ``gains`` on the chosen scenarios (the spec's cached simulator)."""
+    from gaintune.sim.chatter import CHATTER_SWITCHES, saturation_switches
     from gaintune.verify.context import spec_context
 
     ctx = spec_context(spec, plant, layout)
@@ -85,6 +86,8 @@ def simulate_response(spec, gains, chosen: list[int], max_points: int, plant=Non
         idx, stride = decimate(len(res.t), max_points)
         traces = {k: [_num(v) for v in arr[0, idx]] for k, arr in res.traces.items()}
         metrics = {k: (bool(v[0]) if v.dtype == bool else _num(v[0])) for k, v in res.metrics.items()}
+        n = saturation_switches(res.traces["u"][0], spec.actuator.limits)  # from the full trace, not the decimated one
+        metrics.update(saturation_switches=n, chattering=n >= CHATTER_SWITCHES)
         out.append(ScenarioTrace(name=sc.name, dt=sc.dt, n_steps=sc.n_steps, stride=stride,
                                  t=[float(x) for x in res.t[idx]], traces=traces, metrics=metrics))
     return SimulateResponse(gains=ctx.layout.to_dict(full), max_points=max_points, scenarios=out)

@@ -14,6 +14,8 @@ from typing import Any
 import numpy as np
 
 from gaintune.controllers.layout import GainLayout
+from gaintune.plants.advice import plant_warnings
+from gaintune.plants.plant import Plant
 from gaintune.search.result import Diagnosis, TuneResult
 
 __all__ = ["diagnose", "bound_hints", "REQUIREMENT_TEXT"]
@@ -56,9 +58,13 @@ def _fmt(x: Any) -> str:
     return "inf" if isinstance(x, str) else f"{float(x):.4g}"
 
 
-def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray) -> Diagnosis:
-    """Build the :class:`Diagnosis` of a finished tune (its verification included, when run)."""
-    hints = bound_hints(layout, tuned)
+def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray, plant: Plant | None = None) -> Diagnosis:
+    """Build the :class:`Diagnosis` of a finished tune (its verification included, when run).
+
+    With ``plant``, warnings about the plant itself (open-loop unstable, non-equilibrium
+    operating point, :func:`gaintune.plants.advice.plant_warnings`) come first among the hints.
+    """
+    hints = (plant_warnings(plant) if plant is not None else []) + bound_hints(layout, tuned)
     ver = result.verification
     if ver is None:
         return Diagnosis(status="unverified", summary="the gains were not verified; they are not accepted", hints=hints)

@@ -350,7 +350,7 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
         for method in ("simc", "amigo", "zn_step", "imc"):
             res = run_baseline(spec, method, evaluator=ev)
             result.baselines.append(res.model_dump(mode="json"))
-    result.diagnosis = diagnose(result, layout, tuned)
+    result.diagnosis = diagnose(result, layout, tuned, problem.plant)
     result.wall_time = time.perf_counter() - t0
     return result
 
