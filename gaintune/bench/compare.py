@@ -455,7 +455,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         result = run_compare(problems, args.suite, args.methods, seed=args.seed, budget=args.budget, out_dir=out,
                              refresh_reference=args.refresh_reference, log=log)
     result["command"] = command.strip()
-    from gaintune.search.tune import versions
+    from gaintune.provenance import versions
 
     result["versions"] = versions()
     md = render_markdown(result, command.strip())

@@ -276,7 +276,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         result = run_search(problems, args.suite, args.seeds, algo=args.algo, budget=args.budget, out_dir=out,
                             refresh_reference=args.refresh_reference, log=log)
     result["command"] = command
-    from gaintune.search.tune import versions
+    from gaintune.provenance import versions
 
     result["versions"] = versions()
     md = render_markdown(result, command)

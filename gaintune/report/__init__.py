@@ -147,7 +147,7 @@ def result_from_gains(spec: Any, gains: dict[str, dict[str, float]], *, algo: st
                       baselines: list[dict[str, Any]] | None = None, command: str = "") -> Any:
     """Wrap hand-picked (or baseline) gains in a :class:`TuneResult`, verified and scored, so they can be reported and exported."""
     from gaintune.objective import Evaluator
-    from gaintune.report.context import _versions
+    from gaintune.provenance import versions
     from gaintune.search.result import Provenance, TuneResult
     from gaintune.verify import verify as run_verify
 
@@ -166,7 +166,7 @@ def result_from_gains(spec: Any, gains: dict[str, dict[str, float]], *, algo: st
         violation=float(scores.violation[0]),
         metrics=metrics, sims=ev.n_sims, wall_time=time.perf_counter() - t0, stopped="budget", verification=rep,
         baselines=baselines or [],
-        provenance=Provenance(spec_hash=spec.content_hash(), seed=spec.search.seed, versions=_versions(), command=command),
+        provenance=Provenance(spec_hash=spec.content_hash(), seed=spec.search.seed, versions=versions(), command=command),
     )
 
 

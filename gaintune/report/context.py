@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import platform
 from dataclasses import fields
 from typing import Any
 
@@ -13,6 +12,7 @@ import yaml
 from gaintune.fmt import fmt
 from gaintune.report import plots
 from gaintune.spec import DisturbanceSpec, ProfileSpec, ScenarioSpec, TuningSpec
+from gaintune.provenance import versions as all_versions
 
 __all__ = ["build_context"]
 
@@ -25,18 +25,6 @@ Gains = dict[str, dict[str, float]]
 
 
 _fmt = fmt  # one formatter for every table (gaintune.fmt)
-
-
-def _versions() -> dict[str, str]:
-    from importlib.metadata import PackageNotFoundError, version
-
-    out = {"python": platform.python_version()}
-    for pkg in ("gaintune", "numpy", "scipy", "control", "numba", "stable-baselines3", "torch", "gymnasium", "casadi", "pydantic"):
-        try:
-            out[pkg] = version(pkg)
-        except PackageNotFoundError:
-            pass
-    return out
 
 
 # ------------------------------------------------------------------ summary
@@ -378,7 +366,7 @@ def build_context(result, *, command: str | None = None) -> dict[str, Any]:
     prov = result.provenance
     versions = dict(prov.versions) if prov.versions else {}
     if not versions:
-        versions = _versions()
+        versions = all_versions()
     cmd = command or prov.command or f"gaintune tune spec.yaml --seed {prov.seed}"
     return {
         "title": f"gaintune report: {spec.name}",

@@ -26,25 +26,13 @@ from gaintune.boundary import settle
 from gaintune.search.diagnosis import diagnose
 from gaintune.search.result import CurvePoint, Progress, Provenance, SettleInfo, TuneResult
 from gaintune.spec import TuningSpec
+from gaintune.provenance import versions
 
-__all__ = ["tune", "policy_gains", "versions", "SearchMonitor"]
+__all__ = ["tune", "policy_gains", "SearchMonitor"]
 
 
 class Cancel(Protocol):
     def is_set(self) -> bool: ...
-
-
-def versions() -> dict[str, str]:
-    """Versions of gaintune and the packages that shape its numbers."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    out = {}
-    for pkg in ("gaintune", "numpy", "scipy", "numba", "control", "casadi", "torch", "stable-baselines3", "gymnasium"):
-        try:
-            out[pkg] = version(pkg)
-        except PackageNotFoundError:
-            out[pkg] = "unknown"
-    return out
 
 
 class SearchMonitor:

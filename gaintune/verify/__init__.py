@@ -19,3 +19,19 @@ __all__ = [
     "requirement_violation",
     "QuickMargins",
 ]
+
+
+class _CallablePackage(__import__("types").ModuleType):
+    """Make ``from gaintune import verify; verify(spec, gains)`` work.
+
+    ``gaintune.verify`` is this package, so the top-level name cannot also be bound to the
+    function without breaking ``import gaintune.verify.x``. Calling the package calls
+    :func:`gaintune.verify.core.verify` instead (module ``__class__`` assignment, PEP 549's
+    documented fallback).
+    """
+
+    def __call__(self, *args, **kwargs):
+        return verify(*args, **kwargs)
+
+
+__import__("sys").modules[__name__].__class__ = _CallablePackage

@@ -1,0 +1,22 @@
+"""Versions of Python, gaintune and the packages that shape its numbers (provenance of every result)."""
+
+from __future__ import annotations
+
+import platform
+from importlib.metadata import PackageNotFoundError, version
+
+__all__ = ["PACKAGES", "versions"]
+
+#: Packages whose versions can change a result.
+PACKAGES = ("gaintune", "numpy", "scipy", "numba", "control", "casadi", "torch", "stable-baselines3", "gymnasium", "pydantic")
+
+
+def versions() -> dict[str, str]:
+    """``{"python": ..., package: version}``; a package that is not installed reads "not installed"."""
+    out = {"python": platform.python_version()}
+    for pkg in PACKAGES:
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out

@@ -1,0 +1,22 @@
+"""The public API: one import, and reading results does not load the search stack."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+
+def test_public_names_import_from_the_top_level():
+    from gaintune import TuneResult, VerificationReport, load_spec, tune, verify, versions
+
+    spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}]})
+    rep = verify(spec, {"loop0": {"Kp": 1.14, "Ki": 0.454}})
+    assert isinstance(rep, VerificationReport) and rep.verdict == "pass"
+    assert callable(tune) and TuneResult.__name__ == "TuneResult" and "numpy" in versions()
+
+
+def test_verify_and_results_do_not_import_torch():
+    code = ("import sys; from gaintune import load_spec, verify, TuneResult, VerificationReport; "
+            "import gaintune.verify.loops; print('torch' in sys.modules, 'stable_baselines3' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["False", "False"]
