@@ -82,18 +82,36 @@ def normalised_margin(report: VerificationReport) -> tuple[float, str | None]:
     return worst, loop
 
 
-def _scale_mask(ev: Evaluator, loop: str | None) -> np.ndarray | None:
-    """Tuned-vector mask of the gains that scale a loop's controller (None when none do)."""
+def _directions(ev: Evaluator, loop: str | None) -> tuple[str, list[np.ndarray]]:
+    """The binding loop's name and the exponent vectors d of its moves ``t * alpha**d`` (alpha < 1).
+
+    In order: (1) the loop gain down (parallel: Kp, Ki, Kd; ideal: Kp), (2) the integral action
+    down (Ki, or Ti up), which raises the phase margin at an unchanged crossover, (3) the loop
+    gain up. Empty for LQ loops and loops with nothing tuned.
+    """
     layout = ev.layout
     names = [lp.name for lp in ev.spec.loops]
     if loop is None or loop not in names:
         loop = names[-1]  # the plant-input break point: the innermost loop drives the plant
     spec_loop = ev.spec.loops[names.index(loop)]
     if spec_loop.is_lq:
-        return None
-    scaled = {"Kp", "Ki", "Kd"} if spec_loop.form == "parallel" else {"Kp"}
-    mask = np.array([s.loop_name == loop and s.name in scaled for s in layout.tuned_slots])
-    return mask if mask.any() else None
+        return loop, []
+    slots = layout.tuned_slots
+
+    def vec(weights: dict[str, float]) -> np.ndarray:
+        return np.array([weights.get(s.name, 0.0) if s.loop_name == loop else 0.0 for s in slots])
+
+    gain = vec({"Kp": 1.0, "Ki": 1.0, "Kd": 1.0} if spec_loop.form == "parallel" else {"Kp": 1.0})
+    integral = vec({"Ki": 1.0} if spec_loop.form == "parallel" else {"Ti": -1.0})
+    out = [d for d in (gain, integral, -gain) if d.any()]
+    return loop, out
+
+
+def _alpha_min(layout, tuned: np.ndarray, d: np.ndarray) -> float:
+    """Smallest alpha < 1 that keeps ``tuned * alpha**d`` inside the search box."""
+    lo, hi = np.exp(layout.log_lo), np.exp(layout.log_hi)
+    lim = [lo[k] / tuned[k] for k in np.nonzero(d > 0)[0]] + [tuned[k] / hi[k] for k in np.nonzero(d < 0)[0]]
+    return float(min(max(lim), 1.0)) if lim else 0.0
 
 
 def settle(ev: Evaluator, tuned: np.ndarray, cost: float | None = None) -> Settled:
@@ -112,67 +130,66 @@ def settle(ev: Evaluator, tuned: np.ndarray, cost: float | None = None) -> Settl
     spec, layout = ev.spec, ev.layout
     checks = 0
 
-    def margin_of(t: np.ndarray) -> tuple[float, str | None]:
+    def margin_of(t: np.ndarray) -> float:
         nonlocal checks
         checks += 1
-        rep = verify(spec, layout.full(t), nonlinear=False, plant=ev.plant, layout=layout)
-        return normalised_margin(rep)
+        return normalised_margin(verify(spec, layout.full(t), nonlinear=False, plant=ev.plant, layout=layout))[0]
 
-    m0, loop = margin_of(tuned)
-    if not math.isfinite(m0) and m0 < 0:
-        return Settled(tuned, 1.0, None, "not_settled", m0, checks)
-    mask = _scale_mask(ev, loop)
-    if mask is None:
-        return Settled(tuned, 1.0, None, "unchanged" if m0 >= 0 else "not_settled", m0, checks)
-    lo_b, hi_b = np.exp(layout.log_lo[mask]), np.exp(layout.log_hi[mask])
-    a_min = float(np.max(lo_b / tuned[mask]))  # the box limits how far alpha may go
-    a_max = float(np.min(hi_b / tuned[mask]))
+    def moved(d: np.ndarray, a: float) -> np.ndarray:
+        return tuned * a**d
 
-    def scaled(a: float) -> np.ndarray:
-        t = tuned.copy()
-        t[mask] *= a
-        return t
-
-    def bisect(ok: float, bad: float, m_ok: float) -> tuple[float, float]:
-        while abs(bad - ok) > ALPHA_TOL * ok:
+    def bisect(d: np.ndarray, ok: float, bad: float, m_ok: float) -> tuple[float, float]:
+        while abs(bad - ok) > ALPHA_TOL * min(ok, bad):
             mid = math.sqrt(ok * bad)
-            m, _ = margin_of(scaled(mid))
+            m = margin_of(moved(d, mid))
             if m >= 0:
                 ok, m_ok = mid, m
             else:
                 bad = mid
         return ok, m_ok
 
-    loop_name = loop if loop in [lp.name for lp in spec.loops] else spec.loops[-1].name
-    if m0 < 0:  # pull inside: small steps first, since a peak can be non-monotone in alpha far from 1
-        bad, a, m = 1.0, 1.0, m0
-        for step in PULL_STEPS:
-            a = max(1.0 - step, a_min)
-            m, _ = margin_of(scaled(a))
-            if m >= 0 or a <= a_min:
-                break
-            bad = a
-        if m < 0:
-            return Settled(tuned, 1.0, loop_name, "not_settled", m0, checks)
-        a, m = bisect(a, bad, m)
-        return Settled(scaled(a), a, loop_name, "pulled_inside", m, checks)
+    checks += 1
+    m0, binding = normalised_margin(verify(spec, layout.full(tuned), nonlinear=False, plant=ev.plant, layout=layout))
+    if m0 == -math.inf:
+        return Settled(tuned, 1.0, None, "not_settled", m0, checks)
+    loop, dirs = _directions(ev, binding)
+    if not dirs:
+        return Settled(tuned, 1.0, None, "unchanged" if m0 >= 0 else "not_settled", m0, checks)
+    if m0 < 0:  # pull inside: small steps first, since a peak can be non-monotone far from alpha = 1
+        for d in dirs:
+            a_min = _alpha_min(layout, tuned, d)
+            bad, a, m = 1.0, 1.0, m0
+            for step in PULL_STEPS:
+                a = max(1.0 - step, a_min)
+                if a >= bad:
+                    break  # the box allows no further move this way
+                m = margin_of(moved(d, a))
+                if m >= 0 or a <= a_min:
+                    break
+                bad = a
+            if m >= 0:
+                a, m = bisect(d, a, bad, m)
+                return Settled(moved(d, a), a, loop, "pulled_inside", m, checks)
+        return Settled(tuned, 1.0, loop, "not_settled", m0, checks)
+    d = dirs[0]
+    a_max = 1.0 / _alpha_min(layout, tuned, -d) if _alpha_min(layout, tuned, -d) > 0 else MAX_PUSH
     if m0 > PUSH_BAND or a_max <= 1.0:
-        return Settled(tuned, 1.0, loop_name, "unchanged", m0, checks)
-    # push out: find a failing scale, then bisect back onto the boundary
+        return Settled(tuned, 1.0, loop, "unchanged", m0, checks)
+    # push out along the loop gain: find a failing scale, then bisect back onto the boundary
     a, m, ok, m_ok = 1.0, m0, 1.0, m0
     while m >= 0 and a < min(MAX_PUSH, a_max):
         ok, m_ok = a, m
         a = min(a * (1.0 + max(2.0 * m, 0.01)), MAX_PUSH, a_max)
-        m, _ = margin_of(scaled(a))
+        m = margin_of(moved(d, a))
     if m >= 0:
         ok, m_ok = a, m
     else:
-        ok, m_ok = bisect(ok, a, m_ok)
+        ok, m_ok = bisect(d, ok, a, m_ok)
     if ok == 1.0:
-        return Settled(tuned, 1.0, loop_name, "unchanged", m0, checks)
+        return Settled(tuned, 1.0, loop, "unchanged", m0, checks)
     base = cost if cost is not None else float(ev.evaluate(tuned[None]).cost[0])
-    cand = ev.evaluate(scaled(ok)[None])
+    cand = ev.evaluate(moved(d, ok)[None])
     # the exact check decides the requirements here; the run itself must not diverge or trip
     if not (cand.diverged[0] or cand.tripped[0]) and float(cand.cost[0]) < base:
-        return Settled(scaled(ok), ok, loop_name, "pushed_to_boundary", m_ok, checks)
-    return Settled(tuned, 1.0, loop_name, "unchanged", m0, checks)
+        return Settled(moved(d, ok), ok, loop, "pushed_to_boundary", m_ok, checks)
+    return Settled(tuned, 1.0, loop, "unchanged", m0, checks)

@@ -46,10 +46,10 @@ def test_settle_pushes_an_almost_active_answer_out_when_the_cost_drops():
 def test_settle_pulls_inside_when_ms_is_not_monotone_in_the_gain_scale():
     """Regression: halving the gains raised a second, low-frequency Ms peak and settling gave up."""
     gp = _problem("(s+1)*(0.2*s+1)*(0.04*s+1)*(0.008*s+1)", "pid", dt=0.004, horizon=12)
-    tuned = np.array([9.22300724, 27.05961836, 1.24039569])  # Ms 1.40014 by the exact check
+    tuned = np.array([9.22300724, 27.05961836, 1.24039569])  # Ms just above 1.4 by the exact check
     assert _ms(gp, tuned) > 1.4 and _ms(gp, 0.5 * tuned) > 1.4
     st = settle(gp.evaluator, tuned)
-    assert st.action == "pulled_inside" and abs(1 - st.alpha) < 0.01
+    assert st.action == "pulled_inside" and 0.5 < st.alpha < 1
     assert 1.4 - 0.005 <= _ms(gp, st.tuned) <= 1.4
 
 

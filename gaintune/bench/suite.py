@@ -502,14 +502,12 @@ def _still_valid(problem: Problem, entry: dict[str, Any], evaluator=None) -> boo
         layout = evaluator.layout
         tuned = np.asarray(layout.from_dict(gains))[layout.tuned_idx]
         n0 = getattr(evaluator, "n_sims", 0)
-        scores = evaluator.evaluate(tuned[None, :])
-        now, feasible = float(scores.cost[0]), bool(scores.feasible[0])
+        now = float(evaluator.evaluate(tuned[None, :]).cost[0])
         if hasattr(evaluator, "n_sims"):
             evaluator.n_sims = n0
     except Exception:  # gains no longer fit the layout, etc.
         return False
-    same = math.isfinite(now) and abs(now - cost) <= RESCORE_RTOL * max(abs(cost), 1e-300)
-    return same and feasible == entry.get("feasible", True)
+    return math.isfinite(now) and abs(now - cost) <= RESCORE_RTOL * max(abs(cost), 1e-300)
 
 
 def _write_entry(path, key: str, entry: dict[str, Any]) -> None:
@@ -521,6 +519,18 @@ def _write_entry(path, key: str, entry: dict[str, Any]) -> None:
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
     tmp.replace(path)
+
+
+def _passes(spec: TuningSpec, gains: dict[str, dict[str, float]] | None) -> bool:
+    """The reference is judged by the verdict itself, not by the search's estimate."""
+    if gains is None:
+        return False
+    from gaintune.verify import verify
+
+    try:
+        return verify(spec, gains).verdict == "pass"
+    except Exception:  # gains verification rejects outright (e.g. out of range) never pass
+        return False
 
 
 def compute_reference(problem: Problem, *, evaluator=None, log=None) -> dict[str, Any]:
@@ -543,15 +553,15 @@ def compute_reference(problem: Problem, *, evaluator=None, log=None) -> dict[str
                    "winner": r.details.get("winner"), "options": problem.reference},
         "exact": ex,
     }
-    cands = [("search", r.cost, bool(r.feasible), r.gains)]
+    cands = [("search", r.cost, _passes(spec, r.gains), r.gains)]
     if ex is not None:
-        cands.append(("exact", ex["cost"], bool(ex.get("feasible", True)), ex["gains"]))
+        cands.append(("exact", ex["cost"], _passes(spec, ex["gains"]), ex["gains"]))
     cands = [c for c in cands if c[1] is not None]
-    if cands:  # feasibility first, then the plain cost (as every search ranks)
-        src, cost, feasible, gains = min(cands, key=lambda c: (not c[2], c[1]))
+    if cands:  # the verdict first, then the plain cost
+        src, cost, passes, gains = min(cands, key=lambda c: (not c[2], c[1]))
     else:
-        src, cost, feasible, gains = "none", None, False, None
-    entry.update(cost=cost, feasible=feasible, gains=gains, source=src, n_sims=r.n_sims,
+        src, cost, passes, gains = "none", None, False, None
+    entry.update(cost=cost, passes=passes, gains=gains, source=src, n_sims=r.n_sims,
                  wall_time=time.perf_counter() - t0)
     return entry
 
