@@ -83,7 +83,7 @@ def compute_verify(spec, gains, robust, nonlinear, plant=None, layout=None, spec
 
 def compute_simulate(spec, gains, chosen: list[int], max_points: int, plant=None, layout=None) -> tuple[str, Any]:
     """``("ok", SimulateResponse)`` | ``("gains", problem details)`` | ``("error", message)``."""
-    from api.routes.simulate import simulate_response
+    from api.simulation import simulate_response
     from gaintune.errors import GaintuneError, problem_details
 
     try:

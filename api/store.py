@@ -316,5 +316,3 @@ class _Tx:
         self.conn.execute("COMMIT" if et is None else "ROLLBACK")
 
 
-def finite_or_none(x: float | None) -> float | None:
-    return None if x is None or not math.isfinite(x) else x

@@ -69,9 +69,6 @@ class Supervisor:
     def alive(self) -> int:
         return sum(1 for p in self.procs if p is not None and p.is_alive())
 
-    def worker_pids(self) -> set[int]:
-        return {p.pid for p in self.procs if p is not None and p.pid is not None and p.is_alive()}
-
     # ------------------------------------------------------------ recovery
     def recover(self, reason: str) -> list[str]:
         """Recover running jobs whose worker is gone or silent."""

@@ -106,14 +106,6 @@ def md_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
     return "\n".join(out)
 
 
-def _finite_or_none(x: Any) -> float | None:
-    try:
-        x = float(x)
-    except (TypeError, ValueError):
-        return None
-    return x if math.isfinite(x) else None
-
-
 def _jsonable(x: Any) -> Any:
     """inf/nan -> strings 'inf'/'-inf'/None, numpy scalars -> Python (strict JSON)."""
     if isinstance(x, dict):

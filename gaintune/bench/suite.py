@@ -422,26 +422,11 @@ def exact_optimum(problem: Problem, evaluator) -> dict[str, Any] | None:
     }
 
 
-def _check_suites() -> None:
-    """Every suite problem validates, respects the budget and step limits (used by the tests)."""
-    for name in SUITES:
-        for p in get_suite(name):
-            spec = p.tuning_spec()
-            assert spec.search.budget <= MAX_BUDGET, p.name
-            for sc in spec.scenarios:
-                assert sc.n_steps <= MAX_SUITE_STEPS, (p.name, sc.n_steps)
-
-
 # ------------------------------------------------------------ reference cache
 
 
 def default_out_dir() -> Path:
-    """``bench/results`` of the source checkout when gaintune runs from one, else ``./bench/results``."""
-    from pathlib import Path
-
-    repo = Path(__file__).resolve().parents[2]
-    if (repo / "bench").is_dir() and (repo / "pyproject.toml").is_file():
-        return repo / "bench" / "results"
+    """``bench/results`` relative to the working directory (every benchmark's ``--out`` default)."""
     return Path("bench") / "results"
 
 

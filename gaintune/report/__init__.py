@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 import subprocess
 import tempfile
 import time
@@ -170,5 +169,3 @@ def result_from_gains(spec: Any, gains: dict[str, dict[str, float]], *, algo: st
     )
 
 
-def _which(name: str) -> str | None:  # pragma: no cover - helper for diagnostics
-    return shutil.which(name)
