@@ -75,6 +75,13 @@ class Settings(BaseSettings):
 
     log_level: str = "info"
 
+    # ------------------------------------------------------ tests only
+    test_hold_file: Path | None = Field(
+        None, description="FOR TESTS ONLY (unset in production: no effect). While this file exists, a worker "
+        "whose job has reported progress pauses the search (heartbeats continue), so integration tests can "
+        "kill a worker or server while a job is provably mid-run, however fast the machine.",
+    )
+
     @field_validator("api_keys", "cors_origins", mode="before")
     @classmethod
     def _split(cls, v: Any) -> Any:

@@ -21,6 +21,7 @@ import sys
 import threading
 import time
 import traceback
+from pathlib import Path
 from typing import Any, Callable
 
 from api.settings import Settings
@@ -100,6 +101,8 @@ def run_job(store: JobStore, job: JobRow, settings: Settings, tune: Callable[...
 
     def progress(p: Any) -> bool:
         state["progress"] = p.model_dump() if hasattr(p, "model_dump") else dict(p)
+        if settings.test_hold_file is not None:  # tests only; None (off) unless GAINTUNE_TEST_HOLD_FILE is set
+            _hold_while_exists(settings.test_hold_file, cancel)
         return not cancel.is_set()
 
     th = threading.Thread(target=monitor, name=f"monitor-{job.id[:8]}", daemon=True)
@@ -148,6 +151,18 @@ def _accepts(fn: Callable[..., Any], name: str) -> bool:
     except (TypeError, ValueError):
         return False
     return name in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
+
+
+def _hold_while_exists(path: Path, cancel: threading.Event, poll: float = 0.05) -> None:
+    """Test hook (``Settings.test_hold_file``): pause the search while *path* exists.
+
+    Integration tests kill a worker or its server "during a job"; a small job can finish before the test
+    even sees it running, so they hold it here, after its first progress report, instead of sleeping and
+    hoping. The monitor thread keeps heartbeating (the job stays ``running`` with progress); a cancel, a
+    wall-time stop or a lost claim ends the hold at once.
+    """
+    while not cancel.is_set() and path.exists():
+        cancel.wait(poll)
 
 
 def _final_status(reason: str | None, settings: Settings) -> tuple[str, str]:

@@ -116,7 +116,9 @@ def pid_gone(pid: int, timeout: float = 10) -> bool:
 
 
 def test_real_server_tiny_job_end_to_end_and_worker_crash(tmp_path):
-    srv = Server(tmp_path, use_uvicorn=True, GAINTUNE_WORKERS="1", GAINTUNE_RECOVER="fail")
+    hold = tmp_path / "hold"  # GAINTUNE_TEST_HOLD_FILE: see api.worker._hold_while_exists (absent for the tiny job)
+    srv = Server(tmp_path, use_uvicorn=True, GAINTUNE_WORKERS="1", GAINTUNE_RECOVER="fail",
+                 GAINTUNE_TEST_HOLD_FILE=str(hold))
     try:
         srv.wait_ready()
         c = srv.client
@@ -151,7 +153,10 @@ def test_real_server_tiny_job_end_to_end_and_worker_crash(tmp_path):
             pass
         assert 'gaintune_jobs{state="succeeded"} 1' in c.get("/metrics").text
 
-        # kill -9 a worker during a job: the job is failed (GAINTUNE_RECOVER=fail) and the worker restarted
+        # kill -9 a worker during a job: the job is failed (GAINTUNE_RECOVER=fail) and the worker restarted.
+        # The hold file pauses the job after its first progress report, so it is provably still running
+        # when it is killed (a large budget alone is only "probably long enough").
+        hold.touch()
         long = {**TINY, "name": "long", "search": {**TINY["search"], "budget": 50_000}}
         job2 = c.post("/v1/tune", json=long).json()["id"]
         srv.wait_job(job2, {"running"}, cond=lambda j: j["progress"] is not None)
@@ -167,7 +172,15 @@ def test_real_server_tiny_job_end_to_end_and_worker_crash(tmp_path):
 
 def test_sigkill_server_during_job_then_restart_requeues_and_finishes(tmp_path):
     job_spec = {**TINY, "name": "durable", "search": {**TINY["search"], "budget": 300}}
-    srv = Server(tmp_path, GAINTUNE_WORKERS="1", GAINTUNE_RECOVER="requeue")
+    # The 300-simulation job takes ~2 s on a fast machine: without control it can succeed before this test sees
+    # it running. While the hold file exists, workers pause a job after its first progress report (test hook
+    # GAINTUNE_TEST_HOLD_FILE, see api.worker._hold_while_exists), so the server is killed while the job is
+    # provably mid-run, and after the restart it cannot finish (nor can "waiting" start, with one worker)
+    # before the checks below; deleting the file lets it finish.
+    hold = tmp_path / "hold"
+    hold.touch()
+    env = dict(GAINTUNE_WORKERS="1", GAINTUNE_RECOVER="requeue", GAINTUNE_TEST_HOLD_FILE=str(hold))
+    srv = Server(tmp_path, **env)
     try:
         srv.wait_ready()
         job_id = srv.client.post("/v1/tune", json=job_spec).json()["id"]
@@ -178,7 +191,7 @@ def test_sigkill_server_during_job_then_restart_requeues_and_finishes(tmp_path):
         srv.stop(signal.SIGKILL)
     assert pid_gone(worker), "the worker outlived its server"
 
-    srv2 = Server(tmp_path, GAINTUNE_WORKERS="1", GAINTUNE_RECOVER="requeue")
+    srv2 = Server(tmp_path, **env)
     try:
         srv2.wait_ready()
         c = srv2.client
@@ -186,6 +199,7 @@ def test_sigkill_server_during_job_then_restart_requeues_and_finishes(tmp_path):
         assert j["status"] in ("queued", "running") and "re-queued" in (j["error"] or "re-queued"), j
         assert c.get(f"/v1/jobs/{waiting}").json()["status"] in ("queued", "running")
         assert c.delete(f"/v1/jobs/{waiting}").status_code in (200, 202)
+        hold.unlink()  # let the re-queued job run to the end
         j = srv2.wait_job(job_id, {"succeeded", "failed"})
         assert j["status"] == "succeeded" and j["attempts"] == 2, j
         assert j["result"]["sims"] <= 300
