@@ -30,7 +30,7 @@ from gaintune.objective import Evaluator
 from gaintune.verify import verify
 from gaintune.verify.report import VerificationReport
 
-__all__ = ["Settled", "settle", "normalised_margin", "ALPHA_TOL", "PUSH_BAND"]
+__all__ = ["Settled", "settle", "violation_after", "normalised_margin", "ALPHA_TOL", "PUSH_BAND"]
 
 #: Bisection stops when the alpha bracket is this narrow (relative): Ms then lands within ~1e-3 of a limit.
 ALPHA_TOL = 5e-4
@@ -193,3 +193,16 @@ def settle(ev: Evaluator, tuned: np.ndarray, cost: float | None = None) -> Settl
     if not (cand.diverged[0] or cand.tripped[0]) and float(cand.cost[0]) < base:
         return Settled(moved(d, ok), ok, loop, "pushed_to_boundary", m_ok, checks)
     return Settled(tuned, 1.0, loop, "unchanged", m0, checks)
+
+
+def violation_after(settled: Settled | None, scores) -> float:
+    """Violation of a settled answer: the exact check supersedes the estimate once settling moved it.
+
+    A pulled-in or pushed-out answer meets every requirement by the exact verification (margin
+    >= 0) while the estimate, which aims :data:`~gaintune.verify.quick.FEASIBILITY_MARGIN`
+    inside, may call it a hair short; its run must still neither diverge nor trip.
+    """
+    moved = settled is not None and settled.action in ("pulled_inside", "pushed_to_boundary")
+    if moved and settled.margin >= 0 and not (scores.diverged[0] or scores.tripped[0]):
+        return 0.0
+    return float(scores.violation[0])

@@ -133,8 +133,9 @@ def loop_coefficients(spec: TuningSpec, gains: Gains) -> list[dict[str, Any]]:
             kb = 1.0 / p.Tt if math.isfinite(p.Tt) else 0.0
             d.update(Kp=p.Kp, Ki=p.Ki, Kd=p.Kd, Tf=p.Tf, b=p.b, c=p.c, aw=loop.anti_windup,
                      Tt=p.Tt if math.isfinite(p.Tt) else None, kb=kb)
-            d["Ti"] = p.Kp / p.Ki if p.Ki > 0 else math.inf
-            d["Td"] = p.Kd / p.Kp if p.Kp > 0 else 0.0
+            # a reverse-acting loop has Kp, Ki, Kd all negative: Ti and Td stay positive
+            d["Ti"] = p.Kp / p.Ki if p.Ki * p.Kp > 0 else math.inf
+            d["Td"] = p.Kd / p.Kp if p.Kp != 0 else 0.0
             d["N"] = (d["Td"] / p.Tf) if p.Tf > 0 else math.inf
         out.append(d)
     return out
@@ -651,9 +652,9 @@ def to_matlab(spec: TuningSpec, gains: Gains, st: _Stamp, dt: float) -> str:
             out.append(f"  Cfb_{v} = pid(Kp_{v}, Ki_{v}, Kd_{v}, Tf_{v}, Ts, {M_FORMULAS});  % feedback path (= Cy)")
         else:
             out.append(f"  C_{v} = pid(Kp_{v}, Ki_{v}, Kd_{v}, Tf_{v}, Ts, {M_FORMULAS});  % u = C*(r - y); C = Cy = Cr")
-        if c["Kp"] > 0:
+        if c["Kp"] != 0:  # pidstd takes a signed Kp with positive Ti, Td (reverse-acting loops too)
             ti = _m_num(c["Ti"])
-            n = _m_num(c["N"]) if c["Kd"] > 0 else "Inf"
+            n = _m_num(c["N"]) if c["Kd"] * c["Kp"] > 0 else "Inf"
             out.append(f"  Cstd_{v} = pidstd(Kp_{v}, {ti}, {_m_num(c['Td'])}, {n}, Ts, {M_FORMULAS});  % ideal form (Ti, Td, N) of Cy")
         out.append("end")
         lim = f"[{_m_num(c['lo'])} {_m_num(c['hi'])}]"

@@ -145,7 +145,9 @@ class Evaluator:
     ``spec.search.robust.samples``; K = 1 uses the nominal plant). The default
     draws are fixed at construction (common random numbers), so the scores are a
     deterministic function of the gains: what the optimisers need. The RL
-    environments pass their own episode draws.
+    environments pass their own episode draws. Without ``sim`` the layout has
+    the fixed default bounds, which is enough to score given gains; searches
+    build theirs on the problem's search box (:func:`gaintune.search_box.make_evaluator`).
 
     Attributes
     ----------
@@ -155,12 +157,12 @@ class Evaluator:
 
     def __init__(self, spec: TuningSpec, sim: Simulator | None = None, draws: Draws | None = None) -> None:
         self.spec = spec
-        if sim is None:
-            from gaintune.controllers.layout import search_layout
+        if sim is None:  # scoring given gains: any box will do (searches use gaintune.search_box)
+            from gaintune.controllers.layout import GainLayout
             from gaintune.plants import build_plant
 
             plant = build_plant(spec.plant)
-            sim = Simulator(spec, plant, search_layout(spec, plant))
+            sim = Simulator(spec, plant, GainLayout(spec, plant.states, plant=plant))
         self.sim = sim
         self.plant: Plant = self.sim.plant
         self.layout = self.sim.layout

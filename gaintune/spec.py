@@ -25,6 +25,7 @@ import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from gaintune.errors import SpecError
+from gaintune.spec_design import DesignSpec, expand_design
 
 __all__ = [
     "MAX_STEPS",
@@ -267,6 +268,28 @@ class LoopSpec(_Model):
     lq_mode: Literal["weights", "gains"] = Field(
         "weights", description="LQ loops: tune diagonal Q/R weights (K from control.lqr) or K entries directly."
     )
+    direction: Literal["auto", "direct", "reverse"] = Field(
+        "auto",
+        description=(
+            "Controller action. direct: positive gains, for a path whose gain is positive (the output rises "
+            "when this loop's output rises); reverse: Kp, Ki, Kd all negative (ideal form: Kp negative, Ti, Td "
+            "positive), for a negative path gain; auto: from the sign of the static gain of the path this loop "
+            "controls at the nominal operating point (integrating path: of its velocity gain; open-loop unstable "
+            "with an odd number of real unstable poles: the opposite sign). The innermost loop's path runs from "
+            "the actuator to its output, an outer loop's from its inner loop's setpoint, inner loops closed. "
+            "When auto cannot tell (e.g. zero static gain) the spec is rejected: set direct or reverse. "
+            "Bounds are magnitudes either way. Not for LQ loops."
+        ),
+    )
+
+    @model_validator(mode="after")
+    def _lq_direction(self) -> "LoopSpec":
+        if self.type in ("lqr", "lqi") and self.direction == "reverse":
+            raise ValueError(
+                f"direction: reverse does not apply to an {self.type} loop (state feedback has no controller sign; "
+                "its gains K take any sign); remove direction or set it to auto"
+            )
+        return self
 
     @field_validator("output_limits")
     @classmethod
@@ -550,6 +573,17 @@ class VerifySpec(_Model):
     pade_order: int | None = Field(None, ge=1, le=20, description="None: exact e^{-jwT}; else this Pade order.")
     robust_samples: int = Field(16, ge=0, le=1000, description="Monte-Carlo draws besides the box corners.")
     n_freq: int = Field(2000, ge=100, le=100000, description="Frequency grid points.")
+    sampled: bool = Field(
+        True,
+        description="Analyse the sampled loop: the plant discretised as the simulator steps it (ZOH with the delay "
+        "exact) at the largest scenario dt, the controllers' discrete laws, z = e^{jw dt} up to pi/dt. "
+        "false: continuous loop plus dt/2 of delay (the older approximation).",
+    )
+    compute_delay: int = Field(
+        0, ge=0, le=1000,
+        description="Samples of computation delay between controller output and plant input: z^-n in the sampled "
+        "loop, n*dt of extra delay in the continuous one (also simulated by the nonlinear check).",
+    )
 
 
 # ------------------------------------------------------------------ the spec
@@ -570,6 +604,14 @@ class TuningSpec(_Model):
     safety: SafetySpec = Field(default_factory=SafetySpec)
     search: SearchSpec = Field(default_factory=SearchSpec)
     verify: VerifySpec = Field(default_factory=VerifySpec)
+    design: DesignSpec | None = Field(
+        None, description="pidtune-style shortcut: phase margin, focus; expanded into requirements and scenarios."
+    )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _design_shortcut(cls, data: Any) -> Any:
+        return expand_design(data) if isinstance(data, dict) else data
 
     @model_validator(mode="before")
     @classmethod

@@ -9,9 +9,11 @@ import control
 import numpy as np
 import pytest
 
-from gaintune.baselines import METHODS, NoModelError, auto_bounds, fit_fotd, run_baseline, tune_classical
-from gaintune.baselines import rules as R
-from gaintune.baselines.fotd import Fotd
+from gaintune.baselines import METHODS, run_baseline
+from gaintune.classical import NoModelError, auto_bounds, fit_fotd, rule_candidates, tune_classical
+from gaintune.search_box import search_box, search_layout
+from gaintune.classical import rules as R
+from gaintune.classical.fotd import Fotd
 from gaintune.baselines.optimizers import optimize
 from gaintune.controllers.layout import GainLayout
 from gaintune.plants import build_plant
@@ -44,7 +46,7 @@ class SimEvaluator:
 
         self.spec = spec
         self.plant = build_plant(spec.plant)
-        self.layout = GainLayout(spec, self.plant.states, auto_bounds=auto_bounds(spec, self.plant))
+        self.layout = search_layout(spec, self.plant)
         self.sim = Simulator(spec, self.plant, self.layout)
         self.n_sims = 0
 
@@ -223,8 +225,13 @@ def test_rule_output_in_loop_form():
     spec = load_spec(PID3)
     g = R.to_loop_gains(R.IdealPid(2.0, 4.0, 0.5), spec.loops[0])
     assert g == pytest.approx({"Kp": 2.0, "Ki": 0.5, "Kd": 1.0})
-    with pytest.raises(NoModelError, match="reverse-acting"):
-        R.simc(Fotd(-1.0, 1.0, 1.0), "pi")
+    # a negative process gain gives the mirror-image controller (reverse-acting): same Ti, Kc negated
+    neg, pos = R.simc(Fotd(-1.0, 1.0, 1.0), "pi"), R.simc(Fotd(1.0, 1.0, 1.0), "pi")
+    assert neg.Kc == -pos.Kc < 0 and neg.Ti == pos.Ti
+    pi_loop = load_spec({**PID3, "loops": [{"type": "pi"}]}).loops[0]
+    assert R.to_loop_gains(neg, pi_loop) == pytest.approx({"Kp": neg.Kc, "Ki": neg.Kc / neg.Ti})
+    with pytest.raises(NoModelError, match="nonzero"):
+        R.simc(Fotd(0.0, 1.0, 1.0), "pi")
 
 
 # ------------------------------------------------------- applied to a spec
@@ -251,8 +258,9 @@ def test_simc_on_spec_uses_half_sample_delay():
 def test_fixed_gain_is_kept():
     spec = load_spec({**PID3, "loops": [{"type": "pid", "gains": {"Kd": {"tune": False, "value": 0.3}}}]})
     plant = build_plant(spec.plant)
-    assert tune_classical(spec, plant, "simc").gains["loop0"]["Kd"] == 0.3
-    assert ("loop0", "Kd") not in auto_bounds(spec, plant)
+    gains = tune_classical(spec, plant, "simc").gains
+    assert gains["loop0"]["Kd"] == 0.3
+    assert ("loop0", "Kd") not in auto_bounds(spec, gains)
 
 
 def test_cascade_inner_first():
@@ -277,19 +285,37 @@ def test_lq_and_unstable_have_no_rule():
     plant = build_plant(unstable.plant)
     with pytest.raises(NoModelError, match="unstable"):
         tune_classical(unstable, plant, "amigo")
-    assert auto_bounds(unstable, plant) == {}
+    assert rule_candidates(unstable, plant) == {}
+    assert search_box(unstable, plant).centre is None  # the layout's fixed default bounds
 
 
-def test_auto_bounds_centred_on_simc():
+def test_auto_bounds_centred_on_the_given_gains():
     spec = load_spec(PID3)
     plant = build_plant(spec.plant)
-    b = auto_bounds(spec, plant)
-    g = tune_classical(spec, plant, "simc").gains["loop0"]
-    for name, v in g.items():
+    g = tune_classical(spec, plant, "simc").gains
+    b = auto_bounds(spec, g)
+    for name, v in g["loop0"].items():
         lo, hi = b[("loop0", name)]
         assert math.sqrt(lo * hi) == pytest.approx(v)
         assert hi / lo == pytest.approx(900.0)
     GainLayout(spec, plant.states, auto_bounds=b)  # accepted by the layout
+
+
+def test_search_box_centres_on_the_best_rule_by_the_requirements():
+    """Regression: the box was centred on SIMC whatever it gave; on the fast/slow process every
+    candidate the search saw was unstable (Ki pinned at the box's lower bound 34.8)."""
+    spec = load_spec({"plant": {"tf": {"num": [150, 55], "den": "(s+10)^2*(s+1)*(s+0.05)"}},
+                      "loops": [{"name": "main", "type": "pi"}],
+                      "scenario": {"dt": 0.02, "horizon": 60, "reference": {"kind": "none"},
+                                   "disturbance": {"kind": "step", "amplitude": 1, "entry": "input"}},
+                      "objective": {"effort_weight": 0}, "requirements": {"gm_min_db": None, "pm_min_deg": None, "ms_max": 1.4}})
+    plant = build_plant(spec.plant)
+    box = search_box(spec, plant)
+    assert box.feasible and box.candidates[box.source][0]
+    assert not box.candidates["simc"][0]  # SIMC itself does not meet Ms <= 1.4 here
+    lay = box.layout
+    start = lay.to_dict(lay.full(lay.initial_tuned()))["main"]
+    assert start == pytest.approx(box.centre["main"])
 
 
 # --------------------------------------------------------------- optimisers

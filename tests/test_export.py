@@ -247,7 +247,7 @@ def test_flip_case_verdict_really_depends_on_dt(motor_spec) -> None:
         rep = verify(spec_at_dt(motor_spec, dt), FLIP_GAINS)
         assert rep.verdict == "fail" and not rep.stability.stable
         assert rep.reasons[0].startswith("closed loop unstable")
-        assert rep.sampling_delay == pytest.approx(dt / 2)
+        assert rep.dt == pytest.approx(dt) and rep.sampled  # the sampled loop at the new dt
 
 
 def test_verdict_at_dt_reuses_the_stored_verdict_only_at_the_verified_dt(motor_spec, flip_result, monkeypatch) -> None:
@@ -267,7 +267,7 @@ def test_verdict_at_dt_reuses_the_stored_verdict_only_at_the_verified_dt(motor_s
     assert (verdict, report) == ("fail", stored) and calls == []  # same dt: the stored verdict, no re-verification
     verdict, report = verdict_at_dt(motor_spec, FLIP_GAINS, 0.01, stored=stored)
     assert calls == [0.01] and verdict == "fail" and "unstable" in report["reasons"][0]
-    assert report["sampling_delay"] == pytest.approx(0.005)
+    assert report["dt"] == pytest.approx(0.01)
     verdict, _ = verdict_at_dt(motor_spec, FLIP_GAINS, None, stored=None)  # nothing stored: verified at the spec's dt
     assert verdict == "pass" and calls == [0.01, 0.001]
 

@@ -8,8 +8,8 @@ import control
 import numpy as np
 import pytest
 
-from gaintune.baselines import migo as M
-from gaintune.baselines.migo import PiPoint, boundary_optimum, ki_max_on_boundary, migo_pi, pi_sensitivity_peak
+from gaintune.classical import migo as M
+from gaintune.classical.migo import PiPoint, boundary_optimum, ki_max_on_boundary, migo_pi, pi_sensitivity_peak
 
 W = np.geomspace(1e-3, 1e2, 1000)
 MS_MAX = 1.4

@@ -20,8 +20,11 @@ FAST = {"dt": 1e-6, "horizon": 0.1}
 
 
 def make_spec(plant: dict, loops: list[dict], **kw) -> object:
+    """A spec for the *continuous* analysis (verify.sampled: false, dt/2 of sampling delay): this file
+    checks it against continuous python-control loops. The sampled analysis: test_verify_discrete.py."""
     d = {"plant": plant, "loops": loops, "scenario": kw.pop("scenario", FAST)}
     d.update(kw)
+    d["verify"] = {"sampled": False, **d.get("verify", {})}
     return load_spec(d)
 
 

@@ -33,15 +33,18 @@ CASES = [
 ]
 
 
-def setup(plant, loops, dt=0.01, **kw):
+def setup(plant, loops, dt=0.01, sampled=True, **kw):
+    """verify.sampled: the sampled loop (the default) or the continuous one plus dt/2 (false)."""
+    kw["verify"] = {"sampled": sampled, **kw.get("verify", {})}
     spec = load_spec({"plant": plant, "loops": loops, "scenario": {"dt": dt, "horizon": 200 * dt}, **kw})
     p = build_plant(spec.plant)
     return spec, p, GainLayout(spec, p.states)
 
 
+@pytest.mark.parametrize("sampled", [True, False])
 @pytest.mark.parametrize("plant, loops, gains, dt", CASES)
-def test_quick_estimate_agrees_with_exact_verify(plant, loops, gains, dt):
-    spec, p, lay = setup(plant, loops, dt)
+def test_quick_estimate_agrees_with_exact_verify(plant, loops, gains, dt, sampled):
+    spec, p, lay = setup(plant, loops, dt, sampled)
     rep = verify(spec, gains, nonlinear=False, plant=p, layout=lay)
     q = quick_margins(spec, p, lay, lay.from_dict(gains)[None, :])
     assert bool(q.stable[0]) == rep.stability.stable
@@ -57,8 +60,9 @@ def test_quick_estimate_agrees_with_exact_verify(plant, loops, gains, dt):
         assert q.delay_margin[0, r] == pytest.approx(f.delay_margin, rel=0.03)
 
 
-def test_quick_batch_equals_one_by_one_and_stability_matches_exact():
-    spec, p, lay = setup({"tf": {"num": [1], "den": "(s+1)^3"}}, [{"type": "pid"}])
+@pytest.mark.parametrize("sampled", [True, False])
+def test_quick_batch_equals_one_by_one_and_stability_matches_exact(sampled):
+    spec, p, lay = setup({"tf": {"num": [1], "den": "(s+1)^3"}}, [{"type": "pid"}], sampled=sampled)
     rng = np.random.default_rng(1)
     G = np.exp(rng.uniform(np.log([0.2, 0.05, 0.05]), np.log([10.0, 5.0, 5.0]), size=(24, 3)))
     q = quick_margins(spec, p, lay, G)

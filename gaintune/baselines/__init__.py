@@ -5,30 +5,14 @@
 ('zn_step', 'zn_ultimate', 'simc', 'amigo', 'imc')
 
 * :func:`run_baseline` - one entry point, returns a :class:`BaselineResult`.
-* :func:`auto_bounds` - default log-scale search bounds around the SIMC (else AMIGO) gains.
-* :func:`fit_fotd` - FOTD model of a loop's plant path (half rule or step-response fit).
-* :mod:`~gaintune.baselines.rules` - the formulas; :mod:`~gaintune.baselines.optimizers`;
-  :mod:`~gaintune.baselines.reference`.
+* :mod:`~gaintune.baselines.optimizers` - random search, CMA-ES, DE, Nelder-Mead on the shared cost.
+* :mod:`~gaintune.baselines.reference` - the multistart reference optimum.
+* The rules themselves live below, in :mod:`gaintune.classical`.
 
 See ``docs/baselines.md``.
 """
 
-from gaintune.baselines.classical import BOUNDS_FACTOR, auto_bounds, tune_classical
-from gaintune.baselines.fotd import Fotd, NoModelError, fit_fotd
 from gaintune.baselines.optimizers import OptResult, optimize
 from gaintune.baselines.run import METHODS, BaselineResult, make_evaluator, run_baseline
 
-__all__ = [
-    "METHODS",
-    "BaselineResult",
-    "run_baseline",
-    "make_evaluator",
-    "auto_bounds",
-    "BOUNDS_FACTOR",
-    "tune_classical",
-    "Fotd",
-    "NoModelError",
-    "fit_fotd",
-    "OptResult",
-    "optimize",
-]
+__all__ = ["METHODS", "BaselineResult", "run_baseline", "make_evaluator", "OptResult", "optimize"]

@@ -111,8 +111,10 @@ def casadi_closed_loop(
 
     w = ca.MX.sym("w", layout.n_tuned)
     full: list[Any] = [float(v) if not np.isnan(v) else 0.0 for v in layout.fixed]
+    signs = getattr(layout, "tuned_signs", np.ones(layout.n_tuned))
     for j, k in enumerate(layout.tuned_idx):
-        full[k] = ca.exp(w[j])
+        # the search works on magnitudes; a reverse-acting loop's gains are negative
+        full[k] = (-1.0 if signs[j] < 0 else 1.0) * ca.exp(w[j])
     g = {s.name: full[k] for k, s in enumerate(layout.slots)}
     t = loop.type
     kp = g.get("Kp", 0.0)
@@ -258,15 +260,15 @@ def reference_optimum(
 ) -> OptResult:
     """Best cost found by multistart CMA-ES, a casadi/IPOPT polish and (LQ) the Riccati candidate.
 
-    ``evaluator`` defaults to ``gaintune.objective.Evaluator(spec)``. The result's
+    ``evaluator`` defaults to ``gaintune.search_box.make_evaluator(spec)``. The result's
     ``details`` list every part's cost and which one won.
     """
     t0 = time.perf_counter()
     ev = evaluator
     if ev is None:
-        from gaintune.objective import Evaluator
+        from gaintune.search_box import make_evaluator
 
-        ev = Evaluator(spec)
+        ev = make_evaluator(spec)
     start = int(getattr(ev, "n_sims", 0))
     rng = np.random.default_rng(seed)
     layout = ev.layout

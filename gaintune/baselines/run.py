@@ -9,10 +9,11 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from gaintune.baselines.classical import CLASSICAL_METHODS, tune_classical
-from gaintune.baselines.fotd import NoModelError
+from gaintune.classical.tuning import CLASSICAL_METHODS, tune_classical
+from gaintune.classical.fotd import NoModelError
 from gaintune.baselines.optimizers import optimize
-from gaintune.boundary import settle
+from gaintune.boundary import settle, violation_after
+from gaintune.objective import DIVERGED_COST
 from gaintune.spec import TuningSpec
 
 __all__ = ["METHODS", "BaselineResult", "run_baseline", "make_evaluator"]
@@ -42,25 +43,15 @@ class BaselineResult(BaseModel):
 
 
 def make_evaluator(spec: TuningSpec):
-    """``gaintune.objective.Evaluator(spec)``, or None when that module is not available."""
-    try:
-        from gaintune.objective import Evaluator
-    except ImportError:
-        return None
-    return Evaluator(spec)
+    """The evaluator every baseline searches with: the problem's default search box (:mod:`gaintune.search_box`)."""
+    from gaintune.search_box import make_evaluator as on_search_box
+
+    return on_search_box(spec)
 
 
 def _tuned_from_gains(layout, gains: dict[str, dict[str, float]]) -> np.ndarray:
     full = layout.from_dict(gains)
     return np.asarray(full)[layout.tuned_idx]
-
-
-def _diverged_cost() -> float:
-    try:
-        from gaintune.objective import DIVERGED_COST
-    except ImportError:
-        return math.inf
-    return float(DIVERGED_COST)
 
 
 def _finite(c: float) -> float | None:
@@ -125,14 +116,12 @@ def run_baseline(
             out.cost = _finite(float(sc.cost[0]))
             out.violation, out.feasible = float(sc.violation[0]), bool(sc.feasible[0])
             out.n_sims = int(getattr(ev, "n_sims", 0)) - before
-            if out.cost is None or out.cost >= _diverged_cost():
+            if out.cost is None or out.cost >= DIVERGED_COST:
                 out.details["diverged"] = True
         out.wall_time = time.perf_counter() - t0
         return out
 
     ev = evaluator if evaluator is not None else make_evaluator(spec)
-    if ev is None:
-        raise RuntimeError("optimiser baselines need an evaluator: gaintune.objective is not available; pass evaluator=")
     if method == "reference":
         from gaintune.baselines.reference import reference_optimum
 
@@ -147,7 +136,7 @@ def run_baseline(
         settled = {"action": st.action, "alpha": st.alpha, "loop": st.loop, "margin": st.margin, "checks": st.checks}
         if st.action in ("pulled_inside", "pushed_to_boundary"):
             sc = ev.evaluate(st.tuned[None, :])
-            tuned, cost, violation = st.tuned, float(sc.cost[0]), float(sc.violation[0])
+            tuned, cost, violation = st.tuned, float(sc.cost[0]), violation_after(st, sc)
     gains = layout.to_dict(layout.full(tuned))
     return BaselineResult(
         method=method,

@@ -13,10 +13,11 @@ the unconstrained optimum lies beyond a limit):
   **PM >= 60 deg** (pidtune's default target), PI.
 
 The reference of every PI problem with an Ms limit is the constrained **MIGO
-optimum** (:mod:`gaintune.baselines.migo`): max ki subject to Ms <= limit, then the
+optimum** (:mod:`gaintune.classical.migo`): max ki subject to Ms <= limit, then the
 load IAE minimised along the constraint boundary ``ki = ki_max(kp)``, computed on
-the same loop as verification (plant, delay, dt/2 sample-and-hold) and scored by
-the simulator. It is independent of the searches; the multistart reference search
+the same loop as verification (the sampled loop: ZOH plant with its delay and the
+backward-Euler integral; the continuous loop plus dt/2 when ``verify.sampled`` is off)
+and scored by the simulator. It is independent of the searches; the multistart reference search
 runs as well and the better of the two (feasibility first) is the reference.
 """
 
@@ -105,8 +106,9 @@ def migo_reference(problem, evaluator) -> dict[str, Any] | None:
     "migo": {...}, "feasible"}`` or None when the problem is not a single parallel PI loop
     with an Ms limit.
     """
-    from gaintune.baselines.migo import boundary_optimum
+    from gaintune.classical.migo import boundary_optimum
     from gaintune.verify.loops import plant_state_response, sampling_delay
+    from gaintune.verify.sampled import sample_plant
 
     spec = evaluator.spec
     loop = spec.loops[0]
@@ -114,20 +116,39 @@ def migo_reference(problem, evaluator) -> dict[str, Any] | None:
     if len(spec.loops) != 1 or loop.type != "pi" or loop.form != "parallel" or ms is None:
         return None
     lin = evaluator.plant.linearize()
-    T = lin.delay + sampling_delay(spec)
     m = lin.output_index(loop.measure) if loop.measure else 0
+    dt = max(sc.dt for sc in spec.scenarios)
 
-    def G(w: np.ndarray) -> np.ndarray:
-        w = np.asarray(w, dtype=float)
-        s = 1j * w.ravel()
-        X = plant_state_response(lin, s)  # (W, n)
-        y = X @ lin.C[m] + lin.D[m, 0]
-        return (y * np.exp(-s * T)).reshape(w.shape)
+    if spec.verify.sampled:  # the loop verification analyses: ZOH plant, backward-Euler integral
+        sp = sample_plant(lin, dt, spec.verify.compute_delay, evaluator.plant.kind == "nonlinear")
 
+        class G:  # noqa: N801 - a frequency response with its integral law (gaintune.classical.migo)
+            def __call__(self, w: np.ndarray) -> np.ndarray:
+                w = np.asarray(w, dtype=float)
+                return sp.responses(np.exp(1j * w.ravel() * dt))[1][:, m].reshape(w.shape)
+
+            @staticmethod
+            def integrator(w: np.ndarray) -> np.ndarray:
+                return dt / (1.0 - np.exp(-1j * np.asarray(w, dtype=float) * dt))
+
+        G = G()
+        w_top = np.pi / dt
+    else:
+        T = lin.delay + sampling_delay(spec)
+
+        def G(w: np.ndarray) -> np.ndarray:
+            w = np.asarray(w, dtype=float)
+            s = 1j * w.ravel()
+            y = plant_state_response(lin, s) @ lin.C[m] + lin.D[m, 0]
+            return (y * np.exp(-s * T)).reshape(w.shape)
+
+        w_top = 10 * np.pi / dt
     poles = np.linalg.eigvals(lin.A) if lin.A.size else np.zeros(0)
-    fast = max([abs(p) for p in poles if abs(p) > 1e-9] + ([1.0 / T] if T > 0 else []) + [1e-3])
+    T_all = lin.delay + dt
+    fast = max([abs(p) for p in poles if abs(p) > 1e-9] + [1.0 / T_all] + [1e-3])
     slow = min([abs(p) for p in poles if abs(p) > 1e-9] + [fast])
-    w = np.geomspace(slow / 1000.0, min(fast * 100.0, 10 * np.pi / max(sc.dt for sc in spec.scenarios)), 2000)
+    top = w_top * (1 - 1e-9) if spec.verify.sampled else min(fast * 100.0, w_top)  # sampled: up to pi/dt
+    w = np.geomspace(slow / 1000.0, top, 2000)
     layout = evaluator.layout
 
     def cost(kp: np.ndarray, ki: np.ndarray) -> np.ndarray:

@@ -365,7 +365,7 @@ def _search_box(spec: TuningSpec) -> list[list[float]]:
     """Log-scale bounds of the tuned gains as the searches see them (rounded for a stable hash)."""
     import warnings
 
-    from gaintune.controllers.layout import search_layout
+    from gaintune.search_box import search_layout
     from gaintune.plants import build_plant
 
     with warnings.catch_warnings():

@@ -4,6 +4,15 @@ The layout is the single place that orders gains. Tuned gains form the search
 vector (and the RL action, mapped from [-1, 1] to log-scaled bounds); fixed
 gains are filled in from the spec. Gains travel between interfaces as a
 nested dict ``{loop_name: {gain_name: value}}``.
+
+The layout also owns the **sign** of every gain. Each loop is direct- or
+reverse-acting (``loops[i].direction``, resolved by
+:func:`~gaintune.controllers.direction.loop_directions`). The search vector
+holds positive *magnitudes* (log scale, bounds are magnitudes); :meth:`GainLayout.full`,
+:meth:`GainLayout.to_dict` and :meth:`GainLayout.from_dict` work with *signed* gains:
+a reverse-acting PID loop has ``Kp``, ``Ki``, ``Kd`` < 0 (ideal form: ``Kp`` < 0,
+``Ti``, ``Td`` > 0). Direct state-feedback entries (``k_<state>``, ``k_int``) keep
+whatever sign they are given.
 """
 
 from __future__ import annotations
@@ -14,10 +23,17 @@ from typing import Any
 
 import numpy as np
 
+from gaintune.controllers.direction import LoopDirection, loop_directions, resolve_directions
 from gaintune.errors import GainError, SpecError
 from gaintune.spec import GAIN_NAMES, LoopSpec, TuningSpec
 
-__all__ = ["GainSlot", "GainLayout", "loop_gain_names", "search_layout", "DEFAULT_BOUNDS"]
+__all__ = [
+    "GainSlot", "GainLayout", "loop_gain_names", "DEFAULT_BOUNDS", "loop_directions",
+    "gain_sign", "SIGNED_GAINS",
+]
+
+#: PID gains that carry the loop's direction (negative for a reverse-acting loop); Ti, Td stay positive.
+SIGNED_GAINS = ("Kp", "Ki", "Kd")
 
 #: Fallback log-scale bounds when neither the spec nor a classical rule gives any.
 DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {
@@ -45,6 +61,13 @@ def loop_gain_names(loop: LoopSpec, states: list[str]) -> tuple[str, ...]:
     return GAIN_NAMES[(loop.type, loop.form)]
 
 
+def gain_sign(loop: LoopSpec, name: str, direction: int) -> int:
+    """Sign gain ``name`` of ``loop`` must have: ``direction`` for Kp/Ki/Kd, +1 for Ti, Td, q, r; 0 = any (k_*)."""
+    if loop.is_lq:
+        return 0 if name.startswith("k_") else 1
+    return direction if name in SIGNED_GAINS else 1
+
+
 def _default_bounds(name: str) -> tuple[float, float]:
     key = name if name in DEFAULT_BOUNDS else name.split("_")[0]
     return DEFAULT_BOUNDS.get(key, (1e-3, 1e3))
@@ -58,8 +81,9 @@ class GainSlot:
     loop_name: str
     name: str
     tuned: bool
-    value: float | None
-    bounds: tuple[float, float]
+    value: float | None  # signed (as in the spec)
+    bounds: tuple[float, float]  # of the magnitude
+    sign: int = 1  # +1 / -1: the value's required sign (the search holds |value|); 0: any sign, searched as is
 
 
 class GainLayout:
@@ -72,8 +96,19 @@ class GainLayout:
     states
         Plant state names (needed for LQ loops).
     auto_bounds
-        Bounds to use for gains whose spec gives none, keyed ``(loop_name, gain)``;
-        typically derived from a classical tuning rule.
+        Bounds (of magnitudes) to use for gains whose spec gives none, keyed
+        ``(loop_name, gain)``; typically derived from a classical tuning rule.
+    plant
+        The spec's built plant, used to resolve ``direction: auto`` (built from
+        the spec when omitted; the resolution is memoised per spec either way).
+    directions
+        +1/-1 per loop, overriding the resolution (tests and tools).
+
+    Raises
+    ------
+    SpecError
+        For unknown gains, initial values outside their bounds or of the wrong
+        sign, and loops whose direction cannot be resolved.
     """
 
     def __init__(
@@ -81,9 +116,21 @@ class GainLayout:
         spec: TuningSpec,
         states: list[str],
         auto_bounds: dict[tuple[str, str], tuple[float, float]] | None = None,
+        *,
+        plant: Any = None,
+        directions: tuple[int, ...] | None = None,
     ) -> None:
         slots: list[GainSlot] = []
         auto_bounds = auto_bounds or {}
+        if directions is None:
+            self.direction_info: tuple[LoopDirection, ...] = resolve_directions(spec, plant)
+        else:
+            if len(directions) != len(spec.loops) or any(d not in (1, -1) for d in directions):
+                raise ValueError(f"directions must be +1/-1 per loop ({len(spec.loops)}), got {directions}")
+            self.direction_info = tuple(
+                LoopDirection(int(d), "set", "set", None, "given to the layout") for d in directions
+            )
+        self.directions: tuple[int, ...] = tuple(d.sign for d in self.direction_info)
         for i, loop in enumerate(spec.loops):
             names = loop_gain_names(loop, states)
             unknown = set(loop.gains) - set(names)
@@ -102,14 +149,36 @@ class GainLayout:
                     or auto_bounds.get((loop.name or "", name))
                     or _default_bounds(name)
                 )
-                if value is not None and tuned and not bounds[0] <= value <= bounds[1]:
-                    raise SpecError(f"loops[{i}].gains.{name}.value", f"initial value {value} lies outside bounds {list(bounds)}")
-                slots.append(GainSlot(i, loop.name or f"loop{i}", name, tuned, value, tuple(bounds)))
+                sign = gain_sign(loop, name, self.directions[i])
+                if value is not None and sign != 0 and value * sign < 0:
+                    raise SpecError(f"loops[{i}].gains.{name}.value", self._sign_message(i, name, value))
+                mag = abs(value) if value is not None and sign != 0 else value
+                if mag is not None and tuned and not bounds[0] <= mag <= bounds[1]:
+                    what = "initial value" if sign >= 0 or mag == value else f"initial value {value}: its magnitude"
+                    raise SpecError(f"loops[{i}].gains.{name}.value", f"{what} {mag} lies outside bounds {list(bounds)}")
+                slots.append(GainSlot(i, loop.name or f"loop{i}", name, tuned, value, tuple(bounds), sign))
         self.slots = slots
         self.tuned_idx = np.array([k for k, s in enumerate(slots) if s.tuned], dtype=int)
         self.log_lo = np.log(np.array([slots[k].bounds[0] for k in self.tuned_idx], dtype=float))
         self.log_hi = np.log(np.array([slots[k].bounds[1] for k in self.tuned_idx], dtype=float))
         self.fixed = np.array([s.value if s.value is not None and not s.tuned else np.nan for s in slots])
+        #: Sign of every gain (+1/-1; 0 = any sign), and of the tuned ones.
+        self.signs = np.array([s.sign for s in slots], dtype=float)
+        self.tuned_signs = self.signs[self.tuned_idx]
+        self._free = self.tuned_signs == 0  # tuned entries searched as they are (k_* of LQ loops)
+        self._any_free = bool(self._free.any())
+        self._all_positive = bool(np.all(self.tuned_signs == 1))
+
+    # ------------------------------------------------------------ directions
+    def _sign_message(self, loop: int, name: str, value: float) -> str:
+        d = self.direction_info[loop]
+        want = "negative" if d.sign < 0 and name in SIGNED_GAINS else "positive"
+        if name not in SIGNED_GAINS:
+            return f"must be > 0, got {value:g} ({name} is a time or weight, positive for either direction)"
+        return (
+            f"must be {'< 0' if want == 'negative' else '> 0'}, got {value:g}: this loop is {d.word} ({d.reason}); "
+            f"give a {want} value or set loops[{loop}].direction: {d.other}"
+        )
 
     # ---------------------------------------------------------------- sizes
     @property
@@ -126,31 +195,53 @@ class GainLayout:
 
     # ------------------------------------------------------- action mapping
     def action_to_tuned(self, action: np.ndarray) -> np.ndarray:
-        """Map actions in [-1, 1]^d (clipped) to tuned gains, log-uniformly inside the bounds."""
+        """Map actions in [-1, 1]^d (clipped) to tuned gain magnitudes, log-uniformly inside the bounds."""
         a = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
         return np.exp(self.log_lo + (a + 1.0) * 0.5 * (self.log_hi - self.log_lo))
 
+    def _magnitudes(self, tuned: np.ndarray) -> np.ndarray:
+        t = np.asarray(tuned, dtype=float)
+        if self._all_positive:
+            return np.abs(t)
+        return np.where(self._free, t, np.abs(t))
+
     def tuned_to_action(self, tuned: np.ndarray) -> np.ndarray:
-        """Inverse of :meth:`action_to_tuned` (values outside the bounds map outside [-1, 1])."""
-        t = np.log(np.asarray(tuned, dtype=float))
+        """Inverse of :meth:`action_to_tuned` (values outside the bounds map outside [-1, 1]).
+
+        Signed tuned values (``full[..., tuned_idx]``) are accepted: their magnitudes are used.
+        """
+        t = np.log(self._magnitudes(tuned))
         return 2.0 * (t - self.log_lo) / (self.log_hi - self.log_lo) - 1.0
 
     def full(self, tuned: np.ndarray) -> np.ndarray:
-        """Insert fixed gains: (..., n_tuned) -> (..., n_gains)."""
+        """Signed full gain vector: (..., n_tuned) magnitudes -> (..., n_gains), fixed gains inserted.
+
+        Each tuned entry becomes ``sign * |entry|`` (its loop's direction for Kp/Ki/Kd), so both
+        the search vector and the signed entries of a full vector (``full[..., tuned_idx]``) map
+        to the same gains; ``k_*`` state-feedback entries are used as given.
+        """
         tuned = np.asarray(tuned, dtype=float)
         out = np.broadcast_to(self.fixed, (*tuned.shape[:-1], self.n_gains)).copy()
-        out[..., self.tuned_idx] = tuned
+        if self._all_positive:
+            out[..., self.tuned_idx] = np.abs(tuned)
+        else:
+            out[..., self.tuned_idx] = np.where(self._free, tuned, self.tuned_signs * np.abs(tuned))
         return out
 
+    def tuned_of(self, full: np.ndarray) -> np.ndarray:
+        """The search vector (magnitudes) of signed full gain vectors: (..., n_gains) -> (..., n_tuned)."""
+        return self._magnitudes(np.asarray(full, dtype=float)[..., self.tuned_idx])
+
     def initial_tuned(self) -> np.ndarray:
-        """Initial guesses: spec values where given, else the geometric centre of the bounds."""
+        """Initial guesses (magnitudes): spec values where given, else the geometric centre of the bounds."""
         centre = np.exp(0.5 * (self.log_lo + self.log_hi))
         given = [self.slots[k].value for k in self.tuned_idx]
-        return np.array([v if v is not None else c for v, c in zip(given, centre)], dtype=float)
+        out = np.array([v if v is not None else c for v, c in zip(given, centre)], dtype=float)
+        return self._magnitudes(out)
 
     # ----------------------------------------------------------- dict forms
     def to_dict(self, full: np.ndarray) -> Gains:
-        """Full gain vector -> ``{loop: {gain: value}}``."""
+        """Signed full gain vector -> ``{loop: {gain: value}}``."""
         out: Gains = {}
         for slot, v in zip(self.slots, np.asarray(full, dtype=float)):
             out.setdefault(slot.loop_name, {})[slot.name] = float(v)
@@ -160,12 +251,15 @@ class GainLayout:
         """``{loop: {gain: value}}`` -> full gain vector, validated.
 
         Fixed gains may be omitted (the spec's value is used). Tuned gains must be
-        given. Every value must be finite and positive.
+        given. Every value must be finite and nonzero with its loop's sign: Kp, Ki,
+        Kd positive for a direct-acting loop and negative for a reverse-acting one;
+        Ti, Td and LQ weights positive; ``k_*`` entries any sign.
 
         Raises
         ------
         GainError
-            Naming the loop and gain that is missing, unknown or invalid.
+            Naming the loop and gain that is missing, unknown or invalid (for a wrong
+            sign: the loop's direction, why, and the fix).
         """
         if not isinstance(gains, dict):
             raise GainError(field, "must be a mapping {loop_name: {gain_name: value}}")
@@ -187,26 +281,16 @@ class GainLayout:
             v = given.get(slot.name, None)
             if v is None:
                 if slot.tuned or slot.value is None:
-                    raise GainError(f"{field}.{slot.loop_name}.{slot.name}", "missing; give a positive number")
+                    want = "a negative" if slot.sign < 0 else ("a" if slot.sign == 0 else "a positive")
+                    raise GainError(f"{field}.{slot.loop_name}.{slot.name}", f"missing; give {want} number")
                 v = slot.value
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise GainError(f"{field}.{slot.loop_name}.{slot.name}", f"must be a number, got {v!r}")
             v = float(v)
             if not math.isfinite(v):
                 raise GainError(f"{field}.{slot.loop_name}.{slot.name}", f"must be finite, got {v}")
-            # Direct state-feedback entries may take any sign; every other gain is positive.
-            if not slot.name.startswith("k_") and v <= 0:
-                raise GainError(f"{field}.{slot.loop_name}.{slot.name}", f"must be > 0, got {v}")
+            # Direct state-feedback entries may take any sign; every other gain has its slot's sign.
+            if slot.sign != 0 and not v * slot.sign > 0:
+                raise GainError(f"{field}.{slot.loop_name}.{slot.name}", self._sign_message(slot.loop, slot.name, v))
             out[k] = v
         return out
-
-
-def search_layout(spec: TuningSpec, plant: Any) -> GainLayout:
-    """The search space every optimiser shares: spec bounds, else bounds centred on a classical rule.
-
-    RL, the black-box baselines and the reference optimum all search this same
-    box, so their costs compare like with like.
-    """
-    from gaintune.baselines import auto_bounds  # lazy: baselines import the evaluator
-
-    return GainLayout(spec, plant.states, auto_bounds=auto_bounds(spec, plant))

@@ -7,6 +7,13 @@ Continuous-time law (2-DOF, parallel form, derivative filter)::
 Ideal form gains (Kp, Ti, Td) convert as Ki = Kp/Ti, Kd = Kp*Td. The filter is
 Tf = Td/N with Td = Kd/Kp (default N = 10), or a fixed Tf from the spec.
 
+A reverse-acting loop has Kp, Ki, Kd all negative (ideal form: Kp < 0, Ti, Td > 0).
+Every time constant (Ti = Kp/Ki, Td = Kd/Kp, Tf, the tracking time Tt) is then
+still positive, and the discrete law below is exactly the mirror image of the
+direct-acting loop on the negated plant: clamping's condition
+``e*(v_unsat - v_sat)*Ki > 0`` and back-calculation (in output units) hold for
+either sign.
+
 Discrete-time implementation (sample time dt), documented once here and used
 by :mod:`gaintune.sim.kernel`, the C export and the tests:
 
@@ -61,20 +68,25 @@ def pid_params(loop: LoopSpec, gains: Mapping[str, Any]) -> PidParams:
     else:
         ki = np.asarray(gains["Ki"], dtype=float) if has_i else zero
         kd = np.asarray(gains["Kd"], dtype=float) if has_d else zero
+    # Kp, Ki, Kd share the loop's sign (all negative for a reverse-acting loop), so the times
+    # Ti = Kp/Ki, Td = Kd/Kp and Tf = Td/N are positive for either direction: the tests below
+    # compare signs (a product > 0), never a gain with 0.
     if not has_d:
         tf = zero
     elif loop.filter.Tf is not None:
-        tf = np.where(kd > 0, loop.filter.Tf, 0.0)
+        tf = np.where(kd != 0, loop.filter.Tf, 0.0)
     else:
-        # Tf = Td/N = Kd/(N*Kp), and 0 (no filter, no derivative) unless both gains are positive
-        tf = np.where((kd > 0) & (kp > 0), kd / ((loop.filter.N or 10.0) * np.where(kp > 0, kp, 1.0)), 0.0)
+        # Tf = Td/N = Kd/(N*Kp), and 0 (no filter, no derivative) unless Kd and Kp are nonzero with one sign
+        same = kd * kp > 0
+        tf = np.where(same, kd / ((loop.filter.N or 10.0) * np.where(same, kp, 1.0)), 0.0)
     tt: Any = math.inf
     if loop.anti_windup == "back_calculation" and has_i:
         if loop.tracking_time is not None:
             tt = np.full_like(kp, loop.tracking_time)
         else:
-            ti = np.where(ki > 0, kp / np.where(ki > 0, ki, 1.0), 1.0)
-            td = np.where(kp > 0, kd / np.where(kp > 0, kp, 1.0), 0.0)
+            pos_i, pos_d = ki * kp > 0, kd * kp > 0
+            ti = np.where(pos_i, kp / np.where(pos_i, ki, 1.0), 1.0)
+            td = np.where(pos_d, kd / np.where(pos_d, kp, 1.0), 0.0)
             tt = np.where(td > 0, np.sqrt(ti * td), ti)
     if kp.ndim == 0:
         return PidParams(float(kp), float(ki), float(kd), float(tf), loop.b, loop.c, float(tt))

@@ -26,7 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gaintune.controllers.layout import GainLayout, search_layout
+from gaintune.controllers.layout import GainLayout
+from gaintune.search_box import search_layout
 from gaintune.objective import DIVERGED_COST, Evaluator, Scores
 from gaintune.plants import build_plant
 from gaintune.plants.checks import validate_against_plant

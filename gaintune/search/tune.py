@@ -20,9 +20,9 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from gaintune.envs.problem import GainProblem, Scored
 from gaintune.envs.vec import BatchedGainVecEnv
-from gaintune.objective import DIVERGED_COST
+from gaintune.objective import DIVERGED_COST, merit
 from gaintune.search.agents import load_agent, make_agent
-from gaintune.boundary import settle
+from gaintune.boundary import settle, violation_after
 from gaintune.search.diagnosis import diagnose
 from gaintune.search.result import CurvePoint, Progress, Provenance, SettleInfo, TuneResult
 from gaintune.spec import TuningSpec
@@ -273,7 +273,8 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
         if settled.action in ("pulled_inside", "pushed_to_boundary"):
             tuned = settled.tuned
             rl = ev.evaluate(tuned[None])
-            rl_cost, rl_feasible, best_merit = float(rl.cost[0]), bool(rl.feasible[0]), float(rl.merit[0])
+            rl_cost, rl_feasible = float(rl.cost[0]), violation_after(settled, rl) <= 0
+            best_merit = float(merit(rl.cost, np.array([violation_after(settled, rl)]))[0])
         else:
             rl_cost, rl_feasible, best_merit = float(first.cost[k]), bool(first.feasible[k]), float(first.merit[k])
     else:
@@ -308,7 +309,7 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
         policy_gains=layout.to_dict(layout.full(layout.action_to_tuned(policy_action))),
         best_seen_gains=layout.to_dict(layout.full(monitor.best_tuned)) if monitor.best_tuned is not None else None,
         cost=float(final.cost[0]),
-        violation=float(final.violation[0]),
+        violation=violation_after(settled, final),
         rl_cost=rl_cost,
         rl_feasible=rl_feasible,
         policy_cost=policy_cost,

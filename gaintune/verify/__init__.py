@@ -1,7 +1,8 @@
 """Verification of frozen gains: stability, loop-at-a-time margins, robustness, nonlinear check, verdict.
 
-See ``docs/verification.md`` for the conventions (break points, dt/2 sampling
-delay, infinity handling, exact delay vs Padé, robust sampling).
+See ``docs/verification.md`` for the conventions (break points, the sampled loop
+(default) or the continuous one plus dt/2, computation delay, infinity handling,
+exact delay vs Padé, robust sampling).
 """
 
 from gaintune.verify.core import coerce_gains, verify

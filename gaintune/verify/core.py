@@ -27,8 +27,9 @@ from gaintune.verify.report import (
     WorstCase,
 )
 from gaintune.verify.robust import DELAY_KEY, robust_samples
+from gaintune.verify.sampled import SampledPlant, sample_plant
 
-__all__ = ["verify", "coerce_gains", "REQUIREMENTS"]
+__all__ = ["verify", "coerce_gains", "REQUIREMENTS", "loop_frequency_responses"]
 
 #: requirement field -> (figure attribute, kind) ; kind "min": value >= limit, "max": value <= limit.
 REQUIREMENTS: dict[str, tuple[str, str]] = {
@@ -39,8 +40,9 @@ REQUIREMENTS: dict[str, tuple[str, str]] = {
     "mt_max": ("mt", "max"),
 }
 
-#: The analysis band ends at this multiple of the controller's Nyquist frequency pi/dt (largest
-#: scenario dt) when the frequencies above are proven harmless (:func:`analyse`, ``band``).
+#: The continuous analysis band ends at this multiple of the controller's Nyquist frequency pi/dt
+#: (largest scenario dt) when the frequencies above are proven harmless (:func:`analyse`, ``band``).
+#: The sampled analysis ends at pi/dt itself.
 BAND_NYQUIST = 10.0
 
 #: Padé adequacy tolerances (vs the exact e^{-jwT} figures).
@@ -48,7 +50,11 @@ PADE_TOL = {"pm_deg": 1.0, "gm_db": 0.5, "ms_rel": 0.02}
 
 
 def coerce_gains(layout: GainLayout, gains: Any) -> np.ndarray:
-    """Nested dict or vector (full or tuned-only) -> validated full gain vector. Raises GainError."""
+    """Nested dict or vector (full or tuned-only) -> validated, signed full gain vector. Raises GainError.
+
+    Dicts and full vectors carry signed gains (negative Kp, Ki, Kd for a reverse-acting loop);
+    a tuned-only vector may hold the search magnitudes (the layout gives them their loop's sign).
+    """
     if isinstance(gains, dict):
         return layout.from_dict(gains)
     try:
@@ -71,7 +77,18 @@ def coerce_gains(layout: GainLayout, gains: Any) -> np.ndarray:
 MAX_PHASE_CROSSINGS = 20
 
 
-def _to_model(f: BreakFigures) -> LoopFigures:
+def gm_binding(f: BreakFigures) -> str:
+    """Which gain margin binds: "increase" (upper), "reduction" (lower) or "none" (both infinite)."""
+    if math.isinf(f.gm_upper_db) and math.isinf(f.gm_lower_db):
+        return "none"
+    return "increase" if f.gm_upper_db <= f.gm_lower_db else "reduction"
+
+
+def _samples(seconds: float, dt: float | None) -> float | None:
+    return None if not dt else seconds / dt
+
+
+def _to_model(f: BreakFigures, dt: float | None = None) -> LoopFigures:
     phase = sorted((c for c in f.crossings if c.kind == "phase"), key=lambda c: (not c.binding, abs(c.value)))
     kept = [c for c in f.crossings if c.kind == "gain"] + phase[:MAX_PHASE_CROSSINGS]
     kept.sort(key=lambda c: c.omega)
@@ -79,7 +96,8 @@ def _to_model(f: BreakFigures) -> LoopFigures:
     omitted = len(f.crossings) - len(kept) + f.phase_omitted
     return LoopFigures(
         loop=f.loop, break_point=f.break_point, gm_db=f.gm_db, gm_upper_db=f.gm_upper_db, gm_lower_db=f.gm_lower_db,
-        gm_freq=f.gm_freq, pm_deg=f.pm_deg, pm_freq=f.pm_freq, delay_margin=f.delay_margin, ms=f.ms, ms_freq=f.ms_freq,
+        gm_binding=gm_binding(f), gm_freq=f.gm_freq, pm_deg=f.pm_deg, pm_freq=f.pm_freq, delay_margin=f.delay_margin,
+        delay_margin_samples=_samples(f.delay_margin, dt), ms=f.ms, ms_freq=f.ms_freq,
         mt=f.mt, mt_freq=f.mt_freq, disk_alpha=f.disk_alpha, disk_gm_db=f.disk_gm_db, disk_pm_deg=f.disk_pm_deg,
         disk_freq=f.disk_freq, gain_crossovers=[c.omega for c in f.crossings if c.kind == "gain"],
         phase_crossovers=[c.omega for c in kept if c.kind == "phase"], crossings=cr,
@@ -87,13 +105,21 @@ def _to_model(f: BreakFigures) -> LoopFigures:
     )
 
 
+def _finite_or_big(x: float) -> float:
+    """+-inf as +-1e300 (no poles at all: -inf); NaN (not computed) stays NaN."""
+    return x if not math.isinf(x) else math.copysign(1e300, x)
+
+
 def _stability_model(a: Analysis) -> StabilityReport:
     st = a.stability
-    poles = sorted(((float(p.real), float(p.imag)) for p in st.poles), key=lambda z: -z[0])
+    # largest real part first (s-plane), largest modulus first (z-plane: the sampled loop)
+    key = (lambda z: -math.hypot(*z)) if st.domain == "z" else (lambda z: -z[0])
+    poles = sorted(((float(p.real), float(p.imag)) for p in st.poles), key=key)
     return StabilityReport(
         stable=st.stable, method=st.method, rhp_count=st.rhp_count, nyquist_rhp=st.nyquist_rhp, poles=poles,
-        poles_method=st.poles_method, max_real_pole=st.max_real_pole if math.isfinite(st.max_real_pole) else -1e300,
-        notes=st.notes,
+        poles_method=st.poles_method,
+        max_real_pole=_finite_or_big(st.max_real_pole),
+        notes=st.notes, domain=st.domain, spectral_radius=st.spectral_radius,
     )
 
 
@@ -111,13 +137,42 @@ def _pade_check(order: int, pade: Analysis, exact: Analysis) -> PadeCheck:
     return PadeCheck(order=order, adequate=ok, max_pm_err_deg=pm, max_gm_err_db=gm, max_ms_rel_err=ms, same_stability=same)
 
 
+def loop_frequency_responses(spec: TuningSpec, plant: Plant, layout: GainLayout, full: np.ndarray, w: np.ndarray,
+                             lin=None) -> np.ndarray:
+    """L (n_loops + 1, W) at the frequencies ``w`` (rad/s) of every break point of the loop
+    :func:`verify` analyses (rows as ``report.loops``): the sampled loop at z = e^{jw dt} (then
+    w <= pi/dt is meaningful, higher w are aliases), or the continuous loop with dt/2 and the
+    computation delay. For plots of the verified loop (Bode, Nyquist, sensitivity)."""
+    lin = lin if lin is not None else plant.linearize()
+    full = np.asarray(full, dtype=float).reshape(1, -1)
+    cas = build_cascade(spec, layout, full, lin)
+    s = 1j * np.asarray(w, dtype=float)
+    vs, dt = spec.verify, analysis_dt(spec)
+    with np.errstate(all="ignore"):
+        if vs.sampled:
+            sp = sample_plant(lin, dt, vs.compute_delay, plant.kind == "nonlinear")
+            return cas.loop_responses(s, lin, sampled=sp)[:, 0, :]
+        T = lin.delay + sampling_delay(spec) + vs.compute_delay * dt
+        return cas.loop_responses(s, lin, DelayModel(T, vs.pade_order).factor(s))[:, 0, :]
+
+
+def analysis_dt(spec: TuningSpec) -> float:
+    """The sample time verification uses: the largest scenario dt (the conservative choice)."""
+    return max(sc.dt for sc in spec.scenarios)
+
+
 def analysis_band(spec: TuningSpec) -> float:
-    """Upper end (rad/s) of the analysis band: BAND_NYQUIST x the Nyquist frequency pi/dt of the largest dt."""
+    """Upper end (rad/s) of the continuous analysis band: BAND_NYQUIST x the Nyquist frequency pi/dt of the largest dt."""
     return BAND_NYQUIST * math.pi / max(sc.dt for sc in spec.scenarios)
 
 
-def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis) -> tuple[RobustReport, list[WorstCase]]:
+def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis, sampled: SampledPlant | None = None
+            ) -> tuple[RobustReport, list[WorstCase]]:
+    """Worst figures over the robust samples. ``sampled``: the nominal sampled plant (its dt,
+    computation delay and method are applied to every sample); else the continuous analysis
+    with ``t_s`` of extra delay."""
     samples, n_corners, n_mc = robust_samples(spec)
+    dt = analysis_dt(spec)
     keys = ("gm_db", "pm_deg", "delay_margin", "ms", "mt", "disk_alpha")
     worst_kind = {"gm_db": min, "pm_deg": min, "delay_margin": min, "ms": max, "mt": max, "disk_alpha": min}
     R = len(nominal.figures)
@@ -126,8 +181,12 @@ def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis) -> tuple[RobustRe
     for smp in samples:
         params = {k: v for k, v in smp.items() if k != DELAY_KEY}
         lin = plant.linearize(params)
-        T = (smp[DELAY_KEY] if DELAY_KEY in smp else lin.delay) + t_s
-        a = analyse(cas, lin, DelayModel(T, spec.verify.pade_order), spec.verify.n_freq, analysis_band(spec))
+        tau = smp[DELAY_KEY] if DELAY_KEY in smp else lin.delay
+        if sampled is not None:
+            sp = sample_plant(lin, sampled.dt, sampled.compute_delay, sampled.method == "rk4", tau)
+            a = analyse(cas, lin, None, spec.verify.n_freq, sampled=sp)
+        else:
+            a = analyse(cas, lin, DelayModel(tau + t_s, spec.verify.pade_order), spec.verify.n_freq, analysis_band(spec))
         if not a.stability.stable:
             unstable.append(dict(smp))
         for r, f in enumerate(a.figures):
@@ -141,7 +200,8 @@ def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis) -> tuple[RobustRe
         w = worst[r]
         where = {k: {("delay" if kk == DELAY_KEY else kk): vv for kk, vv in w[k][1].items()} for k in keys}
         wc.append(WorstCase(loop=f.loop, break_point=f.break_point, gm_db=w["gm_db"][0], pm_deg=w["pm_deg"][0],
-                            delay_margin=w["delay_margin"][0], ms=w["ms"][0], mt=w["mt"][0],
+                            delay_margin=w["delay_margin"][0], delay_margin_samples=_samples(w["delay_margin"][0], dt),
+                            ms=w["ms"][0], mt=w["mt"][0],
                             disk_alpha=w["disk_alpha"][0], where=where))
     rep = RobustReport(
         n_samples=len(samples), n_corners=n_corners, n_monte_carlo=n_mc, seed=spec.search.seed,
@@ -189,6 +249,13 @@ def verify(
 ) -> VerificationReport:
     """Verify frozen gains against the spec's requirements.
 
+    The loop analysed is, by default (``verify.sampled``), the sampled loop the simulator runs:
+    the plant discretised by ZOH with its delay at the largest scenario dt, the controllers'
+    discrete laws, margins on z = e^{jw dt} up to pi/dt and stability from the discrete
+    closed-loop poles (:mod:`gaintune.verify.sampled`); ``verify.sampled: false`` analyses the
+    continuous loop with dt/2 of delay instead. ``verify.compute_delay`` samples of computation
+    delay are included either way.
+
     Parameters
     ----------
     spec
@@ -223,15 +290,26 @@ def verify(
         layout = layout or GainLayout(spec, plant.states)
         lin = plant.linearize()
     full = coerce_gains(layout, gains)
-    t_s = sampling_delay(spec)
-    delay = DelayModel(lin.delay + t_s, spec.verify.pade_order)
+    vs = spec.verify
+    dt = analysis_dt(spec)
     cas = build_cascade(spec, layout, full[None, :], lin)
-    band = analysis_band(spec)
-    nom = analyse(cas, lin, delay, spec.verify.n_freq, band)
     notes: list[str] = []
     reasons: list[str] = []
     pade = None
-    if delay.pade_order is not None and delay.T > 0:
+    sp = None
+    if vs.sampled:
+        t_s = 0.0
+        sp = sample_plant(lin, dt, vs.compute_delay, plant.kind == "nonlinear")
+        delay = DelayModel(sp.total_delay)
+        nom = analyse(cas, lin, None, vs.n_freq, sampled=sp)
+        if vs.pade_order is not None:
+            notes.append("verify.pade_order is not used by the sampled analysis (delays are exact in z)")
+    else:
+        t_s = sampling_delay(spec)
+        delay = DelayModel(lin.delay + t_s + vs.compute_delay * dt, vs.pade_order)
+        nom = analyse(cas, lin, delay, vs.n_freq, analysis_band(spec))
+    if sp is None and delay.pade_order is not None and delay.T > 0:
+        band = analysis_band(spec)
         exact = analyse(cas, lin, DelayModel(delay.T, None), spec.verify.n_freq, band)
         pade = _pade_check(delay.pade_order, nom, exact)
         if not pade.adequate:
@@ -239,23 +317,25 @@ def verify(
                 f"Padé order {pade.order} is not adequate (PM error {pade.max_pm_err_deg:.2f} deg, GM error "
                 f"{pade.max_gm_err_db:.2f} dB, Ms error {100 * pade.max_ms_rel_err:.1f} %); raise verify.pade_order or set it to null (exact delay)"
             )
-    loops = [_to_model(f) for f in nom.figures]
+    loops = [_to_model(f, dt) for f in nom.figures]
     stab = _stability_model(nom)
     if not stab.stable:
-        reasons.append(f"closed loop unstable: {stab.rhp_count} pole(s) with Re >= 0 ({stab.method})")
+        where = "|z| >= 1" if stab.domain == "z" else "Re >= 0"
+        reasons.append(f"closed loop unstable: {stab.rhp_count} pole(s) with {where} ({stab.method})")
     rob = None
     worst = None
     if robust is None:
         robust = bool(spec.randomize.params or spec.randomize.delay)
     if robust:
-        rob, worst = _robust(spec, plant, cas, lin, t_s, nom)
+        rob, worst = _robust(spec, plant, cas, lin, t_s + vs.compute_delay * dt, nom, sp)
         if rob.n_samples == 0:
             notes.append("robust check requested but the spec randomises neither plant parameters nor the delay")
         if rob.n_unstable:
             reasons.append(f"robust: {rob.n_unstable} of {rob.n_samples} sampled plants give an unstable closed loop")
     nl = None
     if nonlinear:
-        nl = nonlinear_check(spec, plant, layout, full, sim=ctx.simulator(spec) if ctx is not None else None)
+        nl = nonlinear_check(spec, plant, layout, full, sim=ctx.simulator(spec) if ctx is not None else None,
+                             compute_delay=vs.compute_delay)
         if nl.ran and not nl.passed:
             reasons.append(f"nonlinear check failed: {nl.note}")
         elif not nl.ran:
@@ -280,7 +360,8 @@ def verify(
     return VerificationReport(
         spec_name=spec.name, spec_hash=ctx.spec_hash if ctx is not None else (spec_hash or spec.content_hash()),
         gains=layout.to_dict(full), verdict=verdict,
-        reasons=reasons, delay=float(lin.delay), sampling_delay=t_s,
+        reasons=reasons, delay=float(lin.delay), sampling_delay=t_s, sampled=vs.sampled, dt=dt,
+        compute_delay=vs.compute_delay,
         delay_method="none" if delay.T <= 0 else ("pade" if delay.pade_order else "exact"), pade=pade,
         operating_point=op, stability=stab, analysis_band=nom.omega_range, loops=loops, robust=rob, nonlinear=nl, requirements=req, notes=notes,
         elapsed_s=time.perf_counter() - t0,

@@ -5,7 +5,8 @@ python-control objects in the hot path): a log grid, every sign change located
 and then zoomed in on (vectorised over all brackets at once), and peaks refined
 the same way.
 
-Definitions (L = open-loop response at a break point):
+Definitions (L = open-loop response at a break point: L(jw) of the continuous loop, or
+L(e^{jw dt}) of the sampled loop, :mod:`gaintune.verify.sampled`, for 0 < w <= pi/dt):
 
 * gain crossover: |L(jw)| = 1; phase margin there PM = 180 + arg L wrapped to
   (-180, 180]; the reported PM is the one of smallest magnitude (as
@@ -16,7 +17,8 @@ Definitions (L = open-loop response at a break point):
   k > 1, lower GM = largest k < 1 (conditionally stable loops). The binding GM is
   the one of smaller |dB|. No crossover -> GM = inf (also when the phase only
   approaches -180 deg asymptotically, python-control issue #784). A crossing with
-  |L| < 1e-10 (GM > 200 dB) counts as none.
+  |L| < 1e-4 (GM > 80 dB) counts as none. A sampled loop's L is real at the Nyquist
+  frequency too (z = -1): a negative L(-1) is a phase crossing there, like w = 0.
 * Ms = max |1/(1+L)|, Mt = max |L/(1+L)|; disk margin alpha = 1/max|S - 1/2|
   (balanced, skew 0), with disk GM/PM as in ``control.disk_margins``.
 
@@ -24,7 +26,10 @@ Closed-loop stability uses the argument principle on the characteristic
 quasi-polynomial chi_ol(s) (1 + L_u(s)) along s = -eps + jw (the plant-input
 cut L_u passes through every loop), which is exact for delays and counts
 open-loop unstable poles; for delay-free loops the closed-loop eigenvalues
-decide and the two are cross-checked.
+decide and the two are cross-checked. The sampled loop is finite-dimensional (its
+delay is an input buffer): the eigenvalues of its transition matrix decide (|z| < 1),
+cross-checked by the discrete Nyquist count on |z| = e^{-eps dt}; beyond
+:data:`EIG_MAX` states (long delays) the count decides alone.
 """
 
 from __future__ import annotations
@@ -42,6 +47,7 @@ from gaintune.verify.loops import (
     pade_response,
     plant_eigvals,
 )
+from gaintune.verify.sampled import SampledPlant
 from gaintune.verify.tail import INNER_LEVEL, chain_ss, level_clear, series, tail_levels
 
 __all__ = ["DelayModel", "BreakFigures", "Analysis", "analyse"]
@@ -117,6 +123,9 @@ class Stability:
     poles_method: str
     max_real_pole: float
     notes: list[str] = field(default_factory=list)
+    #: "s": continuous poles; "z": poles of the sampled loop (max_real_pole is then ln(max|z|)/dt)
+    domain: str = "s"
+    spectral_radius: float | None = None
 
 
 @dataclass
@@ -138,10 +147,11 @@ def _char_freqs(cas: Cascade, lin: LinearModel, delay: DelayModel) -> np.ndarray
     for lp in cas.loops:
         if lp.kind == "pid":
             kp, ki, kd, tf = float(lp.Kp[0]), float(lp.Ki[0]), float(lp.Kd[0]), float(lp.Tf[0])
-            if lp.has_i and kp > 0:
-                f.append(ki / kp)
-            if lp.has_d and kd > 0:
-                f += [kp / kd, 1.0 / tf]
+            # magnitudes: a reverse-acting loop has Kp, Ki, Kd all negative
+            if lp.has_i and kp != 0:
+                f.append(abs(ki / kp))
+            if lp.has_d and kd != 0:
+                f += [abs(kp / kd), 1.0 / tf]
     if delay.T > 0:
         f.append(1.0 / delay.T)
     f = np.array([x for x in f if np.isfinite(x) and x > 1e-12])
@@ -168,24 +178,42 @@ class _Evaluator:
     specialised for one gain set: controller gains as Python scalars, the plant's complex
     Schur form and the output rows C Z precomputed, and only the measured outputs formed,
     so one call is a few dozen numpy operations over the frequency vector.
+
+    ``sampled``: evaluate the sampled loop (:mod:`gaintune.verify.sampled`) at z = e^{s dt}
+    instead of the continuous one (``delay`` is then unused).
     """
 
-    def __init__(self, cas: Cascade, lin: LinearModel, delay: DelayModel):
-        self.cas, self.lin, self.delay = cas, lin, delay
+    def __init__(self, cas: Cascade, lin: LinearModel, delay: DelayModel | None, sampled: SampledPlant | None = None):
+        self.cas, self.lin, self.delay, self.sampled = cas, lin, delay, sampled
+        #: delay (s) whose phase spin e^{-jwT} the grids must resolve
+        self.spin_T = sampled.total_delay if sampled is not None else max(delay.T, 0.0)
         self.calls = 0
         self.points = 0
         self.fast = cas.batch == 1
         if not self.fast:
             return
-        n = lin.A.shape[0]
-        if n:
-            T, Z, zb = _schur(lin)
-            self._T, self._zb = T, zb
-            self._diag = np.diag(T).copy()
-            CZ = lin.C.astype(complex) @ Z
+        if sampled is not None:
+            n = sampled.n
+            if n:
+                T, Z, zb0, zb1, diag = sampled.schur()
+                self._T, self._zb, self._zb1, self._diag = T, zb0, (zb1 if sampled.has_G1 else None), diag
+                CZ = sampled.C.astype(complex) @ Z
+            else:
+                Z = None
+                self._T = self._zb = self._zb1 = self._diag = None
+                CZ = np.zeros((sampled.C.shape[0], 0), dtype=complex)
         else:
-            self._T = self._zb = self._diag = None
-            CZ = np.zeros((lin.C.shape[0], 0), dtype=complex)
+            n = lin.A.shape[0]
+            self._zb1 = None
+            if n:
+                T, Z, zb = _schur(lin)
+                self._T, self._zb = T, zb
+                self._diag = np.diag(T).copy()
+                CZ = lin.C.astype(complex) @ Z
+            else:
+                Z = None
+                self._T = self._zb = self._diag = None
+                CZ = np.zeros((lin.C.shape[0], 0), dtype=complex)
         self._n = n
         outs = sorted({lp.out_idx for lp in cas.loops})
         self._outs = {j: (CZ[j], complex(lin.D[j, 0])) for j in outs}
@@ -206,6 +234,8 @@ class _Evaluator:
         s = -shift + 1j * w
         with np.errstate(all="ignore"):
             if not self.fast:
+                if self.sampled is not None:
+                    return self.cas.loop_responses(s, self.lin, sampled=self.sampled)[:, 0, :]
                 return self.cas.loop_responses(s, self.lin, self.delay.factor(s))[:, 0, :]
             if s.size <= _CHUNK:
                 return self._eval(s)
@@ -217,19 +247,34 @@ class _Evaluator:
             return out
 
     def _eval(self, s: np.ndarray) -> np.ndarray:
-        d = self.delay.factor(s)
         n = self._n
+        sp = self.sampled
+        if sp is not None:
+            dt = sp.dt
+            z = np.exp(s * dt)
+            zi = 1.0 / z
+            x_at = z  # the back-substitution runs in z
+            d = np.exp(-s * (dt * sp.d)) if sp.d else 1.0  # z^-d
+            dD = np.exp(-s * (dt * sp.dD)) if sp.dD else 1.0  # z^-dD (feedthrough)
+            one_m = 1.0 - zi
+        else:
+            x_at = s
+            d = dD = self.delay.factor(s)
+            zi = None
         if n:
-            T, zb, diag = self._T, self._zb, self._diag
+            T, zb, zb1, diag = self._T, self._zb, self._zb1, self._diag
             xs = np.empty((n, s.size), dtype=complex)
             for i in range(n - 1, -1, -1):
-                acc = zb[i]
+                acc = zb[i] if zb1 is None else zb[i] + zb1[i] * zi
                 if i + 1 < n:
                     acc = acc + _dot(T[i, i + 1 :], xs[i + 1 :])
-                xs[i] = acc / (s - diag[i])
+                xs[i] = acc / (x_at - diag[i])
         P = {}
         for j, (cz, dj) in self._outs.items():
-            P[j] = (_dot(cz, xs) + dj) * d if n else dj * d
+            if sp is None:
+                P[j] = (_dot(cz, xs) + dj) * d if n else dj * d
+            else:
+                P[j] = (_dot(cz, xs) * d + dj * dD) if n else dj * dD
         inv_s = None
         resp = []
         for c in self._ctl:
@@ -237,11 +282,14 @@ class _Evaluator:
                 _, oi, has_i, has_d, kp, ki, kd, tf, b, cw = c
                 if has_i:
                     if inv_s is None:
-                        inv_s = 1.0 / s
+                        inv_s = dt / one_m if sp is not None else 1.0 / s
                     I = ki * inv_s
                 else:
                     I = 0.0
-                Dd = kd * s / (tf * s + 1.0) if has_d else 0.0
+                if has_d:
+                    Dd = kd * one_m / (tf + dt - tf * zi) if sp is not None else kd * s / (tf * s + 1.0)
+                else:
+                    Dd = 0.0
                 C = kp + I + Dd
                 F = b * kp + I + cw * Dd
                 m = -C * P[oi]
@@ -250,7 +298,7 @@ class _Evaluator:
                 KX = (_dot(KZ, xs) * d) if n else np.zeros(s.size, dtype=complex)
                 if has_i:
                     if inv_s is None:
-                        inv_s = 1.0 / s
+                        inv_s = dt / one_m if sp is not None else 1.0 / s
                     I = kint * inv_s
                 else:
                     I = 0.0
@@ -393,9 +441,18 @@ _COS_DPH = math.cos(0.5)
 
 def _band_ends(ev: _Evaluator, cas, lin) -> tuple[float, float, np.ndarray]:
     """(lo, hi) of the full grid: every frequency where max|L| >= MAG_FLOOR (end probes in one
-    call), and L(0) per row (the same call)."""
+    call), and L(0) per row (the same call). A sampled loop's grid ends at the Nyquist frequency."""
     cf = _char_freqs(cas, lin, DelayModel(0.0))
     lo, hi = cf.min() * 1e-3, cf.max() * 1e3
+    if ev.sampled is not None:
+        wn = ev.sampled.nyquist
+        lo = min(lo, wn * 1e-4)
+        los = lo / 100.0 ** np.arange(3)
+        Lp = ev(np.concatenate([los, [0.0]]))
+        Plo = np.abs(Lp[:, :-1])
+        ok_lo = np.all((Plo > 1e3) | (Plo < MAG_FLOOR), axis=0)
+        lo = los[int(np.argmax(ok_lo))] if ok_lo.any() else lo / 1e6
+        return float(lo), wn, Lp[:, -1]
     his = hi * 10.0 ** np.arange(8)
     los = lo / 100.0 ** np.arange(3)
     Lp = ev(np.concatenate([his, los, [0.0]]))
@@ -416,6 +473,7 @@ def _grid(ev: _Evaluator, lo: float, hi: float, n_freq: int):
     others were already fine); the points are merged once at the end.
     """
     w = np.logspace(np.log10(lo), np.log10(hi), n_freq)
+    w[0], w[-1] = lo, hi
     L = ev(w)
     aL = np.abs(L)
     ws, Ls, aLs = [w], [L], [aL]
@@ -523,8 +581,11 @@ def _crit_gain(z: np.ndarray) -> np.ndarray:
         return np.where(z.real < 0, k, np.nan)
 
 
-def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names, L0: np.ndarray) -> list[BreakFigures]:
-    """Figures per row from the grid (w, L, |L|); ``L0``: L at w = 0 per row."""
+def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names, L0: np.ndarray,
+             Lend: np.ndarray | None = None) -> list[BreakFigures]:
+    """Figures per row from the grid (w, L, |L|); ``L0``: L at w = 0 per row. ``Lend``: a
+    sampled loop's L at the grid's last point, the Nyquist frequency, where it is real: an end
+    point of the Nyquist curve like w = 0 (its crossing is added from ``Lend``, not bracketed)."""
     R = L.shape[0]
     im, re = L.imag, L.real
     with np.errstate(invalid="ignore"):
@@ -537,6 +598,8 @@ def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names
     sp = (np.sign(im[:, :-1]) != np.sign(im[:, 1:])) & ((re[:, :-1] < 0) | (re[:, 1:] < 0))
     sp &= (aL[:, :-1] > 0.5 * MAG_FLOOR) | (aL[:, 1:] > 0.5 * MAG_FLOOR)
     sp &= (aL[:, :-1] < 2 * GM_INF_LIMIT) | (aL[:, 1:] < 2 * GM_INF_LIMIT)
+    if Lend is not None:
+        sp[:, -1] = False  # the end point itself is on the real axis: added below
     r_p, i_p = np.nonzero(sp)
     # Delays give hundreds of phase crossings; only those that can be listed (smallest |GM|)
     # or whose classification is not clear from the bracket are refined, the rest counted.
@@ -547,7 +610,7 @@ def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names
         zz = Pb * Pa.conj()
         amb = (Pa.real >= 0) | (Pb.real >= 0) | (zz.real <= 0.5 * np.abs(zz)) | ~np.isfinite(hi_m) | ~(lo_m > 0)
         # an interval the delay alone turns by > 0.5 rad may hide whole turns between its ends
-        amb |= max(ev.delay.T, 0.0) * (w[i_p + 1] - w[i_p]) > 0.5
+        amb |= ev.spin_T * (w[i_p + 1] - w[i_p]) > 0.5
         amb |= (hi_m * _BAND > MAG_FLOOR) & (lo_m / _BAND < MAG_FLOOR)
         amb |= (hi_m * _BAND > GM_INF_LIMIT) & (lo_m / _BAND < GM_INF_LIMIT)
         score = np.abs(0.5 * (np.log(aa) + np.log(ab)))  # ~ |ln GM| of the crossing
@@ -612,13 +675,15 @@ def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names
         un = (r_p == r) & ~done
         # unrefined: clearly on the negative real axis, |L| clearly inside (MAG_FLOOR, GM_INF_LIMIT)
         omitted[r] = int(np.count_nonzero(un & (lo_m > MAG_FLOOR) & (hi_m < GM_INF_LIMIT)))
-    # w = 0: finite negative real DC gain is a phase crossing too
+    # w = 0 (and a sampled loop's Nyquist frequency): a finite negative real L is a phase crossing too
+    ends = [(0.0, L0)] + ([(float(w[-1]), Lend)] if Lend is not None else [])
     for r in range(R):
-        z = L0[r]
-        if np.isfinite(z) and 0 < abs(z) < 1e8 and z.real < 0 and abs(z.imag) < 1e-9 * abs(z):
-            o = np.argsort(np.concatenate([[0.0], gm_w[r]]), kind="stable")
-            gm_w[r] = np.concatenate([[0.0], gm_w[r]])[o]
-            gm_k[r] = np.concatenate([[1.0 / abs(z)], gm_k[r]])[o]
+        for we, Le in ends:
+            z = Le[r]
+            if np.isfinite(z) and 0 < abs(z) < 1e8 and z.real < 0 and abs(z.imag) < 1e-9 * abs(z):
+                o = np.argsort(np.concatenate([[we], gm_w[r]]), kind="stable")
+                gm_w[r] = np.concatenate([[we], gm_w[r]])[o]
+                gm_k[r] = np.concatenate([[1.0 / abs(z)], gm_k[r]])[o]
     pm_w = [wg[r_g == r] for r in range(R)]
     pm_deg = [np.degrees(np.angle(Lg[r_g == r])) for r in range(R)]
     # ---- peaks: Ms, Mt, 1/alpha (all rows and figures zoomed together)
@@ -645,27 +710,24 @@ def _margins(ev: _Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names
 _POLE_OFFSETS = np.concatenate([-(2.0 ** np.arange(9, -4, -1)), [0.0], 2.0 ** np.arange(-3, 10)])
 
 
-def _argument_principle(ev: _Evaluator, ol_poles: np.ndarray, w_hi: float, eps: float, n_freq: int,
-                        tail_proven: bool = False):
-    """Number of closed-loop roots right of Re s = -eps (plant-input cut, row -1).
-
-    The contour runs on the grid up to ``w_hi``; above it |L| < 1 keeps 1 + L in the right
-    half-plane, so the rest of the contour adds the principal angle from 1 + L(w_hi) to
-    1 + L(inf). ``tail_proven``: that bound is proven (:mod:`gaintune.verify.tail`) rather
-    than checked at one far point.
-    """
+def _contour(ev: _Evaluator, ol_poles_s: np.ndarray, w_hi: float, eps: float, n_freq: int):
+    """1 + L_u (plant-input cut, row -1) sampled along s = -eps + jw, 0 <= w <= w_hi, finely enough
+    to unwrap its phase. ``ol_poles_s``: open-loop poles as s-plane points (for a sampled loop,
+    ln(z)/dt), around which the contour is sampled densely. Returns (w, 1 + L_u)."""
     # An open-loop pole p turns 1 + L within a few |Re p + eps| of Im p. A lightly damped one
     # (a resonance) can make 1 + L circle the origin between two log-grid points, which leaves
     # no trace in the phase steps checked below: sample around every pole.
-    up = ol_poles[ol_poles.imag > 0]
+    up = ol_poles_s[ol_poles_s.imag > 0]
     dist = np.maximum(np.abs(up.real + eps), eps)  # pole to contour
     extra = (up.imag[:, None] + dist[:, None] * _POLE_OFFSETS[None, :]).ravel()
-    w = np.concatenate([[0.0], np.logspace(np.log10(eps / 100), np.log10(w_hi), n_freq), extra])
+    wl = np.logspace(np.log10(eps / 100), np.log10(w_hi), n_freq)
+    wl[-1] = w_hi
+    w = np.concatenate([[0.0], wl, extra])
     w = np.unique(w[(w >= 0) & (w <= w_hi)])
     phi = 1.0 + ev(w, shift=eps)[-1]
     # the delay alone turns L by T dw over an interval: where |L| is not small, a whole turn of
     # 1 + L could also hide between two points
-    T = max(ev.delay.T, 0.0)
+    T = ev.spin_T
     for _ in range(10):
         d = np.abs(np.angle(phi[1:] / phi[:-1]))
         aL = np.abs(phi - 1.0)
@@ -679,6 +741,19 @@ def _argument_principle(ev: _Evaluator, ol_poles: np.ndarray, w_hi: float, eps: 
         phin = np.concatenate([phi, 1.0 + ev(new, shift=eps)[-1]])
         o = np.argsort(wn)
         w, phi = wn[o], phin[o]
+    return w, phi
+
+
+def _argument_principle(ev: _Evaluator, ol_poles: np.ndarray, w_hi: float, eps: float, n_freq: int,
+                        tail_proven: bool = False):
+    """Number of closed-loop roots right of Re s = -eps (plant-input cut, row -1).
+
+    The contour runs on the grid up to ``w_hi``; above it |L| < 1 keeps 1 + L in the right
+    half-plane, so the rest of the contour adds the principal angle from 1 + L(w_hi) to
+    1 + L(inf). ``tail_proven``: that bound is proven (:mod:`gaintune.verify.tail`) rather
+    than checked at one far point.
+    """
+    w, phi = _contour(ev, ol_poles, w_hi, eps, n_freq)
     ang = np.unwrap(np.angle(phi))
     d_one_plus_L = ang[-1] - ang[0]
     # tail to infinity: |L| < 1 there keeps 1 + L in the right half-plane
@@ -694,6 +769,26 @@ def _argument_principle(ev: _Evaluator, ol_poles: np.ndarray, w_hi: float, eps: 
     z_real = (n * np.pi / 2 - total) / np.pi
     z = int(round(z_real))
     return z, abs(z_real - z), tail_ok, float(np.abs(far - 1.0))
+
+
+def _discrete_nyquist(ev: _Evaluator, ol_z: np.ndarray, eps: float, n_freq: int):
+    """Closed-loop roots of the sampled loop on or outside |z| = rho = e^{-eps dt} (discrete Nyquist).
+
+    With chi_cl = chi_ol (1 + L_u) and the contour |z| = rho run counter-clockwise, the roots
+    inside are the open-loop poles inside plus the turns of 1 + L_u; by conjugate symmetry
+    the upper half (w from 0 to the Nyquist frequency, both ends real) gives half the turn.
+    Returns (count, distance of the raw count from an integer).
+    """
+    dt = ev.sampled.dt
+    rho = math.exp(-eps * dt)
+    nz = ol_z[np.abs(ol_z) > 0]
+    w, phi = _contour(ev, np.log(nz.astype(complex)) / dt, ev.sampled.nyquist, eps, n_freq)
+    ang = np.unwrap(np.angle(phi))
+    turns = (ang[-1] - ang[0]) / np.pi  # full turns of 1 + L_u around the closed contour
+    p_out = int(np.sum(np.abs(ol_z) >= rho))
+    z_real = p_out - turns
+    z = int(round(z_real))
+    return z, abs(z_real - z)
 
 
 def _stability(ev: _Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel, w_hi: float, n_freq: int,
@@ -761,12 +856,80 @@ def _stability(ev: _Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel
     return Stability(rhp == 0, method, int(rhp), int(nyq), poles, poles_method, max_re, notes)
 
 
-def _all_margins(ev: _Evaluator, w, L, aL, cas: Cascade, L0) -> list[BreakFigures]:
+#: Largest closed-loop state dimension of a sampled loop whose eigenvalues are computed (a long
+#: delay is a long input buffer); beyond it the discrete Nyquist criterion decides alone. (LAPACK's
+#: eigenvalue solver turns multi-threaded near 80 states, and then costs 100x more on a busy machine.)
+EIG_MAX = 64
+
+
+def _stability_sampled(ev: _Evaluator, cas: Cascade, lin: LinearModel, sp: SampledPlant, n_freq: int) -> Stability:
+    """Closed-loop stability of the sampled loop: the eigenvalues of its transition matrix decide
+    (|z| < 1), the discrete Nyquist count is the cross-check (it decides alone for closed loops
+    with more than :data:`EIG_MAX` states)."""
+    notes: list[str] = []
+    meas = cas.measured
+    lin_r, unobs = lin, np.zeros(0, dtype=complex)
+    if meas is not None:
+        lin_r, unobs = observable_part(lin, meas)
+    spr = sp.for_model(lin_r)
+    ol = cas.open_loop_poles_sampled(spr)[0]
+    N = spr.n + spr.buffer_len + sum(lp.n_states() for lp in cas.loops)
+    eps = 1e-7 * float(_char_freqs(cas, lin_r, DelayModel(sp.total_delay)).min())
+    nyq, frac_err = _discrete_nyquist(ev, ol, eps, n_freq)
+    if N <= EIG_MAX:
+        A = cas.closed_loop_sampled(spr)[0]
+        poles = np.linalg.eigvals(A) if A.size else np.zeros(0, dtype=complex)
+        rad = float(np.max(np.abs(poles))) if poles.size else 0.0
+        rhp = int(np.sum(np.abs(poles) > 1.0 - 1e-10))
+        method, poles_method = "poles", "exact"
+        if nyq != rhp:
+            notes.append(f"discrete Nyquist count ({nyq}) differs from the pole count ({rhp}); poles decide")
+    else:
+        poles = np.zeros(0, dtype=complex)
+        rad = math.nan
+        rhp = nyq
+        method, poles_method = "nyquist", "none"
+        notes.append(f"{N} closed-loop states (input buffer of {spr.buffer_len} samples): the discrete Nyquist "
+                     "criterion decides; poles not listed")
+        if frac_err > 0.25:
+            notes.append("discrete Nyquist count is not close to an integer; grid may be too coarse")
+    if unobs.size:
+        zu = np.abs(sp.mode_factor(unobs))
+        bad = unobs[zu > 1.0 + 1e-9]
+        marginal = unobs[np.abs(zu - 1.0) <= 1e-9]
+        if bad.size:
+            rhp += int(bad.size)
+            notes.append(f"unstable plant mode(s) {np.round(bad, 6).tolist()} not measured by any loop: cannot be stabilised")
+        if marginal.size:
+            notes.append(
+                f"marginal plant mode(s) {np.round(marginal, 6).tolist()} not measured by any loop (e.g. an integrator "
+                "such as position under speed control): left out of the stability verdict"
+            )
+    with np.errstate(divide="ignore"):
+        max_re = math.log(rad) / sp.dt if math.isfinite(rad) and rad > 0 else (-math.inf if rad == 0 else math.nan)
+    return Stability(rhp == 0, method, int(rhp), int(nyq), poles, poles_method, max_re, notes, "z",
+                     rad if math.isfinite(rad) else None)
+
+
+def _analyse_sampled(cas: Cascade, lin: LinearModel, sp: SampledPlant, n_freq: int) -> Analysis:
+    """:func:`analyse` of the sampled loop: the band is [lo, pi/dt] and both ends are end points
+    of the Nyquist curve (L is real at z = 1 and z = -1)."""
+    ev = _Evaluator(cas, lin, None, sp)
+    lo, hi, L0 = _band_ends(ev, cas, lin)
+    w, L, aL = _grid(ev, lo, hi, n_freq)
+    Lend = L[:, -1].real + 0j
+    L[:, -1] = Lend
+    figs = _all_margins(ev, w, L, aL, cas, L0, Lend)
+    stab = _stability_sampled(ev, cas, lin, sp, max(400, n_freq // 2))
+    return Analysis(figs, stab, (float(w[0]), float(w[-1])))
+
+
+def _all_margins(ev: _Evaluator, w, L, aL, cas: Cascade, L0, Lend=None) -> list[BreakFigures]:
     """Figures of every break point. The plant-input row is the innermost loop's controller-output
     row (L_{n-1} = -g_{n-1} H_n with H_n = 1, bit for bit): analysed once, copied."""
     n = len(cas.loops)
     names = cas.break_names
-    figs = _margins(ev, w, L[:n], aL[:n], names[:n], L0[:n])
+    figs = _margins(ev, w, L[:n], aL[:n], names[:n], L0[:n], None if Lend is None else Lend[:n])
     inner = figs[n - 1]
     figs.append(replace(inner, loop=names[n][0], break_point=names[n][1],
                         crossings=[replace(c) for c in inner.crossings]))
@@ -798,8 +961,12 @@ def _tail_clear(cas: Cascade, lin: LinearModel, figs: list[BreakFigures], w_cap:
     return g_u
 
 
-def analyse(cas: Cascade, lin: LinearModel, delay: DelayModel, n_freq: int = 2000, band: float | None = None) -> Analysis:
+def analyse(cas: Cascade, lin: LinearModel, delay: DelayModel | None, n_freq: int = 2000, band: float | None = None,
+            sampled: SampledPlant | None = None) -> Analysis:
     """Margins at every break point and closed-loop stability for a one-member cascade.
+
+    ``sampled``: analyse the sampled loop (the plant as the simulator steps it, the controllers'
+    discrete laws; :mod:`gaintune.verify.sampled`) on [lo, pi/dt]; ``delay`` and ``band`` are then unused.
 
     ``band``: upper end (rad/s) of the analysis band, normally a multiple of the controller's
     Nyquist frequency. The grid stops there only when the frequencies above are proven unable
@@ -807,6 +974,8 @@ def analyse(cas: Cascade, lin: LinearModel, delay: DelayModel, n_freq: int = 200
     band is widened x10 (a few times), and finally the grid runs to where |L| < MAG_FLOOR, as
     without ``band``. Crossings above the band are neither listed nor counted.
     """
+    if sampled is not None:
+        return _analyse_sampled(cas, lin, sampled, n_freq)
     ev = _Evaluator(cas, lin, delay)
     lo, hi, L0 = _band_ends(ev, cas, lin)
     caps = []

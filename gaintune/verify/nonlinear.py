@@ -5,11 +5,15 @@ for every scenario ``i`` when available, else ``simulate(spec, gains_full (B, n_
 traces=False)`` returning one ``SimResult`` or a list of them (one per scenario), each with
 ``metrics`` a dict of (B,) arrays including ``diverged`` and ``tripped``. Nominal plant draw.
 The check passes when no run diverges and the safety monitor never trips.
+
+``verify.compute_delay = c`` samples of computation delay are simulated as c*dt of extra
+input delay on the nominal draw (whole samples: the same z^-c the sampled analysis uses).
 """
 
 from __future__ import annotations
 
 import importlib
+from dataclasses import replace
 
 import numpy as np
 
@@ -20,15 +24,23 @@ __all__ = ["nonlinear_check"]
 _SUMMARY = ("iae", "overshoot", "settling_time", "sat_frac")
 
 
-def nonlinear_check(spec, plant, layout, full_gains: np.ndarray, sim=None) -> NonlinearReport:
+def _run_all(sim, spec, full: np.ndarray, compute_delay: int) -> list:
+    if not compute_delay:
+        return [sim.run(full, None, i) for i in range(len(spec.scenarios))]
+    base = sim.nominal_draws(full.shape[0])
+    return [sim.run(full, replace(base, delay=base.delay + compute_delay * sc.dt), i)
+            for i, sc in enumerate(spec.scenarios)]
+
+
+def nonlinear_check(spec, plant, layout, full_gains: np.ndarray, sim=None, compute_delay: int = 0) -> NonlinearReport:
     """Run the simulator on one full gain vector; ``ran=False`` when :mod:`gaintune.sim` is unavailable.
 
     ``sim``: a :class:`gaintune.sim.Simulator` of this spec to reuse (its discretisation memo stays warm).
+    ``compute_delay``: samples of computation delay, simulated as that many samples of extra input delay.
     """
     full = np.atleast_2d(np.asarray(full_gains, dtype=float))
     if sim is not None:
-        results = [sim.run(full, None, i) for i in range(len(spec.scenarios))]
-        return _report(results)
+        return _report(_run_all(sim, spec, full, compute_delay))
     try:
         simmod = importlib.import_module("gaintune.sim")
         simulate = getattr(simmod, "simulate")
@@ -36,8 +48,7 @@ def nonlinear_check(spec, plant, layout, full_gains: np.ndarray, sim=None) -> No
         return NonlinearReport(ran=False, note=f"simulator unavailable ({exc.__class__.__name__}: {exc})")
     runner = getattr(simmod, "Simulator", None)
     if runner is not None:
-        sm = runner(spec, plant, layout)
-        results = [sm.run(full, None, i) for i in range(len(spec.scenarios))]
+        results = _run_all(runner(spec, plant, layout), spec, full, compute_delay)
     else:
         results = simulate(spec, full, draws=None, traces=False)
     return _report(results)

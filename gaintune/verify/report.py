@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 __all__ = [
     "CrossingModel",
@@ -47,13 +47,20 @@ class LoopFigures(_Out):
 
     loop: str
     break_point: Literal["controller_output", "plant_input"]
-    gm_db: float = Field(description="Binding gain margin in dB: min(upper, lower).")
-    gm_upper_db: float = Field(description="dB by which the loop gain may be increased.")
+    gm_db: float = Field(
+        description="The binding gain margin in dB: min(gm_upper_db, gm_lower_db), the one of smaller |dB| "
+        "(gm_binding says which); inf when neither exists.")
+    gm_upper_db: float = Field(description="dB by which the loop gain may be increased; inf if no limit.")
     gm_lower_db: float = Field(description="dB by which the loop gain may be decreased (conditionally stable loops); inf if none.")
+    gm_binding: Literal["increase", "reduction", "none"] = Field(
+        description="Which gain margin gm_db is: increase (gm_upper_db), reduction (gm_lower_db), none (both inf).")
     gm_freq: float | None = Field(description="Phase-crossover frequency of the binding GM (rad/s).")
     pm_deg: float = Field(description="Phase margin in degrees at the binding gain crossover.")
     pm_freq: float | None = Field(description="Gain-crossover frequency of the binding PM (rad/s).")
-    delay_margin: float = Field(description="Extra input delay (s) the loop tolerates.")
+    delay_margin: float = Field(
+        description="Extra input delay (s) the loop tolerates: min over gain crossovers of (PM mod 360, in rad) / wc.")
+    delay_margin_samples: float | None = Field(
+        None, description="delay_margin / dt (dt: the analysis sample time): compare with a computation delay in samples.")
     ms: float = Field(description="Sensitivity peak max|1/(1+L)|.")
     ms_freq: float | None = None
     mt: float = Field(description="Complementary-sensitivity peak max|L/(1+L)|.")
@@ -67,16 +74,33 @@ class LoopFigures(_Out):
     crossings: list[CrossingModel] = Field(default_factory=list)
     crossings_omitted: int = Field(0, description="Phase crossings in the analysis band not listed (only the 20 of smallest |GM| are kept).")
 
+    @model_validator(mode="before")
+    @classmethod
+    def _old_reports(cls, data):
+        # reports written before gm_binding existed: derive it from the two margins
+        if isinstance(data, dict) and "gm_binding" not in data:
+            up, lo = (_as_float(data.get(k, math.inf)) for k in ("gm_upper_db", "gm_lower_db"))
+            data = {**data, "gm_binding": "none" if math.isinf(up) and math.isinf(lo) else ("increase" if up <= lo else "reduction")}
+        return data
+
 
 class StabilityReport(_Out):
     stable: bool
-    method: Literal["poles", "nyquist"] = Field(description="What decided: closed-loop eigenvalues (rational loop) or the argument principle (exact delay).")
-    rhp_count: int = Field(description="Closed-loop poles with Re >= 0 (counted by the deciding method).")
-    nyquist_rhp: int | None = Field(None, description="Argument-principle count (cross-check).")
-    poles: list[tuple[float, float]] = Field(default_factory=list, description="Closed-loop poles (re, im) of the delay-free or Padé loop.")
-    poles_method: str = Field("exact", description="exact, or padeN when delay is Padé-approximated for the pole list.")
-    max_real_pole: float
+    method: Literal["poles", "nyquist"] = Field(
+        description="What decided: closed-loop eigenvalues (rational or sampled loop) or the argument principle "
+        "(continuous loop with an exact delay; sampled loop with more closed-loop states than are eigen-solved).")
+    rhp_count: int = Field(description="Unstable closed-loop poles (Re >= 0; sampled loop: |z| >= 1), counted by the deciding method.")
+    nyquist_rhp: int | None = Field(None, description="Argument-principle (Nyquist) count (cross-check).")
+    poles: list[tuple[float, float]] = Field(
+        default_factory=list, description="Closed-loop poles (re, im): s-plane poles of the delay-free or Padé loop "
+        "(domain s), or z-plane poles of the sampled loop (domain z), largest first.")
+    poles_method: str = Field("exact", description="exact; padeN when the delay is Padé-approximated for the pole list; none when not computed.")
+    max_real_pole: float = Field(
+        description="Largest real part of the closed-loop poles; sampled loop: ln(max|z|)/dt, the equivalent s-plane "
+        "figure (negative when stable). NaN when the poles are not computed.")
     notes: list[str] = Field(default_factory=list)
+    domain: Literal["s", "z"] = Field("s", description="s: continuous-time poles; z: poles of the sampled loop.")
+    spectral_radius: float | None = Field(None, description="Sampled loop: max |z| over the closed-loop poles (< 1 when stable).")
 
 
 class PadeCheck(_Out):
@@ -98,6 +122,7 @@ class WorstCase(_Out):
     gm_db: float
     pm_deg: float
     delay_margin: float
+    delay_margin_samples: float | None = None
     ms: float
     mt: float
     disk_alpha: float
@@ -146,15 +171,21 @@ class VerificationReport(_Out):
     verdict: Literal["pass", "fail"]
     reasons: list[str] = Field(default_factory=list, description="Why the verdict is fail (binding requirement first).")
     delay: float = Field(description="Nominal plant input delay (s).")
-    sampling_delay: float = Field(description="dt/2 added to the loop delay for sample-and-hold (largest scenario dt).")
+    sampling_delay: float = Field(
+        description="Continuous analysis (sampled false): dt/2 added to the loop delay for sample-and-hold (largest "
+        "scenario dt). Sampled analysis: 0, the hold is modelled exactly.")
+    sampled: bool = Field(False, description="The sampled loop was analysed (verify.sampled); false: continuous plus dt/2.")
+    dt: float | None = Field(None, description="Sample time of the analysis (s): the largest scenario dt.")
+    compute_delay: int = Field(0, description="Samples of computation delay included (verify.compute_delay).")
     delay_method: Literal["exact", "pade", "none"]
     pade: PadeCheck | None = None
     operating_point: dict[str, float] = Field(default_factory=dict, description="x0 and u0 of the linearisation.")
     stability: StabilityReport
     analysis_band: tuple[float, float] | None = Field(
-        None, description="Frequency band (rad/s) of the nominal analysis. It ends at 10 x the Nyquist frequency pi/dt when "
-        "the frequencies above are proven unable to change any figure or the stability count, else higher; crossings "
-        "above it are neither listed nor counted.")
+        None, description="Frequency band (rad/s) of the nominal analysis. Sampled loop: it ends at the Nyquist frequency "
+        "pi/dt (the rest of the unit circle mirrors it). Continuous loop: it ends at 10 x pi/dt when the frequencies above "
+        "are proven unable to change any figure or the stability count, else higher; crossings above it are neither "
+        "listed nor counted.")
     loops: list[LoopFigures]
     robust: RobustReport | None = None
     nonlinear: NonlinearReport | None = None
@@ -175,6 +206,14 @@ class VerificationReport(_Out):
 # ------------------------------------------------------------------ table
 
 
+def _as_float(x) -> float:
+    """A JSON figure (a float, or "Infinity"/"-Infinity"/"NaN") as a float."""
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return math.nan
+
+
 def _f(x: float | None, fmt: str = "{:.3g}") -> str:
     if x is None:
         return "-"
@@ -187,18 +226,35 @@ def format_table(report: VerificationReport) -> str:
     """Plain-text summary used by ``gaintune verify``."""
     lines = [f"verification of {report.spec_name!r}: {report.verdict.upper()}"]
     st = report.stability
-    lines.append(
-        f"closed loop: {'stable' if st.stable else 'UNSTABLE'} ({st.method}; max Re pole {_f(st.max_real_pole)})"
-        f"; delay {_f(report.delay)} s + sampling {_f(report.sampling_delay)} s ({report.delay_method})"
-    )
-    hdr = f"{'loop':<12} {'break':<8} {'GM dB':>7} {'GMlo dB':>7} {'PM deg':>7} {'wc':>8} {'DM s':>8} {'Ms':>6} {'Mt':>6} {'disk a':>6}"
+    cd = f", computation delay {report.compute_delay} sample(s)" if report.compute_delay else ""
+    if report.sampled:
+        pole = f"max |z| {_f(st.spectral_radius)}" if st.spectral_radius is not None else "poles not listed"
+        lines.append(
+            f"closed loop: {'stable' if st.stable else 'UNSTABLE'} ({st.method}; {pole}); sampled loop at dt "
+            f"{_f(report.dt)} s (ZOH, delay {_f(report.delay)} s exact{cd})"
+        )
+    else:
+        lines.append(
+            f"closed loop: {'stable' if st.stable else 'UNSTABLE'} ({st.method}; max Re pole {_f(st.max_real_pole)})"
+            f"; delay {_f(report.delay)} s + sampling {_f(report.sampling_delay)} s ({report.delay_method}{cd})"
+        )
+    hdr = (f"{'loop':<12} {'break':<8} {'GM dB':>7} {'GMlo dB':>7} {'PM deg':>7} {'wc':>8} {'DM s':>8} {'DM smp':>7} "
+           f"{'Ms':>6} {'Mt':>6} {'disk a':>6}")
     lines += ["", hdr, "-" * len(hdr)]
     for f in report.loops:
         brk = "ctrl" if f.break_point == "controller_output" else "u"
+        gm_up, gm_lo = _f(f.gm_upper_db, '{:.2f}'), _f(f.gm_lower_db, '{:.2f}')
+        if f.gm_binding == "increase":
+            gm_up += "*"
+        elif f.gm_binding == "reduction":
+            gm_lo += "*"
         lines.append(
-            f"{f.loop:<12} {brk:<8} {_f(f.gm_upper_db, '{:.2f}'):>7} {_f(f.gm_lower_db, '{:.2f}'):>7} {_f(f.pm_deg, '{:.1f}'):>7} "
-            f"{_f(f.pm_freq):>8} {_f(f.delay_margin):>8} {_f(f.ms, '{:.2f}'):>6} {_f(f.mt, '{:.2f}'):>6} {_f(f.disk_alpha, '{:.2f}'):>6}"
+            f"{f.loop:<12} {brk:<8} {gm_up:>7} {gm_lo:>7} {_f(f.pm_deg, '{:.1f}'):>7} "
+            f"{_f(f.pm_freq):>8} {_f(f.delay_margin):>8} {_f(f.delay_margin_samples, '{:.2f}'):>7} "
+            f"{_f(f.ms, '{:.2f}'):>6} {_f(f.mt, '{:.2f}'):>6} {_f(f.disk_alpha, '{:.2f}'):>6}"
         )
+    if report.loops:
+        lines.append("(* the binding gain margin, gm_db)")
     if report.robust is not None:
         r = report.robust
         lines += ["", f"robust: {r.n_samples} samples ({r.n_corners} corners + {r.n_monte_carlo} draws), {r.n_unstable} unstable"]

@@ -1,7 +1,8 @@
 """Proven bounds on |L| above the analysis band (the "tail"), so the band can stop there.
 
-The loop is analysed in continuous time with the sample-and-hold as dt/2 of delay, a model
-that only holds below the Nyquist frequency pi/dt. Resolving the delay's phase spin far
+This concerns the continuous analysis (``verify.sampled: false``; the sampled loop's band
+simply ends at pi/dt, where its Nyquist curve ends). The loop is analysed in continuous time
+with the sample-and-hold as dt/2 of delay, a model that only holds below the Nyquist frequency pi/dt. Resolving the delay's phase spin far
 above it (up to where |L| < 1e-4, often 1e7 rad/s) costs most of the grid and describes
 nothing physical. :func:`gaintune.verify.margins.analyse` therefore stops the band at a
 multiple of the Nyquist frequency, *provided* this module proves that the frequencies above

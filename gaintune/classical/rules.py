@@ -12,6 +12,14 @@ Notation: the model is ``K e^{-Ls}/(Ts+1)``; integrating models are
 
 Where a published rule has no P or PD variant we keep its proportional gain
 (and derivative time) and drop the integral term; this is stated per rule.
+
+Negative process gains (reverse-acting loops): every FOTD rule's ``Kc`` is
+proportional to ``1/K`` (or ``1/Kv``) while ``Ti`` and ``Td`` do not depend on
+``K``, so a model with ``K < 0`` gives the mirror-image controller: the same
+magnitudes as for ``|K|`` and ``Kc < 0`` (so Kp, Ki, Kd < 0).
+:func:`ultimate_gain` returns the magnitude ``Ku`` for either sign. The caller
+(:func:`gaintune.classical.tuning.tune_classical`) gives ``Kc`` the sign of
+the loop's direction.
 """
 
 from __future__ import annotations
@@ -22,7 +30,7 @@ from typing import Callable
 
 import numpy as np
 
-from gaintune.baselines.fotd import Fotd, NoModelError
+from gaintune.classical.fotd import Fotd, NoModelError
 from gaintune.spec import GAIN_NAMES, LoopSpec
 
 __all__ = [
@@ -35,6 +43,7 @@ __all__ = [
     "ultimate_gain",
     "series_to_ideal",
     "to_loop_gains",
+    "with_direction",
     "FOTD_RULES",
 ]
 
@@ -66,12 +75,8 @@ def series_to_ideal(Kc: float, tau_i: float, tau_d: float) -> IdealPid:
 def _check(m: Fotd, ctype: str, rule: str, need_delay: bool = True) -> None:
     if ctype not in CTYPES:
         raise NoModelError(rule, f"no {rule} rule for a {ctype!r} loop (classical rules cover p, pi, pd, pid)")
-    if not (math.isfinite(m.K) and m.K > 0):
-        raise NoModelError(
-            rule,
-            f"the loop's plant gain is {m.K:.3g} (<= 0): it needs a reverse-acting controller, "
-            "which positive log-scale gains cannot express; flip the sign of the measurement or actuator",
-        )
+    if not (math.isfinite(m.K) and m.K != 0):
+        raise NoModelError(rule, f"the loop's plant gain is {m.K:.3g}: a rule needs a finite, nonzero gain")
     if need_delay and not m.L > 0:
         raise NoModelError(rule, f"{rule} needs a positive apparent delay L (got {m.L:g}); give the plant's delay or sample time")
     if not m.integrating and not m.T > 0:
@@ -254,15 +259,26 @@ def ultimate_gain(sys, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, f
     The phase of G(jw) e^{-jw delay} is unwrapped on a log grid from low
     frequency; the first -180 degree crossing is refined with Brent's method.
 
+    A path with a negative gain (static gain, or velocity gain of an integrating path) is
+    analysed as its negation: ``Ku`` is the magnitude of the ultimate gain either way.
+
     Raises
     ------
     NoModelError
-        When the phase never reaches -180 degrees (Ku infinite) or the DC gain is not positive.
+        When the phase never reaches -180 degrees (Ku infinite) or the low-frequency gain
+        is negative after that (open-loop unstable paths).
     """
     import control
     from scipy.optimize import brentq
 
+    from gaintune.controllers.direction import path_gain
+
     sys = control.ss(sys)
+    sgn = 1.0
+    if sys.nstates:
+        pg = path_gain(np.asarray(sys.A), np.asarray(sys.B)[:, 0], np.asarray(sys.C)[0], float(np.asarray(sys.D)[0, 0]))
+        if pg is not None and pg.coef < 0 and pg.rhp_real == 0:
+            sgn = -1.0
     p = np.linalg.eigvals(sys.A) if sys.nstates else np.zeros(0)
     mags = np.abs(p[np.abs(p) > 1e-12])
     lo = min([*(mags.tolist()), 1.0 / delay if delay > 0 else np.inf, 1.0])
@@ -270,7 +286,7 @@ def ultimate_gain(sys, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, f
     w = np.logspace(np.log10(lo) - 3, np.log10(hi) + 3, n_grid)
 
     def resp(x):
-        return np.asarray(sys(1j * np.atleast_1d(x))).reshape(-1)
+        return sgn * np.asarray(sys(1j * np.atleast_1d(x))).reshape(-1)
 
     g = resp(w)
     g0 = g[0]
@@ -299,13 +315,24 @@ def ultimate_gain(sys, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, f
 # ------------------------------------------------------------ conversion
 
 
+def with_direction(pid: IdealPid, direction: int) -> IdealPid:
+    """The same controller magnitudes with ``Kc`` of sign ``direction`` (+1 direct, -1 reverse)."""
+    return IdealPid(math.copysign(abs(pid.Kc), direction), pid.Ti, pid.Td)
+
+
 def to_loop_gains(pid: IdealPid, loop: LoopSpec) -> dict[str, float]:
-    """Ideal-form parameters -> the loop's gain names (parallel Kp/Ki/Kd or ideal Kp/Ti/Td)."""
+    """Ideal-form parameters -> the loop's gain names (parallel Kp/Ki/Kd or ideal Kp/Ti/Td).
+
+    Kp, Ki and Kd take the sign of ``Kc`` (negative: a reverse-acting loop); Ti and Td are positive.
+    """
     names = GAIN_NAMES[(loop.type, loop.form)]
     kp, ki, kd = pid.parallel()
     values = {"Kp": kp, "Ki": ki, "Kd": kd, "Ti": pid.Ti, "Td": pid.Td}
     out = {n: float(values[n]) for n in names}
+    sign = 1.0 if pid.Kc > 0 else -1.0
     for n, v in out.items():
-        if not (math.isfinite(v) and v > 0):
-            raise NoModelError(f"{loop.name}.{n}", f"the rule gives {n} = {v:g}; gains must be finite and positive")
+        want = sign if n in ("Kp", "Ki", "Kd") else 1.0
+        if not (math.isfinite(v) and v * want > 0):
+            what = "positive" if want > 0 else "negative"
+            raise NoModelError(f"{loop.name}.{n}", f"the rule gives {n} = {v:g}; it must be finite and {what}")
     return out

@@ -10,6 +10,11 @@ path (step-response fit, as its poles are rarely all real), and so on.
 Half the sample time of the fastest scenario is added to every loop's
 apparent delay: a sampled controller with zero-order hold delays by about
 dt/2 (Skogestad 2003); it also keeps the rules finite for delay-free plants.
+
+Every loop's gains take the sign of its direction
+(:func:`gaintune.controllers.direction.loop_directions`): the rule gives the
+magnitudes (from ``|K|``), the direction the sign, so a reverse-acting loop gets
+Kp, Ki, Kd < 0 and the next loop out sees its inner loop correctly closed.
 """
 
 from __future__ import annotations
@@ -19,11 +24,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gaintune.baselines.fotd import Fotd, NoModelError, fit_fotd, siso_minreal
-from gaintune.baselines.rules import FOTD_RULES, IdealPid, to_loop_gains, ultimate_gain, zn_ultimate
+from gaintune.classical.fotd import Fotd, NoModelError, fit_fotd, siso_minreal
+from gaintune.classical.rules import FOTD_RULES, IdealPid, to_loop_gains, ultimate_gain, with_direction, zn_ultimate
+from gaintune.controllers.direction import loop_directions
 from gaintune.spec import TuningSpec
 
-__all__ = ["ClassicalResult", "tune_classical", "auto_bounds", "PADE_ORDER", "BOUNDS_FACTOR", "CLASSICAL_METHODS"]
+__all__ = ["ClassicalResult", "tune_classical", "rule_candidates", "auto_bounds", "PADE_ORDER", "BOUNDS_FACTOR",
+           "CLASSICAL_METHODS"]
 
 #: Pade order used to close loops around a delayed plant.
 PADE_ORDER = 6
@@ -65,14 +72,15 @@ def _pid_ss(loop, gains: dict[str, float]):
     from gaintune.controllers.pid import pid_params
 
     p = pid_params(loop, gains)
-    # States: integral of r - y (when Ki > 0) and the derivative filter (when Kd > 0).
+    # States: integral of r - y (when Ki != 0) and the derivative filter (when Kd != 0); the
+    # gains are signed (negative for a reverse-acting loop).
     A, B, C = [], [], []
     D = [p.b * p.Kp, -p.Kp]
-    if p.Ki > 0:
+    if p.Ki != 0:
         A.append([0.0])
         B.append([1.0, -1.0])
         C.append(p.Ki)
-    if p.Kd > 0:
+    if p.Kd != 0:
         if not p.Tf > 0:
             raise NoModelError(f"{loop.name}", "a derivative term needs a filter time constant Tf > 0")
         A.append([-1.0 / p.Tf])
@@ -124,15 +132,23 @@ def sample_time(spec: TuningSpec) -> float:
 def tune_classical(spec: TuningSpec, plant, method: str, params: dict[str, float] | None = None) -> ClassicalResult:
     """Gains from rule ``method`` for every loop (innermost first), at nominal (or given) parameters.
 
-    Fixed gains (``tune: false``) keep their spec value, also when closing inner loops.
+    Fixed gains (``tune: false``) keep their spec value, also when closing inner loops. The
+    gains of every loop have the sign of its direction (negative for a reverse-acting loop).
 
     Raises
     ------
     NoModelError
         When a loop is LQ, or no FOTD model / rule applies to some loop (the message says which and why).
+    SpecError
+        When a loop's ``direction: auto`` cannot be resolved.
     """
     if method not in CLASSICAL_METHODS:
         raise ValueError(f"unknown classical method {method!r}; choose from {CLASSICAL_METHODS}")
+    if any(lp.is_lq for lp in spec.loops):
+        j = next(i for i, lp in enumerate(spec.loops) if lp.is_lq)
+        lp = spec.loops[j]
+        raise NoModelError(f"loops[{j}]", f"{lp.type} loop {lp.name!r}: no classical rule (LQ loops are tuned by Riccati)")
+    directions = loop_directions(spec, plant)
     lin = plant.linearize(params)
     h2 = 0.5 * sample_time(spec)
     sys = _ss(lin.A, lin.B, lin.C, lin.D)
@@ -159,6 +175,7 @@ def tune_classical(spec: TuningSpec, plant, method: str, params: dict[str, float
                 pid = FOTD_RULES[method](model, loop.type)
             except NoModelError as exc:
                 raise NoModelError(f"loops[{j}] ({name})", exc.message) from None
+        pid = with_direction(pid, directions[j])
         res.pid[name] = pid
         gains = _fixed_overrides(loop, to_loop_gains(pid, loop))
         res.gains[name] = gains
@@ -169,31 +186,38 @@ def tune_classical(spec: TuningSpec, plant, method: str, params: dict[str, float
     return res
 
 
-def auto_bounds(spec: TuningSpec, plant, factor: float = BOUNDS_FACTOR) -> dict[tuple[str, str], tuple[float, float]]:
-    """Default log-scale search bounds ``{(loop, gain): (g/factor, g*factor)}`` around a robust rule.
+def rule_candidates(spec: TuningSpec, plant) -> dict[str, dict[str, dict[str, float]]]:
+    """Every classical rule that applies to this spec, as ``{method: {loop: {gain: value}}}``.
 
-    SIMC (tau_c = theta) is tried first, then AMIGO, then Ziegler-Nichols' ultimate-gain
-    rule (which needs no FOTD model, so it covers oscillatory paths); the bounds are centred
-    geometrically on that rule's gains, a factor ``factor`` (default 30, i.e.
-    about three decades in all) each way - wide enough to contain the
-    cost-optimal gains of every benchmark process we checked and narrow enough
-    to keep random gains mostly stable. Returns ``{}`` when no rule applies
-    (LQ loops, paths without a phase crossover, ...): the layout then falls back
-    to its fixed defaults. Fixed gains are skipped.
+    Each is applied inner loop first (:func:`tune_classical`). Rules that do not apply
+    (LQ loops, unstable or oscillatory paths, ...) are left out; ``{}`` when none does.
     """
-    # zn_ultimate last: it needs no FOTD model, so it also centres oscillatory paths.
-    for method in ("simc", "amigo", "zn_ultimate"):
+    out = {}
+    for method in CLASSICAL_METHODS:
         try:
-            res = tune_classical(spec, plant, method)
+            out[method] = tune_classical(spec, plant, method).gains
         except (NoModelError, ValueError, np.linalg.LinAlgError):
             continue
-        out: dict[tuple[str, str], tuple[float, float]] = {}
-        for loop in spec.loops:
-            for gname, v in res.gains[loop.name].items():
-                g = loop.gains.get(gname)
-                if g is not None and not g.tune:
-                    continue
-                if math.isfinite(v) and v > 0:
-                    out[(loop.name, gname)] = (v / factor, v * factor)
-        return out
-    return {}
+    return out
+
+
+def auto_bounds(spec: TuningSpec, centre: dict[str, dict[str, float]], factor: float = BOUNDS_FACTOR
+                ) -> dict[tuple[str, str], tuple[float, float]]:
+    """Log-scale search bounds ``{(loop, gain): (|g|/factor, |g|*factor)}`` around the gain set ``centre``.
+
+    ``factor`` (default 30, about three decades in all) is wide enough to contain the
+    cost-optimal gains of every benchmark process we checked. Fixed gains are skipped.
+    The bounds are magnitudes (a reverse-acting loop's gains are negative; the layout
+    searches their magnitudes). Which gain set to centre on is decided above this
+    layer, by the requirements (:mod:`gaintune.search_box`).
+    """
+    out: dict[tuple[str, str], tuple[float, float]] = {}
+    for loop in spec.loops:
+        for gname, v in centre.get(loop.name, {}).items():
+            g = loop.gains.get(gname)
+            if g is not None and not g.tune:
+                continue
+            v = abs(v)
+            if math.isfinite(v) and v > 0:
+                out[(loop.name, gname)] = (v / factor, v * factor)
+    return out

@@ -27,6 +27,9 @@ delay in seconds):
   Integrating paths fit the path without the integrator, ``Kv e^{-Lr s}/(Tr s+1)``,
   and use ``L = Lr + Tr/2`` (the half rule with the integrator as dominant lag).
 
+``K`` (or ``Kv``) is negative for a reverse-acting path; every step above works
+on the signed gain (the step response is normalised by ``K``).
+
 No FOTD model applies (and :class:`NoModelError` is raised, naming why) to
 unstable paths, double integrators, paths with zero static gain, and
 oscillatory paths (step-response overshoot above :data:`OSCILLATION_LIMIT`).

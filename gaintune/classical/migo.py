@@ -27,6 +27,10 @@ are counted from the low-frequency slope of ``|G|``), end where ``|L| << 1`` and
 Nyquist curve near -1. The coarse minimum of ``|1 + L|`` is refined by golden section in
 ``log w`` between its grid neighbours (new ``G`` evaluations), to far below 1e-4 relative.
 
+``G`` may carry an ``integrator(w)`` attribute, the integral action's frequency response
+(default ``1/(jw)``): a sampled loop with a backward-Euler integral passes ``dt/(1 - e^{-jw dt})``
+and its plant's ZOH response, with the grid ending at ``pi/dt``.
+
 >>> G = lambda w: 1 / (1j * w + 1) ** 3
 >>> round(migo_pi(G, 1.4, np.geomspace(1e-3, 1e2, 1000)).ms, 4)
 1.4
@@ -75,13 +79,23 @@ def _resp(G: FreqResp, w) -> np.ndarray:
     return np.asarray(G(np.asarray(w, float)), complex)
 
 
+def _integrator(G: FreqResp, w) -> np.ndarray:
+    """The integral action's response: ``G.integrator(w)`` when G carries one, else ``1/(jw)``.
+
+    A sampled loop (backward-Euler PI at sample time dt) passes ``dt/(1 - e^{-jw dt})``.
+    """
+    f = getattr(G, "integrator", None)
+    w = np.asarray(w, float)
+    return np.asarray(f(w), complex) if f is not None else 1.0 / (1j * w)
+
+
 def _wrap(x):
     return (x + np.pi) % (2 * np.pi) - np.pi
 
 
 def _chunk(G, w, Gw, kp, ki, k):
     """Refined Ms (and the Nyquist count Z when k is not None) for 1-D gain arrays."""
-    Gi = Gw / (1j * w)  # 1 + L = 1 + kp G + ki G/(jw), in real arithmetic
+    Gi = Gw * _integrator(G, w)  # 1 + L = 1 + kp G + ki G I(w), in real arithmetic
     re = 1.0 + kp[:, None] * Gw.real + ki[:, None] * Gi.real
     im = kp[:, None] * Gw.imag + ki[:, None] * Gi.imag
     a2 = re * re + im * im
@@ -90,7 +104,7 @@ def _chunk(G, w, Gw, kp, ki, k):
     lo, hi = lw[np.maximum(i - 1, 0)], lw[np.minimum(i + 1, w.size - 1)]
 
     def f(x):
-        return np.abs(1.0 + (kp + ki / (1j * np.exp(x))) * _resp(G, np.exp(x)))
+        return np.abs(1.0 + (kp + ki * _integrator(G, np.exp(x))) * _resp(G, np.exp(x)))
 
     x1, x2 = hi - _GOLD * (hi - lo), lo + _GOLD * (hi - lo)
     f1, f2 = f(x1), f(x2)

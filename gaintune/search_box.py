@@ -1,0 +1,109 @@
+"""The search box and start gains of a problem, chosen by the requirements (not by one rule).
+
+Every optimiser searches one box per problem: log-scale bounds on the tuned gains, the
+same for RL, the black-box baselines and the reference, so their costs compare like with
+like. Bounds the spec gives are kept. Elsewhere the box is centred on the best design we
+know before any search, ranked like every search ranks (feasibility first, then cost):
+
+1. every classical rule that applies (SIMC, AMIGO, IMC, Ziegler-Nichols step and
+   ultimate-gain rules), each applied inner loop first (:func:`gaintune.classical.rule_candidates`);
+2. if none of them meets the requirements, the least-violating stable one detuned: every
+   loop's gains scaled by 0.7, 0.5, 0.35, ... until it does.
+
+The chosen design is the start point of every search (the RL policy's action 0, CMA-ES's
+mean, Nelder-Mead's first vertex), and the search never loses it: it is scored like any
+other candidate. A SIMC rule built on the half-sample delay of a delay-free plant (far too
+aggressive), or one that destabilises a deep cascade, is no longer the centre just because
+it came first. :class:`SearchBox` records what was chosen and why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gaintune.classical import BOUNDS_FACTOR, auto_bounds, rule_candidates
+from gaintune.controllers.layout import GainLayout
+from gaintune.objective import Evaluator
+from gaintune.plants import build_plant
+from gaintune.plants.plant import Plant
+from gaintune.sim import Simulator
+from gaintune.spec import TuningSpec
+
+__all__ = ["SearchBox", "DETUNE", "search_box", "search_layout", "make_evaluator"]
+
+#: Scales tried on the best rule's gains (every loop at once) when no rule meets the requirements.
+DETUNE = (0.7, 0.5, 0.35, 0.25, 0.18, 0.12, 0.08, 0.05)
+
+
+@dataclass
+class SearchBox:
+    """The default box of a problem and how its centre was chosen.
+
+    Attributes
+    ----------
+    layout
+        The gain layout with the box as its bounds (spec bounds kept).
+    centre
+        The start gains ``{loop: {gain: value}}``, or None when no rule applies (the layout's
+        fixed default bounds are used).
+    source
+        e.g. ``"amigo"`` or ``"simc x 0.5"``; None without a rule.
+    feasible
+        Whether the start gains meet every requirement by the search's estimate.
+    candidates
+        ``{name: (feasible, violation, cost)}`` of everything scored.
+    """
+
+    layout: GainLayout
+    centre: dict[str, dict[str, float]] | None
+    source: str | None
+    feasible: bool
+    candidates: dict[str, tuple[bool, float, float]] = field(default_factory=dict)
+
+
+def _scale(gains: dict[str, dict[str, float]], a: float, spec: TuningSpec) -> dict[str, dict[str, float]]:
+    """Every loop's controller gains times ``a`` (ideal form: Kp only; Ti, Td are times)."""
+    out = {}
+    for loop in spec.loops:
+        g = gains[loop.name]
+        keep = {"Ti", "Td"} if loop.form == "ideal" else set()
+        out[loop.name] = {k: (v if k in keep else v * a) for k, v in g.items()}
+    return out
+
+
+def search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
+    """Choose the start gains and the box around them (see the module docstring)."""
+    plain = GainLayout(spec, plant.states, plant=plant)
+    rules = rule_candidates(spec, plant)
+    if not rules:
+        return SearchBox(plain, None, None, False)
+    ev = Evaluator(spec, Simulator(spec, plant, plain))
+
+    def score(named: dict[str, dict[str, dict[str, float]]]) -> list[tuple[float, str, dict, bool, float, float]]:
+        names = list(named)
+        tuned = np.array([plain.from_dict(named[n])[plain.tuned_idx] for n in names])
+        s = ev.evaluate(tuned)
+        return [(float(s.merit[i]), n, named[n], bool(s.feasible[i]), float(s.violation[i]), float(s.cost[i]))
+                for i, n in enumerate(names)]
+
+    scored = score(rules)
+    best = min(scored, key=lambda r: r[0])
+    if not best[3]:  # no rule meets the requirements: detune the least-violating one
+        scored += score({f"{best[1]} x {a:g}": _scale(best[2], a, spec) for a in DETUNE})
+        best = min(scored, key=lambda r: r[0])
+    _, source, centre, feasible, _, _ = best
+    layout = GainLayout(spec, plant.states, auto_bounds=auto_bounds(spec, centre, BOUNDS_FACTOR), plant=plant)
+    return SearchBox(layout, centre, source, feasible, {r[1]: (r[3], r[4], r[5]) for r in scored})
+
+
+def search_layout(spec: TuningSpec, plant: Plant) -> GainLayout:
+    """The layout every optimiser shares: spec bounds, else the box of :func:`search_box`."""
+    return search_box(spec, plant).layout
+
+
+def make_evaluator(spec: TuningSpec, plant: Plant | None = None) -> Evaluator:
+    """An :class:`~gaintune.objective.Evaluator` on the problem's default search box."""
+    plant = plant if plant is not None else build_plant(spec.plant)
+    return Evaluator(spec, Simulator(spec, plant, search_layout(spec, plant)))

@@ -1,0 +1,75 @@
+"""pidtune's interface as a spec shortcut: ``design: {phase_margin, focus, ...}``.
+
+MATLAB's ``pidtune(G, type, opts)`` asks for a target phase margin (60 deg by default)
+and a design focus; gaintune maps that onto its own spec, so the tuned gains are the
+constrained optimum of a stated objective rather than a loop-shaping heuristic:
+
+==========================  ==================================================================
+design field                becomes
+==========================  ==================================================================
+``phase_margin`` (60)       ``requirements.pm_min_deg`` (a hard constraint); the other
+                            requirements keep their defaults unless the spec sets them
+``focus: reference_tracking``  one scenario: unit setpoint step; cost IAE + effort
+``focus: disturbance_rejection``  one scenario: unit load step at the plant input; cost IAE
+``focus: balanced`` (default)  both scenarios, weight 0.5 each
+``dt``, ``horizon``          the scenarios' sample time and length (default 0.01 s, 20 s)
+==========================  ==================================================================
+
+A spec that sets ``scenarios`` (or ``scenario``) itself keeps them and uses ``design`` for
+the requirement only; one that sets ``requirements.pm_min_deg`` and a different
+``design.phase_margin`` is rejected (two sources for one limit).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+__all__ = ["DesignSpec", "expand_design"]
+
+
+class DesignSpec(BaseModel):
+    """pidtune-style design goals, expanded into requirements and scenarios (see :mod:`gaintune.spec_design`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    phase_margin: float = Field(60.0, gt=0, lt=90, description="Target (minimum) phase margin in degrees, as pidtune's default.")
+    focus: Literal["balanced", "reference_tracking", "disturbance_rejection"] = Field(
+        "balanced", description="What the cost measures: setpoint steps, load steps at the plant input, or both."
+    )
+    dt: float = Field(0.01, gt=0, description="Sample time of the generated scenarios (s).")
+    horizon: float = Field(20.0, gt=0, description="Length of the generated scenarios (s).")
+
+
+def _scenarios(d: DesignSpec) -> list[dict[str, Any]]:
+    track = {"name": "tracking", "dt": d.dt, "horizon": d.horizon, "reference": {"kind": "step", "amplitude": 1.0}}
+    load = {"name": "load", "dt": d.dt, "horizon": d.horizon, "reference": {"kind": "none"},
+            "disturbance": {"kind": "step", "amplitude": 1.0, "entry": "input"}}
+    if d.focus == "reference_tracking":
+        return [track]
+    if d.focus == "disturbance_rejection":
+        return [load]
+    return [{**track, "weight": 0.5}, {**load, "weight": 0.5}]
+
+
+def expand_design(data: dict[str, Any]) -> dict[str, Any]:
+    """Fill ``requirements.pm_min_deg`` and, when absent, ``scenarios`` from ``data["design"]``.
+
+    Raises ValueError when the spec gives the phase margin twice with different values.
+    """
+    raw = data.get("design")
+    if raw is None:
+        return data
+    d = raw if isinstance(raw, DesignSpec) else DesignSpec.model_validate(raw)
+    out = dict(data)
+    req = dict(out.get("requirements") or {})
+    given = req.get("pm_min_deg")
+    if given is not None and abs(float(given) - d.phase_margin) > 1e-12:
+        raise ValueError(f"requirements.pm_min_deg ({given}) and design.phase_margin ({d.phase_margin}) disagree; "
+                         "give the phase margin once")
+    req["pm_min_deg"] = d.phase_margin
+    out["requirements"] = req
+    if "scenarios" not in out and "scenario" not in out:
+        out["scenarios"] = _scenarios(d)
+    return out

@@ -1,0 +1,40 @@
+"""The pidtune-style ``design`` shortcut expands into requirements and scenarios."""
+
+from __future__ import annotations
+
+import pytest
+from pydantic import ValidationError
+
+from gaintune.spec import load_spec
+
+BASE = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}]}
+
+
+def test_design_default_is_pidtunes_60_degrees_balanced():
+    spec = load_spec({**BASE, "design": {}})
+    assert spec.requirements.pm_min_deg == 60.0
+    assert [(s.name, s.weight) for s in spec.scenarios] == [("tracking", 0.5), ("load", 0.5)]
+    load = spec.scenarios[1]
+    assert load.reference.kind == "none" and load.disturbance.kind == "step" and load.disturbance.entry == "input"
+
+
+@pytest.mark.parametrize("focus, names", [("reference_tracking", ["tracking"]), ("disturbance_rejection", ["load"])])
+def test_design_focus_picks_the_scenario(focus, names):
+    spec = load_spec({**BASE, "design": {"focus": focus, "phase_margin": 55, "dt": 0.05, "horizon": 30}})
+    assert [s.name for s in spec.scenarios] == names
+    assert spec.scenarios[0].dt == 0.05 and spec.scenarios[0].horizon == 30
+    assert spec.requirements.pm_min_deg == 55
+
+
+def test_design_keeps_explicit_scenarios_and_round_trips():
+    spec = load_spec({**BASE, "design": {"phase_margin": 50}, "scenario": {"name": "mine", "dt": 0.02}})
+    assert [s.name for s in spec.scenarios] == ["mine"] and spec.requirements.pm_min_deg == 50
+    again = load_spec(spec.model_dump(mode="json"))
+    assert again.content_hash() == spec.content_hash()
+
+
+def test_design_phase_margin_given_twice_is_rejected_naming_both_fields():
+    with pytest.raises(ValidationError, match="pm_min_deg.*design.phase_margin"):
+        load_spec({**BASE, "design": {"phase_margin": 60}, "requirements": {"pm_min_deg": 45}})
+    with pytest.raises(ValidationError, match="phase_margin"):
+        load_spec({**BASE, "design": {"phase_margin": 95}})
