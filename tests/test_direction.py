@@ -342,3 +342,14 @@ def test_direction_override_direct_on_negative_plant_fails_verification_with_rea
     rep = verify(spec, {"main": g})
     assert rep.verdict == "fail"
     assert any("unstable" in reason for reason in rep.reasons)
+
+
+def test_forced_wrong_direction_is_named_in_the_diagnosis():
+    """Regression: forcing direction: direct on a negative plant said only 'no stabilising gains were found'."""
+    from gaintune.search.diagnosis import direction_hints
+
+    spec = _spec(REVERSE_FOTD, loops=[{"name": "main", "type": "pi", "direction": "direct"}])
+    (hint,) = direction_hints(spec, build_plant(spec.plant))
+    assert "direction: direct" in hint and "-2" in hint and "set direction: reverse or auto" in hint
+    ok = _spec(REVERSE_FOTD, loops=[{"name": "main", "type": "pi", "direction": "reverse"}])
+    assert direction_hints(ok, build_plant(ok.plant)) == []

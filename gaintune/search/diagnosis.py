@@ -18,7 +18,7 @@ from gaintune.plants.advice import plant_warnings
 from gaintune.plants.plant import Plant
 from gaintune.search.result import Diagnosis, TuneResult
 
-__all__ = ["diagnose", "bound_hints", "REQUIREMENT_TEXT"]
+__all__ = ["diagnose", "bound_hints", "direction_hints", "REQUIREMENT_TEXT"]
 
 #: requirement field -> (figure label, comparison) used in messages.
 REQUIREMENT_TEXT: dict[str, tuple[str, str]] = {
@@ -84,9 +84,12 @@ def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray, plant: P
     searched_feasible = result.violation <= 0
     failing = _failing_lines(ver)
     if not stable:
+        from gaintune.spec import TuningSpec
+
         summary = "no stabilising gains were found" if not searched_feasible else "the closed loop is unstable"
-        hints.insert(0, "check the plant sign and model, or widen the gain bounds; the search never saw a stable loop"
-                     if not searched_feasible else "the exact verification found the loop unstable; raise verify.n_freq or report a bug")
+        generic = ("check the plant sign and model, or widen the gain bounds; the search never saw a stable loop"
+                   if not searched_feasible else "the exact verification found the loop unstable; raise verify.n_freq or report a bug")
+        hints[:0] = direction_hints(TuningSpec.model_validate(result.spec), plant) + [generic]
         return Diagnosis(status="fail", summary=summary, hints=hints)
     if failing:
         q = failing[0]
@@ -106,6 +109,30 @@ def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray, plant: P
                          value=None if isinstance(q["value"], str) else float(q["value"]), limit=float(q["limit"]), hints=hints)
     reasons = ver.get("reasons", [])
     return Diagnosis(status="fail", summary=reasons[0] if reasons else "verification failed", hints=hints)
+
+
+def direction_hints(spec, plant: Plant | None) -> list[str]:
+    """A hint per loop whose direction the spec forces against the sign its plant path has."""
+    from gaintune.controllers.direction import resolve_directions
+    from gaintune.errors import SpecError
+
+    if plant is None:
+        return []
+    out = []
+    for i, loop in enumerate(spec.loops):
+        if loop.is_lq or loop.direction == "auto":
+            continue
+        free = spec.model_copy(deep=True)
+        free.loops[i].direction = "auto"
+        try:
+            auto = resolve_directions(free, plant)[i]
+        except SpecError:  # the sign cannot be read from the plant: nothing to contradict
+            continue
+        if (auto.sign > 0) != (loop.direction == "direct"):
+            want = "direct" if auto.sign > 0 else "reverse"
+            out.append(f"loops[{i}] ({loop.name}) is set to direction: {loop.direction}, but its path has {auto.reason}: "
+                       f"no gains of that sign can stabilise it; set direction: {want} or auto")
+    return out
 
 
 def _spec_loops(result: TuneResult):
