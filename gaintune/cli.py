@@ -635,7 +635,7 @@ def serve(
 BENCH = {
     "sim": "Simulator throughput (simulations/s).",
     "search": "RL search vs baselines on the benchmark processes.",
-    "verify": "Verification speed and accuracy (wraps bench/bench_verify.py).",
+    "verify": "Verification speed: nominal, full and the search estimate's batch.",
     "compare": "Compare gaintune with classical rules and optimisers.",
     "constraints": "Agreement of the searched requirement estimate with the verdict near the boundary.",
     "api": "REST API load test.",

@@ -96,7 +96,7 @@ def test_penalty_zero_when_met_grows_with_violation_large_when_unstable():
 
 
 def test_batched_three_loop_penalty_equals_one_at_a_time():
-    # (its speed is a benchmark figure, python bench/bench_verify.py, not a timed test)
+    # (its speed is a benchmark figure, gaintune bench verify, not a timed test)
     spec, p, lay = setup(MOTOR, MOTOR_LOOPS, 1e-4)
     lin = p.linearize()
     base = lay.from_dict(MOTOR_GAINS)

@@ -1,0 +1,115 @@
+"""``gaintune bench verify``: how long verification takes, nominal and full, and the search estimate's batch.
+
+Cases (models from ``models/``, not copies):
+
+* the 3-loop DC-motor cascade (``models/dc_motor.yaml`` with J = 0.01, b = 0.001,
+  Kt = Ke = 0.5: the parameters this benchmark has always used), position P -> speed PI
+  -> current PI, dt 0.1 ms;
+* one PI loop on 1/(s+1)^3, dt 10 ms;
+* the REST benchmark's 2-loop speed cascade, full verification (nonlinear check on) with
+  different gains on every call (``gaintune.bench.api.CASCADE_SPEC``).
+
+For each: ``verify`` nominal with the plant and layout reused, ``verify`` including the
+plant build, and the batched search estimate (``requirement_violation``, B = 64). Figures are
+mean and p95 over ``--repeat`` calls after one warm-up call; the machine is shared, so
+compare figures from one run. Written to ``--out`` (default ``bench/results``) as Markdown.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from gaintune.bench.compare import md_table
+from gaintune.bench.suite import default_out_dir
+
+__all__ = ["CASES", "main"]
+
+#: name -> (spec dict, gains)
+CASES: dict[str, tuple[dict, dict]] = {
+    "3-loop DC-motor cascade": (
+        {
+            "name": "dc_motor_cascade",
+            "plant": {"model": {"name": "dc_motor", "params": {"J": 0.01, "b": 0.001, "Kt": 0.5, "Ke": 0.5}}},
+            "loops": [
+                {"name": "position", "type": "p", "measure": "position"},
+                {"name": "speed", "type": "pi", "measure": "speed"},
+                {"name": "current", "type": "pi", "measure": "current"},
+            ],
+            "scenario": {"dt": 1e-4, "horizon": 1.0},
+        },
+        {"position": {"Kp": 10.0}, "speed": {"Kp": 2.0, "Ki": 40.0}, "current": {"Kp": 10.0, "Ki": 1000.0}},
+    ),
+    "1 PI loop, 1/(s+1)^3": (
+        {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}], "scenario": {"dt": 0.01}},
+        {"loop0": {"Kp": 1.14, "Ki": 0.454}},
+    ),
+}
+
+
+def _time(fn: Callable[[], object], repeat: int) -> tuple[float, float]:
+    """(mean, p95) wall time in ms over ``repeat`` calls, after one warm-up call."""
+    fn()
+    ts = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    ms = np.array(ts) * 1e3
+    return float(ms.mean()), float(np.percentile(ms, 95))
+
+
+def measure(repeat: int) -> list[list]:
+    """Rows ``[case, what, mean ms, p95 ms, verdict]``."""
+    from gaintune.bench.api import CASCADE_SPEC, NOMINAL_GAINS
+    from gaintune.controllers.layout import GainLayout
+    from gaintune.plants import build_plant
+    from gaintune.spec import load_spec
+    from gaintune.verify import requirement_violation, verify
+
+    rows = []
+    for name, (spec_d, gains) in CASES.items():
+        spec = load_spec(spec_d)
+        plant = build_plant(spec.plant)
+        layout = GainLayout(spec, plant.states, plant=plant)
+        rep = verify(spec, gains, robust=False, nonlinear=False, plant=plant, layout=layout)
+        m, p = _time(lambda: verify(spec, gains, robust=False, nonlinear=False, plant=plant, layout=layout), repeat)
+        rows.append([name, "verify, nominal", m, p, rep.verdict])
+        m, p = _time(lambda: verify(spec, gains, robust=False, nonlinear=False, cache=False), repeat)
+        rows.append([name, "verify, nominal, plant built per call", m, p, rep.verdict])
+        rng = np.random.default_rng(0)
+        full = np.tile(layout.from_dict(gains), (64, 1)) * np.exp(rng.normal(0, 0.3, (64, layout.n_gains)))
+        lin = plant.linearize()
+        m, p = _time(lambda: requirement_violation(spec, plant, layout, full, lin), repeat)
+        rows.append([name, "search estimate, batch of 64", m, p, "-"])
+    spec = load_spec(CASCADE_SPEC)
+    rng = np.random.default_rng(1)
+
+    def one() -> None:
+        f = np.exp(rng.uniform(np.log(0.8), np.log(1.25), 4))
+        g = {"speed": {"Kp": NOMINAL_GAINS["speed"]["Kp"] * f[0], "Ki": NOMINAL_GAINS["speed"]["Ki"] * f[1]},
+             "current": {"Kp": NOMINAL_GAINS["current"]["Kp"] * f[2], "Ki": NOMINAL_GAINS["current"]["Ki"] * f[3]}}
+        verify(spec, g)
+
+    m, p = _time(one, repeat)
+    rows.append(["REST 2-loop speed cascade", "verify, full (nonlinear check), distinct gains", m, p, "-"])
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="gaintune bench verify", description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=50, help="timed calls per figure (default 50)")
+    ap.add_argument("--out", type=Path, help="output folder (default: bench/results)")
+    args = ap.parse_args(argv)
+    rows = measure(args.repeat)
+    table = md_table(["case", "what", "mean ms", "p95 ms", "verdict"], rows)
+    print(table)
+    out = args.out or default_out_dir()
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "verify.md").write_text(f"# gaintune bench verify --repeat {args.repeat}\n\n{table}\n")
+    print(f"wrote {out / 'verify.md'}")
+    return 0
