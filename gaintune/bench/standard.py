@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["standard_problems", "migo_reference", "STANDARD_MS", "STANDARD_MS_UNSTABLE"]
+__all__ = ["standard_problems", "cascade_problems", "six_lag_cascade", "migo_reference", "STANDARD_MS", "STANDARD_MS_UNSTABLE"]
 
 #: The sensitivity limit of the load set (MIGO / AMIGO).
 STANDARD_MS = 1.4
@@ -96,6 +96,44 @@ def standard_problems(problem_cls) -> list:
         out.append(problem_cls(f"std_{name}_pi_track", f"{title}, PI, setpoint step, PM >= 60 deg", spec, family,
                                reference=dict(ref_opts)))
     return out
+
+
+def six_lag_cascade(budget: int = 20000) -> dict[str, Any]:
+    """Six PI loops in cascade on six first-order lags (time constants 0.1 to 3.2 s), 12 gains (issue 12).
+
+    The innermost loop measures the fastest lag; a unit setpoint step on the outermost output,
+    IAE + 0.01 int u^2, dt 0.01 s, 30 s; the default requirements (GM >= 6 dB, PM >= 45 deg, Ms <= 2).
+    """
+    taus = [0.1, 0.2, 0.4, 0.8, 1.6, 3.2]
+    n = len(taus)
+    A = [[0.0] * n for _ in range(n)]
+    for i, tau in enumerate(taus):
+        A[i][i] = -1.0 / tau
+        if i:
+            A[i][i - 1] = 1.0 / tau
+    return {
+        "name": "six_lag_cascade",
+        "plant": {"ss": {"A": A, "B": [[1.0 / taus[0]]] + [[0.0]] * (n - 1),
+                         "C": [[1.0 if j == i else 0.0 for j in range(n)] for i in range(n)],
+                         "outputs": [f"y{i + 1}" for i in range(n)], "states": [f"x{i + 1}" for i in range(n)]}},
+        "loops": [{"name": f"loop_y{i}", "measure": f"y{i}", "type": "pi"} for i in range(n, 0, -1)],
+        "scenarios": [{"name": "step", "dt": 0.01, "horizon": 30.0, "reference": {"kind": "step", "amplitude": 1.0}}],
+        "objective": {"measure": "iae", "effort_weight": 0.01},
+        "search": {"budget": budget, "n_envs": 32},
+    }
+
+
+def cascade_problems(problem_cls, model_spec) -> list:
+    """The ``cascades`` suite: the six-lag cascade (20,000 simulations), the DC-motor and quadrotor cascades."""
+    ref = {"restarts": 2, "sims_per_restart": 5000, "polish": False}
+    return [
+        problem_cls("six_lag_cascade", "six PI loops on six lags 0.1..3.2 s (12 gains), setpoint step",
+                    six_lag_cascade(), "cascade", reference=dict(ref)),
+        problem_cls("dc_motor_cascade", "dc_motor example: position P -> speed PI -> current PI",
+                    model_spec("dc_motor", 5000), "cascade", reference=dict(ref)),
+        problem_cls("quadrotor_cascade", "quadrotor_axis example: angle P -> rate PID",
+                    model_spec("quadrotor_axis", 5000), "cascade", reference=dict(ref)),
+    ]
 
 
 def migo_reference(problem, evaluator) -> dict[str, Any] | None:

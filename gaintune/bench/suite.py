@@ -310,11 +310,18 @@ def _standard() -> list[Problem]:
     return standard_problems(Problem)
 
 
+def _cascades() -> list[Problem]:
+    from gaintune.bench.standard import cascade_problems
+
+    return cascade_problems(Problem, _model)
+
+
 SUITES: dict[str, Any] = {
     "default": _default,
     "quick": _quick,
     "full": lambda: _default() + _extra(),
     "standard": _standard,
+    "cascades": _cascades,
 }
 
 
