@@ -638,6 +638,7 @@ BENCH = {
     "verify": "Verification speed: nominal, full and the search estimate's batch.",
     "compare": "Compare gaintune with classical rules and optimisers.",
     "constraints": "Agreement of the searched requirement estimate with the verdict near the boundary.",
+    "startup": "End-to-end wall time of --help, import, verify and a 3,000-simulation tune, beside python -c pass.",
     "api": "REST API load test.",
 }
 

@@ -295,3 +295,17 @@ def test_ode_operating_point_u0_given() -> None:
     lin = plant.linearize()
     assert lin.u0 == 1.5 and lin.y0[0] == 6.0
     np.testing.assert_allclose([lin.A[0, 0], lin.B[0, 0], lin.C[0, 0]], [-0.5, 1.0, 2.0])
+
+
+def test_tf2ss_is_bit_identical_to_scipy():
+    """The hand-written controller canonical form (it spares importing scipy.signal) equals scipy's."""
+    import scipy.signal
+
+    from gaintune.plants.plant import _tf2ss
+
+    rng = np.random.default_rng(0)
+    for n in range(1, 9):
+        for m in range(n + 1):
+            num, den = rng.normal(size=m + 1), rng.normal(size=n + 1)
+            for a, b in zip(scipy.signal.tf2ss(num, den), _tf2ss(num, den)):
+                np.testing.assert_array_equal(a, b)

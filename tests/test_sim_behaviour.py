@@ -208,7 +208,7 @@ def test_kernel_variants_agree_bit_for_bit(model: str, monkeypatch: pytest.Monke
     Bit for bit on a plant shared by the chunk; with per-candidate plants a single lane takes the
     shared-plant path (zero entries skipped), so sums may differ in the last bits.
     """
-    import gaintune.sim as sim_pkg
+    import gaintune.sim.simulator as sim_pkg
     from gaintune.plants.library import load_model
     from gaintune.sim import kernel as K
 
@@ -252,7 +252,7 @@ def test_held_shared_signals_equal_per_step_evaluation(scenario: dict[str, Any],
     Breaking the sharing (one inactive extra piece that differs between lanes) forces the
     per-lane evaluation at every step; traces and metrics must agree bit for bit.
     """
-    import gaintune.sim as sim_pkg
+    import gaintune.sim.simulator as sim_pkg
     from gaintune.sim import kernel as K
 
     spec = {"plant": LAG3, "loops": [{"type": "pid"}], "scenario": {"dt": 0.01, "horizon": 5.0, **scenario}}

@@ -306,7 +306,7 @@ def prepare_numpy(sim: Any, full: np.ndarray, scenario: int = 0) -> dict[str, An
 
 def _capture_kernel_args(sim: Any, full: np.ndarray) -> tuple:
     """The positional arguments :meth:`Simulator.run` passes to the kernel."""
-    import gaintune.sim as simmod
+    import gaintune.sim.simulator as simmod
 
     captured: dict[str, tuple] = {}
     orig = simmod.simulate_kernel

@@ -19,8 +19,6 @@ from typing import Literal
 
 import casadi as ca
 import numpy as np
-import scipy.signal
-from scipy.optimize import least_squares
 
 from gaintune.errors import SpecError
 from gaintune.plants import expr
@@ -155,7 +153,22 @@ def _tf_matrices(tf: TransferFunctionSpec, p: dict[str, float]):
         raise SpecError("plant.tf.den", f"plant order {len(den)-1} exceeds the limit of {MAX_ORDER}")
     if len(den) == 1:
         raise SpecError("plant.tf.den", "a static gain has no dynamics to control; give a denominator of degree >= 1")
-    A, B, C, D = scipy.signal.tf2ss(num, den)
+    return _tf2ss(num, den)
+
+
+def _tf2ss(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Controller canonical form of a proper SISO num/den, as ``scipy.signal.tf2ss`` builds it.
+
+    Written out (the same operations, so bit-identical) because importing scipy.signal costs
+    about 0.5 s, more than a whole ``gaintune verify`` of a PI loop should take.
+    """
+    num, den = num / den[0], den / den[0]
+    n = len(den) - 1
+    num = np.concatenate([np.zeros(n + 1 - len(num)), num])
+    A = np.r_[-np.array([den[1:]]), np.eye(n - 1, n)]
+    B = np.eye(n, 1)
+    C = num[None, 1:] - np.outer(num[:1], den[1:])
+    D = np.array([[num[0]]])
     return A, B, C, D
 
 
@@ -216,6 +229,8 @@ def _linearize_ode(plant: Plant, p: dict[str, float]) -> LinearModel:
         u0 = expr.to_float(ode.u0, p, "plant.ode.u0")
     else:
         # Solve f(x0, u, p) = 0 for u in the least-squares sense (the operating input).
+        from scipy.optimize import least_squares  # deferred: only ODE plants without u0 need it (~0.15 s)
+
         res = least_squares(lambda u: np.asarray(plant.f(x0, u[0], pv)).ravel(), x0=[0.0])
         u0 = float(res.x[0])
         if np.linalg.norm(np.asarray(plant.f(x0, u0, pv))) > 1e-6 * (1 + np.abs(x0).sum()):

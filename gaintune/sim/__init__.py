@@ -1,180 +1,30 @@
 """Batched closed-loop simulation: B gain sets (each with its own draw) in one compiled call.
 
-Example
--------
->>> from gaintune.spec import load_spec
->>> from gaintune.sim import Simulator
->>> spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}]})
->>> sim = Simulator(spec)
->>> res = sim.run(sim.layout.full([[1.14, 0.454]]))
->>> round(float(res.metrics["iae"][0]), 2) > 0
-True
+* :mod:`~gaintune.sim.simulator` - :class:`Simulator`, :class:`SimResult`, :func:`simulate`;
+* :mod:`~gaintune.sim.kernel` - the compiled (numba) kernel and its metrics;
+* :mod:`~gaintune.sim.build` - discretisation and kernel arguments;
+* :mod:`~gaintune.sim.draws` - per-candidate plant and scenario draws;
+* :mod:`~gaintune.sim.chatter` - chattering-saturation detection.
+
+``Simulator`` and friends load on first use (PEP 562): importing ``gaintune.sim.draws``
+(as verification does) does not load numba.
 """
 
 from __future__ import annotations
 
-import hashlib
-from dataclasses import dataclass, field
-
-import numpy as np
-
-from gaintune.controllers.layout import GainLayout
-from gaintune.plants.plant import Plant, build_plant
-from gaintune.sim import draws as draws_mod
-from gaintune.sim.build import Problem
-from gaintune.sim.draws import Draws
-from gaintune.sim.kernel import METRICS, simulate_kernel
-from gaintune.spec import ScenarioSpec, TuningSpec
+import importlib
+from typing import TYPE_CHECKING, Any
 
 __all__ = ["Simulator", "SimResult", "METRICS", "simulate"]
 
-
-@dataclass
-class SimResult:
-    """Metrics (each (B,)) for one scenario, and traces when requested."""
-
-    scenario: str
-    metrics: dict[str, np.ndarray]
-    t: np.ndarray | None = None
-    traces: dict[str, np.ndarray] = field(default_factory=dict)
+if TYPE_CHECKING:  # pragma: no cover
+    from gaintune.sim.kernel import METRICS
+    from gaintune.sim.simulator import SimResult, Simulator, simulate
 
 
-class Simulator:
-    """Compiled closed-loop simulator for one spec.
-
-    Parameters
-    ----------
-    spec
-        The tuning problem.
-    plant, layout
-        Reuse already-built objects (optional).
-    """
-
-    def __init__(self, spec: TuningSpec, plant: Plant | None = None, layout: GainLayout | None = None) -> None:
-        self.spec = spec
-        self.plant = plant or build_plant(spec.plant)
-        self.layout = layout or GainLayout(spec, self.plant.states)
-        self.problem = Problem.build(spec, self.plant, self.layout)
-        self._memo: dict = {}
-
-    def nominal_draws(self, n: int = 1) -> Draws:
-        return draws_mod.nominal(self.spec, self.plant, n, seed=self.spec.search.seed)
-
-    def _prepared(self, d: Draws, sc: ScenarioSpec) -> dict:
-        """Everything the kernel needs that does not depend on the gains, memoised per draw set.
-
-        Optimisers and the RL environment re-use the same draws call after
-        call, so the plant, signal and limit arrays are built once per draw set.
-        """
-        h = hashlib.blake2b(digest_size=16)
-        for name in Draws.__dataclass_fields__:
-            h.update(np.ascontiguousarray(getattr(d, name)).tobytes())
-        return self._memoised((h.hexdigest(), sc.model_dump_json()), lambda: self._prepare(d, sc))
-
-    def _memoised(self, key: tuple, build) -> dict:
-        """The prepared arguments under ``key``, built on a miss (the memo is bounded)."""
-        hit = self._memo.get(key)
-        if hit is None:
-            if len(self._memo) > 64:
-                self._memo.clear()
-            hit = self._memo[key] = build()
-        return hit
-
-    def _prepare(self, d: Draws, sc: ScenarioSpec) -> dict:
-        pb, spec = self.problem, self.spec
-        pa, sg = pb.plant_arrays(d, sc), pb.signal_arrays(d, sc)
-        act = spec.actuator
-        lo, hi = act.limits if act.limits is not None else (-np.inf, np.inf)
-        xb = np.full(self.plant.order, np.inf)
-        for name, bound in spec.safety.state_bounds.items():
-            xb[self.plant.states.index(name)] = bound
-        meas = np.array(pb.meas, dtype=np.int64)
-        f, h = pb.f_tape, pb.h_tape
-        empty = np.zeros(0, dtype=np.int64)
-        return dict(
-            pa=pa,
-            u_lo=np.where(np.isfinite(lo), lo * d.act_scale, -np.inf),
-            u_hi=np.where(np.isfinite(hi), hi * d.act_scale, np.inf),
-            tapes=(
-                f.op if f else empty, f.a if f else empty, f.b if f else empty, f.o if f else empty,
-                f.c if f else np.zeros(0), f.n_work if f else 1,
-                h.op if h else empty, h.a if h else empty, h.b if h else empty, h.o if h else empty,
-                h.c if h else np.zeros(0), h.n_work if h else 1, h.n_out if h else 1,
-            ),
-            params=np.ascontiguousarray(d.params.T) if f is not None else np.zeros((0, len(d))),
-            meas=meas,
-            signals=(sg["sk0"], sg["sk1"], sg["soff"], sg["sslope"], (meas == meas[0]).astype(float)),
-            noise=(np.full(len(d), sc.noise_std), d.noise_seed),
-            safety=(
-                spec.safety.max_abs_error or np.inf, spec.safety.max_abs_output or np.inf, xb,
-                spec.safety.divergence_bound, 1 if spec.safety.action == "fallback" else 0, act.safe_value,
-            ),
-            anchors=(sg["target"] + pa["y_op"][0], sg["k_step"], sg["k_load"]),
-            rate=act.rate_limit if act.rate_limit is not None else np.inf,
-            no_traces=(np.zeros((len(spec.loops), 0, len(d))), np.zeros((len(spec.loops), 0, len(d))), np.zeros((0, len(d)))),
-        )
-
-    def run(
-        self,
-        full_gains: np.ndarray,
-        draws: Draws | None = None,
-        scenario: ScenarioSpec | int = 0,
-        traces: bool = False,
-    ) -> SimResult:
-        """Simulate B full gain vectors (B, n_gains) on one scenario.
-
-        ``draws`` gives each candidate its plant sample and signals (default:
-        nominal). Diverging candidates are flagged, never raised.
-        """
-        full = np.atleast_2d(np.asarray(full_gains, dtype=float))
-        B = full.shape[0]
-        sc = self.spec.scenarios[scenario] if isinstance(scenario, int) else scenario
-        if draws is None and isinstance(scenario, int):
-            # nominal draws: keyed without hashing them (the single-simulation case)
-            prep = self._memoised(("nominal", B, scenario), lambda: self._prepare(self.nominal_draws(B), sc))
-        else:
-            d = draws if draws is not None else self.nominal_draws(B)
-            if len(d) != B:
-                raise ValueError(f"draws has {len(d)} rows for {B} gain sets")
-            prep = self._prepared(d, sc)
-        pb = self.problem
-        pa = prep["pa"]
-        ca = pb.controller_arrays(full, pa)
-        fb = pb.fallback_arrays(B, ca, pa)
-        L = len(self.spec.loops)
-        T = sc.n_steps
-        if traces:
-            tr_y, tr_sp, tr_u = np.zeros((L, T, B)), np.zeros((L, T, B)), np.zeros((T, B))
-        else:
-            tr_y, tr_sp, tr_u = prep["no_traces"]
-        out = simulate_kernel(
-            T, sc.dt, pb.f_tape is not None,
-            pa["Ad"], pa["G0"], pa["G1"], pa["Cm"], pa["Dm"],
-            *prep["tapes"], prep["params"], prep["meas"],
-            pa["x_op"], pa["u_op"], pa["y_op"], pa["dsteps"],
-            ca["kp"], ca["ki"], ca["kd"], ca["tf"], ca["bw"], ca["cw"], ca["kb"], ca["lo"], ca["hi"], ca["aw"],
-            ca["sf"], ca["K"], ca["kint"], ca["nr"],
-            prep["u_lo"], prep["u_hi"], prep["rate"],
-            *prep["signals"], *prep["noise"], *prep["safety"],
-            fb["fb_kp"], fb["fb_ki"], fb["fb_kd"], fb["fb_tf"], fb["fb_kb"],
-            *prep["anchors"],
-            traces, tr_y, tr_sp, tr_u,
-        )
-        metrics = {name: out[i] for i, name in enumerate(METRICS)}
-        metrics["diverged"] = metrics["diverged"].astype(bool)
-        metrics["tripped"] = metrics["tripped"].astype(bool)
-        res = SimResult(sc.name, metrics)
-        if traces:
-            res.t = np.arange(T) * sc.dt
-            names = [lp.name for lp in self.spec.loops]
-            for i, nm in enumerate(names):
-                res.traces[f"y.{nm}"] = tr_y[i].T
-                res.traces[f"sp.{nm}"] = tr_sp[i].T
-            res.traces["u"] = tr_u.T
-        return res
-
-
-def simulate(spec: TuningSpec, full_gains: np.ndarray, draws: Draws | None = None, traces: bool = False) -> list[SimResult]:
-    """Simulate every scenario of ``spec`` for a batch of full gain vectors."""
-    sim = Simulator(spec)
-    return [sim.run(full_gains, draws, i, traces) for i in range(len(spec.scenarios))]
+def __getattr__(name: str) -> Any:
+    if name in ("Simulator", "SimResult", "simulate"):
+        return getattr(importlib.import_module("gaintune.sim.simulator"), name)
+    if name == "METRICS":
+        return importlib.import_module("gaintune.sim.kernel").METRICS
+    raise AttributeError(f"module 'gaintune.sim' has no attribute {name!r}")
