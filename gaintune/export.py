@@ -23,9 +23,9 @@ integrators start at the operating point (bumpless start, as the simulator).
 
 Verdicts are per sample time
 ----------------------------
-Verification depends on ``dt``: :func:`gaintune.verify.loops.sampling_delay` adds
-``dt/2`` of delay (largest scenario ``dt``), the analysis band scales with ``pi/dt``
-and the nonlinear check simulates at the scenarios' ``dt``. A file therefore only
+Verification depends on ``dt``: it analyses the sampled loop at the largest scenario
+``dt`` (:mod:`gaintune.verify.sampled`; frequencies up to ``pi/dt``) and the nonlinear
+check simulates at the scenarios' ``dt``. A file therefore only
 claims the verdict obtained *at the dt it is exported for*:
 :func:`verdict_at_dt` returns the stored verdict when ``dt`` is the one the result
 was verified at (:func:`verified_dt`, every scenario at that ``dt``), and otherwise
@@ -185,7 +185,7 @@ def _check_dt(dt: Any) -> float:
 def verified_dt(spec: TuningSpec) -> float:
     """The sample time a verification of ``spec`` holds for: the largest scenario ``dt``.
 
-    :func:`gaintune.verify.loops.sampling_delay` and the analysis band use it.
+    The sampled-loop analysis (:mod:`gaintune.verify.sampled`) and the analysis band use it.
     """
     return max(sc.dt for sc in spec.scenarios)
 

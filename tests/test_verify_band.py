@@ -18,9 +18,10 @@ from gaintune.controllers.layout import GainLayout
 from gaintune.plants.plant import build_plant
 from gaintune.spec import load_spec as _load_spec
 from gaintune.verify import verify
+from gaintune.verify.analysis import analyse, sampling_delay
+from gaintune.verify.cascade import build_cascade
 from gaintune.verify.core import _to_model, analysis_band
-from gaintune.verify.loops import build_cascade, sampling_delay
-from gaintune.verify.margins import DelayModel, analyse
+from gaintune.verify.freqresp import DelayModel
 from gaintune.verify.tail import chain_ss, level_clear, series
 from plant_fixtures import MOTOR
 

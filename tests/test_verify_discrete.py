@@ -15,10 +15,11 @@ from gaintune.controllers.layout import GainLayout
 from gaintune.plants.plant import build_plant
 from gaintune.spec import load_spec
 from gaintune.verify import quick_margins, verify
-from gaintune.verify.loops import build_cascade, observable_part
-from gaintune.verify.margins import analyse
+from gaintune.verify.analysis import analyse
+from gaintune.verify.cascade import build_cascade
 from gaintune.verify.report import VerificationReport
 from gaintune.verify.sampled import sample_plant, zoh_delay
+from gaintune.verify.stability import observable_part
 from plant_fixtures import MOTOR
 
 #: The API benchmark's DC-motor cascade (speed PI outside, current PI inside) at dt = 1 ms.
@@ -360,7 +361,7 @@ def test_nonlinear_plant_is_stepped_as_the_simulator_does():
 def test_long_delay_nyquist_count_agrees_with_the_poles():
     """Closed loops beyond EIG_MAX states (a long input buffer) are decided by the discrete Nyquist
     count alone: it agrees with the eigenvalues, stable and unstable, also in the quick estimate."""
-    import gaintune.verify.loops as loops_mod
+    import gaintune.verify.stability as stability_mod
 
     for gains, stable in (({"Kp": 0.3, "Ki": 0.3}, True), ({"Kp": 2.0, "Ki": 2.0}, False)):
         spec = spec_of({"tf": {"num": [1], "den": [1, 1]}, "delay": 0.8}, [{"type": "pi"}], 0.01, 20)
@@ -379,12 +380,12 @@ def test_long_delay_nyquist_count_agrees_with_the_poles():
     rng = np.random.default_rng(0)
     G = np.exp(rng.uniform(np.log([0.1, 0.05, 0.01]), np.log([3.0, 3.0, 1.0]), size=(48, 3)))
     q = quick_margins(spec, p, lay, G)
-    old = loops_mod.QUICK_EIG_MAX
+    old = stability_mod.QUICK_EIG_MAX
     try:
-        loops_mod.QUICK_EIG_MAX = 10**6
+        stability_mod.QUICK_EIG_MAX = 10**6
         q_eig = quick_margins(spec, p, lay, G)
     finally:
-        loops_mod.QUICK_EIG_MAX = old
+        stability_mod.QUICK_EIG_MAX = old
     assert np.array_equal(q.stable, q_eig.stable) and q.stable.any() and (~q.stable).any()
     for b in range(0, 48, 6):  # and verify (eigenvalues: 45 states) agrees with both
         assert verify(spec, G[b], nonlinear=False).stability.stable == bool(q.stable[b])

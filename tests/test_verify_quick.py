@@ -12,7 +12,7 @@ from gaintune.controllers.pid import pid_params
 from gaintune.plants.plant import build_plant
 from gaintune.spec import load_spec
 from gaintune.verify import quick_margins, requirement_violation, verify
-from gaintune.verify.loops import pid_arrays
+from gaintune.verify.cascade import pid_arrays
 from gaintune.verify.quick import UNSTABLE_VIOLATION
 from plant_fixtures import MOTOR
 

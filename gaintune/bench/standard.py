@@ -145,7 +145,8 @@ def migo_reference(problem, evaluator) -> dict[str, Any] | None:
     with an Ms limit.
     """
     from gaintune.classical.migo import boundary_optimum
-    from gaintune.verify.loops import plant_state_response, sampling_delay
+    from gaintune.lti import plant_state_response
+    from gaintune.verify.analysis import sampling_delay
     from gaintune.verify.sampled import sample_plant
 
     spec = evaluator.spec

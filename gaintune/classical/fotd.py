@@ -53,6 +53,7 @@ from typing import Literal
 import numpy as np
 
 from gaintune.errors import GaintuneError
+from gaintune.lti import pade_tf
 
 __all__ = ["Fotd", "NoModelError", "fit_fotd", "path_poles_zeros", "siso_minreal", "OSCILLATION_LIMIT"]
 
@@ -99,8 +100,7 @@ class Fotd:
         s = control.tf("s")
         g = self.K / s if self.integrating else self.K / (self.T * s + 1)
         if pade and self.L > 0:
-            num, den = control.pade(self.L, pade)
-            g = g * control.tf(num, den)
+            g = g * pade_tf(self.L, pade)
         return g
 
 

@@ -27,6 +27,7 @@ import numpy as np
 from gaintune.classical.fotd import Fotd, NoModelError, fit_fotd, siso_minreal
 from gaintune.classical.rules import FOTD_RULES, IdealPid, to_loop_gains, ultimate_gain, with_direction, zn_ultimate
 from gaintune.controllers.direction import loop_directions
+from gaintune.lti import pade_tf
 from gaintune.spec import TuningSpec
 
 __all__ = ["ClassicalResult", "tune_classical", "rule_candidates", "auto_bounds", "PADE_ORDER", "BOUNDS_FACTOR",
@@ -61,8 +62,7 @@ def _with_input_delay(sys, delay: float):
 
     if delay <= 0:
         return sys
-    num, den = control.pade(delay, PADE_ORDER)
-    return control.series(control.ss(control.tf(num, den)), sys)
+    return control.series(control.ss(pade_tf(delay, PADE_ORDER)), sys)
 
 
 def _pid_ss(loop, gains: dict[str, float]):

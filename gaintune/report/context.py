@@ -170,12 +170,12 @@ def _time_section(spec, plant, sim, full, units) -> tuple[list[dict], dict]:
 
 
 def _freq_section(spec, plant, layout, full, rep) -> dict[str, Any]:
-    from gaintune.verify.loops import build_cascade, sampling_delay
-    from gaintune.verify.margins import DelayModel
+    from gaintune.verify.analysis import sampling_delay
+    from gaintune.verify.cascade import build_cascade
+    from gaintune.verify.core import analysis_dt, loop_frequency_responses
 
     lin = plant.linearize()
-    t_s = sampling_delay(spec)
-    delay = DelayModel(lin.delay + t_s, spec.verify.pade_order)
+    delay_T = lin.delay + (0.0 if spec.verify.sampled else sampling_delay(spec))
     cas = build_cascade(spec, layout, full[None, :], lin)
     cross = []
     for f in rep.loops:
@@ -189,12 +189,14 @@ def _freq_section(spec, plant, layout, full, rep) -> dict[str, Any]:
     lo = min(cross + poles) / 30.0 if poles else min(cross) / 100.0
     lo = max(lo, min(cross) / 1e3)
     hi = max(cross) * 100.0
-    if delay.T > 0:  # beyond a few rad of delay phase the plot only shows the delay spinning
-        hi = min(hi, max(max(cross) * 5.0, 3.0 / delay.T))
+    if delay_T > 0:  # beyond a few rad of delay phase the plot only shows the delay spinning
+        hi = min(hi, max(max(cross) * 5.0, 3.0 / delay_T))
+    if spec.verify.sampled:  # the sampled loop repeats beyond the Nyquist frequency
+        hi = min(hi, math.pi / analysis_dt(spec))
+        lo = min(lo, hi / 1e3)
     w = np.logspace(math.log10(lo), math.log10(hi), 800)
-    s = 1j * w
-    with np.errstate(all="ignore"):
-        L = cas.loop_responses(s, lin, delay.factor(s))[:, 0, :]
+    # the loop verification analysed (sampled by default), so the plots match the report's figures
+    L = loop_frequency_responses(spec, plant, layout, full, w, lin)
     figs_by_break = {(f.loop, f.break_point): f for f in rep.loops}
     bodes, curves = [], []
     breaks = list(zip(cas.break_names, L))
@@ -213,8 +215,14 @@ def _freq_section(spec, plant, layout, full, rep) -> dict[str, Any]:
         "bodes": bodes,
         "nyquist": plots.nyquist_figure(curves, req.ms_max, [max(ms_vals)] if ms_vals else []),
         "sensitivity": plots.sensitivity_figure(w, curves, req.ms_max, req.mt_max),
-        "delay_note": (f"Loop delay {delay.T:.4g} s = plant delay {lin.delay:.4g} s + sampling delay dt/2 = {t_s:.4g} s, "
-                       + ("exact e^(-jwT)." if delay.pade_order is None else f"Padé order {delay.pade_order}.")),
+        "delay_note": (
+            f"Sampled loop at dt = {analysis_dt(spec):.4g} s: zero-order-hold plant with its delay {lin.delay:.4g} s "
+            f"(exact), the controllers' discrete laws" + (f", {spec.verify.compute_delay} sample(s) of computation delay"
+                                                          if spec.verify.compute_delay else "") + "."
+            if spec.verify.sampled else
+            f"Continuous loop: delay {delay_T:.4g} s = plant delay {lin.delay:.4g} s + sampling delay dt/2 = "
+            f"{sampling_delay(spec):.4g} s, " + ("exact e^(-jwT)." if spec.verify.pade_order is None
+                                                 else f"Padé order {spec.verify.pade_order}.")),
     }
 
 

@@ -12,9 +12,11 @@ from gaintune.controllers.layout import GainLayout
 from gaintune.errors import GainError
 from gaintune.plants.plant import Plant, build_plant
 from gaintune.spec import TuningSpec
+from gaintune.verify.analysis import Analysis, analyse, sampling_delay
+from gaintune.verify.cascade import build_cascade
 from gaintune.verify.context import spec_context
-from gaintune.verify.loops import build_cascade, sampling_delay
-from gaintune.verify.margins import Analysis, BreakFigures, DelayModel, analyse
+from gaintune.verify.freqresp import DelayModel
+from gaintune.verify.margins import BreakFigures
 from gaintune.verify.nonlinear import nonlinear_check
 from gaintune.verify.report import (
     CrossingModel,
@@ -347,9 +349,6 @@ def verify(
             f"{q.requirement}: {q.figure} = {q.value:.4g} vs limit {q.limit:.4g} (margin {q.margin:+.4g}) "
             f"at {q.loop}/{q.break_point} ({q.case})"
         )
-    if not stab.stable and req:
-        # requirement figures of an unstable loop are not meaningful: list the instability first
-        pass
     for n in stab.notes:
         notes.append(n)
     if plant.kind == "nonlinear":

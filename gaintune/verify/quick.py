@@ -20,19 +20,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from gaintune.controllers.layout import GainLayout
+from gaintune.lti import pade_response
 from gaintune.plants.plant import LinearModel, Plant
 from gaintune.spec import TuningSpec
-from gaintune.verify.loops import (
-    build_cascade,
-    observable_part,
-    pade_response,
-    sample_plant,
-    sampled_grid,
-    sampled_stability,
-    sampling_delay,
-)
+from gaintune.verify.analysis import sampling_delay
+from gaintune.verify.cascade import build_cascade
+from gaintune.verify.sampled import SampledPlant, sample_plant
+from gaintune.verify.stability import observable_part, sampled_stability
 
-__all__ = ["QuickMargins", "quick_margins", "requirement_violation", "UNSTABLE_VIOLATION", "FEASIBILITY_MARGIN", "MAX_TERM"]
+__all__ = ["QuickMargins", "quick_margins", "requirement_violation", "sampled_grid", "UNSTABLE_VIOLATION",
+           "FEASIBILITY_MARGIN", "MAX_TERM"]
 
 #: Violation of an unstable closed loop, plus a grade that grows with the largest real pole.
 UNSTABLE_VIOLATION = 10.0
@@ -74,6 +71,15 @@ def _grid(lin: LinearModel, T: float, n: int) -> np.ndarray:
         f = np.array([1.0])
     lo, hi = f.min() / 300.0, f.max() * 300.0
     return np.logspace(np.log10(lo), np.log10(hi), n)
+
+
+def sampled_grid(w: np.ndarray, sp: SampledPlant) -> np.ndarray:
+    """A log grid like ``w`` (same size, same lower end or lower) ending exactly at the Nyquist frequency pi/dt."""
+    wn = sp.nyquist
+    lo = min(float(w[0]), wn * 1e-4)
+    g = np.logspace(np.log10(lo), np.log10(wn), w.size)
+    g[0], g[-1] = lo, wn
+    return g
 
 
 def _parabolic_peak(V: np.ndarray) -> np.ndarray:

@@ -28,68 +28,26 @@ The algebra works on any response arrays: ``loop_responses(..., sampled=sp)`` fe
 it the sampled plant and the controllers' discrete laws at z = e^{s dt}
 (:mod:`gaintune.verify.sampled`), and :meth:`Cascade.closed_loop_sampled` is the
 sampled closed loop's transition matrix (plant, input buffer, controller states).
+
+:func:`build_cascade` turns a spec's loops and a batch of gain vectors into a
+:class:`Cascade`. The plant's responses and Padé delays come from :mod:`gaintune.lti`.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import numpy as np
 
 from gaintune.controllers.layout import GainLayout
 from gaintune.controllers.pid import pid_params
 from gaintune.errors import GainError, SpecError
+from gaintune.lti import pade_poles, pade_ss, plant_eigvals, plant_state_response
 from gaintune.plants.plant import LinearModel
 from gaintune.spec import TuningSpec
-from gaintune.verify.sampled import SampledPlant, discrete_ops, sample_plant
+from gaintune.verify.sampled import SampledPlant, discrete_ops
 
-__all__ = ["LoopCtl", "Cascade", "build_cascade", "observable_part", "sampling_delay", "pade_coeffs", "pade_response",
-           "pade_poles", "pade_ss", "sampled_grid", "sampled_stability", "nyquist_count_sampled", "SampledPlant", "sample_plant"]
-
-
-def sampling_delay(spec: TuningSpec) -> float:
-    """Sample-and-hold approximation: dt/2 of extra input delay (largest scenario dt)."""
-    return 0.5 * max(sc.dt for sc in spec.scenarios)
-
-
-@lru_cache(maxsize=32)
-def _pade_unit(order: int) -> tuple[np.ndarray, np.ndarray, tuple]:
-    """Padé (order, order) of e^{-p} (unit delay) and a state-space realisation of it."""
-    import control
-    import scipy.signal
-
-    num, den = control.pade(1.0, order)
-    num, den = np.asarray(num, dtype=float), np.asarray(den, dtype=float)
-    Ad, Bd, Cd, Dd = scipy.signal.tf2ss(num, den)
-    return num, den, (Ad, Bd, Cd, float(Dd[0, 0]))
-
-
-def pade_coeffs(T: float, order: int) -> tuple[np.ndarray, np.ndarray]:
-    """(num, den) of the (order, order) Padé approximant of e^{-sT} (descending powers of s)."""
-    if T <= 0:
-        return np.array([1.0]), np.array([1.0])
-    num, den, _ = _pade_unit(order)
-    k = np.arange(num.size - 1, -1, -1)
-    return num * T**k, den * T**k
-
-
-def pade_response(s: np.ndarray, T: float, order: int) -> np.ndarray:
-    """Padé approximant of e^{-sT} at s, evaluated in the well-conditioned variable p = sT."""
-    num, den, _ = _pade_unit(order)
-    p = s * T
-    return np.polyval(num, p) / np.polyval(den, p)
-
-
-def pade_poles(T: float, order: int) -> np.ndarray:
-    return np.roots(_pade_unit(order)[1]) / T
-
-
-def pade_ss(T: float, order: int):
-    """(Ad, Bd, Cd, Dd) of the Padé delay: the unit-delay realisation with time scaled by T."""
-    Ad, Bd, Cd, Dd = _pade_unit(order)[2]
-    return Ad / T, Bd / T, Cd, Dd
+__all__ = ["LoopCtl", "Cascade", "build_cascade", "controller_state_index", "pid_arrays"]
 
 
 def controller_state_index(loops, start: int) -> tuple[list[tuple[int | None, int | None]], int]:
@@ -128,6 +86,7 @@ class LoopCtl:
     Nr: np.ndarray | None = None
 
     def n_states(self) -> int:
+        """Number of controller states: integrator and derivative filter."""
         return int(self.has_i) + int(self.has_d)
 
 
@@ -332,7 +291,6 @@ class Cascade:
             Acl[:, j, :] = resolve(sig)
         return Acl
 
-
     # ------------------------------------------------------- sampled loop
     def open_loop_poles_sampled(self, sp: SampledPlant) -> np.ndarray:
         """z-plane poles of the sampled system cut at the plant input (B, P): plant (Ad), the
@@ -428,194 +386,6 @@ class Cascade:
         for j, sig in nxt.items():
             Acl[:, j, :] = resolve(sig)
         return Acl
-
-
-_EIGVALS_CACHE: dict[int, tuple[LinearModel, np.ndarray]] = {}
-
-
-def plant_eigvals(lin: LinearModel) -> np.ndarray:
-    """Eigenvalues of ``lin.A``, remembered per model object (only the gains change between verifications)."""
-    hit = _EIGVALS_CACHE.get(id(lin))
-    if hit is not None and hit[0] is lin:
-        return hit[1]
-    v = np.linalg.eigvals(lin.A) if lin.A.size else np.zeros(0, dtype=complex)
-    if len(_EIGVALS_CACHE) > 512:
-        _EIGVALS_CACHE.clear()
-    _EIGVALS_CACHE[id(lin)] = (lin, v)
-    return v
-
-
-_SCHUR_CACHE: dict[int, tuple[LinearModel, np.ndarray, np.ndarray, np.ndarray]] = {}
-
-
-def _schur(lin: LinearModel):
-    hit = _SCHUR_CACHE.get(id(lin))
-    if hit is not None and hit[0] is lin:
-        return hit[1:]
-    import scipy.linalg
-
-    T, Z = scipy.linalg.schur(lin.A.astype(complex), output="complex")
-    zb = Z.conj().T @ lin.B[:, 0].astype(complex)
-    if len(_SCHUR_CACHE) > 512:
-        _SCHUR_CACHE.clear()
-    _SCHUR_CACHE[id(lin)] = (lin, T, Z, zb)
-    return T, Z, zb
-
-
-def plant_state_response(lin: LinearModel, s: np.ndarray) -> np.ndarray:
-    """X(s) = (sI - A)^-1 B for each s: (W, n).
-
-    Uses the complex Schur form A = Z T Z^H (unitary, so robust for defective A):
-    a vectorised back-substitution over the frequencies, O(n^2) numpy operations.
-    """
-    T, Z, zb = _schur(lin)
-    n = T.shape[0]
-    x = np.empty((n, s.size), dtype=complex)
-    with np.errstate(all="ignore"):
-        for i in range(n - 1, -1, -1):
-            acc = np.full(s.size, zb[i])
-            if i + 1 < n:
-                acc = acc + T[i, i + 1 :] @ x[i + 1 :]
-            x[i] = acc / (s - T[i, i])
-    return (Z @ x).T
-#: Batched eigenvalue problems of the sampled closed loop are solved up to this many states;
-#: longer input buffers (long delays) use the batched discrete Nyquist count, which is cheaper
-#: there (B = 64, PID on a lag: 46 ms by eigenvalues vs 20 ms at 53 states) and agrees.
-QUICK_EIG_MAX = 32
-
-
-def sampled_grid(w: np.ndarray, sp: SampledPlant) -> np.ndarray:
-    """A log grid like ``w`` (same size, same lower end or lower) ending exactly at the Nyquist frequency pi/dt."""
-    wn = sp.nyquist
-    lo = min(float(w[0]), wn * 1e-4)
-    g = np.logspace(np.log10(lo), np.log10(wn), w.size)
-    g[0], g[-1] = lo, wn
-    return g
-
-
-def sampled_stability(cas: Cascade, lin: LinearModel, sp: SampledPlant, w_lo: float) -> tuple[np.ndarray, np.ndarray]:
-    """Batched closed-loop stability of the sampled loop: (stable (B,), max real part (B,)).
-
-    The eigenvalues z of the closed-loop transition matrices decide (stable: |z| < 1); the
-    real part reported is the s-plane equivalent ln(max|z|)/dt. Closed loops with long input
-    buffers (beyond :data:`QUICK_EIG_MAX` states) are counted with the discrete Nyquist criterion
-    instead, and an unstable one is graded by w_lo times its number of unstable roots.
-    ``w_lo``: lower end of the analysis grid.
-    """
-    lin_cl, unobs = lin, np.zeros(0, dtype=complex)
-    if cas.measured is not None:  # modes no loop measures are not moved by feedback
-        lin_cl, unobs = observable_part(lin, cas.measured)
-    extra_unstable = bool(np.any(np.abs(sp.mode_factor(unobs)) > 1.0 + 1e-9)) if unobs.size else False
-    spr = sp.for_model(lin_cl)
-    B = cas.batch
-    N = spr.n + spr.buffer_len + sum(lp.n_states() for lp in cas.loops)
-    if N <= QUICK_EIG_MAX:
-        Acl = cas.closed_loop_sampled(spr)
-        with np.errstate(all="ignore"):
-            finite = np.all(np.isfinite(Acl), axis=(1, 2))
-            Acl = np.where(finite[:, None, None], Acl, 0.0)
-            ev = np.linalg.eigvals(Acl) if N else np.zeros((B, 0))
-            rad = np.abs(ev).max(axis=-1) if N else np.zeros(B)
-            max_re = np.where(finite, np.log(rad) / sp.dt, np.inf)
-        stable = finite & (rad < 1.0 - 1e-10) & (not extra_unstable)
-        return stable, max_re
-    count = nyquist_count_sampled(cas, lin, sp, cas.open_loop_poles_sampled(spr), w_lo)
-    stable = (count == 0) & (not extra_unstable)
-    return stable, np.where(stable, -w_lo, w_lo * np.maximum(count, 1))
-
-
-def nyquist_count_sampled(cas: Cascade, lin: LinearModel, sp: SampledPlant, ol: np.ndarray, w_lo: float) -> np.ndarray:
-    """Closed-loop roots on or outside the unit circle (B,), discrete Nyquist criterion, batched.
-
-    The contour |z| = rho = e^{-eps dt} is sampled from w = 0 to pi/dt (conjugate symmetry gives
-    the lower half): a log grid, a uniform one fine enough for the buffer's phase spin d w dt,
-    points around lightly damped open-loop poles, then intervals where the phase of 1 + L_u
-    still steps by more than 0.5 rad are refined. ``ol``: z-plane open-loop poles (B, P) of the
-    (observable) loop cut at the plant input.
-    """
-    dt, wn = sp.dt, sp.nyquist
-    eps = 1e-3 * w_lo
-    rho = math.exp(-eps * dt)
-    spin = max(sp.total_delay, dt)
-    parts = [[0.0], np.logspace(np.log10(eps / 100), np.log10(wn), 400), np.linspace(0.0, wn, int(wn * spin / 0.3) + 2)]
-    pz = np.unique(ol[np.abs(ol) > 0.5].ravel())
-    if pz.size:
-        s_p = np.log(pz.astype(complex)) / dt
-        up = s_p[s_p.imag > 0]
-        dist = np.maximum(np.abs(up.real + eps), eps)
-        parts.append((up.imag[:, None] + dist[:, None] * np.concatenate([-(2.0 ** np.arange(9, -4, -1)), [0.0],
-                                                                        2.0 ** np.arange(-3, 10)])[None, :]).ravel())
-    w = np.concatenate(parts)
-    w = np.unique(np.clip(w, 0.0, wn))
-
-    def one_plus_L(wv):
-        with np.errstate(all="ignore"):
-            return 1.0 + cas.loop_responses(-eps + 1j * wv, lin, sampled=sp)[-1]
-
-    phi = one_plus_L(w)
-    for _ in range(6):
-        with np.errstate(all="ignore"):
-            step = np.abs(np.angle(phi[:, 1:] / phi[:, :-1]))
-        bad = np.nonzero(np.any(step > 0.5, axis=0))[0][:20000]
-        if bad.size == 0:
-            break
-        new = (w[bad, None] + (w[bad + 1] - w[bad])[:, None] * np.linspace(0, 1, 6)[None, 1:-1]).ravel()
-        wn_ = np.concatenate([w, new])
-        o = np.argsort(wn_, kind="stable")
-        w, phi = wn_[o], np.concatenate([phi, one_plus_L(new)], axis=1)[:, o]
-    with np.errstate(all="ignore"):
-        ang = np.unwrap(np.angle(phi), axis=1)
-        turns = (ang[:, -1] - ang[:, 0]) / np.pi
-    p_out = np.sum(np.abs(ol) >= rho, axis=1)
-    count = np.rint(p_out - turns)
-    return np.where(np.isfinite(count), count, 1).astype(np.int64)
-
-
-_OBS_CACHE: dict[tuple, tuple[LinearModel, LinearModel, np.ndarray]] = {}
-
-
-def _orth(M: np.ndarray, tol: float) -> np.ndarray:
-    if M.size == 0:
-        return M
-    U, sv, _ = np.linalg.svd(M, full_matrices=False)
-    r = int(np.sum(sv > tol * max(1.0, sv[0] if sv.size else 1.0)))
-    return U[:, :r]
-
-
-def observable_part(lin: LinearModel, measured: tuple[int, ...], tol: float = 1e-9) -> tuple[LinearModel, np.ndarray]:
-    """Restrict ``lin`` to the modes observable from the measured outputs.
-
-    Modes no loop measures are not moved by feedback: they are open-loop poles of
-    the closed loop too. Returns (reduced model, eigenvalues of the unobservable part).
-    Only valid for PID cascades (LQ state feedback sees every state).
-    """
-    key = (id(lin), measured)
-    hit = _OBS_CACHE.get(key)
-    if hit is not None and hit[0] is lin:
-        return hit[1], hit[2]
-    A = lin.A
-    n = A.shape[0]
-    scale = max(np.linalg.norm(A), 1e-300)
-    Ah = A / scale
-    V = _orth(lin.C[list(measured)].T, tol)
-    for _ in range(n):
-        W = _orth(np.hstack([V, Ah.T @ V]), tol)
-        if W.shape[1] == V.shape[1]:
-            break
-        V = W
-    r = V.shape[1]
-    if r == n:
-        red, un = lin, np.zeros(0, dtype=complex)
-    else:
-        U, _, _ = np.linalg.svd(V, full_matrices=True)
-        V1, V2 = U[:, :r], U[:, r:]
-        red = LinearModel(V1.T @ A @ V1, V1.T @ lin.B, lin.C @ V1, lin.D, lin.delay, [f"z{i}" for i in range(r)],
-                          lin.outputs, np.zeros(r), lin.u0, lin.y0)
-        un = np.linalg.eigvals(V2.T @ A @ V2)
-    if len(_OBS_CACHE) > 256:
-        _OBS_CACHE.clear()
-    _OBS_CACHE[key] = (lin, red, un)
-    return red, un
 
 
 def _out_index(spec: TuningSpec, lin: LinearModel, i: int) -> int:
