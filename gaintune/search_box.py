@@ -7,8 +7,10 @@ know before any search, ranked like every search ranks (feasibility first, then 
 
 1. every classical rule that applies (SIMC, AMIGO, IMC, Ziegler-Nichols step and
    ultimate-gain rules), each applied inner loop first (:func:`gaintune.classical.rule_candidates`);
-2. if none of them meets the requirements, the least-violating stable one detuned: every
-   loop's gains scaled by 0.7, 0.5, 0.35, ... until it does.
+2. each of them with every loop's gains scaled by 1/16 ... 16 (steps of sqrt 2): detuned, an
+   aggressive rule may meet the requirements; boosted, a timid one (IMC on a process with a
+   slow pole) reaches the performance the requirements allow. All candidates are scored in one
+   batched evaluation.
 
 The chosen design is the start point of every search (the RL policy's action 0, CMA-ES's
 mean, Nelder-Mead's first vertex), and the search never loses it: it is scored like any
@@ -31,10 +33,10 @@ from gaintune.plants.plant import Plant
 from gaintune.sim import Simulator
 from gaintune.spec import TuningSpec
 
-__all__ = ["SearchBox", "DETUNE", "search_box", "search_layout", "make_evaluator"]
+__all__ = ["SearchBox", "SCALES", "search_box", "search_layout", "make_evaluator"]
 
-#: Scales tried on the best rule's gains (every loop at once) when no rule meets the requirements.
-DETUNE = (0.7, 0.5, 0.35, 0.25, 0.18, 0.12, 0.08, 0.05)
+#: Scales tried on every rule's gains (every loop at once): 1/16 ... 16 in steps of sqrt(2).
+SCALES = tuple(float(2.0 ** (k / 2)) for k in range(-8, 9))
 
 
 @dataclass
@@ -88,11 +90,9 @@ def search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
         return [(float(s.merit[i]), n, named[n], bool(s.feasible[i]), float(s.violation[i]), float(s.cost[i]))
                 for i, n in enumerate(names)]
 
-    scored = score(rules)
+    named = {(m if a == 1.0 else f"{m} x {a:.3g}"): _scale(g, a, spec) for m, g in rules.items() for a in SCALES}
+    scored = score(named)
     best = min(scored, key=lambda r: r[0])
-    if not best[3]:  # no rule meets the requirements: detune the least-violating one
-        scored += score({f"{best[1]} x {a:g}": _scale(best[2], a, spec) for a in DETUNE})
-        best = min(scored, key=lambda r: r[0])
     _, source, centre, feasible, _, _ = best
     layout = GainLayout(spec, plant.states, auto_bounds=auto_bounds(spec, centre, BOUNDS_FACTOR), plant=plant)
     return SearchBox(layout, centre, source, feasible, {r[1]: (r[3], r[4], r[5]) for r in scored})

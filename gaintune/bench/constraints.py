@@ -7,7 +7,7 @@ exact :func:`gaintune.verify.verify`. They must agree where it matters: close to
 constraint boundary, where a constrained optimum lies.
 
 For each problem the benchmark finds a point on the boundary (the layout's start gains,
-scaled by :func:`gaintune.boundary.settle`'s exact bisection), samples candidates
+every gain scaled by one factor, bisected onto the boundary with the exact check), samples candidates
 around it (independent log-normal perturbations of every tuned gain, ``--spread``
 relative, default 3 %), and compares "feasible by the search estimate" with "meets every
 requirement and is stable by the exact verification" (nominal plant and, for randomised
@@ -33,16 +33,30 @@ __all__ = ["agreement", "main"]
 
 
 def _boundary_point(ev) -> np.ndarray | None:
-    """Start gains pushed or pulled onto the boundary of the requirements (exact), or None."""
-    from gaintune.boundary import normalised_margin, settle
+    """The start gains scaled (every tuned gain by one factor) onto the exact requirement boundary, or None."""
+    from gaintune.boundary import normalised_margin
     from gaintune.verify import verify
 
-    t = ev.layout.initial_tuned()
-    for _ in range(2):  # settle moves at most to the boundary of one requirement per call
-        st = settle(ev, t)
-        t = st.tuned
-    m, _ = normalised_margin(verify(ev.spec, ev.layout.full(t), nonlinear=False, plant=ev.plant, layout=ev.layout))
-    return t if math.isfinite(m) and m < 0.02 else None
+    t0 = ev.layout.initial_tuned()
+
+    def margin(a: float) -> float:
+        return normalised_margin(verify(ev.spec, ev.layout.full(t0 * a), nonlinear=False, plant=ev.plant,
+                                        layout=ev.layout))[0]
+
+    m1 = margin(1.0)
+    step = np.sqrt(2.0) if m1 >= 0 else 1.0 / np.sqrt(2.0)
+    ok, a = 1.0, 1.0
+    for _ in range(24):  # walk by sqrt(2) until the verdict on the requirements flips
+        ok, a = a, a * step
+        if (margin(a) >= 0) != (m1 >= 0):
+            break
+    else:
+        return None
+    good, bad = (ok, a) if m1 >= 0 else (a, ok)
+    while abs(np.log(bad / good)) > 1e-7:  # bisection in log scale onto the boundary
+        mid = float(np.sqrt(good * bad))
+        good, bad = (mid, bad) if margin(mid) >= 0 else (good, mid)
+    return t0 * good
 
 
 def agreement(problem, n: int = 200, spread: float = 0.03, seed: int = 0) -> dict[str, Any]:
