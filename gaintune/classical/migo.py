@@ -6,7 +6,7 @@ For ``C(jw) = kp + ki/(jw)`` and a frequency response ``G(jw)`` (delays exact), 
 Automatica 34(5), 1998). :func:`boundary_optimum` then moves along ``ki = ki_max(kp)`` to minimise
 a user cost (e.g. load IAE, which differs from IE for oscillatory responses). AMIGO was fitted
 under the stronger combined-sensitivity circle M = 1.4, so MIGO at ``ms_max = 1.4`` has a larger
-``ki`` than AMIGO (see tests/test_migo.py).
+``ki`` than AMIGO (see tests/classical/test_migo.py).
 
 **Stability.** Supported: open-loop stable plants, or one integrator (``G1(s)/s``, ``G1`` stable),
 with positive static (velocity) gain and ``L(j inf) = 0``. For fixed ``kp`` and ``ki -> 0+`` the

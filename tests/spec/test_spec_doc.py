@@ -5,6 +5,6 @@ from pathlib import Path
 from gaintune.spec_doc import render_markdown
 
 
-def test_spec_reference_is_current():
-    path = Path(__file__).resolve().parents[1] / "docs" / "spec.md"
+def test_spec_reference_is_current(repo_root: Path):
+    path = repo_root / "docs" / "spec.md"
     assert path.read_text().strip() == render_markdown().strip(), "run: python -m gaintune.spec_doc > docs/spec.md"

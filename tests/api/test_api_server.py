@@ -20,7 +20,7 @@ import pytest
 pytest.importorskip("gaintune.search", reason="needs gaintune.search.tune")
 from gaintune.search import tune  # noqa: E402,F401
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 TINY = {
     "name": "tiny",
