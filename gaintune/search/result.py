@@ -71,7 +71,9 @@ class TuneResult(BaseModel):
     spec: dict[str, Any] = Field(description="The spec as validated (JSON form).")
     algo: str
     gains: Gains = Field(description="Frozen gains chosen as the answer (best of policy / best seen / refined).")
-    gains_source: Literal["policy", "best_seen", "refined"] = "best_seen"
+    gains_source: Literal["policy", "best_seen", "start", "refined"] = Field(
+        "best_seen", description="policy output, best gains the agent sampled, the start point (search box centre), or the local polish."
+    )
     policy_gains: Gains | None = Field(None, description="Deterministic policy output for the nominal context.")
     best_seen_gains: Gains | None = None
     cost: float = Field(description="Plain cost of `gains` (the objective, no penalty terms), on the robust draws.")

@@ -258,6 +258,8 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     cand = {"policy": policy_action}
     if monitor.best_tuned is not None:
         cand["best_seen"] = layout.tuned_to_action(monitor.best_tuned)
+    # the search never loses the start point (the best classical design, gaintune.search_box)
+    cand["start"] = layout.tuned_to_action(layout.initial_tuned())
     names = list(cand)
     first = ev.evaluate(layout.action_to_tuned(np.array([cand[k] for k in names])))
     k = int(np.argmin(first.merit))  # feasibility first, then the plain cost

@@ -110,3 +110,16 @@ def test_safety_trips_are_counted_in_the_search_statistics():
     r = tune(spec, verify=False)
     assert r.tripped_episodes > 0  # wide exploration overshoots past |y| = 1.3 at least sometimes
     assert r.tripped_episodes <= r.rl_sims
+
+
+def test_tune_never_loses_the_start_point():
+    """With a budget too small to learn anything, the answer is at least as good as the search box's centre."""
+    from gaintune.envs.problem import GainProblem
+
+    spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+                      "scenario": {"dt": 0.05, "horizon": 20}, "search": {"budget": 64, "n_envs": 8, "refine": False}})
+    gp = GainProblem(spec)
+    start = gp.evaluator.evaluate(gp.layout.initial_tuned()[None])
+    r = tune(spec)
+    assert r.violation == 0 and bool(start.feasible[0])
+    assert r.cost <= float(start.cost[0]) * (1 + 1e-9)
