@@ -97,7 +97,7 @@ def loop_coefficients(spec: TuningSpec, gains: Gains) -> list[dict[str, Any]]:
     from gaintune.controllers.lq import lq_gains
     from gaintune.controllers.pid import pid_params
     from gaintune.plants.plant import build_plant
-    from gaintune.sim.build import measured_indices
+    from gaintune.controllers.direction import measured_indices
 
     plant = build_plant(spec.plant)
     layout = GainLayout(spec, plant.states)

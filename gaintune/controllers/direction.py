@@ -160,7 +160,8 @@ def _outputs_gain(lin: Any, m: int) -> PathGain | None:
     return path_gain(lin.A, lin.B[:, 0], lin.C[m], lin.D[m, 0])
 
 
-def _measured(spec: TuningSpec, outputs: list[str]) -> list[int]:
+def measured_indices(spec: TuningSpec, outputs: list[str]) -> list[int]:
+    """Output index measured by each loop (default: the first output); SpecError naming an unknown one."""
     idx = []
     for i, loop in enumerate(spec.loops):
         name = loop.measure or outputs[0]
@@ -257,7 +258,7 @@ def _compute(spec: TuningSpec, plant: Any) -> tuple[LoopDirection, ...]:
             auto.append(i)
     if auto:
         lin = plant.linearize()
-        meas = _measured(spec, lin.outputs)
+        meas = measured_indices(spec, lin.outputs)
         found = {}
         for i in auto:
             try:

@@ -27,7 +27,6 @@ REQUIREMENT_TEXT: dict[str, tuple[str, str]] = {
     "dm_min": ("delay margin (s)", ">="),
     "ms_max": ("Ms", "<="),
     "mt_max": ("Mt", "<="),
-    "mks_max": ("Mks", "<="),
 }
 
 #: A gain within this relative distance (in log scale) of a bound counts as on the bound.

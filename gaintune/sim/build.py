@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
+from gaintune.controllers.direction import measured_indices
 from gaintune.controllers.layout import GainLayout
 from gaintune.controllers.lq import lq_gains
 from gaintune.controllers.pid import pid_params
@@ -18,7 +19,7 @@ from gaintune.sim.draws import REF_KINDS, Draws
 from gaintune.sim.tape import Tape, make_tape
 from gaintune.spec import ProfileSpec, ScenarioSpec, TuningSpec
 
-__all__ = ["Problem", "discretize", "profile_pieces", "measured_indices"]
+__all__ = ["Problem", "discretize", "profile_pieces"]
 
 AW_CODES = {"none": 0, "clamping": 1, "back_calculation": 2}
 
@@ -57,17 +58,6 @@ def discretize(A: np.ndarray, B: np.ndarray, dt: float, delay: np.ndarray):
     G0 = gam_a
     G1 = np.einsum("nij,nj->ni", phi_a, gam_b)
     return Ad, G0, G1, d
-
-
-def measured_indices(spec: TuningSpec, outputs: list[str]) -> list[int]:
-    """Output index measured by each loop (default: the first output)."""
-    idx = []
-    for i, loop in enumerate(spec.loops):
-        name = loop.measure or outputs[0]
-        if name not in outputs:
-            raise SpecError(f"loops[{i}].measure", f"unknown output {name!r}; the plant has {outputs}")
-        idx.append(outputs.index(name))
-    return idx
 
 
 def profile_pieces(p: ProfileSpec, dt: float, n_steps: int, kind: str | None = None) -> list[tuple[int, int, float, float]]:
