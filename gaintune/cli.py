@@ -638,6 +638,8 @@ BENCH = {
     "verify": "Verification speed: nominal, full and the search estimate's batch.",
     "compare": "Compare gaintune with classical rules and optimisers.",
     "constraints": "Agreement of the searched requirement estimate with the verdict near the boundary.",
+    "kernel": "The simulator kernel side by side with an earlier git revision of it.",
+    "ablation": "RL agents and PPO settings side by side on 1/(s+1)^3 PID.",
     "startup": "End-to-end wall time of --help, import, verify and a 3,000-simulation tune, beside python -c pass.",
     "api": "REST API load test.",
 }

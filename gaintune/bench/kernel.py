@@ -1,8 +1,8 @@
-"""Side-by-side timing of the simulator kernel against an earlier revision of it.
+"""``gaintune bench kernel``: the simulator kernel timed side by side with an earlier revision of it.
 
-Run (from the repository root)::
+Run from the repository (it reads the old kernel with ``git show``)::
 
-    python bench/kernel_before_after.py [--rev e0e478f3] [--batch 512] [--min-time 0.4]
+    gaintune bench kernel [--rev e0e478f3] [--batch 512] [--min-time 0.4]
 
 The kernel source of ``--rev`` is taken from git into a temporary module, so both
 kernels run in one process on the same prebuilt arguments (captured from
@@ -47,7 +47,7 @@ def _load_old(rev: str, variant: str = "simulate_kernel_serial"):
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="gaintune bench kernel", description=__doc__.splitlines()[0])
     ap.add_argument("--rev", default="e0e478f3")
     ap.add_argument("--batch", type=int, default=512)
     ap.add_argument("--repeat", type=int, default=3)

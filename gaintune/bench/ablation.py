@@ -1,6 +1,7 @@
-"""RL ablation on 1/(s+1)^3 PID (IAE + 0.01*int u^2): agents and PPO settings side by side.
+"""``gaintune bench ablation``: RL agents and PPO settings side by side on 1/(s+1)^3 PID (IAE + 0.01 int u^2).
 
-Usage: python bench/rl_ablation.py [--budget 5000] [--seeds 0 1] [--reference 1.602535]
+Usage: gaintune bench ablation [--budget 5000] [--seeds 0 1] [--reference 1.602535]
+The problem states no requirement (the unconstrained optimum is the reference).
 Prints RL-only and policy-mean cost ratios to the reference optimum (docs/search.md).
 """
 
@@ -23,8 +24,8 @@ CONFIGS = {
 }
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__)
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="gaintune bench ablation", description=__doc__.splitlines()[0])
     ap.add_argument("--budget", type=int, default=5000)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--reference", type=float, default=1.602535, help="reference optimum cost")
@@ -37,14 +38,11 @@ def main(argv: list[str] | None = None) -> None:
         for seed in a.seeds:
             spec = load_spec({
                 "plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pid"}],
-                "objective": {"margin_weight": 0},
+                "requirements": {"gm_min_db": None, "pm_min_deg": None, "ms_max": None},
                 "search": {"algo": algo, "env": env, "budget": a.budget, "seed": seed, "refine": False},
             })
             t0 = time.perf_counter()
             r = tune(spec, verify=False, agent_overrides=over or None)
             print(f"| {name} | {seed} | {r.rl_cost / a.reference:.4f} | {r.policy_cost / a.reference:.4f} | "
                   f"{r.sims} | {time.perf_counter() - t0:.1f} |", flush=True)
-
-
-if __name__ == "__main__":
-    main()
+    return 0
