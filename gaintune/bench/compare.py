@@ -29,13 +29,11 @@ from typing import Any
 import numpy as np
 
 from gaintune.fmt import fmt
+from gaintune.bench.references import default_out_dir, reference_for, reference_summary
 from gaintune.bench.suite import (
     Problem,
-    default_out_dir,
     describe_problems,
     get_suite,
-    reference_for,
-    reference_summary,
     timed_row,
     select,
     suite_names,

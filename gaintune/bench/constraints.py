@@ -27,7 +27,8 @@ from typing import Any
 import numpy as np
 
 from gaintune.bench.compare import md_table
-from gaintune.bench.suite import default_out_dir, get_suite, select, suite_names
+from gaintune.bench.references import default_out_dir
+from gaintune.bench.suite import get_suite, select, suite_names
 
 __all__ = ["agreement", "main"]
 

@@ -13,7 +13,7 @@ For every problem of a suite and every seed, run :func:`gaintune.search.tune`
 The summary gives the median and worst of each ratio over the runs, the
 largest simulation count and wall time, and the verification pass rate.
 Reference optima are cached in ``<out>/reference_<suite>.json`` keyed by a
-hash of the problem (see :func:`gaintune.bench.suite.reference_for`).
+hash of the problem (see :func:`gaintune.bench.references.reference_for`).
 
     gaintune bench search [--suite default] [--problems ...] [--algo ppo] [--budget N] [--seeds 0 1 2] [--out DIR]
     python -m gaintune.bench.search ...
@@ -31,13 +31,11 @@ from pathlib import Path
 from typing import Any
 
 from gaintune.bench.compare import fmt, fmt_ratio, md_table, ratio, set_threads, stats, write_outputs
+from gaintune.bench.references import default_out_dir, reference_for, reference_summary
 from gaintune.bench.suite import (
     Problem,
-    default_out_dir,
     describe_problems,
     get_suite,
-    reference_for,
-    reference_summary,
     timed_row,
     select,
     suite_names,

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from gaintune.bench.compare import md_table
-from gaintune.bench.suite import default_out_dir
+from gaintune.bench.references import default_out_dir
 
 __all__ = ["CASES", "main"]
 

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from gaintune.bench import compare as C
+from gaintune.bench import references as R
 from gaintune.bench import search as S
 from gaintune.bench import suite as U
 
@@ -33,7 +34,7 @@ def _fake_cache(tmp_path, suite: str, costs: dict[str, float]) -> None:
     data = {}
     for p in U.get_suite(suite):
         if p.name in costs:
-            key = U.reference_key(p)
+            key = R.reference_key(p)
             data[key] = {"problem": p.name, "key": key, "cost": costs[p.name], "gains": None, "source": "search",
                          "n_sims": 10, "wall_time": 0.1, "exact": None}
     (tmp_path / f"reference_{suite}.json").write_text(json.dumps(data))
@@ -87,11 +88,11 @@ def test_reference_key_ignores_budget_and_seed_but_not_requirements():
     p = U.get_suite("quick")[0]
     spec = dict(p.spec, search={"budget": 999, "seed": 5})
     q = U.Problem(p.name, p.title, spec, p.family, reference=p.reference)
-    assert U.reference_key(q) == U.reference_key(p)
+    assert R.reference_key(q) == R.reference_key(p)
     tight = dict(p.spec, requirements={"ms_max": 1.3})
-    assert U.reference_key(U.Problem(p.name, p.title, tight, p.family, reference=p.reference)) != U.reference_key(p)
+    assert R.reference_key(U.Problem(p.name, p.title, tight, p.family, reference=p.reference)) != R.reference_key(p)
     other = dict(p.spec, objective={"measure": "iae", "effort_weight": 0.02})
-    assert U.reference_key(U.Problem(p.name, p.title, other, p.family, reference=p.reference)) != U.reference_key(p)
+    assert R.reference_key(U.Problem(p.name, p.title, other, p.family, reference=p.reference)) != R.reference_key(p)
 
 
 def test_exact_lq_optimum_is_the_riccati_cost_and_a_minimum():
@@ -99,7 +100,7 @@ def test_exact_lq_optimum_is_the_riccati_cost_and_a_minimum():
 
     p = U.select(U.get_suite("quick"), ["q_lq_msd"])[0]
     gp = GainProblem(p.tuning_spec())
-    ex = U.exact_optimum(p, gp.evaluator)
+    ex = R.exact_optimum(p, gp.evaluator)
     assert ex is not None and ex["cost"] == pytest.approx(ex["riccati_cost"], rel=1e-6)
     k = ex["gains"]["lqr"]
     assert k["k_x"] > 0 and k["k_v"] > 0
@@ -109,7 +110,7 @@ def test_exact_lq_optimum_is_the_riccati_cost_and_a_minimum():
     costs = gp.evaluator(pert)
     assert np.all(costs > ex["cost"])
     assert layout.n_tuned == 2
-    assert U.exact_optimum(U.get_suite("quick")[0], gp.evaluator) is None
+    assert R.exact_optimum(U.get_suite("quick")[0], gp.evaluator) is None
 
 
 def test_reference_cache_is_reused_and_shared(tmp_path, monkeypatch):
@@ -120,21 +121,21 @@ def test_reference_cache_is_reused_and_shared(tmp_path, monkeypatch):
         return {"problem": problem.name, "cost": 2.0, "gains": None, "source": "search", "n_sims": 5, "wall_time": 0.0,
                 "exact": None}
 
-    monkeypatch.setattr(U, "compute_reference", fake)
+    monkeypatch.setattr(R, "compute_reference", fake)
     p = U.get_suite("quick")[0]
-    a = U.reference_for(p, "quick", tmp_path)
-    b = U.reference_for(p, "quick", tmp_path)
-    assert calls == [p.name] and a == b and a["key"] == U.reference_key(p)
-    c = U.reference_for(p, "other", tmp_path)  # found in reference_quick.json, copied to reference_other.json
+    a = R.reference_for(p, "quick", tmp_path)
+    b = R.reference_for(p, "quick", tmp_path)
+    assert calls == [p.name] and a == b and a["key"] == R.reference_key(p)
+    c = R.reference_for(p, "other", tmp_path)  # found in reference_quick.json, copied to reference_other.json
     assert calls == [p.name] and c["cost"] == 2.0
-    assert U.reference_key(p) in json.loads((tmp_path / "reference_other.json").read_text())
-    U.reference_for(p, "quick", tmp_path, refresh=True)
+    assert R.reference_key(p) in json.loads((tmp_path / "reference_other.json").read_text())
+    R.reference_for(p, "quick", tmp_path, refresh=True)
     assert calls == [p.name, p.name]
     stale = json.loads((tmp_path / "reference_quick.json").read_text())
     stale["0ldkey"] = {"problem": p.name, "cost": 1.0}
     (tmp_path / "reference_quick.json").write_text(json.dumps(stale))
-    U.reference_for(p, "quick", tmp_path, refresh=True)
-    assert list(json.loads((tmp_path / "reference_quick.json").read_text())) == [U.reference_key(p)]
+    R.reference_for(p, "quick", tmp_path, refresh=True)
+    assert list(json.loads((tmp_path / "reference_quick.json").read_text())) == [R.reference_key(p)]
 
 
 def test_stale_reference_is_recomputed(tmp_path, monkeypatch):
@@ -145,9 +146,9 @@ def test_stale_reference_is_recomputed(tmp_path, monkeypatch):
         return {"problem": problem.name, "cost": 9.0, "gains": None, "source": "search", "n_sims": 5, "wall_time": 0.0,
                 "exact": None}
 
-    monkeypatch.setattr(U, "compute_reference", fake)
+    monkeypatch.setattr(R, "compute_reference", fake)
     p = U.get_suite("quick")[0]
-    key = U.reference_key(p)
+    key = R.reference_key(p)
     gains = {"main": {"Kp": 2.0, "Ki": 1.0}}
     from gaintune.envs.problem import GainProblem
 
@@ -156,7 +157,7 @@ def test_stale_reference_is_recomputed(tmp_path, monkeypatch):
     for cost, recomputed in ((true, False), (true * 1.01, True)):
         (tmp_path / "reference_quick.json").write_text(json.dumps({key: {"problem": p.name, "cost": cost, "gains": gains}}))
         calls.clear()
-        e = U.reference_for(p, "quick", tmp_path)
+        e = R.reference_for(p, "quick", tmp_path)
         assert (calls == [p.name]) is recomputed
         assert e["cost"] == (9.0 if recomputed else true)
 
