@@ -1,0 +1,158 @@
+"""The verdict of gains at a sample time, and the verification stamp every export format carries.
+
+Verdicts are per sample time
+----------------------------
+Verification depends on ``dt``: it analyses the sampled loop at the largest scenario
+``dt`` (:mod:`gaintune.verify.sampled`; frequencies up to ``pi/dt``) and the nonlinear
+check simulates at the scenarios' ``dt``. A file therefore only
+claims the verdict obtained *at the dt it is exported for*:
+:func:`verdict_at_dt` returns the stored verdict when ``dt`` is the one the result
+was verified at (:func:`verified_dt`, every scenario at that ``dt``), and otherwise
+re-verifies on a copy of the spec whose scenarios all run at ``dt``
+(:func:`spec_at_dt`). Every format records ``dt``, ``verified_dt`` and, for
+failed gains, why they failed.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from gaintune.export.common import ExportError, Gains, _check_dt, _fmt_dt, _same_dt
+from gaintune.spec import MAX_STEPS, TuningSpec
+
+__all__ = ["verified_dt", "spec_at_dt", "verdict_at_dt", "result_verdict_at_dt", "first_reason"]
+
+
+def verified_dt(spec: TuningSpec) -> float:
+    """The sample time a verification of ``spec`` holds for: the largest scenario ``dt``.
+
+    The sampled-loop analysis (:mod:`gaintune.verify.sampled`) and the analysis band use it.
+    """
+    return max(sc.dt for sc in spec.scenarios)
+
+
+_spec_verified_dt = verified_dt  # for functions whose ``verified_dt`` parameter shadows the name
+
+
+def spec_at_dt(spec: TuningSpec, dt: float, *, max_steps: int | None = None) -> TuningSpec:
+    """A copy of ``spec`` whose scenarios all run at sample time ``dt`` (each keeps its horizon).
+
+    Raises :class:`ExportError` (field ``dt``) when a horizon would need more than
+    ``max_steps`` (default and ceiling: :data:`gaintune.spec.MAX_STEPS`) or fewer than 2 steps.
+    """
+    dt = _check_dt(dt)
+    limit = MAX_STEPS if max_steps is None else min(int(max_steps), MAX_STEPS)
+    for i, sc in enumerate(spec.scenarios):
+        steps = sc.horizon / dt
+        if steps > limit:
+            raise ExportError(
+                "dt", f"dt = {_fmt_dt(dt)} s needs horizon/dt = {steps:.0f} steps for scenario {sc.name!r} "
+                f"(horizon {_fmt_dt(sc.horizon)} s), over the limit of {limit}; export at dt >= "
+                f"{_fmt_dt(sc.horizon / limit)} s, or shorten scenarios.{i}.horizon and re-tune")
+        if steps < 2:
+            raise ExportError(
+                "dt", f"dt = {_fmt_dt(dt)} s leaves fewer than 2 samples in the {_fmt_dt(sc.horizon)} s horizon of scenario "
+                f"{sc.name!r}; export at dt <= {_fmt_dt(sc.horizon / 2)} s, or lengthen scenarios.{i}.horizon and re-tune")
+    if all(_same_dt(sc.dt, dt) for sc in spec.scenarios):
+        return spec
+    from pydantic import ValidationError
+
+    data = spec.model_dump(mode="json")
+    for sc in data["scenarios"]:
+        sc["dt"] = dt
+    try:
+        return TuningSpec.model_validate(data)
+    except ValidationError as exc:
+        e = exc.errors(include_url=False, include_input=False)[0]
+        loc = ".".join(str(p) for p in e["loc"])
+        raise ExportError("dt", f"the spec is not valid at dt = {_fmt_dt(dt)} s ({loc}: {e['msg']}); choose another dt") from None
+
+
+def first_reason(report: Any) -> str | None:
+    """The first reason of a verification report (dict or :class:`~gaintune.verify.VerificationReport`)."""
+    if report is None:
+        return None
+    reasons = report.get("reasons") if isinstance(report, dict) else getattr(report, "reasons", None)
+    return str(reasons[0]) if reasons else None
+
+
+def verdict_at_dt(
+    spec: TuningSpec,
+    gains: Gains,
+    dt: float | None = None,
+    *,
+    stored: Any = None,
+    robust: bool | None = None,
+    max_steps: int | None = None,
+) -> tuple[str, dict[str, Any] | None]:
+    """The verdict of ``gains`` at sample time ``dt`` and the report it comes from (JSON form).
+
+    ``stored`` is the verification already done on ``spec`` (a report dict or model, e.g.
+    ``TuneResult.verification``). It is returned as it is when ``dt`` is the sample time it
+    was obtained at (:func:`verified_dt`, with every scenario at that ``dt``). Otherwise
+    (another ``dt``, scenarios of mixed ``dt``, or nothing stored) the gains are verified
+    with :func:`gaintune.verify.verify` on :func:`spec_at_dt` ``(spec, dt)``; ``robust``
+    defaults to what the stored report did (else the spec's default).
+
+    Raises :class:`ExportError` (field ``dt``) for a ``dt`` the spec cannot run at.
+    """
+    vdt = verified_dt(spec)
+    dt = vdt if dt is None else _check_dt(dt)
+    if hasattr(stored, "model_dump"):
+        stored = stored.model_dump(mode="json")
+    if stored is not None and stored.get("verdict") is not None and _same_dt(dt, vdt) \
+            and all(_same_dt(sc.dt, vdt) for sc in spec.scenarios):
+        return str(stored["verdict"]), stored
+    target = spec_at_dt(spec, dt, max_steps=max_steps)
+    if robust is None and stored is not None and "robust" in stored:
+        robust = stored["robust"] is not None  # as the stored verification did
+    from gaintune.verify import verify
+
+    report = verify(target, gains, robust=robust)
+    return report.verdict, json.loads(report.model_dump_json())
+
+
+def result_verdict_at_dt(result: Any, dt: float | None = None, *, max_steps: int | None = None) -> tuple[str, dict[str, Any] | None]:
+    """:func:`verdict_at_dt` for a :class:`~gaintune.search.result.TuneResult` (its stored verification included)."""
+    spec = TuningSpec.model_validate(result.spec)
+    return verdict_at_dt(spec, result.gains, dt, stored=result.verification, max_steps=max_steps)
+
+
+class _Stamp:
+    """What a file says about verification: the verdict at the exported ``dt``."""
+
+    def __init__(self, verdict: str | None, dt: float, verified_dt: float | None, reasons: list[str] | None) -> None:
+        self.dt = dt
+        self.verified_dt = verified_dt
+        self.reasons = [str(r) for r in (reasons or [])]
+        self.stale = verdict is not None and verified_dt is not None and not _same_dt(dt, verified_dt)
+        #: the verdict that holds at ``dt`` (None: not verified at this dt)
+        self.verdict = None if self.stale else verdict
+        self.held = verdict  # the verdict as given (for the not-at-this-dt message)
+
+    @property
+    def accepted(self) -> bool:
+        return self.verdict == "pass"
+
+    @property
+    def label(self) -> str:
+        return self.verdict or "unverified"
+
+    @property
+    def reason(self) -> str:
+        if self.reasons:
+            return self.reasons[0]
+        return "no reason recorded in the verification report"
+
+    def banner(self) -> str:
+        dt = _fmt_dt(self.dt)
+        if self.verdict == "pass":
+            return f"verification: PASS at dt = {dt} s"
+        if self.verdict == "fail":
+            return (f"verification: FAILED at dt = {dt} s - {self.reason} - these gains did not pass verification "
+                    "at this sample time; do not deploy")
+        if self.stale:
+            return (f"verification: NOT verified at dt = {dt} s (the verdict '{self.held}' holds at dt = "
+                    f"{_fmt_dt(self.verified_dt)} s only) - do not deploy; re-verify or re-tune at this sample time")
+        return "verification: not run - these gains are unverified"
