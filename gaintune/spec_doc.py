@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import typing
 
 from pydantic import BaseModel
@@ -37,7 +38,9 @@ _SECTIONS: list[tuple[str, type[BaseModel]]] = [
 
 
 def _type(t: object) -> str:
-    text = str(t).replace("typing.", "").replace("gaintune.spec.", "").replace("NoneType", "None")
+    text = str(t).replace("typing.", "").replace("NoneType", "None")
+    # spec models print as gaintune.spec.<section>.<Class>; the reference names them by class only
+    text = re.sub(r"gaintune\.spec\.(?:[a-z_]+\.)?", "", text)
     for cls in ("<class '", "'>"):
         text = text.replace(cls, "")
     return text.replace("|", "\\|")

@@ -1,0 +1,237 @@
+"""``gaintune``: thin command-line front end over the library (typer + rich).
+
+Exit codes: 0 success, 2 invalid input (the message names the field),
+3 verification failed. See ``docs/cli.md``.
+
+This package holds the typer :data:`app` and its commands; its modules hold the rest:
+
+* :mod:`gaintune.cli.common`: exit codes, consoles, error handling
+  (:func:`handle_errors`, :class:`InputError`), input loading and formatting helpers;
+* :mod:`gaintune.cli.output`: result summaries, tables, plots and ``--out`` folders;
+* :mod:`gaintune.cli.tuning`: running a tune with its progress bar (``tune``, ``demo``);
+* :mod:`gaintune.cli.exporting`: the verdict gate of ``export``;
+* :mod:`gaintune.cli.bench`: the ``bench`` sub-app (:data:`BENCH`).
+
+``python -m gaintune.cli`` runs :data:`app` (``gaintune/cli/__main__.py``).
+"""
+
+from __future__ import annotations
+
+import importlib  # noqa: F401 - gaintune.cli.importlib: tests replace importlib.import_module through it
+import json
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from gaintune.cli.bench import BENCH, bench_app  # noqa: F401 - BENCH: gaintune.cli.BENCH (tests)
+from gaintune.cli.common import (
+    EPILOG, EXIT_INPUT, EXIT_OK, EXIT_VERIFY, InputError, _command_line, apply_overrides, err, handle_errors, load_gains,
+    load_result, load_spec_file, out,
+)
+from gaintune.cli.exporting import _checked_at_dt
+from gaintune.cli.output import _plot_runs, _print_plant, _print_plants, _print_simulation, _simulation_json
+from gaintune.cli.output import _write_outputs  # noqa: F401 - gaintune.cli._write_outputs, used by tests
+# the commands call _get_tune through this module, so gaintune.cli._get_tune can be replaced (tests do)
+from gaintune.cli.tuning import _finish, _get_tune, _run_tune, demo_spec
+
+__all__ = ["app", "EXIT_OK", "EXIT_INPUT", "EXIT_VERIFY"]
+
+app = typer.Typer(
+    name="gaintune",
+    help="RL-based controller gain tuning with frozen-gain verification.",
+    epilog=EPILOG,
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+)
+plants_app = typer.Typer(help="Built-in plant models: list them, or show one.", invoke_without_command=True, epilog=EPILOG)
+app.add_typer(plants_app, name="plants")
+app.add_typer(bench_app, name="bench")
+
+
+# --------------------------------------------------------------- commands
+
+ALGOS = ("ppo", "sac", "td3", "a2c", "ddpg")
+
+
+@app.command()
+@handle_errors
+def tune(
+    spec_path: Path = typer.Argument(..., metavar="SPEC", help="Tuning spec (YAML or JSON)."),
+    out_dir: Optional[Path] = typer.Option(None, "--out", "-o", help="Write result.json, report.html, gains.{json,yaml,h,m} and the agent here."),
+    json_out: bool = typer.Option(False, "--json", help="Print the result JSON on stdout (no progress bar)."),
+    algo: Optional[str] = typer.Option(None, "--algo", help=f"Override search.algo ({', '.join(ALGOS)})."),
+    budget: Optional[int] = typer.Option(None, "--budget", help="Override search.budget (simulations)."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Override search.seed."),
+    workers: Optional[int] = typer.Option(None, "--workers", help="Override search.n_envs (parallel environments)."),
+    baselines: bool = typer.Option(False, "--baselines", help="Also run the baselines for comparison (in the result and report)."),
+) -> None:
+    """Tune the gains of SPEC with RL, verify them and print a summary. Exit 3 if verification fails."""
+    spec = apply_overrides(load_spec_file(spec_path), algo=algo, budget=budget, seed=seed, workers=workers)
+    command = _command_line("tune", spec_path, algo=algo, budget=budget, seed=spec.search.seed, workers=workers, baselines=baselines)
+    result = _run_tune(_get_tune(), spec, out_dir=out_dir, json_out=json_out, baselines=baselines, command=command)
+    _finish(result, out_dir=out_dir, json_out=json_out, command=command)
+
+
+@app.command()
+@handle_errors
+def demo(
+    out_dir: Path = typer.Option(Path("out/demo"), "--out", "-o", help="Output folder."),
+    budget: Optional[int] = typer.Option(None, "--budget", help="Override the search budget (simulations)."),
+    seed: Optional[int] = typer.Option(None, "--seed"),
+    json_out: bool = typer.Option(False, "--json", help="Print the result JSON on stdout."),
+) -> None:
+    """Tune the built-in demo loop (PID on 1/(s+1)^3), verify it and write result, report and exports to --out."""
+    spec = demo_spec(budget, seed)
+    command = _command_line("demo", budget=budget, seed=spec.search.seed)
+    result = _run_tune(_get_tune(), spec, out_dir=out_dir, json_out=json_out, baselines=False, command=command)
+    _finish(result, out_dir=out_dir, json_out=json_out, command=command)
+    if not json_out:
+        out.print(f"open {out_dir / 'report.html'} in a browser")
+
+
+@app.command()
+@handle_errors
+def verify(
+    spec_path: Path = typer.Argument(..., metavar="SPEC", help="Tuning spec (YAML or JSON)."),
+    gains: str = typer.Option(..., "--gains", "-g", help="Gains: a JSON/YAML file (or result.json), or inline JSON '{\"loop0\": {\"Kp\": 1}}'."),
+    json_out: bool = typer.Option(False, "--json", help="Print the VerificationReport JSON instead of the table."),
+    robust: Optional[bool] = typer.Option(None, "--robust/--no-robust", help="Force the robust check on/off (default: when the spec randomises the plant)."),
+) -> None:
+    """Verify GAINS against SPEC's requirements and print the table. Exit 3 if they fail."""
+    from gaintune.verify import format_table
+    from gaintune.verify import verify as run_verify
+
+    spec = load_spec_file(spec_path)
+    rep = run_verify(spec, load_gains(gains), robust=robust)
+    if json_out:
+        sys.stdout.write(rep.model_dump_json(indent=2) + "\n")
+    else:
+        sys.stdout.write(format_table(rep) + "\n")
+    if rep.verdict != "pass":
+        raise typer.Exit(EXIT_VERIFY)
+
+
+@app.command()
+@handle_errors
+def simulate(
+    spec_path: Path = typer.Argument(..., metavar="SPEC", help="Tuning spec (YAML or JSON)."),
+    gains: str = typer.Option(..., "--gains", "-g", help="Gains file or inline JSON."),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="Save the time responses of every scenario to this PNG/SVG/PDF."),
+    json_out: bool = typer.Option(False, "--json", help="Print the metrics as JSON."),
+    traces: bool = typer.Option(False, "--traces", help="With --json: include the time traces."),
+) -> None:
+    """Simulate GAINS on every scenario of SPEC (nominal plant) and print the metrics."""
+    from gaintune.sim import Simulator
+    from gaintune.sim.chatter import saturation_switches
+
+    spec = load_spec_file(spec_path)
+    sim = Simulator(spec)
+    full = sim.layout.from_dict(load_gains(gains))
+    results = [sim.run(full[None], scenario=i, traces=True) for i in range(len(spec.scenarios))]
+    switches = [saturation_switches(r.traces["u"][0], spec.actuator.limits) for r in results]
+    if json_out:
+        sys.stdout.write(json.dumps(_simulation_json(results, switches, traces=traces), indent=2) + "\n")
+    else:
+        _print_simulation(spec, results, switches)
+    if plot is not None:
+        _plot_runs(spec, sim, results, plot)
+        (err if json_out else out).print(f"wrote {plot}")
+
+
+@app.command()
+@handle_errors
+def report(
+    result_path: Path = typer.Argument(..., metavar="RESULT.json", help="A result.json written by 'gaintune tune --out'."),
+    output: Path = typer.Option(Path("report.html"), "--output", "-o", help="HTML file to write."),
+    pdf: bool = typer.Option(False, "--pdf", help="Also print it to PDF (needs /usr/bin/chromium)."),
+) -> None:
+    """Render the self-contained HTML report of a result (and a PDF with --pdf)."""
+    from gaintune.report import ReportError, render_pdf, render_report
+
+    result = load_result(result_path)
+    path = render_report(result, output)
+    out.print(f"wrote {path}")
+    if pdf:
+        try:
+            p = render_pdf(path, path.with_suffix(".pdf"))
+        except ReportError as exc:
+            err.print(f"error: {exc.message}", markup=False)
+            raise typer.Exit(1) from None
+        out.print(f"wrote {p}")
+
+
+@plants_app.callback()
+def plants(ctx: typer.Context) -> None:
+    """List the built-in plant models (``gaintune plants show NAME`` for one)."""
+    if ctx.invoked_subcommand is not None:
+        return
+    _print_plants()
+
+
+@plants_app.command("show")
+@handle_errors
+def plants_show(name: str = typer.Argument(..., help="Model name, e.g. dc_motor.")) -> None:
+    """Show one model: parameters with units, outputs and a ready-to-run example spec."""
+    from gaintune.plants.library import load_model
+
+    _print_plant(load_model(name))
+
+
+@app.command()
+@handle_errors
+def export(
+    result_path: Path = typer.Argument(..., metavar="RESULT.json", help="A result.json written by 'gaintune tune --out'."),
+    fmt: str = typer.Option("json", "--format", "-f", help="json | yaml | c | matlab | python"),
+    dt: Optional[float] = typer.Option(
+        None, "--dt",
+        help="Sample time (s) of the exported discrete controller. Default: the dt the result was verified at "
+             "(its largest scenario dt). At any other dt the gains are re-verified first, at that dt."),
+    output: Optional[Path] = typer.Option(None, "--output", "-o", help="File to write (default: stdout)."),
+    allow_unverified: bool = typer.Option(
+        False, "--allow-unverified",
+        help="Export gains whose verdict at this dt is not PASS (the file is then marked FAILED, with the reason)."),
+    force: bool = typer.Option(False, "--force", hidden=True, help="Old name of --allow-unverified."),
+) -> None:
+    """Export the gains of a result as JSON, YAML, a C header, a MATLAB/Octave snippet or a Python dict.
+
+    The file carries the verification verdict AT the exported sample time: at the dt the result was
+    verified at, the stored verdict; at any other --dt, the gains are re-verified at that dt first.
+    Exit 3 (nothing written) when that verdict is not PASS, unless --allow-unverified.
+    """
+    from gaintune.export import FORMATS, export_result
+
+    fmt = fmt.lower()
+    if fmt not in FORMATS:
+        raise InputError("format", f"unknown format {fmt!r}; choose from {', '.join(FORMATS)}")
+    result = load_result(result_path)
+    at, checked = _checked_at_dt(result, dt, allow_unverified=allow_unverified or force)
+    text = export_result(result, fmt, dt=at, checked=checked)
+    if output is None:
+        sys.stdout.write(text)
+    else:
+        output.parent.mkdir(parents=True, exist_ok=True)
+        output.write_text(text)
+        err.print(f"wrote {output}")
+
+
+@app.command()
+def serve(
+    host: str = typer.Option("127.0.0.1", "--host"),
+    port: int = typer.Option(8000, "--port"),
+    workers: int = typer.Option(1, "--workers", help="Worker processes for tuning jobs."),
+) -> None:
+    """Run the REST API (FastAPI app in api/)."""
+    try:
+        from api.main import serve as run_server
+    except ImportError as exc:
+        err.print(f"error: the REST API (api.main.serve) is not available: {exc}", markup=False)
+        raise typer.Exit(1) from None
+    run_server(host, port, workers)
+
+
+def main() -> None:  # pragma: no cover - console entry
+    app()

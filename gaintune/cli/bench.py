@@ -1,0 +1,58 @@
+"""``gaintune bench``: the benchmark sub-app, one pass-through command per module of :mod:`gaintune.bench`.
+
+:data:`BENCH` names every benchmark (with its one-line help); ``gaintune bench NAME
+ARGS...`` imports ``gaintune.bench.NAME`` only when run and calls its ``main(argv)``
+with the arguments unchanged, so ``--help`` shows the benchmark's own options.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Callable
+
+import typer
+
+from gaintune.cli.common import EPILOG, err
+
+__all__ = ["BENCH", "bench_app"]
+
+bench_app = typer.Typer(help="Benchmarks (arguments after the command are passed through; --help shows each benchmark's own options).",
+                        no_args_is_help=True, epilog=EPILOG)
+
+BENCH = {
+    "sim": "Simulator throughput (simulations/s).",
+    "search": "RL search vs baselines on the benchmark processes.",
+    "verify": "Verification speed: nominal, full and the search estimate's batch.",
+    "compare": "Compare gaintune with classical rules and optimisers.",
+    "constraints": "Agreement of the searched requirement estimate with the verdict near the boundary.",
+    "kernel": "The simulator kernel side by side with an earlier git revision of it.",
+    "ablation": "RL agents and PPO settings side by side on 1/(s+1)^3 PID.",
+    "startup": "End-to-end wall time of --help, import, verify and a 3,000-simulation tune, beside python -c pass.",
+    "api": "REST API load test.",
+}
+
+
+def _bench_runner(name: str) -> Callable:
+    def run(ctx: typer.Context) -> None:
+        try:
+            mod = importlib.import_module(f"gaintune.bench.{name}")
+        except ModuleNotFoundError as exc:
+            err.print(f"error: benchmark '{name}' is not available (module gaintune.bench.{name} is missing: {exc})", markup=False)
+            raise typer.Exit(1) from None
+        main = getattr(mod, "main", None)
+        if main is None:
+            err.print(f"error: gaintune.bench.{name} has no main(argv)", markup=False)
+            raise typer.Exit(1)
+        rc = main(list(ctx.args))
+        raise typer.Exit(int(rc or 0))
+
+    run.__doc__ = BENCH[name]
+    return run
+
+
+for _name in BENCH:
+    bench_app.command(
+        _name,
+        context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": []},
+        add_help_option=False,
+    )(_bench_runner(_name))

@@ -1,0 +1,198 @@
+"""What every ``gaintune`` command shares: consoles, exit codes, error handling, input loading and formatting.
+
+* exit codes (:data:`EXIT_OK`, :data:`EXIT_INPUT`, :data:`EXIT_VERIFY`) and the
+  :data:`EPILOG` every help page ends with;
+* the consoles: :data:`out` (stdout) and :data:`err` (stderr);
+* :class:`InputError` and :func:`handle_errors`, which turns bad input into
+  ``error: <field>: <message>`` lines on stderr and exit 2, never a traceback;
+* the inputs: :func:`load_spec_file`, :func:`load_gains`, :func:`load_result` and
+  :func:`apply_overrides`;
+* formatting helpers: ``_f`` (the one number formatter, :func:`gaintune.fmt.fmt`),
+  ``_json_num``, ``_close`` and ``_command_line``.
+
+Names with a leading underscore are internal to :mod:`gaintune.cli`: its modules
+import them from here.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import shlex
+from pathlib import Path
+from typing import Any, Callable
+
+import typer
+from rich.console import Console
+
+from gaintune.fmt import fmt
+
+__all__ = [
+    "EXIT_OK", "EXIT_INPUT", "EXIT_VERIFY", "EPILOG", "out", "err", "InputError", "handle_errors",
+    "load_spec_file", "load_gains", "load_result", "apply_overrides",
+    "_f", "_json_num", "_close", "_command_line",
+]
+
+EXIT_OK, EXIT_INPUT, EXIT_VERIFY = 0, 2, 3
+
+EPILOG = (
+    "Exit codes: 0 success; 2 invalid input (spec, gains or file: the message names the field); "
+    "3 verification failed (the gains are not accepted). Docs: docs/cli.md"
+)
+
+out = Console()
+err = Console(stderr=True, soft_wrap=True)
+
+
+class InputError(Exception):
+    """Bad user input found by the CLI itself (file missing, unreadable gains, ...)."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(f"{field}: {message}")
+        self.field, self.message = field, message
+
+
+def _problem_lines(exc: BaseException) -> list[str]:
+    from gaintune.errors import problem_details
+
+    if isinstance(exc, InputError):
+        return [f"{exc.field}: {exc.message}"]
+    return [f"{d['loc']}: {d['msg']}" if d["loc"] else d["msg"] for d in problem_details(exc)]
+
+
+def _input_errors() -> tuple[type[BaseException], ...]:
+    import yaml
+    from pydantic import ValidationError
+
+    from gaintune.errors import GaintuneError
+
+    return (InputError, GaintuneError, ValidationError, yaml.YAMLError, json.JSONDecodeError, FileNotFoundError, IsADirectoryError)
+
+
+def handle_errors(fn: Callable) -> Callable:
+    """Bad input -> ``error: <field>: <message>`` lines on stderr and exit 2, never a traceback."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except typer.Exit:
+            raise
+        except _input_errors() as exc:
+            for line in _problem_lines(exc):
+                err.print(f"error: {line}", markup=False, highlight=False)
+            raise typer.Exit(EXIT_INPUT) from None
+        except KeyboardInterrupt:
+            err.print("interrupted", markup=False)
+            raise typer.Exit(130) from None
+
+    return wrapper
+
+
+# ----------------------------------------------------------------- inputs
+
+
+def _read_file(path: Path, field: str) -> str:
+    if not path.exists():
+        raise InputError(field, f"file not found: {path}")
+    if path.is_dir():
+        raise InputError(field, f"{path} is a directory, expected a file")
+    try:
+        return path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(field, f"cannot read {path}: {exc}") from None
+
+
+def _parse_mapping(text: str, field: str) -> Any:
+    import yaml
+
+    try:
+        return json.loads(text) if text.lstrip().startswith(("{", "[")) else yaml.safe_load(text)
+    except (yaml.YAMLError, json.JSONDecodeError) as exc:
+        raise InputError(field, f"not valid JSON/YAML: {exc}") from None
+
+
+def load_spec_file(path: Path):
+    from gaintune.spec import load_spec
+
+    data = _parse_mapping(_read_file(path, "spec"), "spec")
+    if not isinstance(data, dict):
+        raise InputError("spec", "must be a mapping with at least 'plant' and 'loops'")
+    return load_spec(data)
+
+
+def load_gains(value: str) -> dict[str, dict[str, float]]:
+    """``--gains``: a JSON/YAML file (a result.json's ``gains`` is taken) or inline JSON."""
+    text = value
+    if not value.lstrip().startswith("{"):
+        text = _read_file(Path(value), "gains")
+    data = _parse_mapping(text, "gains")
+    if isinstance(data, dict) and "gains" in data and isinstance(data["gains"], dict):
+        data = data["gains"]
+    if not isinstance(data, dict):
+        raise InputError("gains", "must be a mapping {loop: {gain: value}} (JSON or YAML)")
+    return data
+
+
+def load_result(path: Path):
+    from pydantic import ValidationError
+
+    from gaintune.search.result import TuneResult
+
+    text = _read_file(path, "result")
+    try:
+        return TuneResult.model_validate_json(text)
+    except ValidationError as exc:
+        if any(e["type"] == "json_invalid" for e in exc.errors()):
+            raise InputError("result", f"{path} is not valid JSON") from None
+        raise
+
+
+def apply_overrides(spec, *, algo: str | None = None, budget: int | None = None, seed: int | None = None, workers: int | None = None):
+    """Override ``search`` settings and re-validate the whole spec."""
+    from gaintune.spec import TuningSpec
+
+    upd: dict[str, Any] = {}
+    if algo is not None:
+        upd["algo"] = algo
+    if budget is not None:
+        upd["budget"] = budget
+    if seed is not None:
+        upd["seed"] = seed
+    if workers is not None:
+        upd["n_envs"] = workers
+    if not upd:
+        return spec
+    data = spec.model_dump()
+    data["search"] = {**data["search"], **upd}
+    return TuningSpec.model_validate(data)
+
+
+# ------------------------------------------------------------- formatting
+
+
+_f = fmt  # one formatter for every table (gaintune.fmt)
+
+
+def _command_line(*parts: Any, **options: Any) -> str:
+    """The command that re-runs this result: positional parts, then the options that were given."""
+    words = ["gaintune", *[str(p) for p in parts]]
+    for k, v in options.items():
+        if v is None or v is False:
+            continue
+        words.append(f"--{k.replace('_', '-')}")
+        if v is not True:
+            words.append(str(v))
+    return shlex.join(words)
+
+
+def _json_num(x: Any) -> Any:
+    x = x.item() if hasattr(x, "item") else x
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def _close(a: float, b: float) -> bool:
+    return math.isclose(a, b, rel_tol=1e-9, abs_tol=0.0)

@@ -1,0 +1,221 @@
+"""What the ``gaintune`` commands print and write: result summaries, tables, plots and output folders.
+
+* :func:`_print_summary`: the gains, margins, requirements, metrics and verdict of a
+  tuning result (``tune``, ``demo``);
+* :func:`_write_outputs`: result.json, report.html and the gain exports in ``--out``;
+* :func:`_print_simulation`, :func:`_simulation_json` and :func:`_plot_runs`: the
+  ``simulate`` table, its JSON document and the time-response plot;
+* :func:`_print_plants` and :func:`_print_plant`: the ``plants`` listing and
+  ``plants show``.
+
+Every name is internal to :mod:`gaintune.cli` (hence the leading underscore).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+from gaintune.cli.common import InputError, _f, _json_num, out
+
+__all__ = ["_print_summary", "_write_outputs", "_print_simulation", "_simulation_json", "_plot_runs", "_print_plants", "_print_plant"]
+
+
+# ------------------------------------------------------------ tuning result
+
+
+def _print_summary(result, console: Console = out) -> None:
+    from gaintune.report import load_verification
+
+    verdict = result.verdict
+    passed = verdict == "pass"
+    title = "Accepted gains" if passed else ("Gains - FAILED verification, NOT accepted" if verdict == "fail" else "Gains (unverified)")
+    t = Table(title=title, title_style="bold green" if passed else "bold red")
+    t.add_column("loop")
+    t.add_column("gain")
+    t.add_column("value", justify="right")
+    for loop, g in result.gains.items():
+        for k, v in g.items():
+            t.add_row(loop, k, _f(v, 6))
+    console.print(t)
+    if result.verification:
+        rep = load_verification(result.verification)
+        m = Table(title="Margins per loop (nominal)")
+        for c in ("loop", "break", "GM dB", "PM deg", "wc rad/s", "DM s", "Ms", "Mt"):
+            m.add_column(c, justify="left" if c in ("loop", "break") else "right")
+        for f in rep.loops:
+            m.add_row(f.loop, "ctrl" if f.break_point == "controller_output" else "u", _f(f.gm_db, 3), _f(f.pm_deg, 3),
+                      _f(f.pm_freq, 3), _f(f.delay_margin, 3), _f(f.ms, 3), _f(f.mt, 3))
+        console.print(m)
+        if rep.requirements:
+            q = Table(title="Requirements")
+            for c in ("requirement", "value", "limit", "result", "at"):
+                q.add_column(c)
+            for r in rep.requirements:
+                q.add_row(r.requirement, _f(r.value), _f(r.limit), "[green]pass[/]" if r.passed else "[red]FAIL[/]",
+                          f"{r.loop}/{r.break_point}/{r.case}" if r.loop else r.case)
+            console.print(q)
+    if result.metrics:
+        keys = ("iae", "overshoot", "rise_time", "settling_time", "sse", "peak_u")
+        mt = Table(title="Metrics (nominal plant)")
+        mt.add_column("scenario")
+        for k in keys:
+            mt.add_column(k, justify="right")
+        for sc, vals in result.metrics.items():
+            mt.add_row(sc, *[_f(vals.get(k)) for k in keys])
+        console.print(mt)
+    console.print(f"cost {_f(result.cost)} (plain objective) after {result.sims} simulations in {result.wall_time:.1f} s "
+                  f"({result.algo}, stopped: {result.stopped})")
+    if verdict == "pass":
+        console.print("[bold green]verdict: PASS[/]")
+    elif verdict == "fail":
+        console.print("[bold red]verdict: FAILED[/] - the gains are not accepted")
+        for r in (result.verification or {}).get("reasons", []):
+            console.print(f"  - {r}", markup=False)
+    else:
+        console.print("verdict: not verified")
+    if result.diagnosis is not None:
+        console.print(result.diagnosis.summary, markup=False)
+        for h in result.diagnosis.hints:
+            console.print(f"  hint: {h}", markup=False)
+
+
+def _write_outputs(result, out_dir: Path, console: Console = out) -> None:
+    from gaintune.export import write_exports
+    from gaintune.report import render_report
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "result.json").write_text(result.model_dump_json(indent=2))
+    render_report(result, out_dir / "report.html")
+    paths = write_exports(result, out_dir)
+    console.print(f"wrote {out_dir / 'result.json'}, {out_dir / 'report.html'}, " + ", ".join(str(p) for p in paths))
+    withheld = getattr(paths, "withheld", [])
+    if withheld:
+        why = getattr(paths, "reason", None) or "no reason recorded"
+        verdict = getattr(paths, "verdict", None) or "unverified"
+        console.print(f"not written: {', '.join(withheld)} - the gains are not accepted (verdict {verdict}: {why}); "
+                      "gains.json/gains.yaml are marked accepted: false", markup=False, highlight=False)
+        for p in getattr(paths, "removed", []):
+            console.print(f"removed stale {p} from an earlier run", markup=False, highlight=False)
+
+
+# --------------------------------------------------------------- simulation
+
+
+def _simulation_json(results, switches, *, traces: bool) -> dict[str, Any]:
+    """The ``simulate --json`` document: metrics (and with ``traces``, the time traces) per scenario."""
+    from gaintune.sim.chatter import CHATTER_SWITCHES
+
+    doc = {}
+    for r, n in zip(results, switches):
+        d: dict[str, Any] = {"metrics": {k: _json_num(v[0]) for k, v in r.metrics.items()}}
+        d["metrics"].update(saturation_switches=n, chattering=n >= CHATTER_SWITCHES)
+        if traces:
+            d["t"] = r.t.tolist()
+            d["traces"] = {k: [_json_num(x) for x in v[0]] for k, v in r.traces.items()}
+        doc[r.scenario] = d
+    return doc
+
+
+def _print_simulation(spec, results, switches) -> None:
+    """The ``simulate`` table (one column per scenario) and a warning for every chattering run."""
+    from gaintune.sim.chatter import CHATTER_SWITCHES
+
+    keys = ("iae", "ise", "itae", "effort", "tv", "overshoot", "rise_time", "settling_time", "sse", "peak_u", "sat_frac",
+            "load_iae", "diverged", "tripped")
+    t = Table(title=f"Simulation of {spec.name!r} (nominal plant)")
+    t.add_column("metric")
+    for r in results:
+        t.add_column(r.scenario, justify="right")
+    for k in keys:
+        t.add_row(k, *[str(bool(r.metrics[k][0])) if r.metrics[k].dtype == bool else _f(float(r.metrics[k][0])) for r in results])
+    t.add_row("saturation_switches", *[str(n) for n in switches])
+    t.add_row("chattering", *[str(n >= CHATTER_SWITCHES) for n in switches])
+    out.print(t)
+    for r, n in zip(results, switches):
+        if n >= CHATTER_SWITCHES:
+            out.print(f"warning: scenario {r.scenario!r}: the actuator chatters between its limits ({n} limit-to-limit "
+                      "switches); the run is bounded but this is not a working loop", markup=False)
+
+
+def _plot_runs(spec, sim, results, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    L = len(spec.loops)
+    n = len(results)
+    fig, axes = plt.subplots(L + 1, n, figsize=(6 * n, 2.0 * (L + 1) + 0.5), squeeze=False, sharex="col")
+    for j, r in enumerate(results):
+        for i, lp in enumerate(spec.loops):
+            ax = axes[i, j]
+            ax.plot(r.t, r.traces[f"sp.{lp.name}"][0], "k--", lw=1, label="setpoint")
+            ax.plot(r.t, r.traces[f"y.{lp.name}"][0], lw=1.4, label=lp.name)
+            ax.set_ylabel(lp.measure or sim.plant.outputs[0])
+            ax.legend(fontsize=8)
+            ax.grid(alpha=0.3)
+        ax = axes[L, j]
+        ax.plot(r.t, r.traces["u"][0], "r", lw=1.2)
+        if spec.actuator.limits:
+            for v in spec.actuator.limits:
+                ax.axhline(v, color="k", ls=":")
+        ax.set_ylabel("u")
+        ax.set_xlabel("time [s]")
+        ax.grid(alpha=0.3)
+        axes[0, j].set_title(r.scenario)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        fig.savefig(path)
+    except ValueError as exc:  # unknown extension
+        raise InputError("plot", str(exc)) from None
+    finally:
+        plt.close(fig)
+
+
+# ------------------------------------------------------------------- plants
+
+
+def _print_plants() -> None:
+    """The table of every built-in plant model."""
+    from gaintune.plants.library import list_models, load_model
+
+    t = Table(title="Built-in plant models (use in a spec as plant: {model: NAME})")
+    t.add_column("name", style="bold")
+    t.add_column("title")
+    t.add_column("parameters")
+    t.add_column("outputs")
+    for name in list_models():
+        m = load_model(name)
+        t.add_row(name, m.title, ", ".join(m.parameters), ", ".join(m.outputs))
+    out.print(t)
+
+
+def _print_plant(m) -> None:
+    """One model: parameters with units, signals and its example spec (as YAML, straight to stdout)."""
+    import yaml
+
+    out.print(f"[bold]{m.name}[/]: {m.title}")
+    if m.description:
+        out.print(m.description.strip(), markup=False)
+    t = Table(title="Parameters")
+    for c in ("name", "value", "unit", "description"):
+        t.add_column(c)
+    for k, p in m.parameters.items():
+        t.add_row(k, _f(p.value, 6), p.unit, p.description)
+    out.print(t)
+    o = Table(title="Signals")
+    for c in ("signal", "unit", "description"):
+        o.add_column(c)
+    o.add_row("input u", m.input.unit, m.input.description)
+    for k, s in m.outputs.items():
+        o.add_row(f"output {k}", s.unit, s.description)
+    out.print(o)
+    out.print("Example spec (save as spec.yaml, then: gaintune tune spec.yaml):")
+    out.file.flush()
+    sys.stdout.write(yaml.safe_dump(m.example_spec(), sort_keys=False, width=1000))

@@ -1,0 +1,86 @@
+"""Running a tune for ``gaintune tune`` and ``gaintune demo``: the search, its progress bar and the finish.
+
+* :func:`demo_spec`: the built-in demo problem;
+* :func:`_get_tune`: the RL search (:func:`gaintune.search.tune`), or exit 1 when it is
+  not available. The commands look it up through :mod:`gaintune.cli`, so it can be
+  replaced there;
+* :func:`_run_tune`: run it, with a progress bar on stderr unless ``--json``;
+* :func:`_finish`: write ``--out``, print the summary or the JSON, exit 3 on a failed
+  verification.
+
+Names with a leading underscore are internal to :mod:`gaintune.cli`.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any, Callable
+
+import typer
+
+from gaintune.cli.common import EXIT_VERIFY, _f, apply_overrides, err, out
+from gaintune.cli.output import _print_summary, _write_outputs
+
+__all__ = ["demo_spec", "_get_tune", "_run_tune", "_finish"]
+
+
+def demo_spec(budget: int | None = None, seed: int | None = None):
+    """The built-in demo problem: PID on the ``lag_n`` model 1/(s+1)^3 (fast to tune)."""
+    from gaintune.plants.library import load_model
+    from gaintune.spec import load_spec
+
+    spec = load_spec(load_model("lag_n").example_spec())
+    spec = apply_overrides(spec, budget=budget, seed=seed)
+    return spec
+
+
+def _get_tune() -> Callable:
+    try:
+        from gaintune.search import tune
+    except ImportError as exc:
+        err.print(f"error: the RL search (gaintune.search.tune) is not available: {exc}", markup=False)
+        raise typer.Exit(1) from None
+    return tune
+
+
+def _run_tune(tune: Callable, spec, *, out_dir: Path | None, json_out: bool, baselines: bool, command: str) -> Any:
+    """Run ``tune`` (from :func:`_get_tune`) on ``spec``: quietly with ``json_out``, else with a progress bar on stderr."""
+    kwargs: dict[str, Any] = dict(out_dir=str(out_dir) if out_dir else None, verify=True, baselines=baselines)
+    import inspect
+
+    try:
+        if "command" in inspect.signature(tune).parameters:
+            kwargs["command"] = command
+    except (TypeError, ValueError):  # pragma: no cover - not introspectable
+        pass
+    if json_out:
+        return tune(spec, progress=None, **kwargs)
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    with Progress(
+        TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("sims"),
+        TextColumn("best cost {task.fields[best]}"), TextColumn("ETA {task.fields[eta]}"), TimeElapsedColumn(),
+        console=err, transient=False,
+    ) as bar:
+        task = bar.add_task(f"tuning {spec.name} ({spec.search.algo})", total=spec.search.budget, best="-", eta="-")
+
+        def progress(p) -> bool:
+            bar.update(task, completed=min(p.sims, p.budget), total=p.budget, description=f"{p.phase} ({spec.search.algo})",
+                       best=_f(p.best_cost), eta="-" if p.eta is None else f"{p.eta:.0f}s")
+            return True
+
+        return tune(spec, progress=progress, **kwargs)
+
+
+def _finish(result, *, out_dir: Path | None, json_out: bool, command: str) -> None:
+    if not result.provenance.command:
+        result.provenance.command = command
+    if out_dir is not None:
+        _write_outputs(result, out_dir, console=err if json_out else out)
+    if json_out:
+        sys.stdout.write(result.model_dump_json(indent=2) + "\n")
+    else:
+        _print_summary(result)
+    if result.verdict == "fail":
+        raise typer.Exit(EXIT_VERIFY)

@@ -1,0 +1,168 @@
+"""The tuning-problem schema: one pydantic model shared by the library, CLI and API.
+
+A spec describes a plant, a cascade of control loops wrapped around it, the
+actuator, the scenarios a gain set is scored on, the objective, the
+requirements that verification enforces, domain randomisation, the safety
+monitor and the search settings. Every field has a default, so a minimal spec
+is a plant plus one loop::
+
+    plant: {tf: {num: [1], den: "(s+1)^3"}}
+    loops: [{type: pid}]
+
+Numeric plant coefficients may be numbers or expressions over ``plant.params``
+(parsed by :mod:`gaintune.plants.expr`, never ``eval``-ed), which is how
+randomised LTI plants are expressed.
+
+The schema is split by section; this package holds the top-level :class:`TuningSpec`
+and :func:`load_spec` and re-exports every public name, so ``from gaintune.spec import ...``
+is the one import path:
+
+* :mod:`gaintune.spec.base`: the strict base model, finiteness checks and the limits
+  (:data:`MAX_STEPS`, :data:`MAX_ORDER`, :data:`MAX_LOOPS`);
+* :mod:`gaintune.spec.plant`: ``plant`` (transfer function, state space, ODE, built-in model);
+* :mod:`gaintune.spec.loops`: ``loops`` (the cascade, gains, derivative filter) and ``actuator``;
+* :mod:`gaintune.spec.scenarios`: ``scenarios``, ``objective`` and ``requirements``;
+* :mod:`gaintune.spec.settings`: ``randomize``, ``safety``, ``search`` and ``verify``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import Field, model_validator
+
+from gaintune.errors import SpecError
+from gaintune.spec.base import MAX_LOOPS, MAX_ORDER, MAX_STEPS, _Model
+from gaintune.spec.loops import GAIN_NAMES, ActuatorSpec, DerivativeFilterSpec, GainSpec, LoopSpec
+from gaintune.spec.plant import (
+    Coef,
+    FiniteParams,
+    ModelRefSpec,
+    OdeSpec,
+    PlantSpec,
+    StateSpaceSpec,
+    TransferFunctionSpec,
+)
+from gaintune.spec.scenarios import DisturbanceSpec, ObjectiveSpec, ProfileSpec, RequirementsSpec, ScenarioSpec
+from gaintune.spec.settings import DistSpec, RandomizeSpec, RobustSpec, SafetySpec, SearchSpec, VerifySpec
+from gaintune.spec_design import DesignSpec, expand_design
+
+__all__ = [
+    "MAX_STEPS",
+    "MAX_ORDER",
+    "MAX_LOOPS",
+    "Coef",
+    "TransferFunctionSpec",
+    "StateSpaceSpec",
+    "OdeSpec",
+    "ModelRefSpec",
+    "PlantSpec",
+    "GainSpec",
+    "DerivativeFilterSpec",
+    "LoopSpec",
+    "ActuatorSpec",
+    "ProfileSpec",
+    "ScenarioSpec",
+    "ObjectiveSpec",
+    "RequirementsSpec",
+    "DistSpec",
+    "RandomizeSpec",
+    "SafetySpec",
+    "RobustSpec",
+    "SearchSpec",
+    "VerifySpec",
+    "TuningSpec",
+    "load_spec",
+    "GAIN_NAMES",
+    "DisturbanceSpec",
+    "FiniteParams",
+]
+
+
+class TuningSpec(_Model):
+    """A complete gain-tuning problem."""
+
+    name: str = "untitled"
+    description: str = ""
+    plant: PlantSpec
+    loops: list[LoopSpec] = Field(min_length=1, max_length=MAX_LOOPS)
+    actuator: ActuatorSpec = Field(default_factory=ActuatorSpec)
+    scenarios: list[ScenarioSpec] = Field(default_factory=lambda: [ScenarioSpec()], min_length=1)
+    objective: ObjectiveSpec = Field(default_factory=ObjectiveSpec)
+    requirements: RequirementsSpec = Field(default_factory=RequirementsSpec)
+    randomize: RandomizeSpec = Field(default_factory=RandomizeSpec)
+    safety: SafetySpec = Field(default_factory=SafetySpec)
+    search: SearchSpec = Field(default_factory=SearchSpec)
+    verify: VerifySpec = Field(default_factory=VerifySpec)
+    design: DesignSpec | None = Field(
+        None, description="pidtune-style shortcut: phase margin, focus; expanded into requirements and scenarios."
+    )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _design_shortcut(cls, data: Any) -> Any:
+        return expand_design(data) if isinstance(data, dict) else data
+
+    @model_validator(mode="before")
+    @classmethod
+    def _single_scenario(cls, data: Any) -> Any:
+        # Accept `scenario: {...}` as shorthand for a one-element `scenarios` list.
+        if isinstance(data, dict) and "scenario" in data:
+            data = dict(data)
+            if "scenarios" in data:
+                raise ValueError("give either 'scenario' or 'scenarios', not both")
+            data["scenarios"] = [data.pop("scenario")]
+        return data
+
+    @model_validator(mode="after")
+    def _loop_names(self) -> "TuningSpec":
+        for i, loop in enumerate(self.loops):
+            if loop.name is None:
+                loop.name = f"loop{i}"
+        names = [lp.name for lp in self.loops]
+        if len(set(names)) != len(names):
+            raise ValueError(f"loop names must be unique, got {names}")
+        for i, loop in enumerate(self.loops):
+            if loop.is_lq and i != len(self.loops) - 1:
+                raise ValueError(f"loops[{i}]: an {loop.type} loop must be the innermost (last) loop")
+        return self
+
+    def content_hash(self) -> str:
+        """Stable SHA-256 of the canonical JSON of this spec (provenance)."""
+        import hashlib
+
+        return hashlib.sha256(self.model_dump_json().encode()).hexdigest()
+
+
+def load_spec(source: str | Path | dict[str, Any]) -> TuningSpec:
+    """Load and validate a spec from a YAML/JSON file path, a YAML/JSON string or a dict.
+
+    Raises
+    ------
+    SpecError
+        When the file cannot be read or parsed, or the content is not a mapping.
+    pydantic.ValidationError
+        When a field is invalid (the message names the field).
+    """
+    if isinstance(source, dict):
+        data = source
+    else:
+        text: str
+        path = Path(source) if not (isinstance(source, str) and "\n" in source) else None
+        if path is not None and path.suffix.lower() in (".yaml", ".yml", ".json") :
+            try:
+                text = path.read_text()
+            except OSError as exc:
+                raise SpecError("spec", f"cannot read {path}: {exc.strerror}") from None
+        else:
+            text = str(source)
+        try:
+            data = json.loads(text) if text.lstrip().startswith("{") else yaml.safe_load(text)
+        except (yaml.YAMLError, json.JSONDecodeError) as exc:
+            raise SpecError("spec", f"not valid YAML/JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise SpecError("spec", "must be a mapping with at least 'plant' and 'loops'")
+    return TuningSpec.model_validate(data)

@@ -1,0 +1,34 @@
+"""The shared base of the spec schema: the strict pydantic model, finiteness checks and size limits.
+
+Every spec model derives from :class:`_Model` (unknown keys are errors). The limits
+(:data:`MAX_STEPS`, :data:`MAX_ORDER`, :data:`MAX_LOOPS`) live here so the section
+modules can enforce them without importing the package that re-exports them.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict
+
+__all__ = ["MAX_STEPS", "MAX_ORDER", "MAX_LOOPS"]
+
+#: Largest number of simulation steps (horizon / dt) in one scenario.
+MAX_STEPS = 200_000
+#: Largest plant state dimension accepted.
+MAX_ORDER = 20
+#: Deepest cascade accepted.
+MAX_LOOPS = 6
+
+
+class _Model(BaseModel):
+    """Base: unknown keys are errors, so typos are caught, not ignored."""
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+
+def _finite(v: Any, what: str) -> Any:
+    if isinstance(v, float) and not math.isfinite(v):
+        raise ValueError(f"{what} must be finite, got {v}; use a real number")
+    return v

@@ -1,0 +1,146 @@
+"""The ``plant`` section of a spec: a transfer function, state space, ODE or built-in model.
+
+Numeric plant coefficients may be numbers or expressions over ``plant.params``
+(parsed by :mod:`gaintune.plants.expr`, never ``eval``-ed), which is how
+randomised LTI plants are expressed.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Union
+
+from pydantic import AfterValidator, Field, field_validator, model_validator
+
+from gaintune.spec.base import _finite, _Model
+
+__all__ = [
+    "Coef",
+    "FiniteParams",
+    "TransferFunctionSpec",
+    "StateSpaceSpec",
+    "OdeSpec",
+    "ModelRefSpec",
+    "PlantSpec",
+]
+
+#: A plant coefficient: a number, or an expression over ``plant.params``.
+Coef = Union[float, str]
+
+
+def _check_coefs(values: Any, what: str) -> Any:
+    if isinstance(values, list):
+        for item in values:
+            if isinstance(item, list):
+                _check_coefs(item, what)
+            else:
+                _finite(item, what)
+    return values
+
+
+def _finite_params(v: dict[str, float]) -> dict[str, float]:
+    for k, x in v.items():
+        _finite(x, f"parameter {k!r}")
+    return v
+
+
+#: Parameter values by name, all finite.
+FiniteParams = Annotated[dict[str, float], AfterValidator(_finite_params)]
+
+
+class TransferFunctionSpec(_Model):
+    """A SISO transfer function num(s)/den(s).
+
+    ``num``/``den`` are coefficient lists in descending powers of s (numbers or
+    parameter expressions), or one polynomial expression in ``s`` such as
+    ``"K"`` and ``"(T*s + 1)^3"``.
+    """
+
+    num: list[Coef] | str = Field(description="Numerator, descending powers of s, or a polynomial in s.")
+    den: list[Coef] | str = Field(description="Denominator, descending powers of s, or a polynomial in s.")
+    output: str = Field("y", description="Name of the single output.")
+
+    @field_validator("num", "den")
+    @classmethod
+    def _coefs(cls, v: Any) -> Any:
+        if isinstance(v, list) and not v:
+            raise ValueError("needs at least one coefficient")
+        return _check_coefs(v, "coefficient")
+
+
+class StateSpaceSpec(_Model):
+    """dx/dt = A x + B u, y = C x + D u with one actuator input and named outputs."""
+
+    A: list[list[Coef]]
+    B: list[list[Coef]]
+    C: list[list[Coef]]
+    D: list[list[Coef]] | None = Field(None, description="Defaults to zeros.")
+    outputs: list[str] | None = Field(None, description="One name per row of C; default y0, y1, ...")
+    states: list[str] | None = Field(None, description="One name per state; default x0, x1, ...")
+
+    @field_validator("A", "B", "C", "D")
+    @classmethod
+    def _coefs(cls, v: Any) -> Any:
+        return _check_coefs(v, "matrix entry")
+
+
+class OdeSpec(_Model):
+    """A nonlinear plant dx/dt = f(x, u, p), y = h(x, u, p) written as expressions."""
+
+    states: list[str] = Field(min_length=1)
+    input: str = Field("u", description="Name of the actuator input in the expressions.")
+    rhs: dict[str, str] = Field(description="d(state)/dt expression for every state.")
+    outputs: dict[str, str] = Field(description="Output name -> expression.")
+    x0: dict[str, Coef] = Field(default_factory=dict, description="Operating-point state (default 0, or solved).")
+    u0: Coef | None = Field(None, description="Operating-point input; solved from x0 for equilibrium if omitted.")
+
+    @model_validator(mode="after")
+    def _rhs_matches_states(self) -> "OdeSpec":
+        missing = [s for s in self.states if s not in self.rhs]
+        extra = [s for s in self.rhs if s not in self.states]
+        if missing:
+            raise ValueError(f"rhs has no expression for state(s) {missing}; add 'rhs: {{{missing[0]}: ...}}'")
+        if extra:
+            raise ValueError(f"rhs names unknown state(s) {extra}; declare them in 'states'")
+        if not self.outputs:
+            raise ValueError("outputs must name at least one output expression")
+        return self
+
+
+class ModelRefSpec(_Model):
+    """A built-in model from ``models/`` with parameter overrides."""
+
+    name: str = Field(description="File stem in models/, e.g. 'dc_motor'.")
+    params: FiniteParams = Field(default_factory=dict, description="Overrides of the model's nominal parameters.")
+
+
+class PlantSpec(_Model):
+    """Exactly one of ``tf``, ``ss``, ``ode`` or ``model``, plus delay and parameters."""
+
+    tf: TransferFunctionSpec | None = None
+    ss: StateSpaceSpec | None = None
+    ode: OdeSpec | None = None
+    model: ModelRefSpec | str | None = None
+    delay: Coef | None = Field(
+        None, description="Input/output time delay in seconds (number or parameter expression); default 0, or the model's."
+    )
+    params: FiniteParams = Field(default_factory=dict, description="Nominal parameter values.")
+
+    @field_validator("delay")
+    @classmethod
+    def _delay(cls, v: Coef | None) -> Coef | None:
+        if isinstance(v, float):
+            _finite(v, "delay")
+            if v < 0:
+                raise ValueError(f"delay must be >= 0 seconds, got {v}")
+        return v
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> "PlantSpec":
+        given = [k for k in ("tf", "ss", "ode", "model") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError(
+                f"plant needs exactly one of tf, ss, ode or model; got {given or 'none'}"
+            )
+        if isinstance(self.model, str):
+            self.model = ModelRefSpec(name=self.model)
+        return self

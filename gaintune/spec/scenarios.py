@@ -1,0 +1,132 @@
+"""What a gain set is scored on: the ``scenarios``, the ``objective`` and the ``requirements``.
+
+Scenarios are the simulated experiments (reference and disturbance profiles), the
+objective turns their traces into one cost, and the requirements are the hard limits
+that verification enforces per loop.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from gaintune.spec.base import MAX_STEPS, _finite, _Model
+
+__all__ = ["ProfileSpec", "DisturbanceSpec", "ScenarioSpec", "ObjectiveSpec", "RequirementsSpec"]
+
+
+class ProfileSpec(_Model):
+    """A reference or disturbance signal added to the operating point.
+
+    step: ``amplitude`` from ``time``; ramp: ``slope`` from ``time``;
+    impulse: a pulse of area ``amplitude`` and width ``width`` (default one
+    sample); sequence: piecewise-constant ``points`` [[t, value], ...].
+    """
+
+    kind: Literal["step", "ramp", "impulse", "sequence", "none"] = "step"
+    amplitude: float = 1.0
+    time: float = Field(0.0, ge=0)
+    slope: float = 1.0
+    width: float | None = Field(None, gt=0)
+    points: list[tuple[float, float]] = Field(default_factory=list)
+
+    @field_validator("points")
+    @classmethod
+    def _finite_points(cls, v: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        for t, x in v:
+            _finite(t, "sequence time")
+            _finite(x, "sequence value")
+        return v
+
+    @model_validator(mode="after")
+    def _check(self) -> "ProfileSpec":
+        for x in (self.amplitude, self.time, self.slope):
+            _finite(x, "profile value")
+        if self.kind == "sequence":
+            if not self.points:
+                raise ValueError("a sequence profile needs points: [[t0, v0], [t1, v1], ...]")
+            times = [p[0] for p in self.points]
+            if any(t < 0 for t in times) or times != sorted(times):
+                raise ValueError("sequence points must have non-negative, increasing times")
+        return self
+
+
+class DisturbanceSpec(ProfileSpec):
+    """A load disturbance; ``entry`` says where it enters the plant."""
+
+    kind: Literal["step", "ramp", "impulse", "sequence", "none"] = "none"
+    entry: Literal["input", "output"] = "input"
+
+
+class ScenarioSpec(_Model):
+    """One simulated experiment. Several scenarios are summed (by weight) into one cost."""
+
+    name: str = "nominal"
+    dt: float = Field(0.01, description="Sample time in seconds.")
+    horizon: float = Field(20.0, description="Simulated time in seconds.")
+    reference: ProfileSpec = Field(default_factory=ProfileSpec)
+    disturbance: DisturbanceSpec = Field(default_factory=DisturbanceSpec)
+    noise_std: float = Field(0.0, ge=0, description="Std of white measurement noise on every measured output.")
+    weight: float = Field(1.0, ge=0, description="Weight of this scenario in the combined cost.")
+
+    @model_validator(mode="after")
+    def _check(self) -> "ScenarioSpec":
+        _finite(self.dt, "dt")
+        _finite(self.horizon, "horizon")
+        if self.dt <= 0:
+            raise ValueError(f"dt must be > 0 seconds, got {self.dt}")
+        if self.horizon <= 0:
+            raise ValueError(f"horizon must be > 0 seconds, got {self.horizon}")
+        steps = self.horizon / self.dt
+        if steps > MAX_STEPS:
+            raise ValueError(
+                f"horizon/dt = {steps:.0f} steps exceeds the limit of {MAX_STEPS}; raise dt or shorten the horizon"
+            )
+        if steps < 2:
+            raise ValueError("horizon must cover at least 2 samples of dt")
+        return self
+
+    @property
+    def n_steps(self) -> int:
+        return int(round(self.horizon / self.dt))
+
+
+# ------------------------------------------------------- objective and reqs
+
+
+_REMOVED_OBJECTIVE_FIELDS = ("margin_weight", "divergence_penalty", "trip_penalty")
+
+
+class ObjectiveSpec(_Model):
+    """cost = performance + effort_weight*int(u^2) + tv_weight*TV(u) + penalties.
+
+    The requirements are not part of the cost: every search treats them as hard constraints.
+    """
+
+    @model_validator(mode="before")
+    @classmethod
+    def _removed_margin_weight(cls, data: Any) -> Any:
+        # margin_weight, divergence_penalty and trip_penalty (soft reward terms) were removed when
+        # requirements, stability and trips became hard constraints; specs and stored results that
+        # still carry them load unchanged.
+        if isinstance(data, dict):
+            data = {k: v for k, v in data.items() if k not in _REMOVED_OBJECTIVE_FIELDS}
+        return data
+
+    measure: Literal["iae", "ise", "itae"] = "iae"
+    effort_weight: float = Field(0.01, ge=0, description="Weight on the integral of (u - u0)^2.")
+    tv_weight: float = Field(0.0, ge=0, description="Weight on the total variation of u.")
+    overshoot_limit: float = Field(100.0, ge=0, description="Overshoot (%) allowed before the penalty starts.")
+    overshoot_weight: float = Field(0.0, ge=0, description="Penalty per % of overshoot above the limit.")
+    settling_weight: float = Field(0.0, ge=0, description="Penalty per second of 2 % settling time.")
+
+
+class RequirementsSpec(_Model):
+    """Limits that verification enforces per loop (None = not required)."""
+
+    gm_min_db: float | None = Field(6.0, description="Minimum gain margin in dB.")
+    pm_min_deg: float | None = Field(45.0, description="Minimum phase margin in degrees.")
+    dm_min: float | None = Field(None, ge=0, description="Minimum delay margin in seconds.")
+    ms_max: float | None = Field(2.0, gt=1, description="Maximum sensitivity peak.")
+    mt_max: float | None = Field(None, gt=0, description="Maximum complementary-sensitivity peak.")
