@@ -17,7 +17,6 @@ specs, the robust set; the nonlinear simulation check is not part of the require
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from collections.abc import Sequence
@@ -26,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from gaintune.bench.compare import md_table
+from gaintune.bench.compare import md_table, write_outputs
 from gaintune.bench.references import default_out_dir
 from gaintune.bench.suite import get_suite, select, suite_names
 
@@ -131,9 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     summary = f"overall: {agree}/{total} candidates agree ({100.0 * agree / max(total, 1):.2f} %), spread {args.spread:g}"
     print(table)
     print(summary)
-    out = args.out or default_out_dir()
-    out.mkdir(parents=True, exist_ok=True)
-    (out / f"constraints_{args.suite}.json").write_text(json.dumps({"rows": rows, "summary": summary,
-                                                                     "spread": args.spread, "n": args.n}, indent=1))
-    (out / f"constraints_{args.suite}.md").write_text(f"# gaintune bench constraints --suite {args.suite}\n\n{table}\n\n{summary}\n")
+    write_outputs({"rows": rows, "summary": summary, "spread": args.spread, "n": args.n},
+                  args.out or default_out_dir(), f"constraints_{args.suite}",
+                  f"# gaintune bench constraints --suite {args.suite}\n\n{table}\n\n{summary}\n")
     return 0

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gaintune.bench.compare import md_table
+from gaintune.bench.compare import md_table, write_outputs
 from gaintune.bench.references import default_out_dir
 
 __all__ = ["commands", "main"]
@@ -71,8 +71,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows = [[name, float(np.median(t)), float(np.min(t)), float(np.median(t)) - base] for name, t in times.items()]
     table = md_table(["command", "median s", "min s", "median - python -c pass, s"], rows)
     print(table)
-    out = args.out or default_out_dir()
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "startup.md").write_text(f"# gaintune bench startup --repeat {args.repeat}\n\n{table}\n")
-    print(f"wrote {out / 'startup.md'}")
+    _, md = write_outputs({"rows": rows, "repeat": args.repeat}, args.out or default_out_dir(), "startup",
+                          f"# gaintune bench startup --repeat {args.repeat}\n\n{table}\n")
+    print(f"wrote {md}")
     return 0

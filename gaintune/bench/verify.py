@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gaintune.bench.compare import md_table
+from gaintune.bench.compare import md_table, write_outputs
 from gaintune.bench.references import default_out_dir
 
 __all__ = ["CASES", "main"]
@@ -108,8 +108,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows = measure(args.repeat)
     table = md_table(["case", "what", "mean ms", "p95 ms", "verdict"], rows)
     print(table)
-    out = args.out or default_out_dir()
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "verify.md").write_text(f"# gaintune bench verify --repeat {args.repeat}\n\n{table}\n")
-    print(f"wrote {out / 'verify.md'}")
+    _, md = write_outputs({"rows": rows, "repeat": args.repeat}, args.out or default_out_dir(), "verify",
+                          f"# gaintune bench verify --repeat {args.repeat}\n\n{table}\n")
+    print(f"wrote {md}")
     return 0

@@ -17,6 +17,7 @@ from gaintune.controllers.layout import GainLayout
 from gaintune.plants.advice import plant_warnings
 from gaintune.plants.plant import Plant
 from gaintune.search.result import Diagnosis, TuneResult
+from gaintune.spec import TuningSpec
 
 __all__ = ["diagnose", "bound_hints", "direction_hints", "REQUIREMENT_TEXT"]
 
@@ -83,8 +84,6 @@ def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray, plant: P
     searched_feasible = result.violation <= 0
     failing = _failing_lines(ver)
     if not stable:
-        from gaintune.spec import TuningSpec
-
         summary = "no stabilising gains were found" if not searched_feasible else "the closed loop is unstable"
         generic = ("check the plant sign and model, or widen the gain bounds; the search never saw a stable loop"
                    if not searched_feasible else "the exact verification found the loop unstable; raise verify.n_freq or report a bug")
@@ -96,7 +95,7 @@ def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray, plant: P
         summary = (f"{label} {op} {_fmt(q['limit'])} is not met: the best gains found give {_fmt(q['value'])} "
                    f"at {q['loop']}/{q['break_point']} ({q['case']})")
         if not searched_feasible:
-            kinds = {lp.type.upper() for lp in _spec_loops(result)}
+            kinds = {lp.type.upper() for lp in TuningSpec.model_validate(result.spec).loops}
             hints.insert(0, f"no candidate in {result.sims} simulations met every requirement, so the answer is the "
                             f"least-violating one: {label} {op} {_fmt(q['limit'])} may not be reachable with "
                             f"{'/'.join(sorted(kinds))} on this plant within the gain bounds (best {_fmt(q['value'])}). "
@@ -132,9 +131,3 @@ def direction_hints(spec, plant: Plant | None) -> list[str]:
             out.append(f"loops[{i}] ({loop.name}) is set to direction: {loop.direction}, but its path has {auto.reason}: "
                        f"no gains of that sign can stabilise it; set direction: {want} or auto")
     return out
-
-
-def _spec_loops(result: TuneResult):
-    from gaintune.spec import TuningSpec
-
-    return TuningSpec.model_validate(result.spec).loops

@@ -189,17 +189,13 @@ class Evaluator:
                 P[j] = (_dot(cz, xs) + dj) * d if n else dj * d
             else:
                 P[j] = (_dot(cz, xs) * d + dj * dD) if n else dj * dD
-        inv_s = None
+        # the integrator's response: backward Euler dt/(1 - z^-1) in the sampled loop, else 1/s
+        inv_s = (dt / one_m if sp is not None else 1.0 / s) if any(c[2] for c in self._ctl) else None
         resp = []
         for c in self._ctl:
             if c[0] == "pid":
                 _, oi, has_i, has_d, kp, ki, kd, tf, b, cw = c
-                if has_i:
-                    if inv_s is None:
-                        inv_s = dt / one_m if sp is not None else 1.0 / s
-                    I = ki * inv_s
-                else:
-                    I = 0.0
+                I = ki * inv_s if has_i else 0.0
                 if has_d:
                     Dd = kd * one_m / (tf + dt - tf * zi) if sp is not None else kd * s / (tf * s + 1.0)
                 else:
@@ -210,12 +206,7 @@ class Evaluator:
             else:
                 _, oi, has_i, KZ, kint, nr = c
                 KX = (_dot(KZ, xs) * d) if n else np.zeros(s.size, dtype=complex)
-                if has_i:
-                    if inv_s is None:
-                        inv_s = dt / one_m if sp is not None else 1.0 / s
-                    I = kint * inv_s
-                else:
-                    I = 0.0
+                I = kint * inv_s if has_i else 0.0
                 m = -(KX + I * P[oi])
                 F = nr + I
             resp.append((F, m))

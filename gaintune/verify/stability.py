@@ -170,6 +170,18 @@ def _discrete_nyquist(ev: Evaluator, ol_z: np.ndarray, eps: float, n_freq: int):
     return z, abs(z_real - z)
 
 
+def _unmeasured_modes(bad: np.ndarray, marginal: np.ndarray, notes: list[str]) -> int:
+    """Note the plant modes no loop measures; return how many of them are unstable (they add to the count)."""
+    if bad.size:
+        notes.append(f"unstable plant mode(s) {np.round(bad, 6).tolist()} not measured by any loop: cannot be stabilised")
+    if marginal.size:
+        notes.append(
+            f"marginal plant mode(s) {np.round(marginal, 6).tolist()} not measured by any loop (e.g. an integrator "
+            "such as position under speed control): left out of the stability verdict"
+        )
+    return int(bad.size)
+
+
 def closed_loop_stability(ev: Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel, w_hi: float,
                           n_freq: int, capped: bool = False, g_u=None) -> Stability | None:
     """Closed-loop stability. ``capped``: the grid stops at ``w_hi``, short of where |L| is
@@ -222,16 +234,7 @@ def closed_loop_stability(ev: Evaluator, cas: Cascade, lin: LinearModel, delay: 
             notes.append(f"Nyquist count ({nyq}) differs from the pole count ({rhp_poles}); poles decide")
     if unobs.size:
         tol = 1e-9 * max(1.0, float(np.max(np.abs(plant_eigvals(lin_full)))))
-        bad = unobs[unobs.real > tol]
-        marginal = unobs[np.abs(unobs.real) <= tol]
-        if bad.size:
-            rhp += int(bad.size)
-            notes.append(f"unstable plant mode(s) {np.round(bad, 6).tolist()} not measured by any loop: cannot be stabilised")
-        if marginal.size:
-            notes.append(
-                f"marginal plant mode(s) {np.round(marginal, 6).tolist()} not measured by any loop (e.g. an integrator "
-                "such as position under speed control): left out of the stability verdict"
-            )
+        rhp += _unmeasured_modes(unobs[unobs.real > tol], unobs[np.abs(unobs.real) <= tol], notes)
     return Stability(rhp == 0, method, int(rhp), int(nyq), poles, poles_method, max_re, notes)
 
 
@@ -275,16 +278,7 @@ def closed_loop_stability_sampled(ev: Evaluator, cas: Cascade, lin: LinearModel,
             notes.append("discrete Nyquist count is not close to an integer; grid may be too coarse")
     if unobs.size:
         zu = np.abs(sp.mode_factor(unobs))
-        bad = unobs[zu > 1.0 + 1e-9]
-        marginal = unobs[np.abs(zu - 1.0) <= 1e-9]
-        if bad.size:
-            rhp += int(bad.size)
-            notes.append(f"unstable plant mode(s) {np.round(bad, 6).tolist()} not measured by any loop: cannot be stabilised")
-        if marginal.size:
-            notes.append(
-                f"marginal plant mode(s) {np.round(marginal, 6).tolist()} not measured by any loop (e.g. an integrator "
-                "such as position under speed control): left out of the stability verdict"
-            )
+        rhp += _unmeasured_modes(unobs[zu > 1.0 + 1e-9], unobs[np.abs(zu - 1.0) <= 1e-9], notes)
     with np.errstate(divide="ignore"):
         max_re = math.log(rad) / sp.dt if math.isfinite(rad) and rad > 0 else (-math.inf if rad == 0 else math.nan)
     return Stability(rhp == 0, method, int(rhp), int(nyq), poles, poles_method, max_re, notes, "z",
