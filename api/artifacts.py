@@ -11,7 +11,7 @@ from typing import Any
 
 from api.problems import ApiError
 
-__all__ = ["render_report", "export_gains", "export_verdict", "EXPORT_MEDIA"]
+__all__ = ["render_report", "render_report_html", "export_gains", "export_verdict", "EXPORT_MEDIA"]
 
 EXPORT_MEDIA = {
     "json": ("application/json", "json"),
@@ -35,6 +35,16 @@ def render_report(result: Any, path: Path) -> Path:
         raise ApiError(501, "The HTML report is not available in this installation (gaintune.report.render_report missing).")
     out = fn(result, path)
     return Path(out) if isinstance(out, (str, Path)) else path
+
+
+def render_report_html(result: Any) -> str | None:
+    """The HTML report as text, written nowhere (None when this installation cannot render it in memory).
+
+    Used when the data directory cannot cache the report (read-only or full disk): the report is still served.
+    """
+    mod = _module("gaintune.report", "The HTML report")
+    fn = getattr(mod, "render_html", None)
+    return fn(result) if callable(fn) else None
 
 
 def export_verdict(result: Any, dt: float | None, max_steps: int | None = None) -> tuple[str | None, Any]:

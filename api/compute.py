@@ -22,9 +22,11 @@ import multiprocessing as mp
 import os
 import pickle
 import threading
-from collections import OrderedDict, deque
+from collections import deque
 from concurrent.futures import Future
 from typing import Any, Callable
+
+from gaintune.cache import LRU
 
 __all__ = ["ComputePool", "compute_verify", "compute_simulate", "warm_up_compute"]
 
@@ -120,24 +122,15 @@ class _Ref:
         self.key = key
 
 
-def _lru_touch(known: "OrderedDict[str, Any]", key: str, obj: Any = None, store: bool = False) -> None:
-    if store:
-        known[key] = obj
-    known.move_to_end(key)
-    while len(known) > KNOWN_SIZE:
-        known.popitem(last=False)
-
-
-def _resolve(args: tuple, known: "OrderedDict[str, Any]") -> tuple:
+def _resolve(args: tuple, known: LRU[str, Any]) -> tuple:
+    """``args`` with each :class:`_Store` remembered in ``known`` and each :class:`_Ref` looked up there."""
     out = []
     for a in args:
         if isinstance(a, _Store):
-            _lru_touch(known, a.key, a.obj, store=True)
+            known.put(a.key, a.obj)
             a = a.obj
         elif isinstance(a, _Ref):
-            obj = known[a.key]  # KeyError: the mirror broke; answered as an error, computed in a thread
-            _lru_touch(known, a.key)
-            a = obj
+            a = known[a.key]  # KeyError: the mirror broke; answered as an error, computed in a thread
         out.append(a)
     return tuple(out)
 
@@ -151,7 +144,7 @@ def _worker_main(conn, parent: int) -> None:
     except Exception as exc:  # noqa: BLE001 - warm-up is an optimisation only
         log.warning("compute worker warm-up failed", exc_info=True)
         conn.send_bytes(pickle.dumps(("warm", exc), pickle.HIGHEST_PROTOCOL))
-    known: OrderedDict[str, Any] = OrderedDict()
+    known: LRU[str, Any] = LRU(KNOWN_SIZE)
     while True:
         try:
             data = conn.recv_bytes()
@@ -180,7 +173,7 @@ class _Worker:
         self.proc, self.conn, self.warm = proc, conn, warm
         self.ready = False  # warmed up and not computing
         self.pending: asyncio.Future | None = None
-        self.known: OrderedDict[str, None] = OrderedDict()  # mirror of the worker's LRU
+        self.known: LRU[str, None] = LRU(KNOWN_SIZE)  # mirror of the worker's LRU
         self.pending_key: str | None = None
 
 
@@ -260,12 +253,13 @@ class ComputePool:
         if ref is not None:
             i, key = ref
             args = list(args)
+            # the same LRU operations as the worker's _resolve, in the same order: the mirror stays exact
             if key in w.known:
                 args[i] = _Ref(key)
-                _lru_touch(w.known, key)
+                w.known.get(key)  # a read: now the most recently used, as in the worker
             else:
                 args[i] = _Store(key, args[i])
-                _lru_touch(w.known, key, None, store=True)
+                w.known.put(key, None)
             args = tuple(args)
         try:
             w.conn.send_bytes(pickle.dumps((fn, args), pickle.HIGHEST_PROTOCOL))

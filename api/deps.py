@@ -1,4 +1,4 @@
-"""Typed dependency aliases: settings, job store, supervisor, and the caller's identity (API key)."""
+"""Typed dependency aliases: settings, job store, job files, and the caller's identity (API key)."""
 
 from __future__ import annotations
 
@@ -9,11 +9,12 @@ from typing import Annotated
 from fastapi import Depends, Request, Security
 from fastapi.security import APIKeyHeader
 
+from api.jobfiles import JobFiles
 from api.problems import ApiError
 from api.settings import Settings
 from api.store import JobStore
 
-__all__ = ["SettingsDep", "StoreDep", "OwnerDep", "require_key", "owner_of", "check_key", "api_key_header", "run_compute",
+__all__ = ["SettingsDep", "StoreDep", "FilesDep", "OwnerDep", "require_key", "owner_of", "check_key", "api_key_header", "run_compute",
            "run_pooled"]
 
 api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False, description="API key (when the server has keys configured).")
@@ -51,8 +52,13 @@ async def get_store(request: Request) -> JobStore:
     return request.app.state.store
 
 
+async def get_files(request: Request) -> JobFiles:
+    return request.app.state.files
+
+
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 StoreDep = Annotated[JobStore, Depends(get_store)]
+FilesDep = Annotated[JobFiles, Depends(get_files)]
 
 
 def owner_of(key: str | None) -> str:

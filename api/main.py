@@ -15,11 +15,14 @@ from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 
 from api.compute import ComputePool
+from api.jobfiles import JobFiles
 from api.metrics import Metrics
-from api.middleware import BodySizeLimit, LatencyMetrics
+from api.middleware import BodySizeLimit, CatchAll, DocsAuth, LatencyMetrics
 from api.problems import SafeJSONResponse, install_handlers
 from api.routes import jobs, ops, plants, simulate, verify
-from api.settings import Settings
+from api.schemas import install_client_openapi
+from api.settings import Settings, warn_unknown_settings
+from api.storage import FaultInjector, StorageFault
 from api.store import JobStore
 from api.supervisor import Supervisor
 
@@ -60,10 +63,22 @@ def _warm_up(done: threading.Event, pool: ComputePool | None = None) -> None:
 @asynccontextmanager
 async def lifespan(app: FastAPI):
     settings: Settings = app.state.settings
-    store = JobStore(settings.db_path)
-    store.init()
-    settings.jobs_dir.mkdir(parents=True, exist_ok=True)
+    warn_unknown_settings(log)
+    faults = FaultInjector(settings.test_storage_fault_file)
+    store = JobStore(settings.db_path, faults)
+    files = JobFiles(settings.jobs_dir, faults)
+    # A read-only or full disk must not stop the server: it starts, answers 503s naming the fault,
+    # and /readyz says why it is not ready.
+    try:
+        store.init()
+    except StorageFault as fault:
+        log.warning("job database not initialised: %s", fault)
+    try:
+        files.ensure_root()
+    except StorageFault as fault:
+        log.warning("data directory not created: %s", fault)
     app.state.store = store
+    app.state.files = files
     app.state.warm = threading.Event()
     pool = None
     if settings.compute_processes > 0:
@@ -99,6 +114,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         default_response_class=SafeJSONResponse,
     )
     app.state.settings = settings
+    app.state.files = JobFiles(settings.jobs_dir, FaultInjector(settings.test_storage_fault_file))
     app.state.metrics = Metrics()
     app.state.supervisor = None
     app.state.verify_cache = None
@@ -108,11 +124,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_handlers(app)
     for r in (jobs.router, verify.router, simulate.router, plants.router, ops.router):
         app.include_router(r)
+    install_client_openapi(app)  # request schemas: defaulted fields optional for generated clients
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
                            allow_headers=["*"], expose_headers=["Location", "Retry-After"])
+    if settings.api_keys and not settings.docs_public:
+        docs = {p for p in (app.openapi_url, app.docs_url, app.redoc_url, app.swagger_ui_oauth2_redirect_url) if p}
+        app.add_middleware(DocsAuth, paths=docs, keys=settings.api_keys)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
     app.add_middleware(LatencyMetrics, metrics=app.state.metrics)
+    app.add_middleware(CatchAll, retry_after=settings.retry_after)  # outermost: nothing escapes to uvicorn
     return app
 
 

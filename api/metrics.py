@@ -33,7 +33,9 @@ class Metrics:
             h[-1] += 1  # count
 
     def render(self, jobs: dict[str, int], queue_depth: int, workers_alive: int, workers_configured: int,
-               worker_restarts: int) -> str:
+               worker_restarts: int, *, workers_unresponsive: int = 0, frozen_kills: int = 0,
+               database_writable: bool | None = None) -> str:
+        """The Prometheus text of the job gauges given and the request histograms."""
         out: list[str] = []
         out += ["# HELP gaintune_jobs Jobs in the store by state.", "# TYPE gaintune_jobs gauge"]
         out += [f'gaintune_jobs{{state="{s}"}} {n}' for s, n in sorted(jobs.items())]
@@ -45,6 +47,14 @@ class Metrics:
                 "# TYPE gaintune_workers_configured gauge", f"gaintune_workers_configured {workers_configured}"]
         out += ["# HELP gaintune_worker_restarts_total Worker processes restarted after dying.",
                 "# TYPE gaintune_worker_restarts_total counter", f"gaintune_worker_restarts_total {worker_restarts}"]
+        out += ["# HELP gaintune_workers_unresponsive Worker processes alive by PID but without a fresh pulse (frozen).",
+                "# TYPE gaintune_workers_unresponsive gauge", f"gaintune_workers_unresponsive {workers_unresponsive}"]
+        out += ["# HELP gaintune_worker_frozen_kills_total Workers killed because their pulse stopped (frozen).",
+                "# TYPE gaintune_worker_frozen_kills_total counter", f"gaintune_worker_frozen_kills_total {frozen_kills}"]
+        if database_writable is not None:
+            out += ["# HELP gaintune_database_writable 1 when the supervisor's last write probe of the job database "
+                    "committed.", "# TYPE gaintune_database_writable gauge",
+                    f"gaintune_database_writable {int(database_writable)}"]
         name = "gaintune_http_request_duration_seconds"
         out += [f"# HELP {name} HTTP request latency.", f"# TYPE {name} histogram"]
         with self._lock:

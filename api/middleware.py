@@ -1,16 +1,96 @@
-"""Pure-ASGI middleware: request body size limit (413) and request latency metrics."""
+"""Pure-ASGI middleware: last-resort errors (500/503 on a usable connection), API key on the docs,
+request body size limit (413) and request latency metrics."""
 
 from __future__ import annotations
 
+import hmac
 import time
 
 from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from api.metrics import Metrics
-from api.problems import problem_response
+from api.problems import error_response, problem_response
 
-__all__ = ["BodySizeLimit", "LatencyMetrics"]
+__all__ = ["BodySizeLimit", "LatencyMetrics", "CatchAll", "DocsAuth"]
+
+
+class CatchAll:
+    """Answer any exception no handler took with a problem response, and swallow it.
+
+    Starlette's own last-resort handler re-raises after answering, and uvicorn then closes
+    the keep-alive connection without ``Connection: close``: the client's next request on
+    it fails. Here the 500 (or the named 503/507 of a storage fault) completes normally, so
+    the connection stays usable. If the response had already started, nothing valid can be
+    sent: the exception is re-raised and uvicorn closes the connection (the client sees a
+    truncated response, not a silent success).
+
+    Parameters
+    ----------
+    app
+        The ASGI app.
+    retry_after
+        Seconds for ``Retry-After`` on storage faults.
+    """
+
+    def __init__(self, app: ASGIApp, retry_after: int = 30) -> None:
+        self.app = app
+        self.retry_after = retry_after
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = False
+
+        async def tracking_send(msg: Message) -> None:
+            nonlocal started
+            if msg["type"] == "http.response.start":
+                started = True
+            await send(msg)
+
+        try:
+            await self.app(scope, receive, tracking_send)
+        except Exception as exc:  # noqa: BLE001 - the last resort
+            if started:
+                raise
+            resp = error_response(exc, method=scope.get("method", "?"), path=scope.get("path", ""),
+                                  retry_after=self.retry_after)
+            await resp(scope, receive, send)
+
+
+class DocsAuth:
+    """Require a valid ``X-API-Key`` for the OpenAPI document and the docs pages (``Settings.docs_public`` off).
+
+    Parameters
+    ----------
+    app
+        The ASGI app.
+    paths
+        The documentation paths (``/openapi.json``, ``/docs``, ``/docs/oauth2-redirect``, ``/redoc``).
+    keys
+        Accepted keys (compared in constant time).
+    """
+
+    def __init__(self, app: ASGIApp, paths: set[str], keys: list[str]) -> None:
+        self.app = app
+        self.paths = paths
+        self.keys = [k.encode() for k in keys]
+
+    def _ok(self, scope: Scope) -> bool:
+        for name, value in scope.get("headers", ()):
+            if name == b"x-api-key":
+                return any(hmac.compare_digest(k, value) for k in self.keys)
+        return False
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] == "http" and scope.get("path") in self.paths and not self._ok(scope):
+            resp = problem_response(401, "Send a valid API key in the X-API-Key header (the docs are not public: "
+                                    "GAINTUNE_DOCS_PUBLIC=false).", instance=scope.get("path", ""),
+                                    headers={"WWW-Authenticate": "ApiKey"})
+            await resp(scope, receive, send)
+            return
+        await self.app(scope, receive, send)
 
 
 class _TooLarge(HTTPException):

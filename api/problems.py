@@ -5,8 +5,12 @@ Every error body is ``application/problem+json``::
     {"type": "...", "title": "...", "status": 422, "detail": "...", "instance": "/v1/tune",
      "errors": [{"loc": "loops.0.type", "msg": "Input should be 'p', 'pi', ..."}]}
 
-No handler ever returns a stack trace; unexpected exceptions are logged and
-answered with a generic 500 problem.
+No handler ever returns a stack trace. Storage faults (a read-only or full job
+database or data directory, see :mod:`api.storage`) are answered with 503, or
+507 when full, with ``Retry-After`` and a ``cause`` member naming the fault
+(e.g. ``"database-read-only"``), and logged as a warning without a traceback.
+Unexpected exceptions are logged and answered with a generic 500 problem by
+:class:`api.middleware.CatchAll`, which keeps the keep-alive connection usable.
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import sqlite3
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -21,9 +26,11 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from api.storage import StorageFault, classify
 from gaintune.errors import GaintuneError, problem_details
 
-__all__ = ["ApiError", "problem_response", "install_handlers", "SafeJSONResponse", "json_safe", "PROBLEM_TYPES"]
+__all__ = ["ApiError", "problem_response", "install_handlers", "SafeJSONResponse", "json_safe", "PROBLEM_TYPES",
+           "storage_problem", "error_response"]
 
 log = logging.getLogger("gaintune.api")
 
@@ -34,6 +41,7 @@ PROBLEM_TYPES = {
     404: "not-found",
     405: "method-not-allowed",
     409: "conflict",
+    410: "gone",
     413: "payload-too-large",
     415: "unsupported-media-type",
     422: "validation-error",
@@ -41,6 +49,7 @@ PROBLEM_TYPES = {
     500: "internal-error",
     501: "not-implemented",
     503: "unavailable",
+    507: "insufficient-storage",
 }
 TITLES = {
     400: "Malformed request",
@@ -48,6 +57,7 @@ TITLES = {
     404: "Not found",
     405: "Method not allowed",
     409: "Conflict",
+    410: "Gone",
     413: "Request body too large",
     415: "Unsupported media type",
     422: "Invalid input",
@@ -55,6 +65,7 @@ TITLES = {
     500: "Internal server error",
     501: "Not implemented",
     503: "Service unavailable",
+    507: "Insufficient storage",
 }
 
 
@@ -85,19 +96,23 @@ class ApiError(Exception):
     """An error with a status, a detail and optional per-field errors."""
 
     def __init__(self, status: int, detail: str, errors: list[dict[str, Any]] | None = None,
-                 headers: dict[str, str] | None = None, title: str | None = None) -> None:
+                 headers: dict[str, str] | None = None, title: str | None = None,
+                 extra: dict[str, Any] | None = None) -> None:
         super().__init__(detail)
         self.status = status
         self.detail = detail
         self.errors = errors
         self.headers = headers
         self.title = title
+        self.extra = extra
 
 
 def problem_response(status: int, detail: str, *, instance: str = "", errors: list[dict[str, Any]] | None = None,
-                     headers: dict[str, str] | None = None, title: str | None = None) -> JSONResponse:
+                     headers: dict[str, str] | None = None, title: str | None = None,
+                     extra: dict[str, Any] | None = None, type_: str | None = None) -> JSONResponse:
+    """An ``application/problem+json`` response (``extra``: extension members such as ``cause``)."""
     body: dict[str, Any] = {
-        "type": PROBLEM_BASE + PROBLEM_TYPES.get(status, "error"),
+        "type": PROBLEM_BASE + (type_ or PROBLEM_TYPES.get(status, "error")),
         "title": title or TITLES.get(status, "Error"),
         "status": status,
         "detail": detail,
@@ -106,7 +121,33 @@ def problem_response(status: int, detail: str, *, instance: str = "", errors: li
         body["instance"] = instance
     if errors is not None:
         body["errors"] = errors
+    if extra:
+        body.update(extra)
     return SafeJSONResponse(body, status_code=status, headers=headers, media_type="application/problem+json")
+
+
+def storage_problem(fault: StorageFault, *, instance: str = "", retry_after: int = 30) -> JSONResponse:
+    """503 (507 when full) naming the store and the cause, with Retry-After: "try later", not "bug"."""
+    log.warning("storage fault on %s: %s", instance or "?", fault)
+    return problem_response(
+        fault.status, f"{fault.detail} Retry later; an operator must free or remount the storage.", instance=instance,
+        headers={"Retry-After": str(retry_after)}, title="Storage unavailable", type_="storage-fault",
+        extra={"cause": fault.cause},
+    )
+
+
+def error_response(exc: BaseException, *, method: str, path: str, retry_after: int = 30) -> JSONResponse:
+    """The problem for an exception no route handled: a named storage fault, else a logged generic 500."""
+    fault = classify(exc)
+    if fault is not None:
+        return storage_problem(fault, instance=path, retry_after=retry_after)
+    log.error("unhandled error on %s %s", method, path, exc_info=exc)
+    return problem_response(500, "An internal error occurred; it has been logged.", instance=path)
+
+
+def _retry_after(request: Request) -> int:
+    settings = getattr(request.app.state, "settings", None)
+    return int(getattr(settings, "retry_after", 30))
 
 
 def _loc(parts: tuple | list) -> str:
@@ -137,7 +178,7 @@ def install_handlers(app: FastAPI) -> None:
     @app.exception_handler(ApiError)
     async def _api_error(request: Request, exc: ApiError):
         return problem_response(exc.status, exc.detail, instance=request.url.path, errors=exc.errors,
-                                headers=exc.headers, title=exc.title)
+                                headers=exc.headers, title=exc.title, extra=exc.extra)
 
     @app.exception_handler(GaintuneError)
     async def _gaintune(request: Request, exc: GaintuneError):
@@ -150,7 +191,12 @@ def install_handlers(app: FastAPI) -> None:
         return problem_response(exc.status_code, detail, instance=request.url.path,
                                 headers=getattr(exc, "headers", None))
 
-    @app.exception_handler(Exception)
-    async def _bug(request: Request, exc: Exception):
-        log.exception("unhandled error on %s %s", request.method, request.url.path)
-        return problem_response(500, "An internal error occurred; it has been logged.", instance=request.url.path)
+    # Storage errors may surface from any route as the raw exception; classify names them (or logs a 500).
+    @app.exception_handler(StorageFault)
+    @app.exception_handler(sqlite3.Error)
+    @app.exception_handler(OSError)
+    async def _storage(request: Request, exc: Exception):
+        return error_response(exc, method=request.method, path=request.url.path, retry_after=_retry_after(request))
+
+    # No ``Exception`` handler here: Starlette re-raises after calling it, and uvicorn then drops the
+    # keep-alive connection without ``Connection: close``. api.middleware.CatchAll answers those instead.

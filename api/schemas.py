@@ -1,18 +1,27 @@
-"""Request and response models (schema families per resource). The spec itself is ``gaintune.spec.TuningSpec``."""
+"""Request and response models (schema families per resource). The spec itself is ``gaintune.spec.TuningSpec``.
+
+:func:`request_defaults_optional` shapes the OpenAPI document for typed clients (see its docstring).
+"""
 
 from __future__ import annotations
 
+import copy
+import json
 from datetime import datetime
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from gaintune.spec import TuningSpec
 
+if TYPE_CHECKING:
+    from fastapi import FastAPI
+
 __all__ = [
     "Gains", "JobStatus", "ProgressPublic", "JobResultPublic", "JobPublic", "JobSummary", "JobList",
     "VerifyRequest", "SimulateRequest", "ScenarioTrace", "SimulateResponse",
     "ParamPublic", "SignalPublic", "PlantPublic", "PlantList", "Health", "Ready", "ExportFormat",
+    "request_schema_names", "request_defaults_optional", "install_client_openapi",
 ]
 
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
@@ -169,3 +178,85 @@ class Ready(BaseModel):
     workers_alive: int
     workers_configured: int
     queue_depth: int
+
+
+# ------------------------------------------------------ OpenAPI for typed clients
+
+_REF = "#/components/schemas/"
+
+
+def request_schema_names(doc: dict[str, Any]) -> set[str]:
+    """Names of the component schemas reachable from a request body of ``doc``."""
+    comps = doc.get("components", {}).get("schemas", {})
+    todo: list[Any] = [op.get("requestBody", {}) for item in doc.get("paths", {}).values()
+                       for op in item.values() if isinstance(op, dict)]
+    seen: set[str] = set()
+    while todo:
+        node = todo.pop()
+        if isinstance(node, dict):
+            ref = node.get("$ref")
+            if isinstance(ref, str) and ref.startswith(_REF):
+                name = ref[len(_REF):]
+                if name not in seen and name in comps:
+                    seen.add(name)
+                    todo.append(comps[name])
+            todo.extend(node.values())
+        elif isinstance(node, list):
+            todo.extend(node)
+    return seen
+
+
+def request_defaults_optional(doc: dict[str, Any]) -> dict[str, Any]:
+    """A copy of an OpenAPI document whose request schemas type every defaulted field as optional.
+
+    Code generators read a property's ``default`` as "always present": openapi-typescript
+    (``--default-non-nullable``, on by default since v7) types every property of a component
+    schema that has a ``default`` as required, whatever ``required`` says, so the README's
+    two-line spec would not type-check. In every component schema a request body reaches
+    (nested objects and ``anyOf`` branches included), an optional property's ``default``
+    therefore moves into its description ("Default: ..."). The server still applies it;
+    ``required`` is unchanged. Request and response schemas are disjoint today; a shared one
+    would only make the response type more cautious.
+    """
+    doc = copy.deepcopy(doc)
+    comps = doc.get("components", {}).get("schemas", {})
+    for name in request_schema_names(doc):
+        _move_defaults(comps[name])
+    return doc
+
+
+#: Keywords whose values are data, not schemas.
+_DATA_KEYS = frozenset({"default", "const", "enum", "example", "examples"})
+
+
+def _move_defaults(schema: Any) -> None:
+    if isinstance(schema, list):
+        for item in schema:
+            _move_defaults(item)
+        return
+    if not isinstance(schema, dict):
+        return
+    props = schema.get("properties")
+    required = set(schema.get("required", ()))
+    for field, prop in (props.items() if isinstance(props, dict) else ()):
+        if isinstance(prop, dict) and field not in required and "default" in prop:
+            value = json.dumps(prop.pop("default"), ensure_ascii=False)
+            text = str(prop.get("description", "")).rstrip()
+            sep = "" if not text else " " if text[-1] in ".:;!?" else ". "
+            prop["description"] = f"{text}{sep}Default: `{value}`."
+        _move_defaults(prop)
+    for key, value in schema.items():
+        if key != "properties" and key not in _DATA_KEYS:
+            _move_defaults(value)
+
+
+def install_client_openapi(app: FastAPI) -> None:
+    """Serve :func:`request_defaults_optional` of the app's generated document as ``/openapi.json``."""
+    build = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if not app.openapi_schema:
+            app.openapi_schema = request_defaults_optional(build())  # build() caches the raw one first
+        return app.openapi_schema
+
+    app.openapi = openapi

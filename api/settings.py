@@ -2,11 +2,15 @@
 
 Every limit the service enforces lives here with its default; ``docs/api.md``
 lists them. Lists (``GAINTUNE_API_KEYS``, ``GAINTUNE_CORS_ORIGINS``) accept a
-JSON array or a comma-separated string.
+JSON array or a comma-separated string. A ``GAINTUNE_*`` variable that names no
+setting is not silently ignored: :func:`warn_unknown_settings` logs a warning at
+start naming the closest valid one.
 """
 
 from __future__ import annotations
 
+import difflib
+import logging
 import os
 from functools import lru_cache
 from pathlib import Path
@@ -17,7 +21,11 @@ from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from gaintune.spec import MAX_ORDER, MAX_STEPS
 
-__all__ = ["Settings", "get_settings"]
+__all__ = ["Settings", "get_settings", "unknown_settings", "warn_unknown_settings", "LIBRARY_ENV"]
+
+PREFIX = "GAINTUNE_"
+#: ``GAINTUNE_*`` variables read by the gaintune library itself, not by this service: never reported as unknown.
+LIBRARY_ENV = frozenset({"GAINTUNE_CHROMIUM", "GAINTUNE_TORCH_THREADS", "GAINTUNE_MODELS"})
 
 
 class Settings(BaseSettings):
@@ -40,7 +48,12 @@ class Settings(BaseSettings):
     job_wall_time: float = Field(3600.0, gt=0, description="Per-job wall-time limit in seconds (job fails beyond it).")
     cancel_grace: float = Field(5.0, gt=0, description="Seconds a cancelled/over-time job may take to stop before its worker is killed.")
     heartbeat_interval: float = Field(0.5, gt=0, description="Worker progress/heartbeat write period (s).")
-    heartbeat_timeout: float = Field(30.0, gt=0, description="A running job without a heartbeat this long is recovered.")
+    heartbeat_timeout: float = Field(
+        30.0, gt=0, description="Lease of a running job: without a heartbeat this long (counted while the database "
+        "accepts writes) it is recovered, and a worker process frozen this long is killed and restarted.")
+    worker_liveness_timeout: float = Field(
+        10.0, gt=0, description="A worker process whose pulse (a shared-memory heartbeat beaten every "
+        "heartbeat_interval) is older than this does not count as alive in /readyz.")
     poll_interval: float = Field(0.25, gt=0, description="Idle worker queue-poll period (s).")
     warmup: bool = Field(True, description="Compile the simulator once at start-up so the first request is fast.")
 
@@ -71,6 +84,8 @@ class Settings(BaseSettings):
         default_factory=list, description="Accepted X-API-Key values; empty: no authentication."
     )
     metrics_public: bool = Field(False, description="Serve /metrics without an API key.")
+    docs_public: bool = Field(False, description="Serve /openapi.json, /docs and /redoc without an API key "
+                              "(when api_keys is empty they are always open).")
     cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list, description="Allowed CORS origins.")
 
     log_level: str = "info"
@@ -80,6 +95,12 @@ class Settings(BaseSettings):
         None, description="FOR TESTS ONLY (unset in production: no effect). While this file exists, a worker "
         "whose job has reported progress pauses the search (heartbeats continue), so integration tests can "
         "kill a worker or server while a job is provably mid-run, however fast the machine.",
+    )
+
+    test_storage_fault_file: Path | None = Field(
+        None, description="FOR TESTS ONLY (unset in production: no effect). While this file exists, the words in it "
+        "(db:readonly, db:full, data:readonly, data:full) make the job store and the artefact layer fail writes as a "
+        "read-only or full disk would (see api.storage.FaultInjector): deterministic storage-fault tests, even as root.",
     )
 
     @field_validator("api_keys", "cors_origins", mode="before")
@@ -97,6 +118,78 @@ class Settings(BaseSettings):
     @property
     def jobs_dir(self) -> Path:
         return self.data_dir / "jobs"
+
+
+def _env_file_names(path: Path) -> list[str]:
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError):
+        return []
+    out = []
+    for line in lines:
+        line = line.strip()
+        if line.startswith("export "):
+            line = line[7:].lstrip()
+        if line and not line.startswith("#") and "=" in line:
+            out.append(line.split("=", 1)[0].strip())
+    return out
+
+
+def _closest(name: str, known: list[str]) -> str | None:
+    """The valid name (without the prefix, which matches always) closest to ``name``.
+
+    A near-identical spelling first (WORKER -> WORKERS), then a truncation (DB -> DB_PATH), then difflib's best.
+    """
+    for cutoff in (0.8, None, 0.5):
+        if cutoff is None:
+            longer = sorted((k for k in known if name and k.startswith(name + "_")), key=len)
+            close = longer[:1]
+        else:
+            close = difflib.get_close_matches(name, known, n=1, cutoff=cutoff)
+        if close:
+            return close[0]
+    return None
+
+
+def unknown_settings(environ: dict[str, str] | None = None, env_file: Path | None = Path(".env")) -> list[str]:
+    """Warnings for ``GAINTUNE_*`` names in the environment (and ``.env``) that are no setting.
+
+    Parameters
+    ----------
+    environ
+        The environment (default ``os.environ``).
+    env_file
+        The ``.env`` file Settings also reads (None: skip).
+
+    Returns
+    -------
+    list of str
+        One message per unknown name, naming the closest valid variable (:func:`difflib.get_close_matches`).
+    """
+    environ = dict(os.environ) if environ is None else environ
+    valid = sorted({PREFIX + name.upper() for name in Settings.model_fields})
+    names = [k for k in environ if k.upper().startswith(PREFIX)]
+    if env_file is not None:
+        names += [f"{k} (in {env_file})" for k in _env_file_names(env_file) if k.upper().startswith(PREFIX)]
+    out = []
+    for entry in names:
+        name = entry.split(" ", 1)[0]
+        if name.upper() in valid or name.upper() in LIBRARY_ENV:
+            continue
+        close = _closest(name.upper()[len(PREFIX):], [v[len(PREFIX):] for v in valid + sorted(LIBRARY_ENV)])
+        hint = (f"; did you mean {PREFIX}{close}?" if close
+                else "; no setting has a similar name (see the Settings table of docs/api.md)")
+        out.append(f"unknown setting {entry} is ignored{hint}")
+    return out
+
+
+def warn_unknown_settings(log: logging.Logger | None = None) -> list[str]:
+    """Log :func:`unknown_settings` as warnings (called once at server and standalone-worker start)."""
+    log = log or logging.getLogger("gaintune.settings")
+    msgs = unknown_settings()
+    for m in msgs:
+        log.warning(m)
+    return msgs
 
 
 @lru_cache(maxsize=1)

@@ -1,10 +1,19 @@
 """Durable job store on SQLite (WAL, synchronous=FULL): jobs, progress and results.
 
 Every state change is one short transaction, so a crash (``kill -9``) of the
-server or a worker never loses an accepted job or a written result. A worker
-owns a running job through a random ``claim`` token: all its writes are
-conditional on the token, so a job that was recovered (re-queued or failed)
-after its worker was presumed dead can never be overwritten by that worker.
+server or a worker never loses an accepted job or a written result.
+
+Fencing: each attempt at a job gets a fresh random ``claim`` token (its lease
+id) and the attempt number. Every write of an attempt (progress, heartbeat,
+final result) is conditional on the token, and :meth:`JobStore.finish` runs the
+artefact promotion (:mod:`api.jobfiles`) inside the same write transaction
+after checking the token, so the attempt that owns the job is the only one
+whose files are ever renamed into place. A job recovered (re-queued or failed)
+after its worker was presumed dead can never be overwritten by that worker, in
+the database or on disk, whatever process or machine the worker runs on.
+
+Storage errors (read-only or full database, I/O errors) leave this module as
+:class:`api.storage.StorageFault`, naming the cause.
 """
 
 from __future__ import annotations
@@ -17,8 +26,11 @@ import threading
 import time
 import uuid
 from dataclasses import dataclass
+from functools import wraps
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable, TypeVar
+
+from api.storage import FaultInjector, StorageFault, classify
 
 __all__ = ["JobRow", "JobStore", "QueueFull", "IdempotencyConflict", "STATUSES", "TERMINAL", "dumps", "loads"]
 
@@ -46,8 +58,10 @@ CREATE TABLE IF NOT EXISTS jobs (
     claim TEXT,
     worker_pid INTEGER,
     heartbeat_at REAL,
-    attempts INTEGER NOT NULL DEFAULT 0
+    attempts INTEGER NOT NULL DEFAULT 0,
+    artifacts TEXT
 );
+CREATE TABLE IF NOT EXISTS probe (id INTEGER PRIMARY KEY, at REAL NOT NULL);
 CREATE UNIQUE INDEX IF NOT EXISTS jobs_idem ON jobs(owner, idem_key) WHERE idem_key IS NOT NULL;
 CREATE INDEX IF NOT EXISTS jobs_status ON jobs(status, seq);
 CREATE INDEX IF NOT EXISTS jobs_owner ON jobs(owner, seq);
@@ -92,6 +106,7 @@ class JobRow:
     worker_pid: int | None
     heartbeat_at: float | None
     attempts: int
+    artifacts: str | None = None
 
     @classmethod
     def from_row(cls, row: sqlite3.Row) -> "JobRow":
@@ -100,12 +115,44 @@ class JobRow:
 
 _COLS = ", ".join(JobRow.__dataclass_fields__)
 
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def _db(write: bool) -> Callable[[_F], _F]:
+    """Run a store method with storage errors named (StorageFault); ``write``: apply injected write faults first."""
+
+    def deco(fn: _F) -> _F:
+        @wraps(fn)
+        def wrapper(self: "JobStore", *args: Any, **kw: Any) -> Any:
+            try:
+                if write:
+                    self.faults.check("database", self.path)
+                return fn(self, *args, **kw)
+            except sqlite3.Error as exc:
+                fault = classify(exc, "database")
+                if fault is None:
+                    raise
+                raise fault from exc
+
+        return wrapper  # type: ignore[return-value]
+
+    return deco
+
 
 class JobStore:
-    """Jobs in one SQLite file. Safe to use from many threads and processes."""
+    """Jobs in one SQLite file. Safe to use from many threads and processes.
 
-    def __init__(self, path: str | Path) -> None:
+    Parameters
+    ----------
+    path
+        The SQLite file.
+    faults
+        Tests only: injected storage faults (see :class:`api.storage.FaultInjector`).
+    """
+
+    def __init__(self, path: str | Path, faults: FaultInjector | None = None) -> None:
         self.path = Path(path)
+        self.faults = faults or FaultInjector(None)
         self._local = threading.local()
 
     # ------------------------------------------------------------ plumbing
@@ -123,17 +170,41 @@ class JobStore:
     def _tx(self):
         return _Tx(self._conn())
 
+    @_db(write=True)
     def init(self) -> None:
-        """Create the file, schema and WAL mode."""
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        """Create the file, schema and WAL mode; add columns newer than the file."""
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            fault = classify(exc, "database")
+            if fault is None:
+                raise
+            raise fault from exc
         conn = self._conn()
         conn.execute("PRAGMA journal_mode=WAL")
         conn.executescript(_SCHEMA)
+        cols = {r[1] for r in conn.execute("PRAGMA table_info(jobs)")}
+        if "artifacts" not in cols:  # databases written before artefact manifests
+            conn.execute("ALTER TABLE jobs ADD COLUMN artifacts TEXT")
 
+    @_db(write=False)
     def ping(self) -> None:
+        """Raise StorageFault unless the database can be read."""
         self._conn().execute("SELECT 1").fetchone()
 
+    @_db(write=True)
+    def probe_write(self, timeout: float = 2.0) -> None:
+        """Raise StorageFault unless a one-row write commits within ``timeout`` seconds (readiness check)."""
+        conn = self._conn()
+        conn.execute(f"PRAGMA busy_timeout={int(timeout * 1000)}")
+        try:
+            with _Tx(conn) as c:
+                c.execute("INSERT OR REPLACE INTO probe (id, at) VALUES (1, ?)", (time.time(),))
+        finally:
+            conn.execute("PRAGMA busy_timeout=30000")
+
     # -------------------------------------------------------------- create
+    @_db(write=True)
     def create(
         self, owner: str, spec_json: str, spec_hash: str, spec_name: str, *, idem_key: str | None, max_queue: int
     ) -> tuple[JobRow, bool]:
@@ -162,6 +233,7 @@ class JobStore:
             return JobRow.from_row(row), True
 
     # --------------------------------------------------------------- read
+    @_db(write=False)
     def get(self, job_id: str, owner: str | None = None) -> JobRow | None:
         q = f"SELECT {_COLS} FROM jobs WHERE id=?"
         args: tuple = (job_id,)
@@ -171,6 +243,7 @@ class JobStore:
         row = self._conn().execute(q, args).fetchone()
         return None if row is None else JobRow.from_row(row)
 
+    @_db(write=False)
     def list(self, owner: str, status: str | None, limit: int, offset: int) -> tuple[list[JobRow], int]:
         where = "owner=?"
         args: list[Any] = [owner]
@@ -184,17 +257,20 @@ class JobStore:
         ).fetchall()
         return [JobRow.from_row(r) for r in rows], total
 
+    @_db(write=False)
     def counts(self) -> dict[str, int]:
         out = {s: 0 for s in STATUSES}
         for status, n in self._conn().execute("SELECT status, COUNT(*) FROM jobs GROUP BY status"):
             out[status] = n
         return out
 
+    @_db(write=False)
     def running(self) -> list[JobRow]:
         rows = self._conn().execute(f"SELECT {_COLS} FROM jobs WHERE status='running'").fetchall()
         return [JobRow.from_row(r) for r in rows]
 
     # -------------------------------------------------------------- cancel
+    @_db(write=True)
     def request_cancel(self, job_id: str, owner: str) -> JobRow | None:
         """Queued -> cancelled at once; running -> flagged for its worker. Terminal jobs are left alone."""
         now = time.time()
@@ -213,10 +289,14 @@ class JobStore:
         return None if row is None else JobRow.from_row(row)
 
     # -------------------------------------------------------------- worker
+    @_db(write=True)
     def claim(self, pid: int) -> JobRow | None:
         """Take the oldest queued job (atomically) for worker ``pid``."""
         now = time.time()
         token = uuid.uuid4().hex
+        # An idle worker polls often: look first without taking the write lock.
+        if self._conn().execute("SELECT 1 FROM jobs WHERE status='queued' LIMIT 1").fetchone() is None:
+            return None
         with self._tx() as c:
             row = c.execute("SELECT id FROM jobs WHERE status='queued' ORDER BY seq LIMIT 1").fetchone()
             if row is None:
@@ -229,6 +309,7 @@ class JobStore:
             row = c.execute(f"SELECT {_COLS} FROM jobs WHERE id=?", (row["id"],)).fetchone()
             return JobRow.from_row(row)
 
+    @_db(write=True)
     def heartbeat(self, job_id: str, claim: str, progress: dict | None) -> tuple[bool, bool]:
         """Record progress. Returns (still_owned, cancel_requested)."""
         now = time.time()
@@ -247,6 +328,14 @@ class JobStore:
         row = conn.execute("SELECT cancel_requested_at FROM jobs WHERE id=?", (job_id,)).fetchone()
         return True, row is not None and row[0] is not None
 
+    @_db(write=False)
+    def owns(self, job_id: str, claim: str) -> bool:
+        """Whether the attempt holding ``claim`` still owns the running job (a read: works on a read-only database)."""
+        row = self._conn().execute("SELECT 1 FROM jobs WHERE id=? AND claim=? AND status='running'",
+                                   (job_id, claim)).fetchone()
+        return row is not None
+
+    @_db(write=True)
     def finish(
         self,
         job_id: str,
@@ -256,24 +345,54 @@ class JobStore:
         result: dict | None = None,
         error: str | None = None,
         progress: dict | None = None,
+        promote: Callable[[], dict | None] | None = None,
     ) -> bool:
-        """Write the final state (conditional on the claim unless ``claim`` is None)."""
+        """Write the final state of a running job, fenced by its claim token.
+
+        Parameters
+        ----------
+        job_id, claim
+            The job and the claim token of the attempt writing (None: the supervisor, unconditional).
+        status
+            A terminal status.
+        result, error, progress
+            The final result, error text and progress (None keeps the stored one, except ``error``).
+        promote
+            Called inside the write transaction once the claim is verified; it renames the attempt's
+            artefacts into place and returns their manifest (stored in ``artifacts``). If it raises,
+            nothing is written.
+
+        Returns
+        -------
+        bool
+            True when this call wrote the final state; False when the job is not running under ``claim``
+            (recovered, cancelled or finished by someone else): then nothing was written or promoted.
+        """
         assert status in TERMINAL
-        now = time.time()
-        sets = "status=?, finished_at=?, updated_at=?, result=COALESCE(?, result), error=?, progress=COALESCE(?, progress), claim=NULL"
-        args: list[Any] = [status, now, now, None if result is None else dumps(result), error,
-                           None if progress is None else dumps(progress)]
-        q = f"UPDATE jobs SET {sets} WHERE id=? AND status='running'"
-        args.append(job_id)
-        if claim is not None:
-            q += " AND claim=?"
-            args.append(claim)
-        cur = self._conn().execute(q, args)
-        return cur.rowcount == 1
+        with self._tx() as c:
+            row = c.execute("SELECT status, claim FROM jobs WHERE id=?", (job_id,)).fetchone()
+            if row is None or row["status"] != "running" or (claim is not None and row["claim"] != claim):
+                return False
+            manifest = promote() if promote is not None else None
+            now = time.time()
+            c.execute(
+                "UPDATE jobs SET status=?, finished_at=?, updated_at=?, result=COALESCE(?, result), error=?,"
+                " progress=COALESCE(?, progress), artifacts=COALESCE(?, artifacts), claim=NULL WHERE id=?",
+                (status, now, now, None if result is None else dumps(result), error,
+                 None if progress is None else dumps(progress), None if manifest is None else dumps(manifest), job_id),
+            )
+        return True
 
     # ------------------------------------------------------------ recovery
-    def recover(self, job_ids: Iterable[str], policy: str, reason: str, max_attempts: int) -> list[str]:
-        """Re-queue (or fail) running jobs whose worker is gone. Returns the ids changed."""
+    @_db(write=True)
+    def recover(self, job_ids: Iterable[str], policy: str, reason: str, max_attempts: int) -> list[tuple[str, str, str]]:
+        """Re-queue (or fail) running jobs whose worker is gone or whose lease expired.
+
+        Returns
+        -------
+        list of (job_id, new_status, error)
+            One entry per job changed: ``queued`` (re-queued), ``failed`` or ``cancelled``.
+        """
         changed = []
         now = time.time()
         with self._tx() as c:
@@ -282,23 +401,26 @@ class JobStore:
                 if row is None or row["status"] != "running":
                     continue
                 if row["cancel_requested_at"] is not None:
+                    new, err = "cancelled", f"cancelled ({reason})"
                     c.execute(
                         "UPDATE jobs SET status='cancelled', finished_at=?, updated_at=?, claim=NULL, error=? WHERE id=?",
-                        (now, now, f"cancelled ({reason})", job_id),
+                        (now, now, err, job_id),
                     )
                 elif policy == "requeue" and row["attempts"] < max_attempts:
+                    new, err = "queued", f"re-queued: {reason}"
                     c.execute(
                         "UPDATE jobs SET status='queued', claim=NULL, worker_pid=NULL, started_at=NULL, updated_at=?,"
                         " error=? WHERE id=?",
-                        (now, f"re-queued: {reason}", job_id),
+                        (now, err, job_id),
                     )
                 else:
                     why = reason if policy == "fail" else f"{reason}; gave up after {row['attempts']} attempt(s)"
+                    new, err = "failed", f"interrupted: {why}"
                     c.execute(
                         "UPDATE jobs SET status='failed', finished_at=?, updated_at=?, claim=NULL, error=? WHERE id=?",
-                        (now, now, f"interrupted: {why}", job_id),
+                        (now, now, err, job_id),
                     )
-                changed.append(job_id)
+                changed.append((job_id, new, err))
         return changed
 
 
@@ -313,6 +435,12 @@ class _Tx:
         return self.conn
 
     def __exit__(self, et, ev, tb) -> None:
-        self.conn.execute("COMMIT" if et is None else "ROLLBACK")
+        if et is None:
+            self.conn.execute("COMMIT")
+            return
+        try:
+            self.conn.execute("ROLLBACK")
+        except sqlite3.Error:  # SQLite may have rolled back already (e.g. SQLITE_FULL): keep the original error
+            pass
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -19,6 +18,7 @@ from pydantic import ValidationError
 from api.deps import run_compute
 from api.problems import ApiError
 from api.settings import Settings
+from gaintune.cache import LRU
 from gaintune.errors import GaintuneError, problem_details
 from gaintune.spec import TuningSpec
 
@@ -119,11 +119,15 @@ def check_spec(spec: TuningSpec, settings: Settings, purpose: Purpose, *, prefix
 CHECK_CACHE_SIZE = 64
 
 
-def _check_cache(request) -> "OrderedDict[tuple, Checked]":
+def _check_cache(request) -> LRU[tuple, Checked]:
+    """The app's LRU of checked specs, created on first use."""
     st = request.app.state
     c = getattr(st, "check_cache", None)
     if c is None:
-        c = st.check_cache = OrderedDict()
+        with _CHECK_LOCK:  # two first requests must not each install their own cache
+            c = getattr(st, "check_cache", None)
+            if c is None:
+                c = st.check_cache = LRU(CHECK_CACHE_SIZE)
     return c
 
 
@@ -132,24 +136,16 @@ def cached_check(request, spec: TuningSpec, purpose: Purpose, prefix: str = "", 
 
     Only successes are kept (the limits are the app's settings, fixed for its lifetime).
     ``spec_hash``: ``spec.content_hash()`` when the caller has it already."""
-    key = (purpose, prefix, spec_hash or spec.content_hash())
-    c = _check_cache(request)
-    with _CHECK_LOCK:
-        hit = c.get(key)
-        if hit is not None:
-            c.move_to_end(key)
-            return Checked(spec, hit.plant, hit.layout)
-    return None
+    hit = _check_cache(request).get((purpose, prefix, spec_hash or spec.content_hash()))
+    if hit is None:
+        return None
+    return Checked(spec, hit.plant, hit.layout)
 
 
 def check_and_remember(request, spec: TuningSpec, purpose: Purpose, prefix: str = "", spec_hash: str | None = None) -> Checked:
     """:func:`check_spec` with the app's settings, remembering a success for :func:`cached_check`."""
     checked = check_spec(spec, request.app.state.settings, purpose, prefix=prefix)
-    c = _check_cache(request)
-    with _CHECK_LOCK:
-        c[(purpose, prefix, spec_hash or spec.content_hash())] = checked
-        while len(c) > CHECK_CACHE_SIZE:
-            c.popitem(last=False)
+    _check_cache(request).put((purpose, prefix, spec_hash or spec.content_hash()), checked)
     return checked
 
 

@@ -10,6 +10,19 @@ flag and the wall-time limit. Either sets the ``cancel`` event that
 False). If the search has not returned ``cancel_grace`` seconds later, the
 worker writes the final state itself and exits hard; its supervisor starts a
 new one.
+
+Fencing: the attempt writes its files into its own staging folder
+(:meth:`api.jobfiles.JobFiles.stage`) and all its database writes carry its
+claim token. A worker that lost its lease (frozen past ``heartbeat_timeout``,
+then resumed after the job was recovered) learns it at its next heartbeat, stops
+the search and discards its files; if it reaches the end first, the fenced
+commit refuses it. Storage faults never crash the worker: a job whose folder
+cannot be written fails once with the named cause; a result that cannot be
+written because the database is read-only or full is kept and retried while the
+attempt still owns the job.
+
+A worker started by the supervisor also beats a shared-memory *pulse* from a
+thread, so the supervisor and ``/readyz`` can tell a frozen process from a live one.
 """
 
 from __future__ import annotations
@@ -24,25 +37,45 @@ import traceback
 from pathlib import Path
 from typing import Any, Callable
 
-from api.settings import Settings
+from api.jobfiles import JobFiles
+from api.settings import Settings, warn_unknown_settings
+from api.storage import FaultInjector, StorageFault, classify
 from api.store import JobRow, JobStore
 
-__all__ = ["worker_main", "run_job", "process_next"]
+__all__ = ["worker_main", "run_job", "process_next", "PROCESS_NAME"]
 
 log = logging.getLogger("gaintune.worker")
 
+#: The name workers give themselves (``/proc/<pid>/comm``, ``ps``): how operators and the chaos benchmark find them.
+PROCESS_NAME = "gaintune-worker"
 
-def _die_with_parent(parent: int) -> None:
-    """Linux: get SIGKILL when the parent (server) dies, so no orphan keeps running a recovered job."""
+
+def _prctl(option: int, arg: int | bytes) -> None:
     if sys.platform.startswith("linux"):
         try:
             import ctypes
 
-            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+            ctypes.CDLL("libc.so.6", use_errno=True).prctl(option, arg, 0, 0, 0)
         except Exception:  # pragma: no cover - best effort
             pass
+
+
+def _die_with_parent(parent: int) -> None:
+    """Linux: get SIGKILL when the parent (server) dies, so no orphan keeps running a recovered job."""
+    _prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
     if os.getppid() != parent:
         os._exit(0)
+
+
+def _start_pulse(pulse: Any, interval: float) -> None:
+    """Beat ``pulse.value = time.time()`` every ``interval`` s from a daemon thread (stops when the process is frozen)."""
+
+    def beat() -> None:
+        while True:
+            pulse.value = time.time()
+            time.sleep(interval)
+
+    threading.Thread(target=beat, name="pulse", daemon=True).start()
 
 
 def _error_text(exc: BaseException) -> str:
@@ -50,12 +83,38 @@ def _error_text(exc: BaseException) -> str:
 
     if isinstance(exc, GaintuneError):
         return f"{exc.field}: {exc.message}"
+    fault = classify(exc, "data")
+    if fault is not None:
+        return f"storage fault: {fault.detail}"
     return f"internal error during tuning ({type(exc).__name__}: {str(exc)[:500]})"
 
 
+def _join(a: str | None, b: str) -> str:
+    return b if not a else f"{a}; {b}"
+
+
 def run_job(store: JobStore, job: JobRow, settings: Settings, tune: Callable[..., Any] | None = None,
-            *, hard_exit: bool = True) -> str:
-    """Run one claimed job to a terminal state. Returns the status written."""
+            *, hard_exit: bool = True, files: JobFiles | None = None) -> str:
+    """Run one claimed job to a terminal state.
+
+    Parameters
+    ----------
+    store, job
+        The job store and the job as claimed (its ``claim`` token fences every write).
+    settings
+        Service settings.
+    tune
+        The search (default :func:`gaintune.search.tune`).
+    hard_exit
+        Exit the process when the search ignores a cancel for ``cancel_grace`` s (worker processes).
+    files
+        The artefact layer (default: ``settings.jobs_dir`` with the store's fault injector).
+
+    Returns
+    -------
+    str
+        The status written, or ``"lost"`` when the attempt no longer owned the job (nothing written).
+    """
     from gaintune.spec import TuningSpec
 
     if tune is None:
@@ -63,9 +122,16 @@ def run_job(store: JobStore, job: JobRow, settings: Settings, tune: Callable[...
 
     assert job.claim is not None
     claim = job.claim
+    files = files or JobFiles(settings.jobs_dir, store.faults)
     spec = TuningSpec.model_validate_json(job.spec)
-    out_dir = settings.jobs_dir / job.id
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        staging = files.stage(job.id, job.attempts, claim)
+    except StorageFault as fault:
+        # Fail once, naming the cause; re-running cannot help until an operator fixes the disk.
+        log.error("job %s cannot write its folder: %s", job.id, fault)
+        return _commit(store, files, job, None, "failed", result=None,
+                       error=f"storage fault: {fault.detail} The job was not started.", progress=None,
+                       settings=settings)
     cancel = threading.Event()
     done = threading.Event()
     state: dict[str, Any] = {"progress": None, "reason": None, "since": None}
@@ -77,12 +143,21 @@ def run_job(store: JobStore, job: JobRow, settings: Settings, tune: Callable[...
             cancel.set()
 
     def monitor() -> None:
+        outage: StorageFault | None = None
         while not done.wait(settings.heartbeat_interval):
             try:
                 owned, cancel_req = store.heartbeat(job.id, claim, state["progress"])
+            except StorageFault as fault:  # the supervisor extends leases while the database cannot be written
+                if outage is None:
+                    log.warning("job %s: heartbeat not written (%s); the search goes on, retrying", job.id, fault)
+                outage = fault
+                continue
             except Exception:  # DB busy for 30 s: try again next tick
                 log.exception("heartbeat failed for job %s", job.id)
                 continue
+            if outage is not None:
+                log.info("job %s: heartbeats written again", job.id)
+                outage = None
             if not owned:
                 stop("lost")
             elif cancel_req:
@@ -92,8 +167,11 @@ def run_job(store: JobStore, job: JobRow, settings: Settings, tune: Callable[...
             if cancel.is_set() and time.monotonic() - state["since"] > settings.cancel_grace and not done.is_set():
                 status, err = _final_status(state["reason"], settings)
                 if state["reason"] != "lost":
-                    store.finish(job.id, claim, status, error=f"{err}; the search did not stop within "
-                                 f"{settings.cancel_grace:g} s and its worker was restarted")
+                    try:
+                        store.finish(job.id, claim, status, error=f"{err}; the search did not stop within "
+                                     f"{settings.cancel_grace:g} s and its worker was restarted")
+                    except Exception:  # noqa: BLE001 - the supervisor's deadline check finishes it instead
+                        log.exception("job %s: final state not written", job.id)
                 log.warning("job %s did not stop within the grace period: exiting worker", job.id)
                 if hard_exit:
                     os._exit(70)
@@ -111,24 +189,28 @@ def run_job(store: JobStore, job: JobRow, settings: Settings, tune: Callable[...
     error: str | None = None
     try:
         extra = {"command": f"POST /v1/tune (job {job.id})"} if _accepts(tune, "command") else {}
-        result = tune(spec, progress=progress, out_dir=out_dir, verify=True, cancel=cancel, **extra)
+        result = tune(spec, progress=progress, out_dir=staging, verify=True, cancel=cancel, **extra)
     except BaseException as exc:  # noqa: BLE001 - a job failure must never kill the worker loop
         if isinstance(exc, (KeyboardInterrupt, SystemExit)):
             raise
         error = _error_text(exc)
         from gaintune.errors import GaintuneError
 
-        if not isinstance(exc, GaintuneError):
+        if not isinstance(exc, GaintuneError) and classify(exc, "data") is None:
             log.error("job %s crashed:\n%s", job.id, traceback.format_exc())
     finally:
         done.set()
     reason = state["reason"]
     if reason == "lost":
+        files.discard(staging)
+        log.warning("job %s: attempt %d lost its claim (lease expired; the job was recovered): "
+                    "stopped, and discarded its files", job.id, job.attempts)
         return "lost"
     payload = None
     final_progress = state["progress"]
     if result is not None:
         payload = result.model_dump(mode="python")
+        payload["agent_path"] = files.final_path(job.id, payload.get("agent_path"), staging)
         final_progress = {**(final_progress or {}), "sims": result.sims, "elapsed": result.wall_time, "eta": 0.0,
                           "budget": spec.search.budget, "best_cost": result.cost, "phase": "done"}
     if reason is not None:
@@ -138,7 +220,65 @@ def run_job(store: JobStore, job: JobRow, settings: Settings, tune: Callable[...
         status = "failed"
     else:
         status = "succeeded"
-    store.finish(job.id, claim, status, result=payload, error=error, progress=final_progress)
+    return _commit(store, files, job, staging, status, result=payload, error=error, progress=final_progress,
+                   settings=settings)
+
+
+def _commit(store: JobStore, files: JobFiles, job: JobRow, staging: Path | None, status: str, *,
+            result: dict | None, error: str | None, progress: dict | None, settings: Settings) -> str:
+    """Write an attempt's final state and promote its files, fenced by its claim; returns the status or "lost".
+
+    A database that cannot be written does not lose the work: the result is kept and the write
+    retried (backing off to 2 s, at most a quarter of ``heartbeat_timeout``) for as long as the
+    attempt still owns the job. Files that cannot be
+    renamed into place fail the job, naming the storage fault.
+    """
+    claim = job.claim
+    assert claim is not None
+    promote = None
+    if staging is not None:
+        try:
+            promote = files.promoter(job.id, staging, job.attempts, claim)
+        except StorageFault as fault:
+            status, error = ("failed" if status == "succeeded" else status), _join(
+                error, f"storage fault: the job's files could not be read back: {fault.detail}")
+            if result is not None:
+                result = {**result, "agent_path": None}
+    delay, warned = settings.poll_interval, False
+    while True:
+        try:
+            ok = store.finish(job.id, claim, status, result=result, error=error, progress=progress, promote=promote)
+            break
+        except StorageFault as fault:
+            if fault.where == "data":  # the files could not be renamed into place: finish without them
+                log.error("job %s: %s", job.id, fault)
+                promote = None
+                status = "failed" if status == "succeeded" else status
+                error = _join(error, f"storage fault while saving the job's files: {fault.detail}")
+                if result is not None:
+                    result = {**result, "agent_path": None}
+                continue
+            if not warned:
+                log.warning("job %s: %s result kept, but %s; retrying while this attempt owns the job",
+                            job.id, status, fault)
+                warned = True
+            try:
+                if not store.owns(job.id, claim):
+                    ok = False
+                    break
+            except StorageFault:
+                pass
+            time.sleep(delay)
+            # Retry well within a lease: once the database is back, the supervisor allows heartbeat_timeout.
+            delay = min(2 * delay, 2.0, settings.heartbeat_timeout / 4)
+    if staging is not None:
+        files.discard(staging)
+    if not ok:
+        log.warning("job %s: attempt %d no longer owns the job (lease expired; recovered): "
+                    "its result and files were discarded", job.id, job.attempts)
+        return "lost"
+    if warned:
+        log.info("job %s: result written after the storage fault cleared", job.id)
     log.info("job %s %s", job.id, status)
     return status
 
@@ -181,14 +321,34 @@ def process_next(store: JobStore, settings: Settings, tune: Callable[..., Any] |
     return run_job(store, job, settings, tune, hard_exit=False)
 
 
-def worker_main(settings_data: dict[str, Any], index: int = 0, parent: int | None = None) -> None:
-    """Worker process entry point: claim jobs until the parent dies or SIGTERM."""
+def worker_main(settings_data: dict[str, Any], index: int = 0, parent: int | None = None, pulse: Any = None) -> None:
+    """Worker process entry point: claim jobs until the parent dies or SIGTERM.
+
+    Parameters
+    ----------
+    settings_data
+        ``Settings.model_dump(mode="json")`` of the server.
+    index
+        Worker number (for logs).
+    parent
+        The server's pid: the worker dies with it (None: standalone).
+    pulse
+        A shared ``multiprocessing.Value('d')`` the worker beats every ``heartbeat_interval`` (None: standalone).
+    """
     if parent is not None:
         _die_with_parent(parent)
+    _prctl(15, PROCESS_NAME.encode())  # PR_SET_NAME
     settings = Settings.model_validate(settings_data)
+    if pulse is not None:
+        _start_pulse(pulse, settings.heartbeat_interval)
     logging.basicConfig(level=settings.log_level.upper(), format=f"%(asctime)s worker{index} %(levelname)s %(message)s")
-    store = JobStore(settings.db_path)
-    store.init()
+    if parent is None:  # the server warns for its own workers
+        warn_unknown_settings()
+    store = JobStore(settings.db_path, FaultInjector(settings.test_storage_fault_file))
+    try:
+        store.init()
+    except StorageFault as fault:  # the schema is there already; claims retry below until the disk is fixed
+        log.warning("worker %d: database not initialised (%s)", index, fault)
     try:
         from gaintune.search import tune
     except Exception as exc:  # noqa: BLE001
@@ -196,15 +356,33 @@ def worker_main(settings_data: dict[str, Any], index: int = 0, parent: int | Non
         time.sleep(5)
         raise SystemExit(3)
     log.info("worker %d (pid %d) ready", index, os.getpid())
+    outage: StorageFault | None = None
     while True:
         if parent is not None and os.getppid() != parent:
             return
-        job = store.claim(os.getpid())
+        try:
+            job = store.claim(os.getpid())
+        except StorageFault as fault:  # a read-only or full database: wait, never crash-loop
+            if outage is None:
+                log.warning("worker %d cannot claim jobs: %s; retrying", index, fault)
+            outage = fault
+            time.sleep(min(4 * settings.poll_interval, 2.0))
+            continue
+        if outage is not None:
+            log.info("worker %d: the database accepts writes again", index)
+            outage = None
         if job is None:
             time.sleep(settings.poll_interval)
             continue
         log.info("worker %d runs job %s (attempt %d)", index, job.id, job.attempts)
-        run_job(store, job, settings, tune)
+        try:
+            run_job(store, job, settings, tune)
+        except Exception:  # noqa: BLE001 - a bug around one job must not kill the worker
+            log.exception("worker %d: job %s failed outside the search", index, job.id)
+            try:
+                store.finish(job.id, job.claim, "failed", error="internal error in the job worker (logged)")
+            except Exception:  # noqa: BLE001
+                log.exception("worker %d: job %s: final state not written", index, job.id)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -176,6 +176,7 @@ class Evaluator:
         self.draws = draws
         self.n_sims = 0
         self._constraint_models: list[LinearModel] | None = None
+        self._noise_limit: np.ndarray | None = None
 
     @property
     def dim(self) -> int:
@@ -201,11 +202,14 @@ class Evaluator:
 
     def requirement_violation(self, tuned: np.ndarray) -> np.ndarray:
         """(B,) worst-case requirement violation over :attr:`constraint_models` (0 when all hold)."""
-        from gaintune.verify.quick import requirement_violation
+        from gaintune.verify.quick import noise_limit_array, requirement_violation
 
+        if self._noise_limit is None:  # a property of the spec and the nominal plant: resolved once
+            self._noise_limit = noise_limit_array(self.spec, self.plant)
         tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
         full = self.layout.full(tuned)
-        v = [requirement_violation(self.spec, self.plant, self.layout, full, lin) for lin in self.constraint_models]
+        v = [requirement_violation(self.spec, self.plant, self.layout, full, lin, self._noise_limit)
+             for lin in self.constraint_models]
         return np.nan_to_num(np.max(v, axis=0), nan=DIVERGED_VIOLATION, posinf=DIVERGED_VIOLATION)
 
     def evaluate(self, tuned: np.ndarray, draws: Draws | None = None, traces: bool = False) -> Scores:

@@ -9,6 +9,12 @@ design field                becomes
 ==========================  ==================================================================
 ``phase_margin`` (60)       ``requirements.pm_min_deg`` (a hard constraint); the other
                             requirements keep their defaults unless the spec sets them
+``crossover`` (optional)    pidtune's target crossover ``wc`` (rad/s): the band
+                            ``requirements.wc_min = wc/(1+tol)``, ``wc_max = wc (1+tol)``
+                            with ``tol = crossover_tolerance`` (default 0.1): an equality is
+                            not a constraint a search can sit strictly inside, a band is.
+                            One loop only (a cascade's loops need crossovers of their own:
+                            set ``requirements.wc_min``/``wc_max`` there)
 ``focus: reference_tracking``  one scenario: unit setpoint step; cost IAE + effort
 ``focus: disturbance_rejection``  one scenario: unit load step at the plant input; cost IAE
 ``focus: balanced`` (default)  both scenarios, weight 0.5 each
@@ -16,8 +22,9 @@ design field                becomes
 ==========================  ==================================================================
 
 A spec that sets ``scenarios`` (or ``scenario``) itself keeps them and uses ``design`` for
-the requirement only; one that sets ``requirements.pm_min_deg`` and a different
-``design.phase_margin`` is rejected (two sources for one limit).
+the requirements only; one that sets ``requirements.pm_min_deg`` and a different
+``design.phase_margin`` is rejected (two sources for one limit), and so is one that sets
+``requirements.wc_min``/``wc_max`` beside ``design.crossover``.
 """
 
 from __future__ import annotations
@@ -38,6 +45,10 @@ class DesignSpec(BaseModel):
     focus: Literal["balanced", "reference_tracking", "disturbance_rejection"] = Field(
         "balanced", description="What the cost measures: setpoint steps, load steps at the plant input, or both."
     )
+    crossover: float | None = Field(
+        None, gt=0, description="Target gain-crossover frequency wc (rad/s), as pidtune's second argument: "
+        "the loop's crossover must lie within wc/(1+crossover_tolerance) .. wc (1+crossover_tolerance).")
+    crossover_tolerance: float = Field(0.1, gt=0, le=1, description="Relative width of the crossover band.")
     dt: float = Field(0.01, gt=0, description="Sample time of the generated scenarios (s).")
     horizon: float = Field(20.0, gt=0, description="Length of the generated scenarios (s).")
 
@@ -54,9 +65,11 @@ def _scenarios(d: DesignSpec) -> list[dict[str, Any]]:
 
 
 def expand_design(data: dict[str, Any]) -> dict[str, Any]:
-    """Fill ``requirements.pm_min_deg`` and, when absent, ``scenarios`` from ``data["design"]``.
+    """Fill ``requirements.pm_min_deg`` (and ``wc_min``/``wc_max`` for a crossover) and, when absent,
+    ``scenarios`` from ``data["design"]``.
 
-    Raises ValueError when the spec gives the phase margin twice with different values.
+    Raises ValueError when the spec gives the phase margin or the crossover twice, or a
+    crossover for more than one loop.
     """
     raw = data.get("design")
     if raw is None:
@@ -69,6 +82,16 @@ def expand_design(data: dict[str, Any]) -> dict[str, Any]:
         raise ValueError(f"requirements.pm_min_deg ({given}) and design.phase_margin ({d.phase_margin}) disagree; "
                          "give the phase margin once")
     req["pm_min_deg"] = d.phase_margin
+    if d.crossover is not None:
+        if len(out.get("loops") or []) != 1:
+            raise ValueError("design.crossover applies to a single loop; for a cascade set requirements.wc_min "
+                             "and requirements.wc_max instead")
+        band = {"wc_min": d.crossover / (1.0 + d.crossover_tolerance), "wc_max": d.crossover * (1.0 + d.crossover_tolerance)}
+        for k, v in band.items():  # a dumped spec carries both; they must agree
+            if req.get(k) is not None and abs(float(req[k]) - v) > 1e-12 * v:
+                raise ValueError(f"requirements.{k} ({req[k]}) and design.crossover ({d.crossover}) both set the "
+                                 "crossover; give it once")
+        req.update(band)
     out["requirements"] = req
     if "scenarios" not in out and "scenario" not in out:
         out["scenarios"] = _scenarios(d)

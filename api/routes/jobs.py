@@ -9,10 +9,11 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Body, Header, Query, Response
 from fastapi.responses import FileResponse, HTMLResponse
 
-from api.artifacts import EXPORT_MEDIA, export_gains, export_verdict, render_report
-from api.deps import OwnerDep, SettingsDep, StoreDep
+from api.artifacts import EXPORT_MEDIA, export_gains, export_verdict, render_report, render_report_html
+from api.deps import FilesDep, OwnerDep, SettingsDep, StoreDep
+from api.jobfiles import ArtifactMismatch, ArtifactMissing
 from api.jsonbody import StrictJSONRoute
-from api.problems import ApiError
+from api.problems import ApiError, log
 from api.schemas import ExportFormat, JobList, JobPublic, JobResultPublic, JobStatus, JobSummary, ProgressPublic
 from api.store import IdempotencyConflict, JobRow, QueueFull, loads
 from api.validation import check_spec
@@ -22,6 +23,9 @@ router = APIRouter(prefix="/v1", tags=["jobs"], route_class=StrictJSONRoute)
 
 _PROBLEM = {"content": {"application/problem+json": {}}}
 NOT_FOUND = {404: {"description": "No such job (for this API key).", **_PROBLEM}}
+STORAGE = {503: {"description": "Storage fault (read-only database or data directory; `cause` names it); "
+                                "retry after Retry-After seconds.", **_PROBLEM},
+           507: {"description": "Storage full (`cause` names which); retry after Retry-After seconds.", **_PROBLEM}}
 
 
 def _ts(x: float | None) -> datetime | None:
@@ -100,7 +104,9 @@ def _get(store, job_id: str, owner: str) -> JobRow:
         409: {"description": "Idempotency-Key reused with a different spec.", **_PROBLEM},
         413: {"description": "Body too large.", **_PROBLEM},
         422: {"description": "Invalid spec (field paths in `errors`).", **_PROBLEM},
-        503: {"description": "Queue full; retry after Retry-After seconds.", **_PROBLEM},
+        **STORAGE,
+        503: {"description": "Queue full, or a storage fault (`cause` names it); retry after Retry-After seconds.",
+              **_PROBLEM},
     },
 )
 def submit_tune(
@@ -188,29 +194,56 @@ def _tune_result(r: dict[str, Any]):
 
 @router.get("/jobs/{job_id}/report", response_class=HTMLResponse, summary="HTML report of a finished job",
             responses={**NOT_FOUND, 409: {"description": "No result yet.", **_PROBLEM},
-                       501: {"description": "Reports not installed.", **_PROBLEM}})
-def job_report(job_id: str, settings: SettingsDep, store: StoreDep, owner: OwnerDep) -> Response:
+                       501: {"description": "Reports not installed.", **_PROBLEM}, **STORAGE})
+def job_report(job_id: str, store: StoreDep, files: FilesDep, owner: OwnerDep) -> Response:
+    """Rendered on first request and cached in the job's folder. If the data directory cannot be written
+    (read-only or full), the report is rendered in memory and served uncached (``X-Report-Cache: off``)."""
+    from api.storage import StorageFault
+
     row = _get(store, job_id, owner)
     r = _finished_result(row)
-    path = settings.jobs_dir / row.id / "report.html"
-    if not path.is_file():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.html")
-        out = render_report(_tune_result(r), tmp)
-        Path(out).replace(path)
+    path = files.job_dir(row.id) / "report.html"
+    if path.is_file():
+        return FileResponse(path, media_type="text/html; charset=utf-8")
+    result = _tune_result(r)
+    try:
+        path = files.write_report(row.id, lambda tmp: render_report(result, tmp))
+    except StorageFault as fault:
+        html = render_report_html(result)
+        if html is None:
+            raise
+        log.warning("report of job %s served uncached: %s", row.id, fault)
+        return HTMLResponse(html, headers={"X-Report-Cache": f"off ({fault.cause})"})
     return FileResponse(path, media_type="text/html; charset=utf-8")
 
 
 @router.get("/jobs/{job_id}/agent", summary="Trained SB3 agent (zip)",
             responses={**NOT_FOUND, 200: {"content": {"application/zip": {}}},
-                       409: {"description": "No result or no saved agent.", **_PROBLEM}})
-def job_agent(job_id: str, settings: SettingsDep, store: StoreDep, owner: OwnerDep) -> Response:
+                       409: {"description": "No result, or the job saved no agent.", **_PROBLEM},
+                       410: {"description": "The agent file is gone from the data directory.", **_PROBLEM},
+                       500: {"description": "The agent file does not match the one the job saved "
+                             "(`cause`: artifact-mismatch).", **_PROBLEM}})
+def job_agent(job_id: str, store: StoreDep, files: FilesDep, owner: OwnerDep) -> Response:
+    """The file is checked against the SHA-256 recorded when the job finished (sent as ``Repr-Digest``)."""
+    import base64
+
     row = _get(store, job_id, owner)
     r = _finished_result(row)
-    path = _agent_file(row, r, settings.jobs_dir)
-    if path is None:
+    if not r.get("agent_path"):
         raise ApiError(409, f"Job {job_id} saved no agent.")
-    return FileResponse(path, media_type="application/zip", filename=f"agent_{row.id}.zip")
+    try:
+        path, digest = files.artifact(row.id, Path(r["agent_path"]).name, loads(row.artifacts))
+    except ArtifactMissing as exc:
+        raise ApiError(410, f"The agent of job {job_id} was saved, but its file is gone: {exc}.") from None
+    except ArtifactMismatch as exc:
+        log.error("job %s: %s", job_id, exc)
+        raise ApiError(500, f"The agent file of job {job_id} was changed after the job finished: {exc}.",
+                       title="Stored artefact does not match", extra={"cause": "artifact-mismatch"}) from None
+    headers = {}
+    if digest is not None:
+        headers["Repr-Digest"] = f"sha-256=:{base64.b64encode(bytes.fromhex(digest)).decode()}:"
+        headers["ETag"] = f'"{digest}"'
+    return FileResponse(path, media_type="application/zip", filename=f"agent_{row.id}.zip", headers=headers)
 
 
 @router.get("/jobs/{job_id}/export", summary="Gains exported as json, yaml, C or MATLAB, verified at the export dt",

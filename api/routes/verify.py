@@ -5,8 +5,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import threading
-from collections import OrderedDict
 
 from fastapi import APIRouter, Request, Response
 
@@ -16,41 +14,21 @@ from api.jsonbody import StrictJSONRoute
 from api.problems import ApiError
 from api.schemas import VerifyRequest
 from api.validation import checked_spec
+from gaintune.cache import LRU
 from gaintune.verify import VerificationReport
 
 router = APIRouter(prefix="/v1", tags=["verify"], route_class=StrictJSONRoute, dependencies=[require_key])
 log = logging.getLogger("gaintune.api")
 
 
-class ReportCache:
-    """LRU of serialized reports keyed by (spec hash, gains, options): verification is deterministic."""
+def _cache(request: Request) -> LRU[str, bytes]:
+    """The app's LRU of serialized reports keyed by (spec hash, gains, options), created on first use.
 
-    def __init__(self, size: int) -> None:
-        self.size = size
-        self._d: OrderedDict[str, bytes] = OrderedDict()
-        self._lock = threading.Lock()
-
-    def get(self, key: str) -> bytes | None:
-        with self._lock:
-            v = self._d.get(key)
-            if v is not None:
-                self._d.move_to_end(key)
-            return v
-
-    def put(self, key: str, value: bytes) -> None:
-        if self.size <= 0:
-            return
-        with self._lock:
-            self._d[key] = value
-            self._d.move_to_end(key)
-            while len(self._d) > self.size:
-                self._d.popitem(last=False)
-
-
-def _cache(request: Request) -> ReportCache:
+    Verification is deterministic, so an identical request gets the stored bytes. Sized by
+    ``settings.verify_cache_size`` (0: nothing is stored)."""
     st = request.app.state
     if getattr(st, "verify_cache", None) is None:
-        st.verify_cache = ReportCache(st.settings.verify_cache_size)
+        st.verify_cache = LRU(st.settings.verify_cache_size)  # only the event loop calls this: no race
     return st.verify_cache
 
 

@@ -24,7 +24,7 @@ import sys
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,6 +38,9 @@ from gaintune.bench.suite import (
     select,
     suite_names,
 )
+
+if TYPE_CHECKING:  # pragma: no cover
+    from gaintune.verify.report import VerificationReport
 
 __all__ = [
     "DEFAULT_METHODS",
@@ -120,31 +123,20 @@ def _jsonable(x: Any) -> Any:
     return x
 
 
-def _verification_figures(report: dict[str, Any] | None) -> dict[str, Any]:
+def _verification_figures(report: VerificationReport) -> dict[str, Any]:
     """Binding GM (dB, min), PM (deg, min), Ms (max) over loops/break points, verdict and reasons."""
-    if not report:
-        return {"gm_db": None, "pm_deg": None, "ms": None, "verdict": None, "reasons": []}
-
-    def num(v: Any) -> float:
-        if isinstance(v, str):
-            return {"Infinity": math.inf, "-Infinity": -math.inf}.get(v, math.nan)
-        return float(v) if v is not None else math.nan
-
-    loops = report.get("loops") or []
-    gm = min((num(f.get("gm_db")) for f in loops), default=None)
-    pm = min((num(f.get("pm_deg")) for f in loops), default=None)
-    ms = max((num(f.get("ms")) for f in loops), default=None)
-    stable = (report.get("stability") or {}).get("stable")
-    return {"gm_db": gm, "pm_deg": pm, "ms": ms, "stable": stable, "verdict": report.get("verdict"),
-            "reasons": list(report.get("reasons") or [])}
+    loops = report.loops
+    return {"gm_db": min((f.gm_db for f in loops), default=None), "pm_deg": min((f.pm_deg for f in loops), default=None),
+            "ms": max((f.ms for f in loops), default=None), "stable": report.stability.stable, "verdict": report.verdict,
+            "reasons": list(report.reasons)}
 
 
-def gain_figures(problem_obj, gains: dict[str, dict[str, float]], report: dict[str, Any] | None = None) -> dict[str, Any]:
+def gain_figures(problem_obj, gains: dict[str, dict[str, float]], report: VerificationReport | None = None) -> dict[str, Any]:
     """Cost and time-domain metrics of ``gains`` on the nominal problem, plus verification figures.
 
     ``problem_obj`` is a :class:`gaintune.envs.problem.GainProblem`. IAE and effort are
     summed over scenarios by weight; overshoot (%) is the largest over the scenarios.
-    ``report`` is a verification report dict (run here when omitted).
+    ``report`` is the verification report of ``gains`` (run here when omitted).
     """
     from gaintune.verify import verify
 
@@ -168,11 +160,15 @@ def gain_figures(problem_obj, gains: dict[str, dict[str, float]], report: dict[s
         o = float(m["overshoot"][0])
         if math.isfinite(o):
             over.append(o)
-    if report is None:
-        try:
-            report = verify(spec, gains, plant=problem_obj.plant, layout=layout).model_dump(mode="json")
-        except Exception as exc:  # a gain set verification rejects is reported, not fatal
-            report = {"verdict": "fail", "reasons": [f"verification error: {type(exc).__name__}: {exc}"]}
+    figures: dict[str, Any]
+    try:
+        if report is None:
+            report = verify(spec, gains, plant=problem_obj.plant, layout=layout)
+    except Exception as exc:  # a gain set verification rejects is reported, not fatal
+        figures = {"gm_db": None, "pm_deg": None, "ms": None, "stable": None, "verdict": "fail",
+                   "reasons": [f"verification error: {type(exc).__name__}: {exc}"]}
+    else:
+        figures = _verification_figures(report)
     out = {
         "cost": float(costs[0]),  # the plain cost, never a penalised figure
         "feasible": bool(scores.feasible[0]),
@@ -183,7 +179,7 @@ def gain_figures(problem_obj, gains: dict[str, dict[str, float]], report: dict[s
         "overshoot": max(over) if over and not diverged else None,
         "diverged": diverged or float(costs[0]) >= DIVERGED,
     }
-    out.update(_verification_figures(report))
+    out.update(figures)
     return out
 
 

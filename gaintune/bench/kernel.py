@@ -4,12 +4,15 @@ Run from the repository (it reads the old kernel with ``git show``)::
 
     gaintune bench kernel [--rev e0e478f3] [--batch 512] [--min-time 0.4]
 
-The kernel source of ``--rev`` is taken from git into a temporary module, so both
-kernels run in one process on the same prebuilt arguments (captured from
-``Simulator.run``). For each case of ``gaintune bench sim`` it prints:
+The kernel source of ``--rev`` is taken from git into a temporary module (or package,
+for revisions where the kernel is the package ``gaintune/sim/kernel/``), so both
+kernels run in one process on the same prebuilt arguments (the
+:class:`~gaintune.sim.kernel_args.KernelArgs` of ``Simulator.kernel_args``). For
+each case of ``gaintune bench sim`` it prints:
 
 * serial kernel, CPU seconds of this thread per simulation (one core; robust to
-  other load on the machine), best of interleaved repetitions, at batch 1 and ``--batch``;
+  other load on the machine), best of interleaved repetitions, at batch 1 (the
+  single-lane variant, where ``--rev`` has one) and ``--batch``;
 * the speed-up ratio, and whether the two kernels return identical metrics;
 * with ``--parallel-batch N`` (default 4,096), the parallel kernels on all cores at
   batch N, wall-clock time (the issue's throughput figure, side by side).
@@ -20,12 +23,15 @@ The old kernel at ``e0e478f3`` takes a leading ``chunk`` argument; it is passed 
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.util
 import inspect
+import re
 import subprocess
 import sys
 import tempfile
 import time
+import types
 from pathlib import Path
 
 import numpy as np
@@ -34,15 +40,44 @@ from gaintune.bench import sim as bench_sim
 from gaintune.sim import kernel as new_kernel
 
 
-def _load_old(rev: str, variant: str = "simulate_kernel_serial"):
-    src = subprocess.run(["git", "show", f"{rev}:gaintune/sim/kernel.py"], capture_output=True, text=True, check=True).stdout
-    path = Path(tempfile.mkdtemp()) / f"kernel_{rev}.py"
-    path.write_text(src)
-    spec = importlib.util.spec_from_file_location(f"kernel_{rev}", path)
+def _git_show(rev: str, path: str) -> str:
+    return subprocess.run(["git", "show", f"{rev}:{path}"], capture_output=True, text=True, check=True).stdout
+
+
+@functools.lru_cache(maxsize=None)
+def _load_module(rev: str) -> types.ModuleType:
+    """The kernel module as of git revision ``rev``, loaded under a private name beside the working tree's.
+
+    A kernel package is copied whole: its modules import each other relatively,
+    so the copy runs its own stages, not the working tree's.
+    """
+    name = "kernel_" + re.sub(r"\W", "_", rev)
+    tmp = Path(tempfile.mkdtemp())
+    listing = subprocess.run(["git", "ls-tree", "--name-only", rev, "gaintune/sim/kernel/"],
+                             capture_output=True, text=True, check=True).stdout.split()
+    if listing:
+        pkg = tmp / name
+        pkg.mkdir()
+        for path in listing:
+            if path.endswith(".py"):
+                (pkg / Path(path).name).write_text(_git_show(rev, path))
+        spec = importlib.util.spec_from_file_location(name, pkg / "__init__.py", submodule_search_locations=[str(pkg)])
+    else:  # the kernel as one module
+        path = tmp / f"{name}.py"
+        path.write_text(_git_show(rev, "gaintune/sim/kernel.py"))
+        spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod  # the package's relative imports resolve through it
     spec.loader.exec_module(mod)
+    return mod
+
+
+def _load_old(rev: str, variant: str = "simulate_kernel_serial"):
+    """The compiled kernel ``variant`` as of git revision ``rev`` (called with the working tree's arguments)."""
+    mod = _load_module(rev)
     fn = getattr(mod, variant)
-    takes_chunk = "CHUNK" in inspect.signature(mod._kernel).parameters
+    inner = mod._kernel if hasattr(mod, "_kernel") else mod.drivers._kernel
+    takes_chunk = "CHUNK" in inspect.signature(inner).parameters
     return (lambda *a: fn(64, *a)) if takes_chunk else fn
 
 
@@ -55,19 +90,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--parallel-batch", type=int, default=4096, help="0 skips the parallel rows")
     a = ap.parse_args(argv)
     old = _load_old(a.rev)
+    # batch 1 runs on the single-lane variant; revisions before it existed run it serially
+    old1 = _load_old(a.rev, "simulate_kernel_single") if hasattr(_load_module(a.rev), "simulate_kernel_single") else old
     print(f"serial kernel, one core (thread CPU time), old = {a.rev}, new = working tree")
     print("| case | batch | old sims/s | new sims/s | new ms/sim | speed-up | identical |")
     print("|---|---:|---:|---:|---:|---:|---|")
     for name in bench_sim.CASES:
         for B in (1, a.batch):
             case = bench_sim.make_case(name, B)
-            args = bench_sim._capture_kernel_args(case.sim, case.full)
-            new = new_kernel.simulate_kernel_single if B == 1 else new_kernel.simulate_kernel_serial
-            o_old, o_new = old(*args), new(*args)
+            args = case.sim.kernel_args(case.full)
+            new = new_kernel.VARIANTS["single" if B == 1 else "serial"]
+            old_b = old1 if B == 1 else old
+            o_old, o_new = old_b(*args), new(*args)
             same = np.array_equal(np.nan_to_num(o_old, nan=-7.0), np.nan_to_num(o_new, nan=-7.0))
             t_old, t_new = [], []
             for _ in range(a.repeat):  # interleaved
-                t_old.append(bench_sim._per_call(lambda: old(*args), a.min_time, clock=time.thread_time))
+                t_old.append(bench_sim._per_call(lambda: old_b(*args), a.min_time, clock=time.thread_time))
                 t_new.append(bench_sim._per_call(lambda: new(*args), a.min_time, clock=time.thread_time))
             to, tn = min(t_old), min(t_new)
             print(f"| {name} | {B} | {B / to:,.0f} | {B / tn:,.0f} | {1e3 * tn / B:.4f} | {to / tn:.2f}x | {same} |", flush=True)
@@ -79,8 +117,8 @@ def main(argv: list[str] | None = None) -> int:
         print("|---|---:|---:|---:|---|")
         for name in bench_sim.CASES:
             case = bench_sim.make_case(name, B)
-            args = bench_sim._capture_kernel_args(case.sim, case.full)
-            new = new_kernel.simulate_kernel_parallel
+            args = case.sim.kernel_args(case.full)
+            new = new_kernel.VARIANTS["parallel"]
             o_old, o_new = old_par(*args), new(*args)
             same = np.array_equal(np.nan_to_num(o_old, nan=-7.0), np.nan_to_num(o_new, nan=-7.0))
             t_old, t_new = [], []

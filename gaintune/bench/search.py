@@ -56,7 +56,6 @@ def run_one(problem: Problem, seed: int, *, algo: str = "ppo", budget: int | Non
         spec = spec.model_copy(update={"search": spec.search.model_copy(update={"algo": algo})})
     res = tune(spec, verify=True)
     cm = run_baseline(spec, "cmaes", budget=max(int(res.sims), 1), seed=seed, evaluator=GainProblem(spec).evaluator)
-    ver = res.verification or {}
     return {
         "problem": problem.name,
         "seed": seed,
@@ -71,8 +70,8 @@ def run_one(problem: Problem, seed: int, *, algo: str = "ppo", budget: int | Non
         "rl_sims": res.rl_sims,
         "wall_time": res.wall_time,
         "stopped": res.stopped,
-        "verdict": ver.get("verdict"),
-        "reasons": list(ver.get("reasons") or []),
+        "verdict": res.verdict,
+        "reasons": list(res.verification.reasons) if res.verification is not None else [],
         "cmaes_cost": cm.cost,
         "cmaes_sims": cm.n_sims,
         "cmaes_wall_time": cm.wall_time,

@@ -114,8 +114,15 @@ class Problem:
 
     def requirements_text(self) -> str:
         names = {"gm_min_db": "GM >= {:g} dB", "pm_min_deg": "PM >= {:g} deg", "ms_max": "Ms <= {:g}",
-                 "mt_max": "Mt <= {:g}", "dm_min": "DM >= {:g} s"}
-        return ", ".join(names[k].format(v) for k, v in self.requirements.items())
+                 "mt_max": "Mt <= {:g}", "dm_min": "DM >= {:g} s", "wc_min": "wc >= {:g} rad/s",
+                 "wc_max": "wc <= {:g} rad/s"}
+        out = [names[k].format(v) for k, v in self.requirements.items() if k in names]
+        mks = self.requirements.get("mks_max")
+        if isinstance(mks, dict):
+            out += [f"Mks({loop}) <= {v:g}" for loop, v in mks.items() if v is not None]
+        elif mks is not None:
+            out.append(f"Mks {mks}" if isinstance(mks, str) else f"Mks <= {mks:g}")
+        return ", ".join(out)
 
     def objective_text(self) -> str:
         ob = self.tuning_spec().objective

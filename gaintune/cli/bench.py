@@ -29,6 +29,7 @@ BENCH = {
     "ablation": "RL agents and PPO settings side by side on 1/(s+1)^3 PID.",
     "startup": "End-to-end wall time of --help, import, verify and a 3,000-simulation tune, beside python -c pass.",
     "api": "REST API load test.",
+    "chaos": "Chaos campaign against a real API server: worker/server kills, freezes, storage faults, reused connections.",
 }
 
 

@@ -34,6 +34,7 @@ def _checked_at_dt(result, dt: float | None, *, allow_unverified: bool) -> tuple
         :func:`gaintune.export.export_result`.
     """
     from gaintune.export import first_reason, result_verdict_at_dt, verified_dt
+    from gaintune.export.verdict import stored_verdict_holds
     from gaintune.spec import TuningSpec
 
     spec = TuningSpec.model_validate(result.spec)
@@ -41,8 +42,7 @@ def _checked_at_dt(result, dt: float | None, *, allow_unverified: bool) -> tuple
     at = vdt if dt is None else dt
     checked = result_verdict_at_dt(result, at)  # ExportError("dt", ...) -> exit 2
     verdict, report = checked
-    reverified = report is not result.verification
-    if reverified:
+    if not stored_verdict_holds(spec, at, result.verification):  # re-verified at this dt
         was = f"the result was verified at dt = {vdt:g} s" if result.verdict is not None else "the result was not verified"
         err.print(f"re-verified at dt = {at:g} s ({was}): {'PASS' if verdict == 'pass' else 'FAILED'}",
                   markup=False, highlight=False)

@@ -29,8 +29,6 @@ __all__ = ["_print_summary", "_write_outputs", "_print_simulation", "_simulation
 
 
 def _print_summary(result, console: Console = out) -> None:
-    from gaintune.report import load_verification
-
     verdict = result.verdict
     passed = verdict == "pass"
     title = "Accepted gains" if passed else ("Gains - FAILED verification, NOT accepted" if verdict == "fail" else "Gains (unverified)")
@@ -42,8 +40,8 @@ def _print_summary(result, console: Console = out) -> None:
         for k, v in g.items():
             t.add_row(loop, k, _f(v, 6))
     console.print(t)
-    if result.verification:
-        rep = load_verification(result.verification)
+    rep = result.verification
+    if rep is not None:
         m = Table(title="Margins per loop (nominal)")
         for c in ("loop", "break", "GM dB", "PM deg", "wc rad/s", "DM s", "Ms", "Mt"):
             m.add_column(c, justify="left" if c in ("loop", "break") else "right")
@@ -74,7 +72,7 @@ def _print_summary(result, console: Console = out) -> None:
         console.print("[bold green]verdict: PASS[/]")
     elif verdict == "fail":
         console.print("[bold red]verdict: FAILED[/] - the gains are not accepted")
-        for r in (result.verification or {}).get("reasons", []):
+        for r in rep.reasons:
             console.print(f"  - {r}", markup=False)
     else:
         console.print("verdict: not verified")

@@ -20,8 +20,9 @@ from typing import Any
 
 from gaintune.export.common import ExportError, Gains, _check_dt, _fmt_dt, _same_dt
 from gaintune.spec import MAX_STEPS, TuningSpec
+from gaintune.verify.report import VerificationReport
 
-__all__ = ["verified_dt", "spec_at_dt", "verdict_at_dt", "result_verdict_at_dt", "first_reason"]
+__all__ = ["verified_dt", "spec_at_dt", "stored_verdict_holds", "verdict_at_dt", "result_verdict_at_dt", "first_reason"]
 
 
 def verified_dt(spec: TuningSpec) -> float:
@@ -77,32 +78,48 @@ def first_reason(report: Any) -> str | None:
     return str(reasons[0]) if reasons else None
 
 
+def stored_verdict_holds(spec: TuningSpec, dt: float, stored: VerificationReport | dict[str, Any] | None) -> bool:
+    """Whether the verification ``stored`` for ``spec`` (a report, its JSON form, or None) gives the verdict at ``dt``.
+
+    It does when it has a verdict and ``dt`` is the sample time it was obtained at
+    (:func:`verified_dt`), with every scenario at that ``dt``; otherwise the gains must
+    be re-verified at ``dt`` (:func:`verdict_at_dt` does).
+    """
+    if stored is None:
+        return False
+    verdict = stored.verdict if isinstance(stored, VerificationReport) else stored.get("verdict")
+    vdt = verified_dt(spec)
+    return verdict is not None and _same_dt(dt, vdt) and all(_same_dt(sc.dt, vdt) for sc in spec.scenarios)
+
+
 def verdict_at_dt(
     spec: TuningSpec,
     gains: Gains,
     dt: float | None = None,
     *,
-    stored: Any = None,
+    stored: VerificationReport | dict[str, Any] | None = None,
     robust: bool | None = None,
     max_steps: int | None = None,
 ) -> tuple[str, dict[str, Any] | None]:
     """The verdict of ``gains`` at sample time ``dt`` and the report it comes from (JSON form).
 
-    ``stored`` is the verification already done on ``spec`` (a report dict or model, e.g.
-    ``TuneResult.verification``). It is returned as it is when ``dt`` is the sample time it
-    was obtained at (:func:`verified_dt`, with every scenario at that ``dt``). Otherwise
+    ``stored`` is the verification already done on ``spec`` (a report or its JSON form,
+    e.g. ``TuneResult.verification``). It is returned (in JSON form; a dict as it is) when
+    it holds at ``dt`` (:func:`stored_verdict_holds`: ``dt`` is the sample time it was
+    obtained at, :func:`verified_dt`, with every scenario at that ``dt``). Otherwise
     (another ``dt``, scenarios of mixed ``dt``, or nothing stored) the gains are verified
     with :func:`gaintune.verify.verify` on :func:`spec_at_dt` ``(spec, dt)``; ``robust``
     defaults to what the stored report did (else the spec's default).
 
+    The JSON form is the report's own (``json.loads(report.model_dump_json())``: infinite
+    figures as the strings ``"Infinity"``/``"-Infinity"``).
+
     Raises :class:`ExportError` (field ``dt``) for a ``dt`` the spec cannot run at.
     """
-    vdt = verified_dt(spec)
-    dt = vdt if dt is None else _check_dt(dt)
-    if hasattr(stored, "model_dump"):
-        stored = stored.model_dump(mode="json")
-    if stored is not None and stored.get("verdict") is not None and _same_dt(dt, vdt) \
-            and all(_same_dt(sc.dt, vdt) for sc in spec.scenarios):
+    dt = verified_dt(spec) if dt is None else _check_dt(dt)
+    if isinstance(stored, VerificationReport):
+        stored = json.loads(stored.model_dump_json())
+    if stored_verdict_holds(spec, dt, stored):
         return str(stored["verdict"]), stored
     target = spec_at_dt(spec, dt, max_steps=max_steps)
     if robust is None and stored is not None and "robust" in stored:

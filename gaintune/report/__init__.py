@@ -46,32 +46,16 @@ def _version() -> str:
         return "unknown"
 
 
-def load_verification(data: dict[str, Any]):
-    """``TuneResult.verification`` -> VerificationReport, tolerant of infinities stored as JSON ``null``.
+def load_verification(data: Any):
+    """A stored verification report (dict) -> VerificationReport; a report is returned as it is.
 
-    A ``VerificationReport`` dumped with ``model_dump()`` keeps ``inf`` floats, which
-    ``TuneResult.model_dump_json()`` writes as ``null``; a required float that reads back
-    as ``null`` was such an infinity (a figure without crossover: +inf; a requirement margin: +inf if it passed, else -inf).
+    Kept for callers holding a raw report dict: :attr:`TuneResult.verification
+    <gaintune.search.result.TuneResult.verification>` is already a report. Delegates to
+    :func:`gaintune.verify.report.load_report` (tolerant of infinities stored as JSON ``null``).
     """
-    from pydantic import ValidationError
+    from gaintune.verify.report import load_report
 
-    from gaintune.verify import VerificationReport
-
-    try:
-        return VerificationReport.model_validate(data)
-    except ValidationError as exc:
-        fixed = json.loads(json.dumps(data))
-        for e in exc.errors():
-            if e["type"] not in ("float_type", "float_parsing"):
-                raise
-            *path, key = e["loc"]
-            node = fixed
-            for k in path:
-                node = node[k]
-            if node[key] is not None:
-                raise
-            node[key] = "Infinity" if key != "margin" or node.get("passed") else "-Infinity"
-        return VerificationReport.model_validate(fixed)
+    return load_report(data)
 
 
 def render_html(result: Any, *, command: str | None = None) -> str:
@@ -159,7 +143,7 @@ def result_from_gains(spec: Any, gains: dict[str, dict[str, float]], *, algo: st
         r.scenario: {k: (float(v[0]) if math.isfinite(float(v[0])) else None) for k, v in r.metrics.items()}
         for r in scores.results
     }
-    rep = json.loads(run_verify(spec, named).model_dump_json()) if verify else None
+    rep = run_verify(spec, named) if verify else None
     return TuneResult(
         spec=json.loads(spec.model_dump_json()), algo=algo, gains=named, gains_source="best_seen", cost=float(scores.cost[0]),
         violation=float(scores.violation[0]),

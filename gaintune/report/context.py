@@ -99,7 +99,8 @@ def _loop_rows(spec: TuningSpec, plant) -> list[dict[str, Any]]:
 
 def _requirements(rep) -> list[dict[str, Any]]:
     names = {"gm_min_db": "gain margin >= (dB)", "pm_min_deg": "phase margin >= (deg)", "dm_min": "delay margin >= (s)",
-             "ms_max": "Ms <=", "mt_max": "Mt <="}
+             "ms_max": "Ms <=", "mt_max": "Mt <=", "mks_max": "Mks <=",
+             "wc_min": "crossover >= (rad/s)", "wc_max": "crossover <= (rad/s)"}
     return [{
         "name": names.get(q.requirement, q.requirement), "value": _fmt(q.value), "limit": _fmt(q.limit),
         "margin": _fmt(q.margin), "passed": q.passed,
@@ -349,7 +350,6 @@ def build_context(result, *, command: str | None = None) -> dict[str, Any]:
     """All data of the report for one TuneResult (re-simulates with traces, computes frequency responses)."""
     from gaintune.plants.plant import build_plant
     from gaintune.sim import Simulator
-    from gaintune.report import load_verification
     from gaintune.verify import verify
 
     spec = TuningSpec.model_validate(result.spec)
@@ -357,7 +357,7 @@ def build_context(result, *, command: str | None = None) -> dict[str, Any]:
     sim = Simulator(spec, plant)
     full = sim.layout.from_dict(result.gains)
     verified_now = result.verification is None
-    rep = verify(spec, result.gains, plant=plant, layout=sim.layout) if verified_now else load_verification(result.verification)
+    rep = verify(spec, result.gains, plant=plant, layout=sim.layout) if verified_now else result.verification
     passed = rep.verdict == "pass"
     ps = _plant_summary(spec, plant)
     units = ps["units"]

@@ -9,7 +9,6 @@ any candidate that met every requirement, and a concrete next step.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
@@ -18,6 +17,7 @@ from gaintune.plants.advice import plant_warnings
 from gaintune.plants.plant import Plant
 from gaintune.search.result import Diagnosis, TuneResult
 from gaintune.spec import TuningSpec
+from gaintune.verify.report import RequirementLine, VerificationReport
 
 __all__ = ["diagnose", "bound_hints", "direction_hints", "REQUIREMENT_TEXT"]
 
@@ -28,6 +28,9 @@ REQUIREMENT_TEXT: dict[str, tuple[str, str]] = {
     "dm_min": ("delay margin (s)", ">="),
     "ms_max": ("Ms", "<="),
     "mt_max": ("Mt", "<="),
+    "mks_max": ("Mks", "<="),
+    "wc_min": ("crossover (rad/s)", ">="),
+    "wc_max": ("crossover (rad/s)", "<="),
 }
 
 #: A gain within this relative distance (in log scale) of a bound counts as on the bound.
@@ -49,13 +52,20 @@ def bound_hints(layout: GainLayout, tuned: np.ndarray) -> list[str]:
     return hints
 
 
-def _failing_lines(ver: dict[str, Any]) -> list[dict[str, Any]]:
-    lines = [q for q in ver.get("requirements", []) if not q.get("passed")]
-    return sorted(lines, key=lambda q: q["margin"] / max(abs(q["limit"]), 1e-12))
+def _relative_margin(q: RequirementLine) -> float:
+    return q.margin / max(abs(q.limit), 1e-12)
 
 
-def _fmt(x: Any) -> str:
-    return "inf" if isinstance(x, str) else f"{float(x):.4g}"
+def _failing_lines(ver: VerificationReport) -> list[RequirementLine]:
+    return sorted((q for q in ver.requirements if not q.passed), key=_relative_margin)
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.4g}"
+
+
+def _finite(x: float) -> float | None:
+    return x if math.isfinite(x) else None
 
 
 def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray, plant: Plant | None = None) -> Diagnosis:
@@ -68,19 +78,16 @@ def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray, plant: P
     ver = result.verification
     if ver is None:
         return Diagnosis(status="unverified", summary="the gains were not verified; they are not accepted", hints=hints)
-    if ver["verdict"] == "pass":
-        lines = ver.get("requirements", [])
-        tight = min(lines, key=lambda q: q["margin"] / max(abs(q["limit"]), 1e-12)) if lines else None
+    if ver.verdict == "pass":
+        tight = min(ver.requirements, key=_relative_margin) if ver.requirements else None
         summary = "the gains pass verification"
-        if tight is not None:
-            label, op = REQUIREMENT_TEXT.get(tight["requirement"], (tight["figure"], "vs"))
-            summary += f"; tightest requirement {label} {op} {_fmt(tight['limit'])}: {_fmt(tight['value'])}"
         if tight is None:
             return Diagnosis(status="pass", summary=summary, hints=hints)
-        value = None if isinstance(tight["value"], str) else float(tight["value"])
-        return Diagnosis(status="pass", summary=summary, binding=tight["requirement"], value=value,
-                         limit=float(tight["limit"]), hints=hints)
-    stable = ver["stability"]["stable"]
+        label, op = REQUIREMENT_TEXT.get(tight.requirement, (tight.figure, "vs"))
+        summary += f"; tightest requirement {label} {op} {_fmt(tight.limit)}: {_fmt(tight.value)}"
+        return Diagnosis(status="pass", summary=summary, binding=tight.requirement, value=_finite(tight.value),
+                         limit=tight.limit, hints=hints)
+    stable = ver.stability.stable
     searched_feasible = result.violation <= 0
     failing = _failing_lines(ver)
     if not stable:
@@ -91,22 +98,21 @@ def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray, plant: P
         return Diagnosis(status="fail", summary=summary, hints=hints)
     if failing:
         q = failing[0]
-        label, op = REQUIREMENT_TEXT.get(q["requirement"], (q["figure"], "vs"))
-        summary = (f"{label} {op} {_fmt(q['limit'])} is not met: the best gains found give {_fmt(q['value'])} "
-                   f"at {q['loop']}/{q['break_point']} ({q['case']})")
+        label, op = REQUIREMENT_TEXT.get(q.requirement, (q.figure, "vs"))
+        summary = (f"{label} {op} {_fmt(q.limit)} is not met: the best gains found give {_fmt(q.value)} "
+                   f"at {q.loop}/{q.break_point} ({q.case})")
         if not searched_feasible:
             kinds = {lp.type.upper() for lp in TuningSpec.model_validate(result.spec).loops}
             hints.insert(0, f"no candidate in {result.sims} simulations met every requirement, so the answer is the "
-                            f"least-violating one: {label} {op} {_fmt(q['limit'])} may not be reachable with "
-                            f"{'/'.join(sorted(kinds))} on this plant within the gain bounds (best {_fmt(q['value'])}). "
+                            f"least-violating one: {label} {op} {_fmt(q.limit)} may not be reachable with "
+                            f"{'/'.join(sorted(kinds))} on this plant within the gain bounds (best {_fmt(q.value)}). "
                             "Relax the requirement, add derivative action, or widen the bounds")
         else:
             hints.insert(0, "the search estimate and the exact verification disagree at these gains; "
                             "raise search.budget or report the spec")
-        return Diagnosis(status="fail", summary=summary, binding=q["requirement"],
-                         value=None if isinstance(q["value"], str) else float(q["value"]), limit=float(q["limit"]), hints=hints)
-    reasons = ver.get("reasons", [])
-    return Diagnosis(status="fail", summary=reasons[0] if reasons else "verification failed", hints=hints)
+        return Diagnosis(status="fail", summary=summary, binding=q.requirement, value=_finite(q.value), limit=q.limit,
+                         hints=hints)
+    return Diagnosis(status="fail", summary=ver.reasons[0] if ver.reasons else "verification failed", hints=hints)
 
 
 def direction_hints(spec, plant: Plant | None) -> list[str]:

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import json
 from typing import Any, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, field_serializer, field_validator
+
+from gaintune.verify.report import VerificationReport, load_report
 
 __all__ = ["CurvePoint", "Progress", "Provenance", "SettleInfo", "Diagnosis", "TuneResult"]
 
@@ -66,6 +69,13 @@ class TuneResult(BaseModel):
 
     ``gains`` are the answer *before* verification; the accepted gains exist only
     when ``verification.verdict == "pass"`` (see :attr:`accepted_gains`).
+
+    ``verification`` is a :class:`~gaintune.verify.VerificationReport`. It is dumped
+    (``model_dump`` in either mode, ``model_dump_json``) in the report's own JSON form,
+    infinite figures as the strings ``"Infinity"``/``"-Infinity"``, so stored results
+    read as plain dicts keep their form. A dict is read back into a report, tolerant of
+    older files (:func:`gaintune.verify.report.load_report`: infinities stored as
+    ``null``, fields added since).
     """
 
     spec: dict[str, Any] = Field(description="The spec as validated (JSON form).")
@@ -93,14 +103,24 @@ class TuneResult(BaseModel):
     diverged_episodes: int = Field(0, description="Search episodes whose simulation diverged.")
     tripped_episodes: int = Field(0, description="Search episodes in which the safety monitor tripped.")
     agent_path: str | None = None
-    verification: dict[str, Any] | None = Field(None, description="VerificationReport as JSON, when verified.")
+    verification: VerificationReport | None = Field(None, description="The verification report, when verified.")
     baselines: list[dict[str, Any]] = Field(default_factory=list, description="Baseline results for comparison.")
     diagnosis: Diagnosis | None = None
     provenance: Provenance
 
+    @field_validator("verification", mode="before")
+    @classmethod
+    def _stored_verification(cls, v: Any) -> Any:
+        return load_report(v) if isinstance(v, dict) else v
+
+    @field_serializer("verification")
+    def _verification_json(self, v: VerificationReport | None) -> dict[str, Any] | None:
+        # the report's own JSON ("Infinity" strings), in python mode too: stored results keep one form
+        return None if v is None else json.loads(v.model_dump_json())
+
     @property
     def verdict(self) -> str | None:
-        return None if self.verification is None else self.verification.get("verdict")
+        return None if self.verification is None else self.verification.verdict
 
     @property
     def accepted_gains(self) -> Gains | None:

@@ -23,10 +23,11 @@ from gaintune.plants.plant import Plant, build_plant
 from gaintune.sim import draws as draws_mod
 from gaintune.sim.build import Problem
 from gaintune.sim.draws import Draws
-from gaintune.sim.kernel import METRICS, simulate_kernel
+from gaintune.sim.kernel import METRICS, run_kernel
+from gaintune.sim.kernel_args import KernelArgs
 from gaintune.spec import ScenarioSpec, TuningSpec
 
-__all__ = ["Simulator", "SimResult", "METRICS", "simulate"]
+__all__ = ["Simulator", "SimResult", "KernelArgs", "METRICS", "simulate"]
 
 
 @dataclass
@@ -81,6 +82,11 @@ class Simulator:
         return hit
 
     def _prepare(self, d: Draws, sc: ScenarioSpec) -> dict:
+        """The gain-independent kernel arguments of one draw set and scenario.
+
+        ``fields`` holds them by :class:`KernelArgs` field name; ``pa`` keeps the
+        plant arrays the controller arrays are built from (the linear models).
+        """
         pb, spec = self.problem, self.spec
         pa, sg = pb.plant_arrays(d, sc), pb.signal_arrays(d, sc)
         act = spec.actuator
@@ -91,40 +97,57 @@ class Simulator:
         meas = np.array(pb.meas, dtype=np.int64)
         f, h = pb.f_tape, pb.h_tape
         empty = np.zeros(0, dtype=np.int64)
-        return dict(
-            pa=pa,
+        B, L = len(d), len(spec.loops)
+        fields = dict(
+            n_steps=sc.n_steps, dt=sc.dt, nonlinear=f is not None,
+            Ad=pa["Ad"], G0=pa["G0"], G1=pa["G1"], Cm=pa["Cm"], Dm=pa["Dm"],
+            f_op=f.op if f else empty, f_a=f.a if f else empty, f_b=f.b if f else empty, f_o=f.o if f else empty,
+            f_c=f.c if f else np.zeros(0), f_nw=f.n_work if f else 1,
+            h_op=h.op if h else empty, h_a=h.a if h else empty, h_b=h.b if h else empty, h_o=h.o if h else empty,
+            h_c=h.c if h else np.zeros(0), h_nw=h.n_work if h else 1, h_nout=h.n_out if h else 1,
+            P=np.ascontiguousarray(d.params.T) if f is not None else np.zeros((0, B)),
+            meas_idx=meas,
+            x_op=pa["x_op"], u_op=pa["u_op"], y_op=pa["y_op"], dsteps=pa["dsteps"],
             u_lo=np.where(np.isfinite(lo), lo * d.act_scale, -np.inf),
             u_hi=np.where(np.isfinite(hi), hi * d.act_scale, np.inf),
-            tapes=(
-                f.op if f else empty, f.a if f else empty, f.b if f else empty, f.o if f else empty,
-                f.c if f else np.zeros(0), f.n_work if f else 1,
-                h.op if h else empty, h.a if h else empty, h.b if h else empty, h.o if h else empty,
-                h.c if h else np.zeros(0), h.n_work if h else 1, h.n_out if h else 1,
-            ),
-            params=np.ascontiguousarray(d.params.T) if f is not None else np.zeros((0, len(d))),
-            meas=meas,
-            signals=(sg["sk0"], sg["sk1"], sg["soff"], sg["sslope"], (meas == meas[0]).astype(float)),
-            noise=(np.full(len(d), sc.noise_std), d.noise_seed),
-            safety=(
-                spec.safety.max_abs_error or np.inf, spec.safety.max_abs_output or np.inf, xb,
-                spec.safety.divergence_bound, 1 if spec.safety.action == "fallback" else 0, act.safe_value,
-            ),
-            anchors=(sg["target"] + pa["y_op"][0], sg["k_step"], sg["k_load"]),
             rate=act.rate_limit if act.rate_limit is not None else np.inf,
-            no_traces=(np.zeros((len(spec.loops), 0, len(d))), np.zeros((len(spec.loops), 0, len(d))), np.zeros((0, len(d)))),
+            sk0=sg["sk0"], sk1=sg["sk1"], soff=sg["soff"], sslope=sg["sslope"],
+            dist_out_loops=(meas == meas[0]).astype(float),
+            noise_std=np.full(B, sc.noise_std), noise_seed=d.noise_seed,
+            max_err=spec.safety.max_abs_error or np.inf, max_out=spec.safety.max_abs_output or np.inf, xbound=xb,
+            div_bound=spec.safety.divergence_bound, safe_mode=1 if spec.safety.action == "fallback" else 0,
+            u_safe=act.safe_value,
+            target=sg["target"] + pa["y_op"][0], k_step=sg["k_step"], k_load=sg["k_load"],
+            # no traces: zero-size arrays, shared by every call on this draw set
+            want_traces=False, tr_y=np.zeros((L, 0, B)), tr_sp=np.zeros((L, 0, B)), tr_u=np.zeros((0, B)),
         )
+        return dict(pa=pa, fields=fields)
 
-    def run(
+    def kernel_args(
         self,
         full_gains: np.ndarray,
         draws: Draws | None = None,
         scenario: ScenarioSpec | int = 0,
         traces: bool = False,
-    ) -> SimResult:
-        """Simulate B full gain vectors (B, n_gains) on one scenario.
+    ) -> KernelArgs:
+        """The kernel's arguments for B full gain vectors on one scenario, exactly as :meth:`run` passes them.
 
-        ``draws`` gives each candidate its plant sample and signals (default:
-        nominal). Diverging candidates are flagged, never raised.
+        Parameters
+        ----------
+        full_gains
+            (B, n_gains) full gain vectors (see :meth:`GainLayout.full`), or one vector.
+        draws
+            Each candidate's plant sample and signals (default: nominal).
+        scenario
+            Index into ``spec.scenarios``, or a scenario.
+        traces
+            Allocate trace arrays and ask the kernel to fill them.
+
+        Returns
+        -------
+        KernelArgs
+            Run it with :func:`gaintune.sim.kernel.run_kernel`. The gain-independent
+            arrays are shared with later calls on the same draws: treat them as read-only.
         """
         full = np.atleast_2d(np.asarray(full_gains, dtype=float))
         B = full.shape[0]
@@ -138,39 +161,36 @@ class Simulator:
                 raise ValueError(f"draws has {len(d)} rows for {B} gain sets")
             prep = self._prepared(d, sc)
         pb = self.problem
-        pa = prep["pa"]
-        ca = pb.controller_arrays(full, pa)
-        fb = pb.fallback_arrays(B, ca, pa)
-        L = len(self.spec.loops)
-        T = sc.n_steps
-        if traces:
-            tr_y, tr_sp, tr_u = np.zeros((L, T, B)), np.zeros((L, T, B)), np.zeros((T, B))
-        else:
-            tr_y, tr_sp, tr_u = prep["no_traces"]
-        out = simulate_kernel(
-            T, sc.dt, pb.f_tape is not None,
-            pa["Ad"], pa["G0"], pa["G1"], pa["Cm"], pa["Dm"],
-            *prep["tapes"], prep["params"], prep["meas"],
-            pa["x_op"], pa["u_op"], pa["y_op"], pa["dsteps"],
-            ca["kp"], ca["ki"], ca["kd"], ca["tf"], ca["bw"], ca["cw"], ca["kb"], ca["lo"], ca["hi"], ca["aw"],
-            ca["sf"], ca["K"], ca["kint"], ca["nr"],
-            prep["u_lo"], prep["u_hi"], prep["rate"],
-            *prep["signals"], *prep["noise"], *prep["safety"],
-            fb["fb_kp"], fb["fb_ki"], fb["fb_kd"], fb["fb_tf"], fb["fb_kb"],
-            *prep["anchors"],
-            traces, tr_y, tr_sp, tr_u,
-        )
+        ca = pb.controller_arrays(full, prep["pa"])
+        args = KernelArgs(**prep["fields"], **ca, **pb.fallback_arrays(B, ca, prep["pa"]))
+        return args.with_traces() if traces else args
+
+    def run(
+        self,
+        full_gains: np.ndarray,
+        draws: Draws | None = None,
+        scenario: ScenarioSpec | int = 0,
+        traces: bool = False,
+    ) -> SimResult:
+        """Simulate B full gain vectors (B, n_gains) on one scenario.
+
+        ``draws`` gives each candidate its plant sample and signals (default:
+        nominal). Diverging candidates are flagged, never raised.
+        """
+        args = self.kernel_args(full_gains, draws, scenario, traces)
+        out = run_kernel(args)
+        sc = self.spec.scenarios[scenario] if isinstance(scenario, int) else scenario
         metrics = {name: out[i] for i, name in enumerate(METRICS)}
         metrics["diverged"] = metrics["diverged"].astype(bool)
         metrics["tripped"] = metrics["tripped"].astype(bool)
         res = SimResult(sc.name, metrics)
         if traces:
-            res.t = np.arange(T) * sc.dt
+            res.t = np.arange(args.n_steps) * sc.dt
             names = [lp.name for lp in self.spec.loops]
             for i, nm in enumerate(names):
-                res.traces[f"y.{nm}"] = tr_y[i].T
-                res.traces[f"sp.{nm}"] = tr_sp[i].T
-            res.traces["u"] = tr_u.T
+                res.traces[f"y.{nm}"] = args.tr_y[i].T
+                res.traces[f"sp.{nm}"] = args.tr_sp[i].T
+            res.traces["u"] = args.tr_u.T
         return res
 
 

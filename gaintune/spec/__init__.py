@@ -128,6 +128,10 @@ class TuningSpec(_Model):
         for i, loop in enumerate(self.loops):
             if loop.is_lq and i != len(self.loops) - 1:
                 raise ValueError(f"loops[{i}]: an {loop.type} loop must be the innermost (last) loop")
+        mks = self.requirements.mks_max
+        if isinstance(mks, dict) and set(mks) - set(names):
+            raise ValueError(f"requirements.mks_max names unknown loops {sorted(set(mks) - set(names))}; "
+                             f"the loops are {names}")
         return self
 
     def content_hash(self) -> str:

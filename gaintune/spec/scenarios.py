@@ -7,6 +7,7 @@ that verification enforces per loop.
 
 from __future__ import annotations
 
+import math
 from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
@@ -130,3 +131,25 @@ class RequirementsSpec(_Model):
     dm_min: float | None = Field(None, ge=0, description="Minimum delay margin in seconds.")
     ms_max: float | None = Field(2.0, gt=1, description="Maximum sensitivity peak.")
     mt_max: float | None = Field(None, gt=0, description="Maximum complementary-sensitivity peak.")
+    wc_min: float | None = Field(
+        None, gt=0, description="Minimum gain-crossover frequency (rad/s) at every break point: the crossover of the "
+        "binding phase margin (pm_freq); a loop without a crossover counts as 0.")
+    wc_max: float | None = Field(
+        None, gt=0, description="Maximum gain-crossover frequency (rad/s) at every break point (as wc_min).")
+    mks_max: float | dict[str, float | None] | Literal["auto"] | None = Field(
+        "auto",
+        description="Maximum noise sensitivity Mks: the peak gain from a loop's measurement noise to the plant "
+        "input (SISO: max |C S|), in actuator units per measured unit. A number applies to every PID loop; "
+        "{loop: limit} sets it per loop (a loop left out, or null, has none). 'auto': a limit derived from "
+        "the plant where nothing in it bounds the loop's speed (a delay-free, stable path of relative degree "
+        "<= 1): Mks <= 10/|static gain|, so the design no longer follows the sample time; no limit elsewhere. "
+        "null: no limit.")
+
+    @field_validator("mks_max")
+    @classmethod
+    def _positive_mks(cls, v: Any) -> Any:
+        vals = v.values() if isinstance(v, dict) else [v]
+        for x in vals:
+            if isinstance(x, float) and not (math.isfinite(x) and x > 0):
+                raise ValueError(f"noise-sensitivity limits must be finite and > 0, got {x}")
+        return v

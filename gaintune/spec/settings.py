@@ -9,7 +9,9 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, GetJsonSchemaHandler, model_validator
+from pydantic.json_schema import JsonSchemaValue
+from pydantic_core import core_schema as cs
 
 from gaintune.spec.base import _finite, _Model
 
@@ -34,6 +36,15 @@ class DistSpec(_Model):
         if isinstance(v, (list, tuple)) and len(v) == 2:
             return {"dist": "uniform", "low": v[0], "high": v[1]}
         return v
+
+    @classmethod
+    def __get_pydantic_json_schema__(cls, schema: cs.CoreSchema, handler: GetJsonSchemaHandler) -> JsonSchemaValue:
+        # Publish the [low, high] shorthand too, so the JSON schema accepts what the model accepts.
+        obj = handler.resolve_ref_schema(handler(schema))
+        pair = {"type": "array", "prefixItems": [{"type": "number"}, {"type": "number"}], "minItems": 2,
+                "maxItems": 2, "description": "[low, high]: shorthand for {dist: uniform, low, high}."}
+        return {"title": obj.pop("title", cls.__name__), "description": obj.pop("description", ""),
+                "anyOf": [obj, pair]}
 
     @model_validator(mode="after")
     def _check(self) -> "DistSpec":

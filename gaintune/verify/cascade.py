@@ -18,7 +18,9 @@ Every loop's feedback signal is linear in ``u``: ``v_k = F_k r_k + m_k u`` with
 * ``H_k`` (r_k -> u with loops k..n-1 closed): ``H_n = 1``,
   ``H_k = H_{k+1} F_k / (1 - H_{k+1} m_k)``;
 * loop ``i`` broken at its controller output (others closed): ``L_i = -g_i H_{i+1}``;
-* loop broken at the plant input (every loop passes through u): ``L_u = -g_{n-1}``.
+* loop broken at the plant input (every loop passes through u): ``L_u = -g_{n-1}``;
+* noise at loop ``i``'s measurement to the plant input ``u`` (others closed):
+  ``N_i = -C_i H_{i+1} / (1 + L_i)``; its peak is the noise sensitivity Mks (SISO: ``|C S|``).
 
 The same structure gives the delay-free (or Padé) closed-loop state matrix whose
 eigenvalues are the closed-loop poles, and the open-loop poles of the system cut
@@ -112,7 +114,10 @@ class Cascade:
 
     # ------------------------------------------------------------ frequency
     def controller_responses(self, s: np.ndarray, lin: LinearModel, X: np.ndarray, P: np.ndarray, ops=None):
-        """Per loop (F_k, m_k), each (B, W), given X = u->x (W, n) and P = u->y (W, q) incl. delay.
+        """Per loop (F_k, m_k, C_k), each (B, W), given X = u->x (W, n) and P = u->y (W, q) incl. delay.
+
+        ``C_k`` is the feedback controller (measurement -> loop output); NaN for an LQ loop,
+        whose feedback is the whole state (no single measurement to put noise on).
 
         ``ops``: (integral operator, derivative operator Tf -> array) at the frequencies; default
         the continuous 1/s and s/(Tf s + 1); :func:`gaintune.verify.sampled.discrete_ops` for the
@@ -139,17 +144,22 @@ class Cascade:
                 I = lp.Kint[:, None] * inv_s if lp.has_i else 0.0
                 m = -(KX + I * P[None, :, lp.out_idx])
                 F = lp.Nr[:, None] + I
-            out.append((np.broadcast_to(F, (self.batch, s.size)), m))
+                C = np.nan
+            shape = (self.batch, s.size)
+            out.append((np.broadcast_to(F, shape), m, np.broadcast_to(C, shape)))
         return out
 
     def loop_responses(self, s: np.ndarray, lin: LinearModel, delay: np.ndarray | complex = 1.0,
-                       sampled: SampledPlant | None = None) -> np.ndarray:
+                       sampled: SampledPlant | None = None, noise: bool = False):
         """Open-loop responses at complex frequencies ``s``: (n_loops + 1, B, W).
 
         ``delay`` is the delay factor at ``s`` (e^{-sT} or its Padé approximant), shape (W,).
         ``sampled``: evaluate the sampled loop instead (plant as the simulator steps it, the
         controllers' discrete laws) at z = e^{s dt}; ``delay`` is then unused (the sampled
         plant holds its delays). Rows: each loop broken at its controller output, then the plant input.
+
+        ``noise``: also return the noise responses ``N`` (n_loops, B, W): measurement noise of each
+        loop to the plant input ``u`` (see the module docstring); the result is then ``(L, N)``.
         """
         s = np.asarray(s)
         if sampled is not None:
@@ -162,27 +172,34 @@ class Cascade:
             X = plant_state_response(lin, s) * np.asarray(delay)[:, None]  # (W, n)
             P = X @ lin.C.T + (lin.D[:, 0][None, :] * np.asarray(delay)[:, None])  # (W, q)
             resp = self.controller_responses(s, lin, X, P)
-        return self.cascade(resp, s.size)
+        if not noise:
+            return self.cascade(resp, s.size)
+        L, H = self.cascade(resp, s.size, inner=True)
+        with np.errstate(all="ignore"):
+            N = np.stack([-resp[i][2] * H[i + 1] / (1.0 + L[i]) for i in range(len(self.loops))])
+        return L, N
 
-    def cascade(self, resp, W: int) -> np.ndarray:
-        """The break-point loops (n_loops + 1, B, W) from the per-loop (F_k, m_k)."""
+    def cascade(self, resp, W: int, inner: bool = False):
+        """The break-point loops (n_loops + 1, B, W) from the per-loop (F_k, m_k, C_k).
+
+        ``inner``: return ``(L, H)`` with ``H[k]`` (r_k -> u, loops k..n-1 closed; ``H[n] = 1``)."""
         n = len(self.loops)
         g = []
         prev = np.zeros((self.batch, W), dtype=complex)
-        for F, m in resp:
+        for F, m, _ in resp:
             prev = F * prev + m
             g.append(prev)
         H = [None] * (n + 1)
         H[n] = np.ones((self.batch, W), dtype=complex)
         with np.errstate(divide="ignore", invalid="ignore"):
             for k in range(n - 1, -1, -1):
-                F, m = resp[k]
+                F, m, _ = resp[k]
                 H[k] = H[k + 1] * F / (1.0 - H[k + 1] * m)
             L = np.empty((n + 1, self.batch, W), dtype=complex)
             for i in range(n):
                 L[i] = -g[i] * H[i + 1]
         L[n] = -g[n - 1]
-        return L
+        return (L, H) if inner else L
 
     # -------------------------------------------------------- state space
     def open_loop_poles(self, lin: LinearModel, pade: tuple[float, int] | None) -> np.ndarray:

@@ -3,17 +3,19 @@
 Verifying a new gain set on a spec seen before rebuilds nothing: the entry (keyed by
 ``spec.content_hash()``) holds the plant (whose linearisation cache is then warm), the
 layout, the nominal linear model and the :class:`gaintune.sim.Simulator` (whose
-discretisation / draw-array memo is then warm). A small thread-safe LRU.
+discretisation / draw-array memo is then warm). A small thread-safe LRU
+(:class:`gaintune.cache.LRU`).
 """
 
 from __future__ import annotations
 
 import threading
-from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any
 
+from gaintune.cache import LRU
 from gaintune.controllers.layout import GainLayout
+from gaintune.plants.noise_limit import NoiseLimit, noise_limits
 from gaintune.plants.plant import LinearModel, Plant, build_plant
 from gaintune.spec import TuningSpec
 
@@ -30,7 +32,14 @@ class SpecContext:
     layout: GainLayout
     lin: LinearModel
     _sim: Any = None
+    _noise: list[NoiseLimit] | None = None
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def noise_limits(self, spec: TuningSpec) -> list[NoiseLimit]:
+        """The spec's per-loop noise-sensitivity limits (``auto`` resolved on the nominal model), computed once."""
+        if self._noise is None:
+            self._noise = noise_limits(spec, self.lin)
+        return self._noise
 
     def simulator(self, spec: TuningSpec):
         """The spec's simulator (built on first use); None when :mod:`gaintune.sim` is unavailable."""
@@ -48,8 +57,7 @@ class SpecContext:
         return self._sim
 
 
-_CACHE: OrderedDict[str, SpecContext] = OrderedDict()
-_LOCK = threading.Lock()
+_CACHE: LRU[str, SpecContext] = LRU(CACHE_SIZE)
 
 
 def spec_context(spec: TuningSpec, plant: Plant | None = None, layout: GainLayout | None = None, *,
@@ -58,27 +66,19 @@ def spec_context(spec: TuningSpec, plant: Plant | None = None, layout: GainLayou
 
     A cached entry wins over ``plant``/``layout`` passed in: both are built from the spec
     (the key is the hash of its full content), so they are equivalent. ``spec_hash``:
-    ``spec.content_hash()`` when the caller has it already.
+    ``spec.content_hash()`` when the caller has it already. Two threads missing the same
+    spec may both build it; the first stored is kept and returned to both.
     """
     key = spec_hash or spec.content_hash()
-    with _LOCK:
-        hit = _CACHE.get(key)
-        if hit is not None:
-            _CACHE.move_to_end(key)
-            return hit
-    plant = plant or build_plant(spec.plant)
-    layout = layout or GainLayout(spec, plant.states)
-    ctx = SpecContext(key, plant, layout, plant.linearize())
-    with _LOCK:
-        hit = _CACHE.get(key)
-        if hit is not None:  # built concurrently: keep the first
-            return hit
-        _CACHE[key] = ctx
-        while len(_CACHE) > CACHE_SIZE:
-            _CACHE.popitem(last=False)
-    return ctx
+
+    def build() -> SpecContext:
+        p = plant or build_plant(spec.plant)
+        lay = layout or GainLayout(spec, p.states)
+        return SpecContext(key, p, lay, p.linearize())
+
+    return _CACHE.get_or_build(key, build)
 
 
 def clear_cache() -> None:
-    with _LOCK:
-        _CACHE.clear()
+    """Forget every cached spec context."""
+    _CACHE.clear()

@@ -10,6 +10,7 @@ import numpy as np
 
 from gaintune.controllers.layout import GainLayout
 from gaintune.errors import GainError
+from gaintune.plants.noise_limit import noise_limits
 from gaintune.plants.plant import Plant, build_plant
 from gaintune.spec import TuningSpec
 from gaintune.verify.analysis import Analysis, analyse, sampling_delay
@@ -28,6 +29,7 @@ from gaintune.verify.report import (
     VerificationReport,
     WorstCase,
 )
+from gaintune.verify.noise import noise_peaks
 from gaintune.verify.robust import DELAY_KEY, robust_samples
 from gaintune.verify.sampled import SampledPlant, sample_plant
 
@@ -40,6 +42,8 @@ REQUIREMENTS: dict[str, tuple[str, str]] = {
     "dm_min": ("delay_margin", "min"),
     "ms_max": ("ms", "max"),
     "mt_max": ("mt", "max"),
+    "wc_min": ("pm_freq", "min"),
+    "wc_max": ("pm_freq", "max"),
 }
 
 #: The continuous analysis band ends at this multiple of the controller's Nyquist frequency pi/dt
@@ -168,7 +172,7 @@ def analysis_band(spec: TuningSpec) -> float:
     return BAND_NYQUIST * math.pi / max(sc.dt for sc in spec.scenarios)
 
 
-def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis, sampled: SampledPlant | None = None
+def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis, nominal_mks, sampled: SampledPlant | None = None
             ) -> tuple[RobustReport, list[WorstCase]]:
     """Worst figures over the robust samples. ``sampled``: the nominal sampled plant (its dt,
     computation delay and method are applied to every sample); else the continuous analysis
@@ -179,6 +183,9 @@ def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis, sampled: SampledP
     worst_kind = {"gm_db": min, "pm_deg": min, "delay_margin": min, "ms": max, "mt": max, "disk_alpha": min}
     R = len(nominal.figures)
     worst = [{k: (getattr(nominal.figures[r], k), {"nominal": 1.0}) for k in keys} for r in range(R)]
+    n_loops = len(cas.loops)
+    mks_worst: list[tuple[float | None, dict]] = [(nominal_mks[r][0] if r < n_loops else None, {"nominal": 1.0})
+                                                  for r in range(R)]
     unstable: list[dict[str, float]] = []
     for smp in samples:
         params = {k: v for k, v in smp.items() if k != DELAY_KEY}
@@ -191,6 +198,11 @@ def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis, sampled: SampledP
             a = analyse(cas, lin, DelayModel(tau + t_s, spec.verify.pade_order), spec.verify.n_freq, analysis_band(spec))
         if not a.stability.stable:
             unstable.append(dict(smp))
+        mks = noise_peaks(cas, lin, a.omega_range, DelayModel(tau + t_s) if sampled is None else None,
+                          sp if sampled is not None else None)
+        for r, (v, _) in enumerate(mks):
+            if v is not None and (mks_worst[r][0] is None or v > mks_worst[r][0]):
+                mks_worst[r] = (v, dict(smp))
         for r, f in enumerate(a.figures):
             for k in keys:
                 v = getattr(f, k)
@@ -203,7 +215,7 @@ def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis, sampled: SampledP
         where = {k: {("delay" if kk == DELAY_KEY else kk): vv for kk, vv in w[k][1].items()} for k in keys}
         wc.append(WorstCase(loop=f.loop, break_point=f.break_point, gm_db=w["gm_db"][0], pm_deg=w["pm_deg"][0],
                             delay_margin=w["delay_margin"][0], delay_margin_samples=_samples(w["delay_margin"][0], dt),
-                            ms=w["ms"][0], mt=w["mt"][0],
+                            ms=w["ms"][0], mt=w["mt"][0], mks=mks_worst[r][0],
                             disk_alpha=w["disk_alpha"][0], where=where))
     rep = RobustReport(
         n_samples=len(samples), n_corners=n_corners, n_monte_carlo=n_mc, seed=spec.search.seed,
@@ -221,8 +233,9 @@ def _requirement_lines(spec: TuningSpec, loops: list[LoopFigures], worst: list[W
         if limit is None:
             continue
         cands = [(getattr(f, attr), f.loop, f.break_point, "nominal") for f in loops]
-        if worst:
+        if worst and attr != "pm_freq":  # the robust set records no crossover frequencies
             cands += [(getattr(w, attr), w.loop, w.break_point, "worst") for w in worst]
+        cands = [(0.0 if v is None else v, *rest) for v, *rest in cands]  # no gain crossover: wc = 0
         best = None
         for value, loop, brk, case in cands:
             margin = (value - limit) if kind == "min" else (limit - value)
@@ -235,7 +248,30 @@ def _requirement_lines(spec: TuningSpec, loops: list[LoopFigures], worst: list[W
         margin, value, loop, brk, case = best  # type: ignore[misc]
         lines.append(RequirementLine(requirement=name, figure=attr, limit=float(limit), value=float(value),
                                      margin=float(margin), passed=margin >= 0, loop=loop, break_point=brk, case=case))
+    mks = _noise_line(loops, worst)
+    if mks is not None:
+        lines.append(mks)
     return lines
+
+
+def _noise_line(loops: list[LoopFigures], worst: list[WorstCase] | None) -> RequirementLine | None:
+    """The Mks requirement at its binding loop: limits differ per loop, so the one with the least
+    relative margin binds (the line states that loop's limit)."""
+    limit = {f.loop: f.mks_max for f in loops if f.break_point == "controller_output" and f.mks_max is not None}
+    cands = [(f.mks, f.loop, f.break_point, "nominal") for f in loops if f.loop in limit]
+    cands += [(w.mks, w.loop, w.break_point, "worst") for w in (worst or []) if w.loop in limit and w.mks is not None]
+    best = None
+    for value, loop, brk, case in cands:
+        v = math.inf if value is None or math.isnan(value) else value
+        rel = (limit[loop] - v) / limit[loop]
+        if best is None or rel < best[0] - 1e-12:
+            best = (rel, v, loop, brk, case)
+    if best is None:
+        return None
+    _, value, loop, brk, case = best
+    margin = limit[loop] - value
+    return RequirementLine(requirement="mks_max", figure="mks", limit=float(limit[loop]), value=float(value),
+                           margin=float(margin), passed=margin >= 0, loop=loop, break_point=brk, case=case)
 
 
 def verify(
@@ -320,6 +356,12 @@ def verify(
                 f"{pade.max_gm_err_db:.2f} dB, Ms error {100 * pade.max_ms_rel_err:.1f} %); raise verify.pade_order or set it to null (exact delay)"
             )
     loops = [_to_model(f, dt) for f in nom.figures]
+    mks = noise_peaks(cas, lin, nom.omega_range, None if sp is not None else delay, sp)
+    limits = ctx.noise_limits(spec) if ctx is not None else noise_limits(spec, lin)
+    for i, (value, w_pk) in enumerate(mks):
+        loops[i].mks, loops[i].mks_freq, loops[i].mks_max = value, w_pk, limits[i].limit
+        if limits[i].source.startswith("auto: none (integrating"):
+            notes.append(f"{loops[i].loop}: no automatic noise-sensitivity limit ({limits[i].source[len('auto: none ('):-1]})")
     stab = _stability_model(nom)
     if not stab.stable:
         where = "|z| >= 1" if stab.domain == "z" else "Re >= 0"
@@ -329,7 +371,7 @@ def verify(
     if robust is None:
         robust = bool(spec.randomize.params or spec.randomize.delay)
     if robust:
-        rob, worst = _robust(spec, plant, cas, lin, t_s + vs.compute_delay * dt, nom, sp)
+        rob, worst = _robust(spec, plant, cas, lin, t_s + vs.compute_delay * dt, nom, mks, sp)
         if rob.n_samples == 0:
             notes.append("robust check requested but the spec randomises neither plant parameters nor the delay")
         if rob.n_unstable:

@@ -21,6 +21,7 @@ import numpy as np
 
 from gaintune.controllers.layout import GainLayout
 from gaintune.lti import pade_response
+from gaintune.plants.noise_limit import noise_limits
 from gaintune.plants.plant import LinearModel, Plant
 from gaintune.spec import TuningSpec
 from gaintune.verify.analysis import sampling_delay
@@ -28,7 +29,7 @@ from gaintune.verify.cascade import build_cascade
 from gaintune.verify.sampled import SampledPlant, sample_plant
 from gaintune.verify.stability import observable_part, sampled_stability
 
-__all__ = ["QuickMargins", "quick_margins", "requirement_violation", "sampled_grid", "UNSTABLE_VIOLATION",
+__all__ = ["QuickMargins", "quick_margins", "requirement_violation", "noise_limit_array", "sampled_grid", "UNSTABLE_VIOLATION",
            "FEASIBILITY_MARGIN", "MAX_TERM"]
 
 #: Violation of an unstable closed loop, plus a grade that grows with the largest real pole.
@@ -47,13 +48,16 @@ _GM_CAP = 1e4  # GM beyond 80 dB counts as infinite, as in the exact verificatio
 @dataclass
 class QuickMargins:
     """Per-candidate estimates; arrays are (B, R) with R = n_loops + 1 break points
-    (each loop at its controller output, then the plant input), except ``stable``/``max_real`` (B,)."""
+    (each loop at its controller output, then the plant input), except ``mks`` (B, n_loops)
+    and ``stable``/``max_real`` (B,)."""
 
     gm_db: np.ndarray
     pm_deg: np.ndarray
     delay_margin: np.ndarray
     ms: np.ndarray
     mt: np.ndarray
+    mks: np.ndarray  # (B, n_loops): noise sensitivity per loop (NaN for an LQ loop)
+    wc: np.ndarray  # crossover of the binding PM (rad/s), 0 without a gain crossover
     stable: np.ndarray
     max_real: np.ndarray
     omega: np.ndarray
@@ -132,8 +136,10 @@ def quick_margins(
         dly = np.ones_like(s)
     R, B = len(cas.loops) + 1, full.shape[0]
     with np.errstate(all="ignore"):
-        Lall = cas.loop_responses(s, lin, dly, sampled=sp)  # (R, B, W+1)
+        Lall, Nall = cas.loop_responses(s, lin, dly, sampled=sp, noise=True)  # (R, B, W+1), (R-1, B, W+1)
         L, L0 = Lall[..., :-1], Lall[..., -1]
+        mks = _parabolic_peak(np.nan_to_num(np.abs(Nall[..., :-1]), nan=_BIG, posinf=_BIG))
+        mks[[lp.kind != "pid" for lp in cas.loops]] = np.nan
         if sp is not None:
             L[..., -1] = L[..., -1].real  # real at z = -1: an end point, like w = 0
         aL = np.abs(L)
@@ -152,12 +158,14 @@ def quick_margins(
         pm = 180.0 - np.mod(-ph, 360.0)
         dm = np.radians(np.mod(pm, 360.0)) / wc
         ok = np.isfinite(pm) & np.isfinite(wc)
-        r, b, pm, dm = r[ok], b[ok], pm[ok], dm[ok]
+        r, b, pm, dm, wc = r[ok], b[ok], pm[ok], dm[ok], wc[ok]
         pm_b = np.full((R, B), np.inf)
+        wc_b = np.zeros((R, B))  # the binding PM's crossover; 0 without a gain crossover
         dm_b = np.full((R, B), np.inf)
         # binding PM: the one of smallest |PM| (sort descending by |PM| so the last write wins)
         o = np.argsort(-np.abs(pm))
         pm_b[r[o], b[o]] = pm[o]
+        wc_b[r[o], b[o]] = wc[o]
         np.minimum.at(dm_b, (r, b), dm)
         # phase crossings: sign changes of Im L with Re L < 0
         im, re = L.imag, L.real
@@ -182,7 +190,7 @@ def quick_margins(
     tr = lambda x: np.moveaxis(x, 0, -1)  # (R, B) -> (B, R)
     if sp is not None:  # closed-loop stability of the sampled loop: |z| < 1
         stable, max_re = sampled_stability(cas, lin, sp, float(w[0]))
-        return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), stable, max_re, w, cas.break_names)
+        return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), tr(mks), tr(wc_b), stable, max_re, w, cas.break_names)
     # closed-loop stability: batched eigenvalues (delay as Padé)
     w_char = w[-1] / 300.0  # fastest characteristic frequency of the loop (see _grid)
     pade = (T, order or (6 if T * w_char > 0.05 else 2)) if T > 0 else None
@@ -200,7 +208,12 @@ def quick_margins(
     max_re = np.where(finite, ev.real.max(axis=-1) if ev.shape[-1] else -np.inf, np.inf)
     scale = np.maximum(1.0, np.abs(ev).max(axis=-1) if ev.shape[-1] else 1.0)
     stable = (max_re < -1e-12 * scale) & (not extra_unstable)
-    return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), stable, max_re, w, cas.break_names)
+    return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), tr(mks), tr(wc_b), stable, max_re, w, cas.break_names)
+
+
+def noise_limit_array(spec: TuningSpec, plant: Plant) -> np.ndarray:
+    """The spec's per-loop Mks limits on the plant's nominal model, NaN where a loop has none."""
+    return np.array([np.nan if n.limit is None else n.limit for n in noise_limits(spec, plant.linearize())], dtype=float)
 
 
 def requirement_violation(
@@ -209,6 +222,7 @@ def requirement_violation(
     layout: GainLayout,
     full_gains: np.ndarray,
     lin: LinearModel | None = None,
+    noise_limit: np.ndarray | None = None,
 ) -> np.ndarray:
     """Non-negative violation (B,): 0 when every requirement holds at every break point.
 
@@ -218,8 +232,15 @@ def requirement_violation(
     far from any stabilising gains still sees which way stability lies.
 
     Relative shortfalls: GM ``(gm_min - gm)/gm_min`` (dB), PM ``(pm_min - pm)/pm_min``,
-    delay margin ``(dm_min - dm)/dm_min``, Ms ``(ms - ms_max)/ms_max``, Mt ``(mt - mt_max)/mt_max``.
+    delay margin ``(dm_min - dm)/dm_min``, Ms ``(ms - ms_max)/ms_max``, Mt ``(mt - mt_max)/mt_max``,
+    Mks per loop ``(mks_i - limit_i)/limit_i``, crossover ``(wc_min - wc)/wc_min`` and ``(wc - wc_max)/wc_max``.
+
+    ``noise_limit``: the per-loop Mks limits (n_loops,), NaN where none; default: resolved from
+    the spec on the plant's nominal model (:func:`gaintune.plants.noise_limit.noise_limits`;
+    a randomised ``lin`` does not move the limit).
     """
+    if noise_limit is None:
+        noise_limit = noise_limit_array(spec, plant)
     q = quick_margins(spec, plant, layout, full_gains, lin)
     req = spec.requirements
     B = q.stable.shape[0]
@@ -236,6 +257,13 @@ def requirement_violation(
             terms.append((q.ms - req.ms_max) / req.ms_max)
         if req.mt_max is not None:
             terms.append((q.mt - req.mt_max) / req.mt_max)
+        if req.wc_min is not None:
+            terms.append((req.wc_min - q.wc) / req.wc_min)
+        if req.wc_max is not None:
+            terms.append((q.wc - req.wc_max) / req.wc_max)
+        if np.any(np.isfinite(noise_limit)):
+            has = np.isfinite(noise_limit)
+            terms.append((q.mks[:, has] - noise_limit[has]) / noise_limit[has])
         for t in terms:
             t = np.nan_to_num(t, nan=MAX_TERM, posinf=MAX_TERM, neginf=0.0).max(axis=-1)
             t = t + FEASIBILITY_MARGIN  # met means at least FEASIBILITY_MARGIN inside the limit

@@ -24,6 +24,7 @@ __all__ = [
     "NonlinearReport",
     "RequirementLine",
     "VerificationReport",
+    "load_report",
     "format_table",
 ]
 
@@ -65,6 +66,11 @@ class LoopFigures(_Out):
     ms_freq: float | None = None
     mt: float = Field(description="Complementary-sensitivity peak max|L/(1+L)|.")
     mt_freq: float | None = None
+    mks: float | None = Field(
+        None, description="Noise sensitivity: peak gain from this loop's measurement noise to the plant input "
+        "(SISO: max|C S|), actuator units per measured unit. Null at the plant-input break point and for LQ loops.")
+    mks_freq: float | None = None
+    mks_max: float | None = Field(None, description="The noise-sensitivity limit applied to this loop (requirements.mks_max, 'auto' resolved).")
     disk_alpha: float = Field(description="Balanced (skew 0) disk margin alpha.")
     disk_gm_db: float = Field(description="Disk-based gain margin in dB.")
     disk_pm_deg: float = Field(description="Disk-based phase margin in degrees.")
@@ -125,6 +131,7 @@ class WorstCase(_Out):
     delay_margin_samples: float | None = None
     ms: float
     mt: float
+    mks: float | None = None
     disk_alpha: float
     where: dict[str, dict[str, float]] = Field(default_factory=dict, description="figure -> sample (parameter values, delay) attaining it.")
 
@@ -203,6 +210,41 @@ class VerificationReport(_Out):
         return self.gains if self.verdict == "pass" else None
 
 
+def load_report(data: VerificationReport | dict) -> VerificationReport:
+    """A stored report (its JSON form, a dict) as a :class:`VerificationReport`; a report is returned as it is.
+
+    Tolerant of older files: a report dumped with ``model_dump()`` keeps ``inf`` floats,
+    which a JSON writer without ``ser_json_inf_nan='strings'`` (e.g. an older
+    ``TuneResult.model_dump_json()``) wrote as ``null``. A required float that reads
+    back as ``null`` was such an infinity: a figure without crossover is +inf; a
+    requirement margin is +inf if the requirement passed, else -inf. Fields added
+    since take their defaults. Any other invalid input raises pydantic's ``ValidationError``.
+    """
+    import json
+
+    from pydantic import ValidationError
+
+    if isinstance(data, VerificationReport):
+        return data
+    try:
+        return VerificationReport.model_validate(data)
+    except ValidationError as exc:
+        if not isinstance(data, dict):
+            raise
+        fixed = json.loads(json.dumps(data))
+        for e in exc.errors():
+            if e["type"] not in ("float_type", "float_parsing"):
+                raise
+            *path, key = e["loc"]
+            node = fixed
+            for k in path:
+                node = node[k]
+            if node[key] is not None:
+                raise
+            node[key] = "Infinity" if key != "margin" or node.get("passed") else "-Infinity"
+        return VerificationReport.model_validate(fixed)
+
+
 # ------------------------------------------------------------------ table
 
 
@@ -239,7 +281,7 @@ def format_table(report: VerificationReport) -> str:
             f"; delay {_f(report.delay)} s + sampling {_f(report.sampling_delay)} s ({report.delay_method}{cd})"
         )
     hdr = (f"{'loop':<12} {'break':<8} {'GM dB':>7} {'GMlo dB':>7} {'PM deg':>7} {'wc':>8} {'DM s':>8} {'DM smp':>7} "
-           f"{'Ms':>6} {'Mt':>6} {'disk a':>6}")
+           f"{'Ms':>6} {'Mt':>6} {'Mks':>8} {'disk a':>6}")
     lines += ["", hdr, "-" * len(hdr)]
     for f in report.loops:
         brk = "ctrl" if f.break_point == "controller_output" else "u"
@@ -251,7 +293,7 @@ def format_table(report: VerificationReport) -> str:
         lines.append(
             f"{f.loop:<12} {brk:<8} {gm_up:>7} {gm_lo:>7} {_f(f.pm_deg, '{:.1f}'):>7} "
             f"{_f(f.pm_freq):>8} {_f(f.delay_margin):>8} {_f(f.delay_margin_samples, '{:.2f}'):>7} "
-            f"{_f(f.ms, '{:.2f}'):>6} {_f(f.mt, '{:.2f}'):>6} {_f(f.disk_alpha, '{:.2f}'):>6}"
+            f"{_f(f.ms, '{:.2f}'):>6} {_f(f.mt, '{:.2f}'):>6} {_f(f.mks, '{:.4g}'):>8} {_f(f.disk_alpha, '{:.2f}'):>6}"
         )
     if report.loops:
         lines.append("(* the binding gain margin, gm_db)")
@@ -263,6 +305,7 @@ def format_table(report: VerificationReport) -> str:
             lines.append(
                 f"{w.loop:<12} {brk:<8} worst GM {_f(w.gm_db, '{:.2f}')} dB, PM {_f(w.pm_deg, '{:.1f}')} deg, "
                 f"DM {_f(w.delay_margin)} s, Ms {_f(w.ms, '{:.2f}')}, Mt {_f(w.mt, '{:.2f}')}"
+                + (f", Mks {_f(w.mks, '{:.4g}')}" if w.mks is not None else "")
             )
     if report.nonlinear is not None:
         n = report.nonlinear

@@ -49,6 +49,7 @@ class Server:
         e.update(GAINTUNE_DB_PATH=str(self.db), GAINTUNE_DATA_DIR=str(tmp / "data"), GAINTUNE_WARMUP="false",
                  GAINTUNE_HEARTBEAT_INTERVAL="0.25", PYTHONPATH=str(REPO))
         e.update(env)
+        self.env = e
         if use_uvicorn:
             cmd = [sys.executable, "-m", "uvicorn", "api.main:app", "--host", "127.0.0.1", "--port", str(self.port)]
         else:
@@ -87,6 +88,32 @@ class Server:
         with sqlite3.connect(self.db) as c:
             return c.execute("SELECT worker_pid FROM jobs WHERE id=?", (job_id,)).fetchone()[0]
 
+    def wait(self, cond, timeout: float = 60, what: str = "condition", poll: float = 0.1):
+        """Poll ``cond()`` until it returns something truthy (bounded); returns that value."""
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout:
+            assert self.proc.poll() is None, self.logs()
+            v = cond()
+            if v:
+                return v
+            time.sleep(poll)
+        raise AssertionError(f"timed out waiting for {what}:\n{self.logs()}")
+
+    def sql(self, query: str, *args):
+        """One row of a read-only query on the server's database."""
+        with sqlite3.connect(f"file:{self.db}?mode=ro", uri=True, timeout=30) as c:
+            return c.execute(query, args).fetchone()
+
+    def metric(self, name: str) -> float:
+        for line in self.client.get("/metrics").text.splitlines():
+            if line.startswith(name + " "):
+                return float(line.split()[1])
+        raise AssertionError(f"no metric {name}")
+
+    def worker_pids(self) -> list[int]:
+        """The server's job worker processes (children named ``gaintune-worker``)."""
+        return children_named(self.proc.pid, "gaintune-worker")
+
     def stop(self, sig=signal.SIGTERM) -> None:
         if self.proc.poll() is None:
             self.proc.send_signal(sig)
@@ -97,6 +124,23 @@ class Server:
                 self.proc.wait(5)
         self.client.close()
         self.log.close()
+
+
+def children_named(parent: int, comm: str) -> list[int]:
+    """Live (not zombie) child processes of ``parent`` whose ``/proc/<pid>/comm`` is ``comm``."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+        except OSError:
+            continue
+        name = stat[stat.index("(") + 1: stat.rindex(")")]
+        fields = stat[stat.rindex(")") + 2:].split()
+        if name == comm and int(fields[1]) == parent and fields[0] != "Z":
+            out.append(int(d.name))
+    return sorted(out)
 
 
 def pid_gone(pid: int, timeout: float = 10) -> bool:

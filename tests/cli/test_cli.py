@@ -160,7 +160,7 @@ def test_export_formats(result_file: Path, tmp_path: Path, fmt: str) -> None:
 
 
 def test_export_refuses_failed_gains_unless_forced(good_result: TuneResult, tmp_path: Path) -> None:
-    bad = good_result.model_copy(update={"verification": {**good_result.verification, "verdict": "fail"}})
+    bad = good_result.model_copy(update={"verification": good_result.verification.model_copy(update={"verdict": "fail"})})
     p = tmp_path / "bad.json"
     p.write_text(bad.model_dump_json())
     res = run("export", str(p), "--format", "c")
@@ -233,7 +233,8 @@ def test_tune_bad_override_exits_2(spec_file: Path, fake_tune) -> None:
 
 
 def test_tune_failed_verification_exits_3(spec_file: Path, monkeypatch, good_result) -> None:
-    bad = good_result.model_copy(update={"verification": {**good_result.verification, "verdict": "fail", "reasons": ["ms_max: too high"]}})
+    failed = good_result.verification.model_copy(update={"verdict": "fail", "reasons": ["ms_max: too high"]})
+    bad = good_result.model_copy(update={"verification": failed})
     monkeypatch.setattr(cli, "_get_tune", lambda: (lambda spec, **kw: bad))
     res = run("tune", str(spec_file))
     assert res.exit_code == 3

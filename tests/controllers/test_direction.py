@@ -321,7 +321,7 @@ def test_reverse_acting_fotd_is_tuned_and_passes(reverse_tuned):
     r = reverse_tuned
     g = r.gains["main"]
     assert g["Kp"] < 0 and g["Ki"] < 0
-    assert r.verification is not None and r.verification["verdict"] == "pass", r.verification.get("reasons")
+    assert r.verification is not None and r.verification.verdict == "pass", r.verification.reasons
     assert r.accepted_gains == r.gains
     # independent check: the signed gains simulate stable and settle on the setpoint
     spec = _spec(REVERSE_FOTD)

@@ -202,9 +202,9 @@ def _verified_result(spec, gains, verdict: str | None = None):
     from gaintune.search.result import Provenance, TuneResult
     from gaintune.verify import verify
 
-    rep = json.loads(verify(spec, gains).model_dump_json())
+    rep = verify(spec, gains)
     if verdict is not None:
-        rep["verdict"] = verdict
+        rep = rep.model_copy(update={"verdict": verdict})
     return TuneResult(spec=spec.model_dump(mode="json"), algo="manual", gains=gains, cost=1.0, verification=rep,
                       provenance=Provenance(spec_hash=spec.content_hash(), seed=0, versions={}))
 
@@ -254,7 +254,7 @@ def test_verdict_at_dt_reuses_the_stored_verdict_only_at_the_verified_dt(motor_s
     import gaintune.verify as gv
     from gaintune.export import verdict_at_dt
 
-    stored = {**flip_result.verification, "verdict": "fail", "reasons": ["stored sentinel"]}
+    stored = flip_result.verification.model_copy(update={"verdict": "fail", "reasons": ["stored sentinel"]})
     real = gv.verify
     calls = []
 
@@ -264,7 +264,10 @@ def test_verdict_at_dt_reuses_the_stored_verdict_only_at_the_verified_dt(motor_s
 
     monkeypatch.setattr(gv, "verify", counting)
     verdict, report = verdict_at_dt(motor_spec, FLIP_GAINS, 0.001, stored=stored)
-    assert (verdict, report) == ("fail", stored) and calls == []  # same dt: the stored verdict, no re-verification
+    # same dt: the stored verdict (as JSON), no re-verification
+    assert (verdict, report) == ("fail", json.loads(stored.model_dump_json())) and calls == []
+    as_json = json.loads(stored.model_dump_json())
+    assert verdict_at_dt(motor_spec, FLIP_GAINS, 0.001, stored=as_json)[1] is as_json and calls == []  # a dict as it is
     verdict, report = verdict_at_dt(motor_spec, FLIP_GAINS, 0.01, stored=stored)
     assert calls == [0.01] and verdict == "fail" and "unstable" in report["reasons"][0]
     assert report["dt"] == pytest.approx(0.01)
@@ -388,7 +391,7 @@ def test_write_exports_withholds_c_and_matlab_for_failing_gains(motor_spec, flip
     assert sorted(p.name for p in paths) == ["gains.json", "gains.yaml"]
     assert sorted(p.name for p in out.iterdir()) == ["gains.json", "gains.yaml"]  # stale gains.h removed too
     assert paths.withheld == ["gains.h", "gains.m", "gains.py"] and [p.name for p in paths.removed] == ["gains.h"]
-    assert paths.verdict == "fail" and paths.reason == bad.verification["reasons"][0]
+    assert paths.verdict == "fail" and paths.reason == bad.verification.reasons[0]
     assert json.loads((out / "gains.json").read_text())["accepted"] is False
     assert yaml.safe_load((out / "gains.yaml").read_text())["accepted"] is False
     # passing gains: everything is written
@@ -405,7 +408,7 @@ def test_write_exports_withholds_c_and_matlab_for_failing_gains(motor_spec, flip
     buf = StringIO()
     cli._write_outputs(bad, tmp_path / "cli", console=Console(file=buf, width=400))
     text = buf.getvalue()
-    assert "not written: gains.h, gains.m" in text and "verdict fail" in text and bad.verification["reasons"][0] in text
+    assert "not written: gains.h, gains.m" in text and "verdict fail" in text and bad.verification.reasons[0] in text
     assert not (tmp_path / "cli" / "gains.h").exists() and (tmp_path / "cli" / "gains.json").exists()
 
 

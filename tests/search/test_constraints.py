@@ -32,7 +32,7 @@ def _spec(num, den, loop="pi", dt=0.05, horizon=40.0, ms=1.4, budget=1200, delay
 
 
 def _ms(result) -> float:
-    return max(f["ms"] for f in result.verification["loops"])
+    return max(f.ms for f in result.verification.loops)
 
 
 def test_tune_with_ms_1_4_passes_on_the_active_constraint_not_inside_it():
@@ -44,7 +44,7 @@ def test_tune_with_ms_1_4_passes_on_the_active_constraint_not_inside_it():
 
 def test_fast_slow_process_tune_passes_instead_of_returning_unstable_bound_gains():
     r = tune(_spec([150, 55], "(s+10)^2*(s+1)*(s+0.05)", dt=0.02, horizon=60.0, budget=1500))
-    assert r.verdict == "pass" and r.verification["stability"]["stable"]
+    assert r.verdict == "pass" and r.verification.stability.stable
     assert _ms(r) <= 1.4
 
 

@@ -11,6 +11,7 @@ from gaintune.objective import Evaluator
 from gaintune.search import Progress, policy_gains, tune
 from gaintune.search.agents import load_agent
 from gaintune.spec import load_spec
+from gaintune.verify import VerificationReport
 
 EASY = {
     "plant": {"tf": {"num": ["K"], "den": "(s+1)^2"}, "params": {"K": 1.0}},
@@ -52,7 +53,7 @@ def test_budget_progress_and_result_fields(tuned):
     assert sims == sorted(sims) and sims[-1] > 0
     assert result.curve and [c.best_cost for c in result.curve] == sorted((c.best_cost for c in result.curve), reverse=True)
     assert result.provenance.seed == 1 and result.provenance.versions["stable-baselines3"]
-    assert result.verification is not None and result.verification["verdict"] in ("pass", "fail")
+    assert isinstance(result.verification, VerificationReport) and result.verification.verdict in ("pass", "fail")
     assert set(result.gains) == {"loop0"} and set(result.gains["loop0"]) == {"Kp", "Ki"}
     assert 0 <= result.diverged_episodes <= result.rl_sims and 0 <= result.tripped_episodes <= result.rl_sims
 

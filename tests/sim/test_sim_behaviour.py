@@ -202,15 +202,14 @@ def test_batch_equals_loop_of_single_runs_with_random_draws(B: int) -> None:
 
 
 @pytest.mark.parametrize("model", ["water_tank", "dc_motor", "random"])
-def test_kernel_variants_agree_bit_for_bit(model: str, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_kernel_variants_agree_bit_for_bit(model: str) -> None:
     """Parallel chunks, one serial pass over chunks, and the single-lane variant: same numbers.
 
     Bit for bit on a plant shared by the chunk; with per-candidate plants a single lane takes the
     shared-plant path (zero entries skipped), so sums may differ in the last bits.
     """
-    import gaintune.sim.simulator as sim_pkg
     from gaintune.plants.library import load_model
-    from gaintune.sim import kernel as K
+    from gaintune.sim.kernel import run_kernel
 
     spec = RANDOM_SPEC if model == "random" else load_model(model).example_spec()
     sim = make(spec)
@@ -218,16 +217,8 @@ def test_kernel_variants_agree_bit_for_bit(model: str, monkeypatch: pytest.Monke
     B = 70  # two chunks, the second partial
     d = draws_mod.sample(sim.spec, sim.plant, rng, B)
     tuned = sim.layout.initial_tuned()[None, :] * np.exp(rng.uniform(-0.3, 0.3, (B, sim.layout.log_lo.size)))
-    captured: dict[str, tuple] = {}
-
-    def spy(*args: Any) -> np.ndarray:
-        captured["args"] = args
-        return K.simulate_kernel(*args)
-
-    monkeypatch.setattr(sim_pkg, "simulate_kernel", spy)
-    sim.run(sim.layout.full(tuned), d)
-    args = captured["args"]
-    outs = [K.simulate_kernel_parallel(*args), K.simulate_kernel_serial(*args), K.simulate_kernel_single(*args)]
+    args = sim.kernel_args(sim.layout.full(tuned), d)
+    outs = [run_kernel(args, variant) for variant in ("parallel", "serial", "single")]
     for o in outs[1:]:
         if model == "random":
             np.testing.assert_allclose(o, outs[0], rtol=1e-12, atol=1e-13)
@@ -246,42 +237,33 @@ HELD_SIGNAL_SCENARIOS = [
 
 
 @pytest.mark.parametrize("scenario", HELD_SIGNAL_SCENARIOS)
-def test_held_shared_signals_equal_per_step_evaluation(scenario: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> None:
+def test_held_shared_signals_equal_per_step_evaluation(scenario: dict[str, Any]) -> None:
     """A chunk-shared signal is re-evaluated only when a piece starts or ends (or under a ramp).
 
     Breaking the sharing (one inactive extra piece that differs between lanes) forces the
     per-lane evaluation at every step; traces and metrics must agree bit for bit.
     """
-    import gaintune.sim.simulator as sim_pkg
-    from gaintune.sim import kernel as K
+    from gaintune.sim.kernel import METRICS, run_kernel
 
     spec = {"plant": LAG3, "loops": [{"type": "pid"}], "scenario": {"dt": 0.01, "horizon": 5.0, **scenario}}
     sim = make(spec)
     full = np.tile(sim.layout.from_dict({"loop0": {"Kp": 2.0, "Ki": 1.0, "Kd": 0.5}}), (2, 1))
-    captured: dict[str, tuple] = {}
-
-    def spy(*args: Any) -> np.ndarray:
-        captured["args"] = args
-        return K.simulate_kernel(*args)
-
-    monkeypatch.setattr(sim_pkg, "simulate_kernel", spy)
     held = sim.run(full, traces=True)
-    args = list(captured["args"])
-    i0 = next(i for i, a in enumerate(args) if isinstance(a, np.ndarray) and a.ndim == 3 and a.dtype == np.int64)
-    T = args[0]
+    args = sim.kernel_args(full)
+    T = args.n_steps
     extra = np.full((3, 1, 2), T + 1, dtype=np.int64)
     extra[:, :, 1] = T + 2  # never active, but differs between the two lanes
-    args[i0] = np.concatenate([args[i0], extra], axis=1)  # sk0
-    args[i0 + 1] = np.concatenate([args[i0 + 1], np.full((3, 1, 2), T + 1, dtype=np.int64)], axis=1)  # sk1
-    for j in (i0 + 2, i0 + 3):  # soff, sslope
-        args[j] = np.concatenate([args[j], np.zeros((3, 1, 2))], axis=1)
-    tr_y, tr_sp, tr_u = np.zeros((1, T, 2)), np.zeros((1, T, 2)), np.zeros((T, 2))
-    args[-4:] = [True, tr_y, tr_sp, tr_u]
-    per_step = K.simulate_kernel_serial(*args)
-    np.testing.assert_array_equal(tr_sp[0].T, held.traces["sp.loop0"])
-    np.testing.assert_array_equal(tr_y[0].T, held.traces["y.loop0"])
-    np.testing.assert_array_equal(tr_u.T, held.traces["u"])
-    held_out = np.stack([held.metrics[m].astype(float) for m in K.METRICS])
+    args = args._replace(
+        sk0=np.concatenate([args.sk0, extra], axis=1),
+        sk1=np.concatenate([args.sk1, np.full((3, 1, 2), T + 1, dtype=np.int64)], axis=1),
+        soff=np.concatenate([args.soff, np.zeros((3, 1, 2))], axis=1),
+        sslope=np.concatenate([args.sslope, np.zeros((3, 1, 2))], axis=1),
+    ).with_traces()
+    per_step = run_kernel(args, "serial")
+    np.testing.assert_array_equal(args.tr_sp[0].T, held.traces["sp.loop0"])
+    np.testing.assert_array_equal(args.tr_y[0].T, held.traces["y.loop0"])
+    np.testing.assert_array_equal(args.tr_u.T, held.traces["u"])
+    held_out = np.stack([held.metrics[m].astype(float) for m in METRICS])
     np.testing.assert_array_equal(np.nan_to_num(per_step, nan=-7.0), np.nan_to_num(held_out, nan=-7.0))
 
 

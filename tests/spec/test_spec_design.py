@@ -38,3 +38,21 @@ def test_design_phase_margin_given_twice_is_rejected_naming_both_fields():
         load_spec({**BASE, "design": {"phase_margin": 60}, "requirements": {"pm_min_deg": 45}})
     with pytest.raises(ValidationError, match="phase_margin"):
         load_spec({**BASE, "design": {"phase_margin": 95}})
+
+
+def test_design_crossover_becomes_a_band_requirement_and_round_trips():
+    spec = load_spec({**BASE, "design": {"crossover": 0.5}})
+    assert spec.requirements.wc_min == pytest.approx(0.5 / 1.1) and spec.requirements.wc_max == pytest.approx(0.55)
+    spec = load_spec({**BASE, "design": {"crossover": 0.5, "crossover_tolerance": 0.2}})
+    assert spec.requirements.wc_max == pytest.approx(0.6)
+    again = load_spec(spec.model_dump(mode="json"))
+    assert again.content_hash() == spec.content_hash()
+
+
+def test_design_crossover_given_twice_or_for_a_cascade_is_rejected():
+    with pytest.raises(ValidationError, match="give it once"):
+        load_spec({**BASE, "design": {"crossover": 0.5}, "requirements": {"wc_min": 0.1}})
+    two = {**BASE, "plant": {"ss": {"A": [[-1, 0], [1, -2]], "B": [[1], [0]], "C": [[1, 0], [0, 1]], "outputs": ["a", "b"]}},
+           "loops": [{"type": "pi", "measure": "b"}, {"type": "pi", "measure": "a"}]}
+    with pytest.raises(ValidationError, match="single loop"):
+        load_spec({**two, "design": {"crossover": 0.5}})

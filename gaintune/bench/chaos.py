@@ -1,0 +1,567 @@
+"""Benchmark: a chaos campaign against real API servers on 127.0.0.1, driven over HTTP only.
+
+Run::
+
+    gaintune bench chaos             # or: python -m gaintune.bench.chaos [--jobs 40] [--worker-kills 10]
+                                     #     [--server-kills 2] [--budget 200] [--rounds 3] [--json] [--keep]
+
+The servers run as subprocesses (``python -m api``, plus ``python -m api.worker`` for the stale-worker
+phase); this module never imports the ``api`` package. Workers are found as the server's child processes
+named ``gaintune-worker``. Phases:
+
+1. ``campaign``: ``--jobs`` small tuning jobs (distinct seeds, each with an Idempotency-Key) on 2 workers;
+   ``--worker-kills`` SIGKILLs of a worker while every worker is mid-job and ``--server-kills`` SIGKILLs
+   of the server (restarted on the same database, every key re-submitted). Then every job must have
+   succeeded exactly once, with a consistent result and an agent matching its recorded digest.
+2. ``frozen``: SIGSTOP an idle supervised worker; ``/readyz`` must be 503 while it is stopped, and the
+   supervisor must kill and replace it.
+3. ``stale``: a standalone worker is frozen mid-job (held by the tests-only hold file) past its lease;
+   the job is re-queued, finished by a second worker, then the frozen one resumes. The finished job's
+   agent and result must not change.
+4. ``storage``: the tests-only fault file makes the database or data directory read-only or full; every
+   5xx must name its cause (problem ``cause`` member), ``/readyz`` must be 503 throughout.
+5. ``connections``: after each error (a genuine 500 from a row corrupted with ``sqlite3``, 503, 507,
+   404, 409, 422) the next request goes on the same keep-alive socket; it must succeed (or the error must
+   have carried ``Connection: close``).
+
+The two tests-only hooks (``GAINTUNE_TEST_HOLD_FILE``, ``GAINTUNE_TEST_STORAGE_FAULT_FILE``) and the
+corrupted row are the benchmark's fault injection; the service is only ever talked to over HTTP.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import random
+import signal
+import socket
+import sqlite3
+import subprocess
+import sys
+import tempfile
+import time
+from base64 import b64encode
+from pathlib import Path
+from typing import Any, Callable
+
+__all__ = ["main", "job_spec"]
+
+WORKER_NAME = "gaintune-worker"
+
+
+def job_spec(i: int, budget: int) -> dict[str, Any]:
+    """A small tuning job (3rd-order lag, PI loop); ``i`` picks the seed."""
+    return {"name": f"chaos-{i}", "plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+            "scenario": {"dt": 0.05, "horizon": 15.0}, "search": {"budget": budget, "n_envs": 16, "seed": i + 1}}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _proc_state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return "gone"
+
+
+def _children(parent: int, comm: str = WORKER_NAME) -> list[int]:
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                stat = (d / "stat").read_text()
+            except OSError:
+                continue
+            fields = stat[stat.rindex(")") + 2:].split()
+            if stat[stat.index("(") + 1: stat.rindex(")")] == comm and int(fields[1]) == parent and fields[0] != "Z":
+                out.append(int(d.name))
+    return sorted(out)
+
+
+def _wait(cond: Callable[[], Any], timeout: float, what: str, poll: float = 0.1) -> Any:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        v = cond()
+        if v:
+            return v
+        time.sleep(poll)
+    raise TimeoutError(f"timed out after {timeout:g} s waiting for {what}")
+
+
+class Server:
+    """``python -m api`` on a free port with its own data folder (restartable on the same database)."""
+
+    def __init__(self, root: Path, workers: int, **env: str) -> None:
+        import httpx
+
+        root.mkdir(parents=True, exist_ok=True)
+        self.root, self.workers = root, workers
+        self.db = root / "jobs.db"
+        self.env = dict(os.environ, GAINTUNE_DB_PATH=str(self.db), GAINTUNE_DATA_DIR=str(root / "data"),
+                        GAINTUNE_WARMUP="false", GAINTUNE_COMPUTE_PROCESSES="0", GAINTUNE_HEARTBEAT_INTERVAL="0.25",
+                        GAINTUNE_POLL_INTERVAL="0.1", **env)
+        self.port = _free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.client = httpx.Client(base_url=self.url, timeout=60)
+        self.proc: subprocess.Popen | None = None
+        self.log = root / "server.log"
+
+    def start(self) -> None:
+        cmd = [sys.executable, "-m", "api", "--host", "127.0.0.1", "--port", str(self.port),
+               "--workers", str(self.workers), "--log-level", "warning"]
+        self.proc = subprocess.Popen(cmd, cwd=self.root, env=self.env, stdout=open(self.log, "a"),
+                                     stderr=subprocess.STDOUT)
+
+    def ready(self) -> bool:
+        import httpx
+
+        assert self.proc is not None
+        if self.proc.poll() is not None:
+            raise RuntimeError("server exited:\n" + self.log.read_text()[-3000:])
+        try:
+            return self.client.get("/readyz").status_code == 200
+        except httpx.TransportError:
+            return False
+
+    def wait_ready(self, timeout: float = 180) -> None:
+        _wait(self.ready, timeout, "the server to be ready", 0.2)
+
+    def worker_pids(self) -> list[int]:
+        return _children(self.proc.pid) if self.proc else []
+
+    def job(self, job_id: str) -> dict:
+        return self.client.get(f"/v1/jobs/{job_id}").json()
+
+    def kill(self) -> None:
+        """SIGKILL the server; wait until its workers are gone (they die with it)."""
+        assert self.proc is not None
+        workers = self.worker_pids()
+        self.proc.kill()
+        self.proc.wait(30)
+        _wait(lambda: all(_proc_state(p) in ("gone", "Z") for p in workers), 30, "the workers to die with the server")
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            for pid in self.worker_pids():
+                try:
+                    os.kill(pid, signal.SIGCONT)
+                except ProcessLookupError:
+                    pass
+            self.proc.terminate()
+            try:
+                self.proc.wait(20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        self.client.close()
+
+
+def _agent_ok(srv: Server, job_id: str) -> tuple[bool, str | None]:
+    """(served agent matches the digest recorded when the job finished, its sha256)."""
+    r = srv.client.get(f"/v1/jobs/{job_id}/agent")
+    if r.status_code != 200:
+        return False, None
+    digest = hashlib.sha256(r.content).hexdigest()
+    return r.headers.get("repr-digest") == f"sha-256=:{b64encode(bytes.fromhex(digest)).decode()}:", digest
+
+
+# ------------------------------------------------------------------------ 1. campaign
+
+
+def campaign(root: Path, n_jobs: int, worker_kills: int, server_kills: int, budget: int, log: Callable) -> dict:
+    """Submit ``n_jobs`` jobs, kill workers and the server meanwhile; count lost, duplicated, stuck, corrupt jobs."""
+    srv = Server(root, 2, GAINTUNE_MAX_ATTEMPTS="50", GAINTUNE_RECOVER="requeue")
+    try:
+        return _campaign(srv, n_jobs, worker_kills, server_kills, budget, log)
+    finally:
+        srv.stop()
+
+
+def _campaign(srv: Server, n_jobs: int, worker_kills: int, server_kills: int, budget: int, log: Callable) -> dict:
+    srv.start()
+    srv.wait_ready()
+    keys = [f"chaos-{i}" for i in range(n_jobs)]
+    ids: dict[str, set[str]] = {k: set() for k in keys}
+
+    def submit_all() -> None:
+        for i, k in enumerate(keys):
+            r = srv.client.post("/v1/tune", json=job_spec(i, budget), headers={"Idempotency-Key": k})
+            if r.status_code == 202:
+                ids[k].add(r.json()["id"])
+
+    submit_all()
+    events = ["worker"] * worker_kills
+    for j in range(server_kills):  # spread the server kills evenly among the worker kills
+        events.insert(round((j + 1) * len(events) / (server_kills + 1)) + j, "server")
+    rng = random.Random(14)
+    done_kills = {"worker": 0, "server": 0}
+    terminal = {"succeeded", "failed", "cancelled"}
+    t0 = time.monotonic()
+
+    def n_done() -> int:
+        return srv.client.get("/v1/jobs", params={"limit": 1}).json()["total"] - sum(
+            srv.client.get("/v1/jobs", params={"status": s, "limit": 1}).json()["total"] for s in ("queued", "running"))
+
+    def all_busy() -> bool:  # every worker mid-search: a kill surely hits a running job
+        running = srv.client.get("/v1/jobs", params={"status": "running", "limit": 200}).json()["items"]
+        return len(running) == srv.workers and all(j["progress"] for j in running) \
+            and len(srv.worker_pids()) == srv.workers
+
+    for k, ev in enumerate(events):
+        # Spread the kills over the campaign (event k once k/E of the first N - 2*workers jobs are done),
+        # each at a moment when every worker is mid-job.
+        target = k * max(0, n_jobs - 2 * srv.workers) // max(1, len(events))
+        try:
+            _wait(lambda: n_done() >= target and all_busy(), 120, "both workers to be mid-job", 0.1)
+        except TimeoutError:
+            log(f"  campaign: {ev} kill skipped: the workers were never both mid-job again")
+            continue
+        if ev == "worker":
+            pid = rng.choice(srv.worker_pids())
+            os.kill(pid, signal.SIGKILL)
+            _wait(lambda: pid not in srv.worker_pids() and len(srv.worker_pids()) == srv.workers, 60,
+                  "the killed worker to be replaced")
+        else:
+            srv.kill()
+            srv.start()
+            srv.wait_ready()
+            submit_all()  # clients retry after a crash: idempotency keys must not duplicate jobs
+        done_kills[ev] += 1
+        log(f"  campaign: {ev} kill {done_kills[ev]} at {time.monotonic() - t0:.0f} s ({n_done()} jobs done)")
+
+    def finished() -> bool:
+        return all(srv.job(next(iter(v)))["status"] in terminal for v in ids.values() if v)
+
+    stuck_timeout = False
+    try:
+        _wait(finished, 900, "all jobs to finish", 0.5)
+    except TimeoutError:
+        stuck_timeout = True
+    lost = dup = corrupt = stuck = failed = 0
+    attempts = []
+    for i, k in enumerate(keys):
+        if len(ids[k]) == 0:
+            lost += 1
+            continue
+        if len(ids[k]) > 1:
+            dup += 1
+        j = srv.job(next(iter(ids[k])))
+        attempts.append(j["attempts"])
+        if j["status"] not in terminal:
+            stuck += 1
+        elif j["status"] != "succeeded":
+            failed += 1
+        else:
+            res = j["result"] or {}
+            ok_agent, _ = _agent_ok(srv, j["id"])
+            if (res.get("provenance", {}).get("spec_hash") != j["spec_hash"] or not res.get("curve")
+                    or not 0 < res.get("sims", 0) <= budget or not ok_agent):
+                corrupt += 1
+    total = srv.client.get("/v1/jobs", params={"limit": 1}).json()["total"]
+    dup += max(0, total - n_jobs)
+    return {"jobs": n_jobs, "worker_kills": done_kills["worker"], "server_kills": done_kills["server"],
+            "lost": lost, "duplicated": dup, "stuck": stuck, "corrupt": corrupt, "failed": failed,
+            "jobs_in_store": total, "max_attempts_seen": max(attempts or [0]),
+            "jobs_retried": sum(a > 1 for a in attempts), "seconds": round(time.monotonic() - t0, 1),
+            "timed_out": stuck_timeout}
+
+
+# ------------------------------------------------------------------------ 2-3. freezes
+
+
+def _freeze_outside_tx(srv: Server, pid: int) -> None:
+    """SIGSTOP ``pid`` when it holds no database write lock (/readyz's write probe still succeeds)."""
+    for _ in range(50):
+        os.kill(pid, signal.SIGSTOP)
+        _wait(lambda: _proc_state(pid) in ("T", "t"), 10, "the worker to stop", 0.01)
+        if srv.client.get("/readyz").json().get("database_writable"):
+            return
+        os.kill(pid, signal.SIGCONT)
+        _wait(lambda: _proc_state(pid) not in ("T", "t"), 10, "the worker to resume", 0.01)
+    raise RuntimeError("could not stop the worker outside a write transaction")
+
+
+def frozen(root: Path, rounds: int, log: Callable) -> dict:
+    """Freeze an idle supervised worker; count /readyz 200s while it is stopped and workers never killed."""
+    srv = Server(root, 2, GAINTUNE_HEARTBEAT_TIMEOUT="3", GAINTUNE_WORKER_LIVENESS_TIMEOUT="1")
+    try:
+        return _frozen(srv, rounds, log)
+    finally:
+        srv.stop()
+
+
+def _frozen(srv: Server, rounds: int, log: Callable) -> dict:
+    srv.start()
+    srv.wait_ready()
+    polls = ready_while_frozen = never_killed = 0
+    kill_s = []
+    for r in range(rounds):
+        pid = srv.worker_pids()[r % srv.workers]
+        _freeze_outside_tx(srv, pid)
+        t0 = time.monotonic()
+        while _proc_state(pid) in ("T", "t") and time.monotonic() - t0 < 60:
+            code = srv.client.get("/readyz").status_code
+            if _proc_state(pid) in ("T", "t"):  # still frozen after the answer: the answer counts
+                polls += 1
+                ready_while_frozen += code == 200
+            time.sleep(0.05)
+        if _proc_state(pid) in ("T", "t"):
+            never_killed += 1
+            os.kill(pid, signal.SIGKILL)
+        else:
+            kill_s.append(round(time.monotonic() - t0, 1))
+        srv.wait_ready()
+        log(f"  frozen: round {r + 1}: worker {pid} killed after {kill_s[-1] if kill_s else '?'} s")
+    return {"rounds": rounds, "readyz_polls_while_frozen": polls, "readyz_ready_while_frozen": ready_while_frozen,
+            "frozen_workers_never_killed": never_killed, "killed_after_s": kill_s}
+
+
+class _Worker:
+    def __init__(self, srv: Server, index: int) -> None:
+        self.log = srv.root / f"worker-{index}.log"
+        self.proc = subprocess.Popen([sys.executable, "-m", "api.worker", "--index", str(index)], cwd=srv.root,
+                                     env=srv.env, stdout=open(self.log, "a"), stderr=subprocess.STDOUT)
+
+    def text(self) -> str:
+        return self.log.read_text()
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            os.kill(self.proc.pid, signal.SIGCONT)
+            self.proc.kill()
+            self.proc.wait(10)
+
+
+def stale(root: Path, rounds: int, budget: int, log: Callable) -> dict:
+    """Frozen standalone worker resumes after its job was finished elsewhere: count changed artefacts/results."""
+    hold = root / "hold"
+    srv = Server(root, 0, GAINTUNE_HEARTBEAT_TIMEOUT="2", GAINTUNE_TEST_HOLD_FILE=str(hold))
+    srv.start()
+    changed = stale_lost = 0
+    victim = None
+    try:
+        srv.wait_ready()
+        victim = _Worker(srv, 0)
+        for r in range(rounds):
+            hold.touch()
+            job = srv.client.post("/v1/tune", json=job_spec(100 + r, budget)).json()["id"]
+            _wait(lambda: (lambda j: j["status"] == "running" and j["progress"])(srv.job(job)), 300, "the job to run")
+            _freeze_outside_tx(srv, victim.proc.pid)
+            _wait(lambda: srv.job(job)["status"] == "queued", 60, "the lease to expire and the job to be re-queued")
+            helper = _Worker(srv, r + 1)
+            _wait(lambda: (lambda j: j["status"] == "running" and j["attempts"] == 2 and j["progress"])(srv.job(job)),
+                  300, "the second attempt to run")
+            hold.unlink()
+            done = _wait(lambda: (lambda j: j if j["status"] in ("succeeded", "failed") else None)(srv.job(job)), 300,
+                         "the second attempt to finish")
+            ok, digest = _agent_ok(srv, job)
+            helper.stop()  # the next round's job must go to the victim
+            before = len(victim.text())
+            os.kill(victim.proc.pid, signal.SIGCONT)
+            _wait(lambda: "lost its claim" in victim.text()[before:] or "no longer owns" in victim.text()[before:],
+                  120, "the resumed worker to drop its stale attempt")
+            stale_lost += 1
+            ok2, digest2 = _agent_ok(srv, job)
+            after = srv.job(job)
+            if not (ok and ok2 and digest == digest2 and after["result"] == done["result"]
+                    and after["status"] == done["status"] == "succeeded"):
+                changed += 1
+            log(f"  stale: round {r + 1}: agent {'unchanged' if digest == digest2 else 'CHANGED'}")
+    finally:
+        if victim is not None:
+            victim.stop()
+        srv.stop()
+    return {"rounds": rounds, "stale_attempts_resumed": stale_lost, "finished_jobs_changed": changed}
+
+
+# ------------------------------------------------------------------------ 4-5. storage, connections
+
+
+def storage(root: Path, budget: int, log: Callable) -> tuple[dict, Server, dict[str, str]]:
+    """Every endpoint under each storage fault: count 5xx without a named cause and /readyz 200s."""
+    hold, faults = root / "hold", root / "faults"
+    srv = Server(root, 1, GAINTUNE_TEST_HOLD_FILE=str(hold), GAINTUNE_TEST_STORAGE_FAULT_FILE=str(faults))
+    try:
+        return _storage(srv, hold, faults, budget, log)
+    except BaseException:
+        srv.stop()
+        raise
+
+
+def _storage(srv: Server, hold: Path, faults: Path, budget: int, log: Callable) -> tuple[dict, Server, dict[str, str]]:
+    srv.start()
+    srv.wait_ready()
+    c = srv.client
+    done = c.post("/v1/tune", json=job_spec(200, budget)).json()["id"]
+    _wait(lambda: srv.job(done)["status"] == "succeeded", 300, "a finished job")
+    hold.touch()
+    held = c.post("/v1/tune", json=job_spec(201, budget)).json()["id"]
+    _wait(lambda: srv.job(held)["progress"], 300, "a running job")
+    faults_order = ("data:readonly", "data:full", "db:readonly", "db:full")  # data first: the report is not cached
+    queued = {f: c.post("/v1/tune", json=job_spec(210 + i, budget)).json()["id"] for i, f in enumerate(faults_order)}
+    out = {"responses": 0, "storage_5xx": 0, "unnamed_5xx": 0, "readyz_polls": 0, "readyz_ready": 0,
+           "by_fault": {}}
+    for fault in faults_order:
+        faults.write_text(fault)
+        reqs = [("POST", "/v1/tune", job_spec(203, budget)), ("GET", "/v1/jobs", None), ("GET", f"/v1/jobs/{done}", None),
+                ("DELETE", f"/v1/jobs/{queued[fault]}", None), ("GET", f"/v1/jobs/{done}/report", None),
+                ("GET", f"/v1/jobs/{done}/agent", None), ("GET", f"/v1/jobs/{done}/export?format=json", None),
+                ("GET", "/metrics", None)]
+        codes = []
+        for method, path, body in reqs:
+            r = c.request(method, path, json=body)
+            out["responses"] += 1
+            codes.append(r.status_code)
+            if r.status_code >= 500:
+                named = r.headers.get("content-type") == "application/problem+json" and "cause" in r.json() \
+                    and "retry-after" in r.headers
+                out["storage_5xx"] += named
+                out["unnamed_5xx"] += not named
+        for _ in range(3):
+            out["readyz_polls"] += 1
+            out["readyz_ready"] += c.get("/readyz").status_code == 200
+        out["by_fault"][fault] = codes
+        log(f"  storage: {fault}: {codes}")
+    # a job that runs while the data directory is read-only fails once, naming the cause
+    faults.write_text("data:readonly")
+    hold.unlink()
+    doomed = c.post("/v1/tune", json=job_spec(204, budget)).json()["id"]
+    j = _wait(lambda: (lambda j: j if j["status"] in ("succeeded", "failed") else None)(srv.job(doomed)), 300,
+              "the job on a read-only data directory to end")
+    out["job_on_read_only_dir"] = {"status": j["status"], "attempts": j["attempts"], "error": j["error"]}
+    faults.unlink()
+    srv.wait_ready()
+    return out, srv, {"done": done, "held": held}
+
+
+def _raw_request(sock: socket.socket, buf: bytearray, method: str, path: str, body: Any = None) -> tuple[int, dict, bytes]:
+    """One HTTP/1.1 request on a kept-alive socket; returns (status, headers, body). Raises on a closed connection."""
+    data = b"" if body is None else json.dumps(body).encode()
+    head = f"{method} {path} HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {len(data)}\r\n\r\n"
+    sock.sendall(head.encode() + data)
+
+    def fill() -> None:
+        chunk = sock.recv(65536)
+        if not chunk:
+            raise ConnectionError("the server closed the connection")
+        buf.extend(chunk)
+
+    while b"\r\n\r\n" not in buf:
+        fill()
+    end = buf.index(b"\r\n\r\n")
+    lines = bytes(buf[:end]).decode("latin-1").split("\r\n")
+    del buf[:end + 4]
+    headers = {k.strip().lower(): v.strip() for k, v in (ln.split(":", 1) for ln in lines[1:])}
+    n = int(headers.get("content-length", "0"))
+    while len(buf) < n:
+        fill()
+    content = bytes(buf[:n])
+    del buf[:n]
+    return int(lines[0].split()[1]), headers, content
+
+
+def connections(srv: Server, jobs: dict[str, str], log: Callable) -> dict:
+    """After each error, the next request on the same connection: count failures."""
+    faults = srv.root / "faults"
+    done, victim = jobs["done"], jobs["held"]  # both finished: nothing writes their rows any more
+    with sqlite3.connect(srv.db) as db:  # a corrupt row: a genuine unhandled error (500) when read
+        db.execute("UPDATE jobs SET result='{corrupt' WHERE id=?", (victim,))
+    cases = [("", "GET", f"/v1/jobs/{victim}", None), ("db:readonly", "POST", "/v1/tune", job_spec(301, 50)),
+             ("db:full", "POST", "/v1/tune", job_spec(302, 50)), ("", "GET", "/v1/jobs/nope", None),
+             ("", "DELETE", f"/v1/jobs/{done}", None), ("", "POST", "/v1/tune", {"plant": 1})] * 3
+    errors = failures = closes = 0
+    seen: dict[int, int] = {}
+    sock, buf = socket.create_connection(("127.0.0.1", srv.port)), bytearray()
+    try:
+        for fault, method, path, body in cases:
+            faults.write_text(fault)
+            status, headers, _ = _raw_request(sock, buf, method, path, body)
+            faults.write_text("")
+            errors += 1
+            seen[status] = seen.get(status, 0) + 1
+            if headers.get("connection", "").lower() == "close":
+                closes += 1
+                sock.close()
+                sock, buf = socket.create_connection(("127.0.0.1", srv.port)), bytearray()
+                continue
+            try:
+                ok = _raw_request(sock, buf, "GET", "/healthz")[0] == 200
+            except (ConnectionError, OSError):
+                ok = False
+            if not ok:
+                failures += 1
+                sock.close()
+                sock, buf = socket.create_connection(("127.0.0.1", srv.port)), bytearray()
+    finally:
+        sock.close()
+    log(f"  connections: {errors} errors {seen}, {failures} next-request failures, {closes} Connection: close")
+    return {"errors": errors, "statuses": seen, "next_request_failures": failures, "connection_close": closes}
+
+
+# ------------------------------------------------------------------------ main
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the campaign and print the figures (``--json``: as JSON). Exit 1 if any figure is off target."""
+    ap = argparse.ArgumentParser(prog="gaintune bench chaos", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--jobs", type=int, default=40)
+    ap.add_argument("--worker-kills", type=int, default=10)
+    ap.add_argument("--server-kills", type=int, default=2)
+    ap.add_argument("--budget", type=int, default=1000,
+                    help="simulations per job: small, but long enough (a few s) for kills to land mid-job")
+    ap.add_argument("--rounds", type=int, default=3, help="freeze rounds in the frozen and stale phases")
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--keep", action="store_true", help="keep the temporary folder (logs, databases)")
+    args = ap.parse_args(argv)
+    root = Path(tempfile.mkdtemp(prefix="gaintune-bench-chaos-"))
+    say = (lambda m: print(m, file=sys.stderr, flush=True)) if args.json else (lambda m: print(m, flush=True))
+    t0 = time.monotonic()
+    out: dict[str, Any] = {"folder": str(root), "cpus": os.cpu_count(), "loadavg_start": os.getloadavg()}
+    say(f"chaos campaign in {root}")
+    out["campaign"] = campaign(root / "campaign", args.jobs, args.worker_kills, args.server_kills, args.budget, say)
+    out["frozen"] = frozen(root / "frozen", args.rounds, say)
+    out["stale"] = stale(root / "stale", args.rounds, args.budget, say)
+    st, srv, jobs = storage(root / "storage", args.budget, say)
+    try:
+        out["storage"] = st
+        out["connections"] = connections(srv, jobs, say)
+    finally:
+        srv.stop()
+    out["seconds"] = round(time.monotonic() - t0, 1)
+    c, f, s, g, n = out["campaign"], out["frozen"], out["stale"], out["storage"], out["connections"]
+    figures = [
+        (f"jobs lost, duplicated or corrupt under {c['worker_kills']} worker kills + {c['server_kills']} server kills, "
+         f"{c['jobs']} jobs", c["lost"] + c["duplicated"] + c["corrupt"] + c["stuck"], 0),
+        ("finished-job artefacts changed by a stale attempt", s["finished_jobs_changed"], 0),
+        ("storage-fault responses that are 5xx without a named cause", g["unnamed_5xx"], 0),
+        ("/readyz true while unable to write or with a frozen worker", g["readyz_ready"] + f["readyz_ready_while_frozen"],
+         0),
+        ("requests failing on a reused connection after an error", n["next_request_failures"], 0),
+    ]
+    out["figures"] = {name: value for name, value, _ in figures}
+    if args.json:
+        print(json.dumps(out, indent=2, default=str))
+    else:
+        print(f"\n| figure | measured |\n|---|---:|")
+        for name, value, _ in figures:
+            shown = ("never" if value == 0 else f"{value} times") if name.startswith("/readyz") else value
+            print(f"| {name} | {shown} |")
+        print(f"\ncampaign: {c}\nfrozen: {f}\nstale: {s}\nstorage: {g['storage_5xx']} named storage 5xx of "
+              f"{g['responses']} responses, readyz ready {g['readyz_ready']}/{g['readyz_polls']}, "
+              f"job on a read-only data dir: {g['job_on_read_only_dir']}\nconnections: {n}\n"
+              f"total {out['seconds']} s")
+    if not args.keep:
+        import shutil
+
+        shutil.rmtree(root, ignore_errors=True)
+    return 0 if all(v == target for _, v, target in figures) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,328 @@
+"""The compiled, batched closed-loop rollout: the time loop, its compiled variants, and the dispatch.
+
+One call simulates B candidates (gain sets, each with its own plant sample and
+scenario draw). Arrays carry the batch on their LAST axis; the batch is cut
+into chunks of ``CHUNK`` candidates that run in parallel (``prange``). All
+state of a chunk lives in one flat array of rows of ``CHUNK`` lanes (see
+:mod:`.layout`), so memory is O(B) unless traces are requested.
+
+Each stage of a time step (signals, measurement, monitor, controllers,
+actuator, metrics, plant update) is one short loop over the lanes of a chunk,
+written in its own module (:mod:`.signals`, :mod:`.plant`, :mod:`.monitor`,
+:mod:`.law`, :mod:`.metrics`) and inlined here at numba IR level
+(``inline="always"``): the kernel compiles as one function, as if the stages
+were written in the loop below, to the same machine code as the kernel did as
+one source file. (The serial variants need :mod:`.pipeline` for that: without
+its copy propagation every array handed to a stage cost a reference-count pair
+per step, 3x on a single simulation.) LLVM vectorises the stage loops (AVX2: 4
+candidates per instruction). What it took, each measured on the reference case
+(see docs/simulation.md):
+
+* one flat state array with a compile-time row stride, indexed with unsigned
+  integers (signed indices carry numba's wrap-around select, which hides the
+  address from LLVM's dependence analysis);
+* ``_min``/``_max`` as plain selects (numba's builtins block vectorisation);
+* no conditional stores: "store the new value or the old one" turns into a
+  masked store, which is microcoded on AMD cores;
+* the stride, and the measured-output row, re-bound inside the ``prange``
+  body, whose outlined function would otherwise receive them as runtime
+  arguments;
+* every row a stage loop touches at a compile-time distance from one base:
+  the controller loop first copies its setpoint into its own rows, and the
+  applied input is kept in the chunk state (``F_U``) beside the delay line.
+  Runtime-offset rows left LLVM with memory checks that cost the controller
+  loop its speed (1.4x per core on the reference case).
+
+Per-step work is trimmed where results are unchanged bit for bit: a plant
+identical across a chunk (many gain sets on the nominal plant) is read as
+scalars and its zero entries skipped; the measured output is the true output
+when there is no noise; disturbance, fractional-delay and feedthrough terms are
+only computed when present; a signal shared by the chunk is evaluated again only
+when one of its pieces starts or ends, or while a ramp is active. A batch of one
+runs on a single-lane variant of the same source (``CHUNK = 1``, a compile-time
+lane count), where every stage loop collapses to straight-line code.
+
+numba's on-disk cache checks only the source file of the function it compiles
+(this one), not the modules inlined into it: the variants' names carry a hash
+of every kernel source file, so an edit anywhere in the kernel compiles afresh
+instead of loading a stale cache.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import types
+from pathlib import Path
+
+import numba as nb
+import numpy as np
+
+from gaintune.sim import tape as T
+from gaintune.sim.kernel_args import KernelArgs
+
+from .law import actuator, controllers, init_loops
+from .layout import (
+    CHUNK, F_ALIVE, F_KLD, F_KST, F_LAST, F_T10, F_T90, F_UHI, F_ULO, F_UOP, F_UPREV, LP0, METRICS, N_P, P_YM,
+    P_YT, _U,
+)
+from .metrics import accumulate_metrics, finish_metrics, record_traces, start_metrics
+from .monitor import check_divergence, safety_monitor
+from .pipeline import SerialKernelCompiler
+from .plant import (
+    add_noise, delay_shared, freeze_dead, input_seen_by_outputs, outputs_lti, outputs_tape, plant_input,
+    plant_shared, update_rk4, update_zoh, update_zoh_shared,
+)
+from .signals import fill_signals, hold_shared_signals, signals_shared
+
+__all__ = [
+    "simulate_kernel", "run_kernel", "simulate_kernel_parallel", "simulate_kernel_serial", "simulate_kernel_single",
+    "VARIANTS",
+]
+
+
+def _kernel(
+    n_steps, dt, nonlinear,
+    Ad, G0, G1, Cm, Dm,
+    f_op, f_a, f_b, f_o, f_c, f_nw, h_op, h_a, h_b, h_o, h_c, h_nw, h_nout, P, meas_idx,
+    x_op, u_op, y_op,
+    dsteps,
+    kp, ki, kd, tf, bw, cw, kb, lo, hi, aw,
+    sf, K, kint, nr,
+    u_lo, u_hi, rate,
+    sk0, sk1, soff, sslope, dist_out_loops,
+    noise_std, noise_seed,
+    max_err, max_out, xbound, div_bound, safe_mode, u_safe, fb_kp, fb_ki, fb_kd, fb_tf, fb_kb,
+    target, k_step, k_load,
+    want_traces, tr_y, tr_sp, tr_u,
+):
+    C = _U(CHUNK)
+    n = x_op.shape[0]
+    L = kp.shape[0]
+    un = _U(n)
+    uL = _U(L)
+    B = u_op.shape[0]
+    nchunks = (B + C - 1) // C
+    out = np.zeros((len(METRICS), B))
+    dmax = 0
+    any_noise = False
+    for b in range(B):
+        dmax = max(dmax, dsteps[b])
+        any_noise = any_noise or noise_std[b] > 0
+    M = dmax + 2  # delay ring-buffer length
+    has_G1 = False
+    if not nonlinear:
+        for i in range(G1.shape[0]):
+            for b in range(G1.shape[1]):
+                has_G1 = has_G1 or G1[i, b] != 0.0
+    has_D = False
+    for l in range(Dm.shape[0]):
+        for b in range(Dm.shape[1]):
+            has_D = has_D or Dm[l, b] != 0.0
+    has_sig = np.zeros(3, dtype=np.bool_)
+    for sg in range(3):
+        for p in range(sk0.shape[1]):
+            for b in range(B):
+                if sk0[sg, p, b] <= n_steps:
+                    has_sig[sg] = True
+    monitor = max_err < np.inf or max_out < np.inf
+    for i in range(un):
+        monitor = monitor or xbound[i] < np.inf
+    has_rate = rate < np.inf
+    n_in = n + 1 + P.shape[0]
+    X0 = LP0 + uL * N_P  # plant state rows X0 + i, next state rows X0 + n + i
+    n_rows = X0 + _U(2) * un
+    for c in nb.prange(nchunks):
+        # re-bound inside the parallel body: numba passes outer variables into the outlined
+        # body as arguments, which would hide the compile-time row stride from LLVM
+        C = _U(CHUNK)
+        # measured = true output unless there is noise. Bound here for the same reason: as an
+        # argument of the outlined body, this row offset made the controller loop's memory checks
+        # opaque, and the parallel kernel ran ~1.45x slower per thread than the serial one.
+        ymf = P_YM if any_noise else P_YT
+        b0 = _U(c) * C
+        mt = min(C, _U(B) - b0)  # lanes in use, as a runtime count (the tape interpreter's)
+        # one lane: a compile-time trip count, so every stage loop unrolls to straight-line code
+        # (the tape interpreter keeps the runtime count: unrolled there it measured slower)
+        m = C if CHUNK == 1 else mt
+        # Signals identical across the chunk (no randomised references) are evaluated once per step.
+        shared = signals_shared(sk0, sk1, soff, sslope, b0, m)
+        # A plant identical across the chunk (e.g. B gain sets on the nominal plant) is read as scalars.
+        shared_plant = not nonlinear
+        if shared_plant:
+            shared_plant = plant_shared(Ad, G0, G1, Cm, b0, m, un, uL)
+        # A delay common to the chunk reads the ring buffer at one row for all lanes (vectorisable).
+        shared_delay = delay_shared(dsteps, b0, m)
+        S = np.zeros(n_rows * C)
+        xa = X0  # rows of the current state; the next state goes to rows xb (swapped every step)
+        xb = X0 + un
+        all_alive = True
+        buf = np.zeros(M * C)
+        inp = np.zeros((n_in, C))
+        wf = np.zeros((max(f_nw, 1), C))
+        wh = np.zeros((max(h_nw, 1), C))
+        k1 = np.zeros((n, C))
+        k2 = np.zeros((n, C))
+        k3 = np.zeros((n, C))
+        k4 = np.zeros((n, C))
+        hout = np.zeros((max(h_nout, 1), C))
+        for j in range(m):
+            b = b0 + j
+            for i in range(un):
+                S[(xa + i) * C + j] = x_op[i, b]
+            for q in range(np.uint64(M)):
+                buf[q * C + j] = u_op[b]
+            S[F_UPREV * C + j] = u_op[b]
+            S[F_ALIVE * C + j] = 1.0
+            S[F_T10 * C + j] = -1.0
+            S[F_T90 * C + j] = -1.0
+            S[F_LAST * C + j] = -1.0
+            S[F_ULO * C + j] = u_lo[b]
+            S[F_UHI * C + j] = u_hi[b]
+            S[F_UOP * C + j] = u_op[b]
+            S[F_KST * C + j] = k_step[b]
+            S[F_KLD * C + j] = k_load[b]
+            init_loops(S, C, j, b, uL, kp, ki, kd, tf, kb, bw, cw, lo, hi, u_lo, u_hi, y_op, u_op, dt)
+            if nonlinear:
+                for q in range(P.shape[0]):
+                    inp[n + 1 + q, j] = P[q, b]
+
+        pos = M - 1
+        rs = dins = douts = 0.0  # shared signal values, held until the step in *_until
+        r_until = din_until = dout_until = 0
+        for k in range(n_steps):
+            t = k * dt
+            pos = pos + 1 if pos + 1 < M else 0  # k % M, without a division per step
+            upos = _U(pos)
+            check_div = (k & 7) == 0 or k == n_steps - 1
+            if shared:
+                rs, dins, douts, r_until, din_until, dout_until = hold_shared_signals(
+                    k, b0, has_sig, sk0, sk1, soff, sslope, dt, rs, dins, douts, r_until, din_until, dout_until)
+            if nonlinear:
+                input_seen_by_outputs(S, C, m, b0, pos, M, dsteps, buf)
+            fill_signals(S, C, m, k, b0, shared, has_sig, rs, dins, douts, y_op, sk0, sk1, soff, sslope, dt)
+            # ---- measured outputs
+            if nonlinear:
+                outputs_tape(S, C, m, mt, n, un, uL, xa, inp, h_op, h_a, h_b, h_o, h_c, wh, hout, meas_idx,
+                             dist_out_loops)
+            else:
+                outputs_lti(S, C, m, b0, un, uL, xa, shared_plant, has_sig, has_D, Cm, Dm, dist_out_loops, buf, pos,
+                            M, dsteps)
+            if any_noise:
+                add_noise(S, C, m, b0, uL, k, noise_std, noise_seed)
+            # ---- divergence every 8 steps, safety monitor
+            if check_div:
+                all_alive = check_divergence(S, C, m, un, uL, xa, div_bound, all_alive)
+            if monitor:
+                safety_monitor(S, C, m, b0, un, uL, xa, t, dt, max_err, max_out, xbound, safe_mode,
+                               fb_kp, fb_ki, fb_kd, fb_tf, fb_kb)
+            # ---- controllers (outer first) and actuator
+            controllers(S, C, m, b0, k, uL, un, xa, ymf, sf, aw, dt, nr, y_op, K, x_op, kint)
+            actuator(S, C, m, uL, L, aw, has_rate, rate, dt, monitor, safe_mode, u_safe, buf, upos)
+            # ---- metrics (streaming: no trace kept)
+            if k == 0:
+                start_metrics(S, C, m, b0, target)
+            accumulate_metrics(S, C, m, k, t, dt)
+            # ---- plant input held over the sample, plant update into the next-state rows
+            plant_input(S, C, m, b0, pos, M, dsteps, buf, shared_delay, has_G1)
+            if nonlinear:
+                update_rk4(S, C, m, mt, n, un, xa, xb, dt, f_op, f_a, f_b, f_o, f_c, inp, wf, k1, k2, k3, k4)
+            elif shared_plant:
+                update_zoh_shared(S, C, m, b0, un, xa, xb, Ad, G0, G1, has_G1)
+            else:
+                update_zoh(S, C, m, b0, un, xa, xb, Ad, G0, G1, has_G1)
+            if not all_alive:
+                freeze_dead(S, C, m, un, xb)
+            xa, xb = xb, xa
+            if want_traces:
+                record_traces(S, C, m, b0, k, uL, tr_y, tr_sp, tr_u)
+
+        finish_metrics(out, S, C, m, b0, n_steps, dt, target, k_step)
+    return out
+
+
+# The record and the kernel must agree field for field: a mismatch would splat arrays into the
+# wrong parameters, so it fails here, at import, rather than as a typing error or wrong numbers.
+_PARAMS = _kernel.__code__.co_varnames[: _kernel.__code__.co_argcount]
+if _PARAMS != KernelArgs._fields:
+    raise ImportError(f"KernelArgs fields do not match the kernel's parameters: {KernelArgs._fields} != {_PARAMS}")
+
+
+def _source_tag(package: Path = Path(__file__).parent) -> str:
+    """Hash of every source file the kernel compiles from (the kernel package, and the tape op codes)."""
+    h = hashlib.blake2b(digest_size=6)
+    for path in sorted(package.glob("*.py")) + [Path(T.__file__)]:
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+_TAG = _source_tag()
+
+
+def _compile(parallel: bool, lanes: int = CHUNK, name: str = ""):
+    """Compile a variant of :func:`_kernel` with ``lanes`` candidates per chunk.
+
+    A distinct function object and qualname per variant keeps numba's on-disk
+    caches apart; ``CHUNK`` is frozen into the variant as a compile-time constant.
+    The qualname carries :data:`_TAG`, since numba's cache sees only this file.
+    """
+    glb = dict(_kernel.__globals__, CHUNK=lanes)
+    fn = types.FunctionType(_kernel.__code__, glb, "_kernel")
+    fn.__qualname__ = f"{name}_{_TAG}"
+    # the parallel variant's parfor passes already propagate the inlined stages' argument copies
+    extra = {} if parallel else {"pipeline_class": SerialKernelCompiler}
+    return nb.njit(cache=True, parallel=parallel, error_model="numpy", fastmath={"contract"}, **extra)(fn)
+
+
+#: Parallel over chunks (large batches) and serial (small batches: no thread start-up cost).
+simulate_kernel_parallel = _compile(True, name="simulate_kernel_parallel")
+simulate_kernel_serial = _compile(False, name="simulate_kernel_serial")
+#: One lane per chunk, a compile-time count: every per-lane loop collapses to
+#: straight-line code (no loop set-up or overlap checks per stage). Same source,
+#: so the same control law.
+simulate_kernel_single = _compile(False, lanes=1, name="simulate_kernel_single")
+
+#: The compiled variants by name, for :func:`run_kernel`.
+VARIANTS = {"parallel": simulate_kernel_parallel, "serial": simulate_kernel_serial, "single": simulate_kernel_single}
+
+_BATCH = KernelArgs._fields.index("u_op")  # the argument that sets the batch size
+
+
+def simulate_kernel(*args):
+    """Run the kernel on positional arguments (a :class:`KernelArgs` splatted), choosing the variant.
+
+    The single-lane variant for one candidate, serially for one chunk, else in parallel.
+    Returns the (16, B) metric rows, in the order of :data:`METRICS`.
+    """
+    B = args[_BATCH].shape[0]
+    if B == 1:
+        return simulate_kernel_single(*args)
+    fn = simulate_kernel_parallel if B > CHUNK else simulate_kernel_serial
+    return fn(*args)
+
+
+def run_kernel(args: KernelArgs, variant: str = "auto") -> np.ndarray:
+    """Run the compiled kernel on a record.
+
+    Parameters
+    ----------
+    args
+        The kernel's arguments, e.g. from :meth:`gaintune.sim.Simulator.kernel_args`.
+        Trace arrays in it are written in place when ``args.want_traces``.
+    variant
+        ``"auto"`` (what :meth:`~gaintune.sim.Simulator.run` uses: ``"single"`` for
+        one candidate, ``"serial"`` for one chunk, else ``"parallel"``), or one of
+        :data:`VARIANTS`. All variants give the same numbers on a plant shared by a chunk.
+
+    Returns
+    -------
+    np.ndarray
+        (16, B) metric rows, in the order of :data:`METRICS` (diverged/tripped as 0/1 floats).
+    """
+    if variant == "auto":
+        return simulate_kernel(*args)
+    try:
+        fn = VARIANTS[variant]
+    except KeyError:
+        raise ValueError(f"unknown kernel variant {variant!r}; expected 'auto' or one of {sorted(VARIANTS)}") from None
+    return fn(*args)
