@@ -3,7 +3,7 @@
 Run::
 
     gaintune bench chaos             # or: python -m gaintune.bench.chaos [--jobs 40] [--worker-kills 10]
-                                     #     [--server-kills 2] [--budget 200] [--rounds 3] [--json] [--keep]
+                                     #     [--server-kills 2] [--budget 1000] [--rounds 3] [--json] [--keep]
 
 The servers run as subprocesses (``python -m api``, plus ``python -m api.worker`` for the stale-worker
 phase); this module never imports the ``api`` package. Workers are found as the server's child processes
@@ -43,8 +43,9 @@ import sys
 import tempfile
 import time
 from base64 import b64encode
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 __all__ = ["main", "job_spec"]
 
@@ -162,6 +163,18 @@ class Server:
         self.client.close()
 
 
+@contextmanager
+def _serving(root: Path, workers: int, **env: str) -> Iterator[Server]:
+    """A started, ready server, stopped on exit (also on errors)."""
+    srv = Server(root, workers, **env)
+    try:
+        srv.start()
+        srv.wait_ready()
+        yield srv
+    finally:
+        srv.stop()
+
+
 def _agent_ok(srv: Server, job_id: str) -> tuple[bool, str | None]:
     """(served agent matches the digest recorded when the job finished, its sha256)."""
     r = srv.client.get(f"/v1/jobs/{job_id}/agent")
@@ -176,16 +189,11 @@ def _agent_ok(srv: Server, job_id: str) -> tuple[bool, str | None]:
 
 def campaign(root: Path, n_jobs: int, worker_kills: int, server_kills: int, budget: int, log: Callable) -> dict:
     """Submit ``n_jobs`` jobs, kill workers and the server meanwhile; count lost, duplicated, stuck, corrupt jobs."""
-    srv = Server(root, 2, GAINTUNE_MAX_ATTEMPTS="50", GAINTUNE_RECOVER="requeue")
-    try:
+    with _serving(root, 2, GAINTUNE_MAX_ATTEMPTS="50", GAINTUNE_RECOVER="requeue") as srv:
         return _campaign(srv, n_jobs, worker_kills, server_kills, budget, log)
-    finally:
-        srv.stop()
 
 
 def _campaign(srv: Server, n_jobs: int, worker_kills: int, server_kills: int, budget: int, log: Callable) -> dict:
-    srv.start()
-    srv.wait_ready()
     keys = [f"chaos-{i}" for i in range(n_jobs)]
     ids: dict[str, set[str]] = {k: set() for k in keys}
 
@@ -289,16 +297,11 @@ def _freeze_outside_tx(srv: Server, pid: int) -> None:
 
 def frozen(root: Path, rounds: int, log: Callable) -> dict:
     """Freeze an idle supervised worker; count /readyz 200s while it is stopped and workers never killed."""
-    srv = Server(root, 2, GAINTUNE_HEARTBEAT_TIMEOUT="3", GAINTUNE_WORKER_LIVENESS_TIMEOUT="1")
-    try:
+    with _serving(root, 2, GAINTUNE_HEARTBEAT_TIMEOUT="3", GAINTUNE_WORKER_LIVENESS_TIMEOUT="1") as srv:
         return _frozen(srv, rounds, log)
-    finally:
-        srv.stop()
 
 
 def _frozen(srv: Server, rounds: int, log: Callable) -> dict:
-    srv.start()
-    srv.wait_ready()
     polls = ready_while_frozen = never_killed = 0
     kill_s = []
     for r in range(rounds):
@@ -341,13 +344,14 @@ class _Worker:
 def stale(root: Path, rounds: int, budget: int, log: Callable) -> dict:
     """Frozen standalone worker resumes after its job was finished elsewhere: count changed artefacts/results."""
     hold = root / "hold"
-    srv = Server(root, 0, GAINTUNE_HEARTBEAT_TIMEOUT="2", GAINTUNE_TEST_HOLD_FILE=str(hold))
-    srv.start()
     changed = stale_lost = 0
-    victim = None
-    try:
-        srv.wait_ready()
+    with _serving(root, 0, GAINTUNE_HEARTBEAT_TIMEOUT="2", GAINTUNE_TEST_HOLD_FILE=str(hold)) as srv:
         victim = _Worker(srv, 0)
+        try:
+            _stale_rounds(srv, victim, hold, rounds, budget, log, counts := {"changed": 0, "resumed": 0})
+        finally:
+            victim.stop()
+        changed, stale_lost = counts["changed"], counts["resumed"]
         for r in range(rounds):
             hold.touch()
             job = srv.client.post("/v1/tune", json=job_spec(100 + r, budget)).json()["id"]

@@ -25,7 +25,9 @@ True
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import operator
+from collections.abc import Mapping
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -155,6 +157,30 @@ class KernelArgs(NamedTuple):
     tr_sp: np.ndarray
     tr_u: np.ndarray
 
+    @classmethod
+    def from_fields(cls, *parts: Mapping[str, Any]) -> KernelArgs:
+        """The record of the fields in ``parts`` (mappings of field name to value; later ones win).
+
+        Every field must be given, and nothing else. Cheaper than ``KernelArgs(**a, **b)``,
+        whose keyword matching over 69 parameters measured ~8 us, against ~3 us here
+        (a single simulation costs ~0.1 ms).
+
+        Raises
+        ------
+        TypeError
+            When a field is missing or a name is not a field.
+        """
+        merged: dict[str, Any] = {}
+        for part in parts:
+            merged.update(part)
+        if len(merged) == len(_FIELD_SET):  # then a missing field means an unknown name: KeyError below
+            try:
+                return cls._make(_GET_FIELDS(merged))
+            except KeyError:
+                pass
+        missing, extra = sorted(_FIELD_SET - merged.keys()), sorted(merged.keys() - _FIELD_SET)
+        raise TypeError(f"KernelArgs fields: missing {missing}, unknown {extra}")
+
     @property
     def batch(self) -> int:
         """Number of candidates B."""
@@ -170,3 +196,7 @@ class KernelArgs(NamedTuple):
         L, T, B = self.n_loops, self.n_steps, self.batch
         return self._replace(want_traces=True, tr_y=np.zeros((L, T, B)), tr_sp=np.zeros((L, T, B)),
                              tr_u=np.zeros((T, B)))
+
+
+_FIELD_SET = frozenset(KernelArgs._fields)
+_GET_FIELDS = operator.itemgetter(*KernelArgs._fields)

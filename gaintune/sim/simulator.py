@@ -162,7 +162,7 @@ class Simulator:
             prep = self._prepared(d, sc)
         pb = self.problem
         ca = pb.controller_arrays(full, prep["pa"])
-        args = KernelArgs(**prep["fields"], **ca, **pb.fallback_arrays(B, ca, prep["pa"]))
+        args = KernelArgs.from_fields(prep["fields"], ca, pb.fallback_arrays(B, ca, prep["pa"]))
         return args.with_traces() if traces else args
 
     def run(

@@ -111,3 +111,15 @@ def test_the_record_does_not_load_numba() -> None:
     code = "import sys, gaintune.sim.kernel_args; print('numba' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
+
+
+def test_from_fields_takes_every_field_by_name_and_nothing_else() -> None:
+    values = {name: i for i, name in enumerate(KernelArgs._fields)}
+    head = dict(list(values.items())[:10])
+    assert tuple(KernelArgs.from_fields(head, values)) == tuple(range(len(values)))
+    with pytest.raises(TypeError, match=r"missing \['dt'\], unknown \[\]"):
+        KernelArgs.from_fields({k: v for k, v in values.items() if k != "dt"})
+    with pytest.raises(TypeError, match=r"missing \[\], unknown \['zz'\]"):
+        KernelArgs.from_fields(values, {"zz": 0})
+    with pytest.raises(TypeError, match=r"missing \['dt'\], unknown \['zz'\]"):
+        KernelArgs.from_fields({k: v for k, v in values.items() if k != "dt"}, {"zz": 0})
