@@ -12,6 +12,12 @@ know before any search, ranked like every search ranks (feasibility first, then 
    slow pole) reaches the performance the requirements allow. All candidates are scored in one
    batched evaluation.
 
+3. when no rule applies to a PID spec (an open-loop unstable or oscillatory path, a double
+   integrator), a scrambled Sobol sample of :data:`GRID_POINTS` gain sets spread log-uniformly
+   over the layout's default bounds (scipy's ``qmc.Sobol``, seeded by ``search.seed``): the
+   best of them centres the box instead of the middle of 1e-3 .. 1e3. LQ specs keep their
+   Riccati-based defaults.
+
 The chosen design is the start point of every search (the RL policy's action 0, CMA-ES's
 mean, Nelder-Mead's first vertex), and the search never loses it: it is scored like any
 other candidate. A SIMC rule built on the half-sample delay of a delay-free plant (far too
@@ -33,7 +39,10 @@ from gaintune.plants.plant import Plant
 from gaintune.sim import Simulator
 from gaintune.spec import TuningSpec
 
-__all__ = ["SearchBox", "SCALES", "search_box", "search_layout", "make_evaluator"]
+__all__ = ["SearchBox", "SCALES", "GRID_POINTS", "search_box", "search_layout", "make_evaluator"]
+
+#: Gain sets sampled when no classical rule applies (a power of two, as Sobol sampling wants).
+GRID_POINTS = 1024
 
 #: Scales tried on every rule's gains (every loop at once): 1/16 ... 16 in steps of sqrt(2).
 SCALES = tuple(float(2.0 ** (k / 2)) for k in range(-8, 9))
@@ -75,11 +84,20 @@ def _scale(gains: dict[str, dict[str, float]], a: float, spec: TuningSpec) -> di
     return out
 
 
+def _sobol_candidates(layout: GainLayout, seed: int) -> dict[str, dict[str, dict[str, float]]]:
+    """:data:`GRID_POINTS` gain sets, log-uniform over the layout's bounds (a scrambled Sobol sample)."""
+    from scipy.stats import qmc
+
+    u = qmc.Sobol(d=layout.n_tuned, scramble=True, seed=seed).random(GRID_POINTS)
+    tuned = layout.action_to_tuned(2.0 * u - 1.0)
+    return {f"grid {i}": layout.to_dict(layout.full(t)) for i, t in enumerate(tuned)}
+
+
 def search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
     """Choose the start gains and the box around them (see the module docstring)."""
     plain = GainLayout(spec, plant.states, plant=plant)
     rules = rule_candidates(spec, plant)
-    if not rules:
+    if not rules and (any(lp.is_lq for lp in spec.loops) or plain.n_tuned == 0):
         return SearchBox(plain, None, None, False)
     ev = Evaluator(spec, Simulator(spec, plant, plain))
 
@@ -90,7 +108,10 @@ def search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
         return [(float(s.merit[i]), n, named[n], bool(s.feasible[i]), float(s.violation[i]), float(s.cost[i]))
                 for i, n in enumerate(names)]
 
-    named = {(m if a == 1.0 else f"{m} x {a:.3g}"): _scale(g, a, spec) for m, g in rules.items() for a in SCALES}
+    if rules:
+        named = {(m if a == 1.0 else f"{m} x {a:.3g}"): _scale(g, a, spec) for m, g in rules.items() for a in SCALES}
+    else:
+        named = _sobol_candidates(plain, spec.search.seed)
     scored = score(named)
     best = min(scored, key=lambda r: r[0])
     _, source, centre, feasible, _, _ = best

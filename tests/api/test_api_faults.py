@@ -203,6 +203,21 @@ def test_storage_fault_answered_generic_500(faulty, fault, status, cause):
     assert c.post("/v1/tune", json=SPEC).status_code == 202
 
 
+@pytest.mark.parametrize("fault,cause", [("db:readonly", "database-read-only"), ("db:full", "database-full"),
+                                         ("data:readonly", "data-dir-read-only"), ("data:full", "data-dir-full")])
+def test_readyz_reported_ready_on_read_only_db(faulty, fault, cause):
+    c, faults = faulty
+    assert c.get("/readyz").status_code == 200
+    faults.write_text(fault)
+    r = c.get("/readyz")
+    body = r.json()
+    assert r.status_code == 503 and body["status"] == "not_ready" and "retry-after" in r.headers
+    assert body["database"] is True  # readable: the write probe is what fails
+    assert (body["database_writable"], body["data_dir_writable"]) == ((False, True) if fault.startswith("db")
+                                                                       else (True, False))
+    assert [x.split(":")[0] for x in body["reasons"]] == [cause]
+
+
 @pytest.mark.parametrize("fault", ["data:readonly", "data:full"])
 def test_report_rendering_on_full_or_read_only_disk_answered_500(client_and_job, tmp_path, fault):
     c, job_id, _ = client_and_job
