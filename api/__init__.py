@@ -1,1 +1,1 @@
-"""gaintune REST API: FastAPI app (``api.main:app``), SQLite job store and worker processes."""
+"""gaintune REST API: FastAPI app (``gaintune_api.main:app``), SQLite job store and worker processes."""

@@ -1,14 +1,14 @@
-"""``python -m api --host 127.0.0.1 --port 8000 --workers 1``: run the API server."""
+"""``python -m gaintune_api --host 127.0.0.1 --port 8000 --workers 1``: run the API server."""
 
 from __future__ import annotations
 
 import argparse
 
-from api.main import serve
+from gaintune_api.main import serve
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m api", description="gaintune REST API server")
+    ap = argparse.ArgumentParser(prog="python -m gaintune_api", description="gaintune REST API server")
     ap.add_argument("--host", default="127.0.0.1")
     ap.add_argument("--port", type=int, default=8000)
     ap.add_argument("--workers", type=int, default=1, help="job worker processes (max concurrent jobs)")

@@ -47,7 +47,7 @@ def _watch_parent(parent: int) -> None:
 
 def _init_worker(parent: int) -> None:
     """Die with the server; warm the imports and the verification path."""
-    from api.worker import _die_with_parent
+    from gaintune_api.worker import _die_with_parent
 
     _die_with_parent(parent)
     threading.Thread(target=_watch_parent, args=(parent,), name="parent-watch", daemon=True).start()
@@ -85,7 +85,7 @@ def compute_verify(spec, gains, robust, nonlinear, plant=None, layout=None, spec
 
 def compute_simulate(spec, gains, chosen: list[int], max_points: int, plant=None, layout=None) -> tuple[str, Any]:
     """``("ok", SimulateResponse)`` | ``("gains", problem details)`` | ``("error", message)``."""
-    from api.simulation import simulate_response
+    from gaintune_api.simulation import simulate_response
     from gaintune.errors import GaintuneError, problem_details
 
     try:

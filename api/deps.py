@@ -9,10 +9,10 @@ from typing import Annotated
 from fastapi import Depends, Request, Security
 from fastapi.security import APIKeyHeader
 
-from api.jobfiles import JobFiles
-from api.problems import ApiError
-from api.settings import Settings
-from api.store import JobStore
+from gaintune_api.jobfiles import JobFiles
+from gaintune_api.problems import ApiError
+from gaintune_api.settings import Settings
+from gaintune_api.store import JobStore
 
 __all__ = ["SettingsDep", "StoreDep", "FilesDep", "OwnerDep", "require_key", "owner_of", "check_key", "api_key_header", "run_compute",
            "run_pooled"]
@@ -33,7 +33,7 @@ async def run_compute(request: Request, fn, *args):
 async def run_pooled(request: Request, fn, *args, ref: tuple[int, str] | None = None):
     """``fn(*args)`` in the compute process pool; None when there is none (or it just broke):
     the caller then uses :func:`run_compute`. ``fn`` must be picklable and never raise for bad input.
-    ``ref``: see :meth:`api.compute.ComputePool.run` (send a known spec by its hash only)."""
+    ``ref``: see :meth:`gaintune_api.compute.ComputePool.run` (send a known spec by its hash only)."""
     pool = getattr(request.app.state, "compute_pool", None)
     if pool is None:
         return None

@@ -15,7 +15,7 @@ from typing import Any, Callable
 from fastapi import Request, Response
 from fastapi.routing import APIRoute
 
-from api.problems import ApiError
+from gaintune_api.problems import ApiError
 
 __all__ = ["StrictJSONRoute", "parse_strict", "check_shape"]
 

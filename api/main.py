@@ -1,7 +1,7 @@
 """The FastAPI app: wires settings, middleware, error handlers and routers. No endpoint logic lives here.
 
-Start with ``gaintune serve --workers N`` (calls :func:`serve`), ``python -m api``
-or ``uvicorn api.main:app`` (workers from ``GAINTUNE_WORKERS``).
+Start with ``gaintune serve --workers N`` (calls :func:`serve`), ``python -m gaintune_api``
+or ``uvicorn gaintune_api.main:app`` (workers from ``GAINTUNE_WORKERS``).
 """
 
 from __future__ import annotations
@@ -14,17 +14,17 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 
-from api.compute import ComputePool
-from api.jobfiles import JobFiles
-from api.metrics import Metrics
-from api.middleware import BodySizeLimit, CatchAll, DocsAuth, LatencyMetrics
-from api.problems import SafeJSONResponse, install_handlers
-from api.routes import jobs, ops, plants, simulate, verify
-from api.schemas import install_client_openapi
-from api.settings import Settings, warn_unknown_settings
-from api.storage import FaultInjector, StorageFault
-from api.store import JobStore
-from api.supervisor import Supervisor
+from gaintune_api.compute import ComputePool
+from gaintune_api.jobfiles import JobFiles
+from gaintune_api.metrics import Metrics
+from gaintune_api.middleware import BodySizeLimit, CatchAll, DocsAuth, LatencyMetrics
+from gaintune_api.problems import SafeJSONResponse, install_handlers
+from gaintune_api.routes import jobs, ops, plants, simulate, verify
+from gaintune_api.schemas import install_client_openapi
+from gaintune_api.settings import Settings, warn_unknown_settings
+from gaintune_api.storage import FaultInjector, StorageFault
+from gaintune_api.store import JobStore
+from gaintune_api.supervisor import Supervisor
 
 __all__ = ["create_app", "app", "serve"]
 

@@ -9,8 +9,8 @@ import time
 from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from api.metrics import Metrics
-from api.problems import error_response, problem_response
+from gaintune_api.metrics import Metrics
+from gaintune_api.problems import error_response, problem_response
 
 __all__ = ["BodySizeLimit", "LatencyMetrics", "CatchAll", "DocsAuth"]
 

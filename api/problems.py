@@ -6,11 +6,11 @@ Every error body is ``application/problem+json``::
      "errors": [{"loc": "loops.0.type", "msg": "Input should be 'p', 'pi', ..."}]}
 
 No handler ever returns a stack trace. Storage faults (a read-only or full job
-database or data directory, see :mod:`api.storage`) are answered with 503, or
+database or data directory, see :mod:`gaintune_api.storage`) are answered with 503, or
 507 when full, with ``Retry-After`` and a ``cause`` member naming the fault
 (e.g. ``"database-read-only"``), and logged as a warning without a traceback.
 Unexpected exceptions are logged and answered with a generic 500 problem by
-:class:`api.middleware.CatchAll`, which keeps the keep-alive connection usable.
+:class:`gaintune_api.middleware.CatchAll`, which keeps the keep-alive connection usable.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from api.storage import StorageFault, classify
+from gaintune_api.storage import StorageFault, classify
 from gaintune.errors import GaintuneError, problem_details
 
 __all__ = ["ApiError", "problem_response", "install_handlers", "SafeJSONResponse", "json_safe", "PROBLEM_TYPES",
@@ -199,4 +199,4 @@ def install_handlers(app: FastAPI) -> None:
         return error_response(exc, method=request.method, path=request.url.path, retry_after=_retry_after(request))
 
     # No ``Exception`` handler here: Starlette re-raises after calling it, and uvicorn then drops the
-    # keep-alive connection without ``Connection: close``. api.middleware.CatchAll answers those instead.
+    # keep-alive connection without ``Connection: close``. gaintune_api.middleware.CatchAll answers those instead.

@@ -1,6 +1,6 @@
 """Domain logic of ``POST /v1/simulate``: traces and metrics of gains on a spec's scenarios.
 
-Kept out of the route so that the compute pool (``api.compute``) and the route both import
+Kept out of the route so that the compute pool (``gaintune_api.compute``) and the route both import
 downward, from here.
 """
 
@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from api.schemas import ScenarioTrace, SimulateResponse
+from gaintune_api.schemas import ScenarioTrace, SimulateResponse
 
 __all__ = ["decimate", "simulate_response"]
 

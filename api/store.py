@@ -6,14 +6,14 @@ server or a worker never loses an accepted job or a written result.
 Fencing: each attempt at a job gets a fresh random ``claim`` token (its lease
 id) and the attempt number. Every write of an attempt (progress, heartbeat,
 final result) is conditional on the token, and :meth:`JobStore.finish` runs the
-artefact promotion (:mod:`api.jobfiles`) inside the same write transaction
+artefact promotion (:mod:`gaintune_api.jobfiles`) inside the same write transaction
 after checking the token, so the attempt that owns the job is the only one
 whose files are ever renamed into place. A job recovered (re-queued or failed)
 after its worker was presumed dead can never be overwritten by that worker, in
 the database or on disk, whatever process or machine the worker runs on.
 
 Storage errors (read-only or full database, I/O errors) leave this module as
-:class:`api.storage.StorageFault`, naming the cause.
+:class:`gaintune_api.storage.StorageFault`, naming the cause.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from functools import wraps
 from pathlib import Path
 from typing import Any, Callable, Iterable, TypeVar
 
-from api.storage import FaultInjector, StorageFault, classify
+from gaintune_api.storage import FaultInjector, StorageFault, classify
 
 __all__ = ["JobRow", "JobStore", "QueueFull", "IdempotencyConflict", "STATUSES", "TERMINAL", "dumps", "loads"]
 
@@ -147,7 +147,7 @@ class JobStore:
     path
         The SQLite file.
     faults
-        Tests only: injected storage faults (see :class:`api.storage.FaultInjector`).
+        Tests only: injected storage faults (see :class:`gaintune_api.storage.FaultInjector`).
     """
 
     def __init__(self, path: str | Path, faults: FaultInjector | None = None) -> None:

@@ -27,9 +27,9 @@ import os
 import time
 from typing import Any
 
-from api.settings import Settings
-from api.storage import StorageFault
-from api.store import JobStore
+from gaintune_api.settings import Settings
+from gaintune_api.storage import StorageFault
+from gaintune_api.store import JobStore
 
 __all__ = ["Supervisor", "pid_alive", "pid_stopped"]
 
@@ -92,7 +92,7 @@ class Supervisor:
 
     # ------------------------------------------------------------- workers
     def _spawn(self, i: int) -> None:
-        from api.worker import worker_main
+        from gaintune_api.worker import worker_main
 
         pulse = self.ctx.Value("d", 0.0, lock=False)  # 0.0: not beating yet (starting)
         p = self.ctx.Process(

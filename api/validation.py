@@ -15,9 +15,9 @@ from typing import Any, Literal
 
 from pydantic import ValidationError
 
-from api.deps import run_compute
-from api.problems import ApiError
-from api.settings import Settings
+from gaintune_api.deps import run_compute
+from gaintune_api.problems import ApiError
+from gaintune_api.settings import Settings
 from gaintune.cache import LRU
 from gaintune.errors import GaintuneError, problem_details
 from gaintune.spec import TuningSpec

@@ -1,7 +1,7 @@
 """Job worker: a separate process that claims queued jobs from SQLite and runs the RL search.
 
 Run inside the server (``Settings.workers`` processes, started and restarted by
-:mod:`api.supervisor`) or standalone next to it: ``python -m api.worker``.
+:mod:`gaintune_api.supervisor`) or standalone next to it: ``python -m gaintune_api.worker``.
 
 While a job runs, a monitor thread writes progress and a heartbeat every
 ``heartbeat_interval`` seconds and polls the job's ``cancel_requested_at``
@@ -12,7 +12,7 @@ worker writes the final state itself and exits hard; its supervisor starts a
 new one.
 
 Fencing: the attempt writes its files into its own staging folder
-(:meth:`api.jobfiles.JobFiles.stage`) and all its database writes carry its
+(:meth:`gaintune_api.jobfiles.JobFiles.stage`) and all its database writes carry its
 claim token. A worker that lost its lease (frozen past ``heartbeat_timeout``,
 then resumed after the job was recovered) learns it at its next heartbeat, stops
 the search and discards its files; if it reaches the end first, the fenced
@@ -37,10 +37,10 @@ import traceback
 from pathlib import Path
 from typing import Any, Callable
 
-from api.jobfiles import JobFiles
-from api.settings import Settings, warn_unknown_settings
-from api.storage import FaultInjector, StorageFault, classify
-from api.store import JobRow, JobStore
+from gaintune_api.jobfiles import JobFiles
+from gaintune_api.settings import Settings, warn_unknown_settings
+from gaintune_api.storage import FaultInjector, StorageFault, classify
+from gaintune_api.store import JobRow, JobStore
 
 __all__ = ["worker_main", "run_job", "process_next", "PROCESS_NAME"]
 
@@ -386,7 +386,7 @@ def worker_main(settings_data: dict[str, Any], index: int = 0, parent: int | Non
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Standalone worker: ``python -m api.worker`` (settings from GAINTUNE_* env vars)."""
+    """Standalone worker: ``python -m gaintune_api.worker`` (settings from GAINTUNE_* env vars)."""
     import argparse
 
     ap = argparse.ArgumentParser(description="gaintune job worker (polls the SQLite job store)")

@@ -25,7 +25,7 @@ LAYERS: dict[str, int] = {
     "gaintune.envs": 9, "gaintune.baselines": 9,
     "gaintune.search": 10,
     "gaintune.export": 11, "gaintune.report": 11, "gaintune.bench": 11,
-    "gaintune.cli": 12, "api": 12,
+    "gaintune.cli": 12, "gaintune_api": 12,
     "gaintune": 13, "gaintune.__main__": 13,
 }
 
@@ -33,17 +33,18 @@ LAYERS: dict[str, int] = {
 def _unit(module: str) -> str:
     """The layer unit a module belongs to (its top-level package or module under gaintune)."""
     parts = module.split(".")
-    if parts[0] == "api":
-        return "api"
+    if parts[0] == "gaintune_api":
+        return "gaintune_api"
     return ".".join(parts[:2]) if len(parts) > 1 else "gaintune"
 
 
 def _modules() -> dict[str, Path]:
     out = {}
-    for pkg in ("gaintune", "api"):
-        for path in (ROOT / pkg).rglob("*.py"):
-            rel = path.relative_to(ROOT).with_suffix("")
-            name = ".".join(rel.parts)
+    # the api/ folder installs as the package gaintune_api (pyproject: package-dir)
+    for pkg, folder in (("gaintune", "gaintune"), ("gaintune_api", "api")):
+        for path in (ROOT / folder).rglob("*.py"):
+            rel = path.relative_to(ROOT / folder).with_suffix("")
+            name = ".".join((pkg, *rel.parts))
             out[name.removesuffix(".__init__")] = path
     return out
 
@@ -61,8 +62,8 @@ def _imports(name: str, path: Path) -> set[str]:
                 parts = parts[: len(parts) - (node.level - 1)]
                 base = ".".join(parts + ([base] if base else []))
             # ``from gaintune import spec`` imports the module gaintune.spec, not the package facade
-            found |= {f"{base}.{a.name}" for a in node.names} if base in ("gaintune", "api") else {base}
-    return {m for m in found if m.split(".")[0] in ("gaintune", "api")}
+            found |= {f"{base}.{a.name}" for a in node.names} if base in ("gaintune", "gaintune_api") else {base}
+    return {m for m in found if m.split(".")[0] in ("gaintune", "gaintune_api", "api")}
 
 
 def test_every_unit_has_a_layer():
@@ -114,3 +115,17 @@ def test_no_import_cycles_between_modules():
         if v not in index:
             visit(v)
     assert not cycles, f"import cycles: {cycles}"
+
+
+def test_every_package_folder_is_installed():
+    """pyproject lists the packages explicitly (api/ maps to gaintune_api): a new folder must be added."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {n for n, p in _modules().items() if p.name == "__init__.py"}
+    assert found == listed, f"pyproject [tool.setuptools] packages differ: missing {sorted(found - listed)}, extra {sorted(listed - found)}"
+
+
+def test_nothing_imports_the_api_folder_by_its_folder_name():
+    bad = sorted(n for n, p in _modules().items() if any(m.split(".")[0] == "api" for m in _imports(n, p)))
+    assert not bad, f"import gaintune_api, not api: {bad}"

@@ -9,14 +9,14 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Body, Header, Query, Response
 from fastapi.responses import FileResponse, HTMLResponse
 
-from api.artifacts import EXPORT_MEDIA, export_gains, export_verdict, render_report, render_report_html
-from api.deps import FilesDep, OwnerDep, SettingsDep, StoreDep
-from api.jobfiles import ArtifactMismatch, ArtifactMissing
-from api.jsonbody import StrictJSONRoute
-from api.problems import ApiError, log
-from api.schemas import ExportFormat, JobList, JobPublic, JobResultPublic, JobStatus, JobSummary, ProgressPublic
-from api.store import IdempotencyConflict, JobRow, QueueFull, loads
-from api.validation import check_spec
+from gaintune_api.artifacts import EXPORT_MEDIA, export_gains, export_verdict, render_report, render_report_html
+from gaintune_api.deps import FilesDep, OwnerDep, SettingsDep, StoreDep
+from gaintune_api.jobfiles import ArtifactMismatch, ArtifactMissing
+from gaintune_api.jsonbody import StrictJSONRoute
+from gaintune_api.problems import ApiError, log
+from gaintune_api.schemas import ExportFormat, JobList, JobPublic, JobResultPublic, JobStatus, JobSummary, ProgressPublic
+from gaintune_api.store import IdempotencyConflict, JobRow, QueueFull, loads
+from gaintune_api.validation import check_spec
 from gaintune.spec import TuningSpec
 
 router = APIRouter(prefix="/v1", tags=["jobs"], route_class=StrictJSONRoute)
@@ -198,7 +198,7 @@ def _tune_result(r: dict[str, Any]):
 def job_report(job_id: str, store: StoreDep, files: FilesDep, owner: OwnerDep) -> Response:
     """Rendered on first request and cached in the job's folder. If the data directory cannot be written
     (read-only or full), the report is rendered in memory and served uncached (``X-Report-Cache: off``)."""
-    from api.storage import StorageFault
+    from gaintune_api.storage import StorageFault
 
     row = _get(store, job_id, owner)
     r = _finished_result(row)

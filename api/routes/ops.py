@@ -9,9 +9,9 @@ from fastapi import APIRouter, Request, Security
 from fastapi.responses import JSONResponse, PlainTextResponse
 from pydantic import Field
 
-from api.deps import SettingsDep, api_key_header, check_key
-from api.schemas import Health, Ready
-from api.storage import StorageFault
+from gaintune_api.deps import SettingsDep, api_key_header, check_key
+from gaintune_api.schemas import Health, Ready
+from gaintune_api.storage import StorageFault
 
 router = APIRouter(tags=["ops"])
 

@@ -6,9 +6,9 @@ import logging
 
 from fastapi import APIRouter
 
-from api.deps import require_key
-from api.problems import ApiError
-from api.schemas import ParamPublic, PlantList, PlantPublic, SignalPublic
+from gaintune_api.deps import require_key
+from gaintune_api.problems import ApiError
+from gaintune_api.schemas import ParamPublic, PlantList, PlantPublic, SignalPublic
 
 router = APIRouter(prefix="/v1", tags=["plants"], dependencies=[require_key])
 log = logging.getLogger("gaintune.api")

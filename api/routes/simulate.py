@@ -6,12 +6,12 @@ import logging
 
 from fastapi import APIRouter, Request
 
-from api.compute import compute_simulate
-from api.deps import SettingsDep, require_key, run_compute, run_pooled
-from api.jsonbody import StrictJSONRoute
-from api.problems import ApiError
-from api.schemas import SimulateRequest, SimulateResponse
-from api.validation import checked_spec
+from gaintune_api.compute import compute_simulate
+from gaintune_api.deps import SettingsDep, require_key, run_compute, run_pooled
+from gaintune_api.jsonbody import StrictJSONRoute
+from gaintune_api.problems import ApiError
+from gaintune_api.schemas import SimulateRequest, SimulateResponse
+from gaintune_api.validation import checked_spec
 
 router = APIRouter(prefix="/v1", tags=["simulate"], route_class=StrictJSONRoute, dependencies=[require_key])
 log = logging.getLogger("gaintune.api")

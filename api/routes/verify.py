@@ -1,4 +1,4 @@
-"""``POST /v1/verify``: synchronous verification of gains against a spec (in the compute pool, see :mod:`api.compute`)."""
+"""``POST /v1/verify``: synchronous verification of gains against a spec (in the compute pool, see :mod:`gaintune_api.compute`)."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ import logging
 
 from fastapi import APIRouter, Request, Response
 
-from api.compute import compute_verify
-from api.deps import SettingsDep, require_key, run_compute, run_pooled
-from api.jsonbody import StrictJSONRoute
-from api.problems import ApiError
-from api.schemas import VerifyRequest
-from api.validation import checked_spec
+from gaintune_api.compute import compute_verify
+from gaintune_api.deps import SettingsDep, require_key, run_compute, run_pooled
+from gaintune_api.jsonbody import StrictJSONRoute
+from gaintune_api.problems import ApiError
+from gaintune_api.schemas import VerifyRequest
+from gaintune_api.validation import checked_spec
 from gaintune.cache import LRU
 from gaintune.verify import VerificationReport
 

@@ -187,7 +187,7 @@ def _start_server(tmp: Path, port: int, workers: int, compute_processes: int | N
     env = dict(os.environ, GAINTUNE_DB_PATH=str(tmp / "jobs.db"), GAINTUNE_DATA_DIR=str(tmp / "data"))
     if compute_processes is not None:
         env["GAINTUNE_COMPUTE_PROCESSES"] = str(compute_processes)
-    cmd = [sys.executable, "-m", "api", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers),
+    cmd = [sys.executable, "-m", "gaintune_api", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers),
            "--log-level", "warning"]
     return subprocess.Popen(cmd, cwd=tmp, env=env, stdout=open(tmp / "server.log", "w"), stderr=subprocess.STDOUT)
 

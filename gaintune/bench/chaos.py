@@ -1,7 +1,7 @@
 """Benchmark: a chaos campaign against real API servers on 127.0.0.1, driven over HTTP only.
 
 Run ``gaintune bench chaos`` (or ``python -m gaintune.bench.chaos``; ``--help`` for the options). The servers
-run as subprocesses (``python -m api``; ``python -m api.worker`` for standalone workers); this module never
+run as subprocesses (``python -m gaintune_api``; ``python -m gaintune_api.worker`` for standalone workers); this module never
 imports ``api``. Workers are the server's child processes named ``gaintune-worker``. Phases:
 
 1. campaign: ``--jobs`` small jobs (each with an Idempotency-Key) on 2 workers; ``--worker-kills`` SIGKILLs of
@@ -88,7 +88,7 @@ def _wait(cond: Callable[[], Any], timeout: float, what: str, poll: float = 0.1)
 
 
 class Server:
-    """``python -m api`` on a free port with its own data folder (restartable on the same database)."""
+    """``python -m gaintune_api`` on a free port with its own data folder (restartable on the same database)."""
 
     def __init__(self, root: Path, workers: int, **env: str) -> None:
         import httpx
@@ -106,7 +106,7 @@ class Server:
         self.log = root / "server.log"
 
     def start(self) -> None:
-        cmd = [sys.executable, "-m", "api", "--host", "127.0.0.1", "--port", str(self.port),
+        cmd = [sys.executable, "-m", "gaintune_api", "--host", "127.0.0.1", "--port", str(self.port),
                "--workers", str(self.workers), "--log-level", "warning"]
         self.proc = subprocess.Popen(cmd, cwd=self.root, env=self.env, stdout=open(self.log, "a"),
                                      stderr=subprocess.STDOUT)
@@ -314,7 +314,7 @@ def frozen(root: Path, rounds: int, log: Callable) -> dict:
 class _Worker:
     def __init__(self, srv: Server, index: int) -> None:
         self.log = srv.root / f"worker-{index}.log"
-        self.proc = subprocess.Popen([sys.executable, "-m", "api.worker", "--index", str(index)], cwd=srv.root,
+        self.proc = subprocess.Popen([sys.executable, "-m", "gaintune_api.worker", "--index", str(index)], cwd=srv.root,
                                      env=srv.env, stdout=open(self.log, "a"), stderr=subprocess.STDOUT)
 
     def text(self) -> str:

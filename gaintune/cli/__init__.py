@@ -226,9 +226,9 @@ def serve(
 ) -> None:
     """Run the REST API (FastAPI app in api/)."""
     try:
-        from api.main import serve as run_server
+        from gaintune_api.main import serve as run_server
     except ImportError as exc:
-        err.print(f"error: the REST API (api.main.serve) is not available: {exc}", markup=False)
+        err.print(f"error: the REST API (gaintune_api.main.serve) is not available: {exc}", markup=False)
         raise typer.Exit(1) from None
     run_server(host, port, workers)
 

@@ -1,4 +1,4 @@
-"""Issue 14 chaos suite: real servers (``python -m api``) and workers on 127.0.0.1, faults injected for real.
+"""Issue 14 chaos suite: real servers (``python -m gaintune_api``) and workers on 127.0.0.1, faults injected for real.
 
 * freeze (SIGSTOP) and resume a worker: a stale attempt never changes a finished job (defect 1); a frozen
   supervised worker makes /readyz not ready and is killed and replaced (defect 6);
@@ -64,12 +64,12 @@ def freeze(srv: Server, pid: int) -> None:
 
 
 class Worker:
-    """A standalone worker (``python -m api.worker``) on a server's database: not supervised, not killed by it."""
+    """A standalone worker (``python -m gaintune_api.worker``) on a server's database: not supervised, not killed by it."""
 
     def __init__(self, srv: Server, index: int) -> None:
         self.path = srv.tmp / f"worker-{index}.log"
         self.log = open(self.path, "w")
-        self.proc = subprocess.Popen([sys.executable, "-m", "api.worker", "--index", str(index)], cwd=srv.tmp,
+        self.proc = subprocess.Popen([sys.executable, "-m", "gaintune_api.worker", "--index", str(index)], cwd=srv.tmp,
                                      env=srv.env, stdout=self.log, stderr=subprocess.STDOUT)
         self.pid = self.proc.pid
 

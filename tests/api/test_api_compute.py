@@ -1,4 +1,4 @@
-"""The compute pool of the synchronous endpoints (api.compute.ComputePool), without HTTP."""
+"""The compute pool of the synchronous endpoints (gaintune_api.compute.ComputePool), without HTTP."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from api.compute import ComputePool
+from gaintune_api.compute import ComputePool
 
 
 async def _warm(pool: ComputePool) -> list[int]:
@@ -74,7 +74,7 @@ def test_pool_queues_recovers_and_shuts_down():
 
 
 def test_pool_verify_matches_in_process():
-    from api.compute import compute_verify
+    from gaintune_api.compute import compute_verify
     from gaintune.spec import load_spec
     from gaintune.verify import verify
 
@@ -105,7 +105,7 @@ def _identity(x):
 
 def test_known_objects_are_sent_once_and_the_mirror_heals():
     """A spec (by its hash) crosses the pipe once per worker; a broken mirror is repaired."""
-    from api.compute import KNOWN_SIZE, _Ref
+    from gaintune_api.compute import KNOWN_SIZE, _Ref
 
     async def main():
         pool = ComputePool(1)

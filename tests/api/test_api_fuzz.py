@@ -13,8 +13,8 @@ import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from api.main import create_app
-from api.settings import Settings
+from gaintune_api.main import create_app
+from gaintune_api.settings import Settings
 
 schemathesis = pytest.importorskip("schemathesis")
 

@@ -20,7 +20,7 @@ import pytest
 import yaml
 from fastapi.testclient import TestClient
 
-from api.main import app
+from gaintune_api.main import app
 
 MINIMAL = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pid"}]}
 REPO = Path(__file__).resolve().parents[2]
@@ -101,7 +101,7 @@ def test_request_schemas_carry_no_default_that_generators_read_as_always_present
 
 def test_readme_and_plant_example_specs_validate_against_the_published_schema(doc):
     """What the README shows and GET /v1/plants serves as ``example_spec`` (``[low, high]`` ranges included)."""
-    from api.routes.plants import list_plants
+    from gaintune_api.routes.plants import list_plants
 
     validator = jsonschema_rs.validator_for({**doc, "$ref": "#/components/schemas/TuningSpec"})
     for spec in _readme_specs() + [p.example_spec for p in list_plants().items]:
@@ -193,7 +193,7 @@ def _const(name: str, type_: str, value) -> str:
 def test_generated_typescript_client_types_the_readme_request_bodies(doc, ts_client):
     routes = _spec_routes(doc)
     assert sorted(routes) == sorted(BODIES), f"give example bodies for every POST route taking a spec: {routes}"
-    from api.routes.plants import list_plants  # what GET /v1/plants serves: an example spec per built-in model
+    from gaintune_api.routes.plants import list_plants  # what GET /v1/plants serves: an example spec per built-in model
 
     specs = _readme_specs() + [p.example_spec for p in list_plants().items]
     lines = [_PRELUDE]

@@ -10,11 +10,11 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from api.main import create_app
-from api.settings import Settings
-from api.store import JobStore
-from api.supervisor import Supervisor
-from api.worker import process_next
+from gaintune_api.main import create_app
+from gaintune_api.settings import Settings
+from gaintune_api.store import JobStore
+from gaintune_api.supervisor import Supervisor
+from gaintune_api.worker import process_next
 from gaintune.search.result import CurvePoint, Progress, Provenance, TuneResult
 
 SPEC = {

@@ -7,8 +7,8 @@ import json
 import pytest
 from fastapi.testclient import TestClient
 
-from api.main import create_app
-from api.settings import Settings
+from gaintune_api.main import create_app
+from gaintune_api.settings import Settings
 
 SPEC = {
     "plant": {"tf": {"num": [1], "den": "(s+1)^3"}},

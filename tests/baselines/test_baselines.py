@@ -286,7 +286,9 @@ def test_lq_and_unstable_have_no_rule():
     with pytest.raises(NoModelError, match="unstable"):
         tune_classical(unstable, plant, "amigo")
     assert rule_candidates(unstable, plant) == {}
-    assert search_box(unstable, plant).centre is None  # the layout's fixed default bounds
+    box = search_box(unstable, plant)  # no rule: a Sobol sample of the default bounds centres the box
+    assert box.source.startswith("grid") and box.centre is not None
+    assert search_box(lq, build_plant(lq.plant)).centre is None  # LQ: the layout's Riccati-based defaults
 
 
 def test_auto_bounds_centred_on_the_given_gains():

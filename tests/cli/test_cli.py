@@ -288,8 +288,8 @@ def test_serve_calls_api(monkeypatch) -> None:
     import types
 
     seen = {}
-    fake = types.ModuleType("api.main")
+    fake = types.ModuleType("gaintune_api.main")
     fake.serve = lambda host, port, workers: seen.update(host=host, port=port, workers=workers)
-    monkeypatch.setitem(sys.modules, "api.main", fake)
+    monkeypatch.setitem(sys.modules, "gaintune_api.main", fake)
     res = run("serve", "--host", "0.0.0.0", "--port", "9000", "--workers", "3")
     assert res.exit_code == 0 and seen == {"host": "0.0.0.0", "port": 9000, "workers": 3}
