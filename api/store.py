@@ -19,7 +19,6 @@ Storage errors (read-only or full database, I/O errors) leave this module as
 from __future__ import annotations
 
 import json
-import math
 import os
 import sqlite3
 import threading
@@ -30,7 +29,7 @@ from functools import wraps
 from pathlib import Path
 from typing import Any, Callable, Iterable, TypeVar
 
-from gaintune_api.storage import FaultInjector, StorageFault, classify
+from gaintune_api.storage import FaultInjector, classify
 
 __all__ = ["JobRow", "JobStore", "QueueFull", "IdempotencyConflict", "STATUSES", "TERMINAL", "dumps", "loads"]
 

@@ -17,7 +17,6 @@ specs, the robust set; the nonlinear simulation check is not part of the require
 from __future__ import annotations
 
 import argparse
-import math
 import time
 from collections.abc import Sequence
 from pathlib import Path

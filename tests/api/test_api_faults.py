@@ -22,7 +22,7 @@ from test_api_routes import GOOD, SPEC, make_fake_tune, settings_for
 
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.main import create_app
-from gaintune_api.settings import Settings, unknown_settings
+from gaintune_api.settings import unknown_settings
 from gaintune_api.storage import FaultInjector, StorageFault, classify
 from gaintune_api.store import JobStore, loads
 from gaintune_api.supervisor import Supervisor
@@ -126,7 +126,7 @@ def test_stale_worker_resuming_mid_search_writes_nothing(faulty):
     assert again.content == agent.content and again.headers["repr-digest"] == agent.headers["repr-digest"]
     j = c.get(f"/v1/jobs/{job_id}").json()
     assert j["status"] == "succeeded" and j["attempts"] == 2
-    assert not list((files.job_dir(job_id) / ".attempts").glob(f"1-*"))  # the stale staging folder is discarded
+    assert not list((files.job_dir(job_id) / ".attempts").glob("1-*"))  # the stale staging folder is discarded
 
 
 def test_agent_file_deleted_answered_409_saved_no_agent(client_and_job):
