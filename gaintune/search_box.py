@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from gaintune.cache import LRU
 from gaintune.classical import BOUNDS_FACTOR, auto_bounds, rule_candidates
 from gaintune.controllers.layout import GainLayout
 from gaintune.objective import Evaluator
@@ -93,8 +94,20 @@ def _sobol_candidates(layout: GainLayout, seed: int) -> dict[str, dict[str, dict
     return {f"grid {i}": layout.to_dict(layout.full(t)) for i, t in enumerate(tuned)}
 
 
+#: Boxes of recent specs: one tune asks for its box from the env, the baselines and the report.
+_BOXES: LRU[str, SearchBox] = LRU(16)
+
+
 def search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
-    """Choose the start gains and the box around them (see the module docstring)."""
+    """Choose the start gains and the box around them (see the module docstring).
+
+    The box depends on the spec alone (the plant is built from it), so it is computed once per
+    spec content and shared (treat the returned object as read-only).
+    """
+    return _BOXES.get_or_build(spec.content_hash(), lambda: _search_box(spec, plant))
+
+
+def _search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
     plain = GainLayout(spec, plant.states, plant=plant)
     rules = rule_candidates(spec, plant)
     if not rules and (any(lp.is_lq for lp in spec.loops) or plain.n_tuned == 0):
