@@ -45,7 +45,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 
 from gaintune.errors import SpecError
 from gaintune.spec import TuningSpec
@@ -129,6 +128,8 @@ def path_gain(A: np.ndarray, b: np.ndarray, c: np.ndarray, d: float) -> PathGain
     N = np.zeros((n + 1, n + 1))
     N[:n, :n] = np.eye(n)
     with np.errstate(all="ignore"):
+        import scipy.linalg  # deferred: importing scipy.linalg costs ~0.2 s, and only this path needs it
+
         zeros = scipy.linalg.eigvals(M, N)
     zeros = zeros[np.isfinite(zeros)]
     mags = np.abs(np.concatenate([poles, zeros]))

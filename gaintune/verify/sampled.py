@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import math
 import numpy as np
-import scipy.linalg
 
 from gaintune.plants.plant import LinearModel
 
@@ -60,6 +59,8 @@ def zoh_delay(A: np.ndarray, B: np.ndarray, dt: float, delay: float) -> tuple[np
         M = np.zeros((n + 1, n + 1))
         M[:n, :n] = A * h
         M[:n, n:] = B * h
+        import scipy.linalg  # deferred: ~0.2 s at import; `import gaintune.verify` stays light
+
         E = scipy.linalg.expm(M)
         return E[:n, :n], E[:n, n]
 
@@ -157,6 +158,8 @@ class SampledPlant:
     def schur(self):
         """Complex Schur form Ad = Z T Z^H and Z^H G0, Z^H G1 (computed once)."""
         if self._schur is None:
+            import scipy.linalg  # deferred (see above)
+
             T, Z = scipy.linalg.schur(self.Ad.astype(complex), output="complex")
             ZH = Z.conj().T
             self._schur = (T, Z, ZH @ self.G0.astype(complex), ZH @ self.G1.astype(complex), np.diag(T).copy())

@@ -35,7 +35,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.linalg.lapack import dgebal
 
 from gaintune.plants.plant import LinearModel
 from gaintune.verify.cascade import controller_state_index
@@ -147,6 +146,8 @@ def _balance(A: np.ndarray) -> np.ndarray:
 
     (LAPACK directly rather than ``scipy.linalg.matrix_balance``: only the scaling is needed, per call.)
     """
+    from scipy.linalg.lapack import dgebal  # deferred: scipy.linalg costs ~0.2 s at import
+
     _, _, _, d, info = dgebal(A, scale=1, permute=0)
     if info == 0 and np.all(np.isfinite(d)) and np.all(d > 0):
         return d
