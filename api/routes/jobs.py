@@ -114,14 +114,19 @@ def submit_tune(
     response: Response,
     settings: SettingsDep,
     store: StoreDep,
+    files: FilesDep,
     owner: OwnerDep,
     idempotency_key: Annotated[str | None, Header(alias="Idempotency-Key", max_length=200)] = None,
 ) -> JobPublic:
     """Validate the spec fully (schema, limits, plant build, names, gain layout) and queue it.
 
-    A retried request with the same ``Idempotency-Key`` (per API key) returns the same job.
+    A retried request with the same ``Idempotency-Key`` (per API key) returns the same job. A data
+    directory that cannot be written (read-only, full) is refused with 503/507 before anything is stored.
     """
     check_spec(spec, settings, "tune")
+    # A job whose folder cannot be written would only fail later: refuse it now, naming the fault
+    # (StorageFault -> 503 read-only / 507 full, with its cause and Retry-After).
+    files.probe()
     try:
         row, created = store.create(owner, spec.model_dump_json(), spec.content_hash(), spec.name,
                                     idem_key=idempotency_key, max_queue=settings.max_queue)
