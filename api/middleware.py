@@ -15,6 +15,19 @@ from gaintune_api.problems import error_response, problem_response
 __all__ = ["BodySizeLimit", "LatencyMetrics", "CatchAll", "DocsAuth"]
 
 
+class _TrackedSend:
+    """An ASGI ``send`` that records whether the response has started (after that no other response can be sent)."""
+
+    def __init__(self, send: Send) -> None:
+        self.send = send
+        self.started = False
+
+    async def __call__(self, msg: Message) -> None:
+        if msg["type"] == "http.response.start":
+            self.started = True
+        await self.send(msg)
+
+
 class CatchAll:
     """Answer any exception no handler took with a problem response, and swallow it.
 
@@ -41,18 +54,11 @@ class CatchAll:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        started = False
-
-        async def tracking_send(msg: Message) -> None:
-            nonlocal started
-            if msg["type"] == "http.response.start":
-                started = True
-            await send(msg)
-
+        tracked = _TrackedSend(send)
         try:
-            await self.app(scope, receive, tracking_send)
+            await self.app(scope, receive, tracked)
         except Exception as exc:  # noqa: BLE001 - the last resort
-            if started:
+            if tracked.started:
                 raise
             resp = error_response(exc, method=scope.get("method", "?"), path=scope.get("path", ""),
                                   retry_after=self.retry_after)
@@ -129,7 +135,6 @@ class BodySizeLimit:
                         await self._reject(scope, receive, send)
                     return
         received = 0
-        started = False
 
         async def limited_receive() -> Message:
             nonlocal received
@@ -140,16 +145,11 @@ class BodySizeLimit:
                     raise _TooLarge(self.max_bytes)
             return msg
 
-        async def tracking_send(msg: Message) -> None:
-            nonlocal started
-            if msg["type"] == "http.response.start":
-                started = True
-            await send(msg)
-
+        tracked = _TrackedSend(send)
         try:
-            await self.app(scope, limited_receive, tracking_send)
+            await self.app(scope, limited_receive, tracked)
         except _TooLarge:
-            if not started:
+            if not tracked.started:
                 await self._reject(scope, receive, send)
 
 

@@ -81,15 +81,21 @@ def first_reason(report: Any) -> str | None:
 def stored_verdict_holds(spec: TuningSpec, dt: float, stored: VerificationReport | dict[str, Any] | None) -> bool:
     """Whether the verification ``stored`` for ``spec`` (a report, its JSON form, or None) gives the verdict at ``dt``.
 
-    It does when it has a verdict and ``dt`` is the sample time it was obtained at
-    (:func:`verified_dt`), with every scenario at that ``dt``; otherwise the gains must
-    be re-verified at ``dt`` (:func:`verdict_at_dt` does).
+    It does when it has a verdict, was obtained on this very spec (its ``spec_hash`` is
+    ``spec.content_hash()``: a result written before a requirement or a default changed, e.g.
+    the noise-sensitivity limit, is not vouched for by its old verdict), and ``dt`` is the
+    sample time it was obtained at (:func:`verified_dt`), with every scenario at that ``dt``.
+    Otherwise the gains must be re-verified at ``dt`` (:func:`verdict_at_dt` does).
     """
     if stored is None:
         return False
-    verdict = stored.verdict if isinstance(stored, VerificationReport) else stored.get("verdict")
+    if isinstance(stored, VerificationReport):
+        verdict, spec_hash = stored.verdict, stored.spec_hash
+    else:
+        verdict, spec_hash = stored.get("verdict"), stored.get("spec_hash")
     vdt = verified_dt(spec)
-    return verdict is not None and _same_dt(dt, vdt) and all(_same_dt(sc.dt, vdt) for sc in spec.scenarios)
+    return (verdict is not None and spec_hash == spec.content_hash() and _same_dt(dt, vdt)
+            and all(_same_dt(sc.dt, vdt) for sc in spec.scenarios))
 
 
 def verdict_at_dt(

@@ -454,3 +454,17 @@ def test_matlab_export_is_discrete_with_ts() -> None:
     assert "= pid2(" not in motor
     lag = export_gains(load_spec(load_model("lag_n").example_spec()), LAG_GAINS, "matlab")
     assert f"C_main = pid2(Kp_main, Ki_main, Kd_main, Tf_main, 1.0, 0.0, Ts, {forms});" in lag
+
+
+def test_stored_verdict_of_another_spec_content_was_reused_at_export():
+    """Regression: a stored report vouched for the verdict whatever spec it was computed on. A result
+    written before a requirement or default changed (e.g. the noise-sensitivity limit) must be re-verified."""
+    from gaintune.export.verdict import stored_verdict_holds, verified_dt
+    from gaintune.spec import load_spec
+
+    spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+                      "scenario": {"dt": 0.05, "horizon": 10}})
+    dt = verified_dt(spec)
+    assert stored_verdict_holds(spec, dt, {"verdict": "pass", "spec_hash": spec.content_hash()})
+    assert not stored_verdict_holds(spec, dt, {"verdict": "pass", "spec_hash": "0" * 64})
+    assert not stored_verdict_holds(spec, dt, {"verdict": "pass"})  # no hash: not vouched for
