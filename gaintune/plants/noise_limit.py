@@ -22,6 +22,8 @@ Only numpy is used (this runs on every verification).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from gaintune.lti import observable_split
@@ -34,21 +36,14 @@ __all__ = ["AUTO_SPEEDUP", "NoiseLimit", "noise_limits", "path_relative_degree"]
 AUTO_SPEEDUP = 10.0
 
 
-class NoiseLimit(tuple):
-    """``(limit or None, source)`` of one loop; source: ``spec``, ``auto`` or why there is none."""
+class NoiseLimit(NamedTuple):
+    """One loop's noise-sensitivity limit and where it comes from."""
 
-    __slots__ = ()
-
-    def __new__(cls, limit: float | None, source: str) -> "NoiseLimit":
-        return super().__new__(cls, (limit, source))
-
-    @property
-    def limit(self) -> float | None:
-        return self[0]
-
-    @property
-    def source(self) -> str:
-        return self[1]
+    limit: float | None
+    #: ``spec``, ``auto: ...`` or why there is none
+    source: str
+    #: something the engineer should be told in the report (a limit they may want to set), else None
+    note: str | None = None
 
 
 def path_relative_degree(A: np.ndarray, B: np.ndarray, c: np.ndarray, d: float, max_degree: int = 2) -> int:
@@ -83,8 +78,9 @@ def _auto(lin: LinearModel, out: int) -> NoiseLimit:
     eig = np.linalg.eigvals(A) if A.size else np.zeros(0)
     scale = max(1.0, float(np.max(np.abs(eig)))) if eig.size else 1.0
     if eig.size and np.max(eig.real) > -1e-9 * scale:
-        return NoiseLimit(None, "auto: none (integrating or unstable path: no static gain to scale by); "
-                                "set requirements.mks_max to limit the noise gain")
+        return NoiseLimit(None, "auto: none (integrating or unstable path)",
+                          "no automatic noise-sensitivity limit (a delay-free integrating or unstable path has no "
+                          "static gain to scale by); set requirements.mks_max to limit the noise gain")
     K = d - float(c @ np.linalg.solve(A, B[:, 0])) if A.size else d
     if not np.isfinite(K) or K == 0.0:
         return NoiseLimit(None, "auto: none (the path has no static gain)")

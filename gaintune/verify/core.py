@@ -360,8 +360,8 @@ def verify(
     limits = ctx.noise_limits(spec) if ctx is not None else noise_limits(spec, lin)
     for i, (value, w_pk) in enumerate(mks):
         loops[i].mks, loops[i].mks_freq, loops[i].mks_max = value, w_pk, limits[i].limit
-        if limits[i].source.startswith("auto: none (integrating"):
-            notes.append(f"{loops[i].loop}: no automatic noise-sensitivity limit ({limits[i].source[len('auto: none ('):-1]})")
+        if limits[i].note:
+            notes.append(f"{loops[i].loop}: {limits[i].note}")
     stab = _stability_model(nom)
     if not stab.stable:
         where = "|z| >= 1" if stab.domain == "z" else "Re >= 0"
