@@ -202,17 +202,31 @@ class Evaluator:
 
     def requirement_violation(self, tuned: np.ndarray) -> np.ndarray:
         """(B,) worst-case requirement violation over :attr:`constraint_models` (0 when all hold)."""
-        from gaintune.verify.quick import noise_limit_array, requirement_violation
+        return self.requirement_scores(tuned)[0]
+
+    def requirement_scores(self, tuned: np.ndarray, stability: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """(violation, shortfall), each (B,), worst case over :attr:`constraint_models`.
+
+        See :func:`gaintune.verify.quick.requirement_scores`: the shortfall is signed (<= 0 when
+        every requirement holds) and is what :mod:`gaintune.repair` solves along a gain direction.
+        ``stability=False`` skips the closed-loop stability check, for a caller that checks it afterwards.
+        """
+        from gaintune.verify.quick import noise_limit_array, requirement_scores
 
         if self._noise_limit is None:  # a property of the spec and the nominal plant: resolved once
             self._noise_limit = noise_limit_array(self.spec, self.plant)
         tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
         full = self.layout.full(tuned)
-        v = [requirement_violation(self.spec, self.plant, self.layout, full, lin, self._noise_limit)
-             for lin in self.constraint_models]
-        return np.nan_to_num(np.max(v, axis=0), nan=DIVERGED_VIOLATION, posinf=DIVERGED_VIOLATION)
+        vs = [requirement_scores(self.spec, self.plant, self.layout, full, lin, self._noise_limit, stability)
+              for lin in self.constraint_models]
+        v = np.max([x[0] for x in vs], axis=0)
+        short = np.max([x[1] for x in vs], axis=0)
+        fix = dict(nan=DIVERGED_VIOLATION, posinf=DIVERGED_VIOLATION)
+        return np.nan_to_num(v, **fix), np.nan_to_num(short, **fix)
 
-    def evaluate(self, tuned: np.ndarray, draws: Draws | None = None, traces: bool = False) -> Scores:
+    def evaluate(
+        self, tuned: np.ndarray, draws: Draws | None = None, traces: bool = False, violation: np.ndarray | None = None
+    ) -> Scores:
         """Scores of B tuned-gain vectors: plain cost, violation, divergence, trips, metrics.
 
         Parameters
@@ -223,6 +237,8 @@ class Evaluator:
             B*K draws (K per gain set, draw-major); default: this evaluator's fixed draws for every gain set.
         traces
             Keep the time traces in ``Scores.results``.
+        violation
+            The gains' :meth:`requirement_violation`, when the caller already has it (saves computing it again).
         """
         tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
         B = tuned.shape[0]
@@ -250,7 +266,7 @@ class Evaluator:
         cost = aggregate(total.reshape(B, K), rob.aggregate, rob.alpha)
         div = diverged.reshape(B, K).any(axis=1)
         trip = tripped.reshape(B, K).any(axis=1)
-        violation = self.requirement_violation(tuned)
+        violation = self.requirement_violation(tuned) if violation is None else np.asarray(violation, dtype=float)
         violation = np.where(div, np.maximum(violation, DIVERGED_VIOLATION), violation)
         violation = violation + TRIP_VIOLATION * trip
         metrics = {k: v[::K] for k, v in results[0].metrics.items()}

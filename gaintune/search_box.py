@@ -15,8 +15,11 @@ know before any search, ranked like every search ranks (feasibility first, then 
 3. when no rule applies to a PID spec (an open-loop unstable or oscillatory path, a double
    integrator), a scrambled Sobol sample of :data:`GRID_POINTS` gain sets spread log-uniformly
    over the layout's default bounds (scipy's ``qmc.Sobol``, seeded by ``search.seed``): the
-   best of them centres the box instead of the middle of 1e-3 .. 1e3. LQ specs keep their
-   Riccati-based defaults.
+   best of them centres the box instead of the middle of 1e-3 .. 1e3. Sampled gain sets that
+   overshoot a requirement are first moved onto its boundary (:func:`gaintune.repair.repair`),
+   and :data:`ZOOM_STAGES` smaller samples around the best so far walk the centre toward the
+   optimum (one unlucky best sample had Kd 50x below the optimum's, outside the final box).
+   LQ specs keep their Riccati-based defaults.
 
 The chosen design is the start point of every search (the RL policy's action 0, CMA-ES's
 mean, Nelder-Mead's first vertex), and the search never loses it: it is scored like any
@@ -37,13 +40,22 @@ from gaintune.controllers.layout import GainLayout
 from gaintune.objective import Evaluator
 from gaintune.plants import build_plant
 from gaintune.plants.plant import Plant
+from gaintune.repair import repair
 from gaintune.sim import Simulator
 from gaintune.spec import TuningSpec
 
-__all__ = ["SearchBox", "SCALES", "GRID_POINTS", "search_box", "search_layout", "make_evaluator"]
+__all__ = ["SearchBox", "SCALES", "GRID_POINTS", "ZOOM_STAGES", "ZOOM_POINTS", "ZOOM_STARTS", "search_box", "search_layout", "make_evaluator"]
 
 #: Gain sets sampled when no classical rule applies (a power of two, as Sobol sampling wants).
 GRID_POINTS = 1024
+
+#: Zoom stages after the Sobol sample: each samples :data:`ZOOM_POINTS` gain sets in a box of
+#: +-sqrt(BOUNDS_FACTOR) around the best so far, so the centre walks toward the optimum before
+#: the final box (+-BOUNDS_FACTOR) is drawn around it.
+ZOOM_STAGES = 3
+ZOOM_POINTS = 64
+#: Zoom walks start from this many distinct good Sobol designs (different valleys).
+ZOOM_STARTS = 3
 
 #: Scales tried on every rule's gains (every loop at once): 1/16 ... 16 in steps of sqrt(2).
 SCALES = tuple(float(2.0 ** (k / 2)) for k in range(-8, 9))
@@ -85,13 +97,15 @@ def _scale(gains: dict[str, dict[str, float]], a: float, spec: TuningSpec) -> di
     return out
 
 
-def _sobol_candidates(layout: GainLayout, seed: int) -> dict[str, dict[str, dict[str, float]]]:
-    """:data:`GRID_POINTS` gain sets, log-uniform over the layout's bounds (a scrambled Sobol sample)."""
+def _sobol_candidates(
+    layout: GainLayout, seed: int, n: int = GRID_POINTS, prefix: str = "grid"
+) -> dict[str, dict[str, dict[str, float]]]:
+    """``n`` gain sets, log-uniform over the layout's bounds (a scrambled Sobol sample)."""
     from scipy.stats import qmc
 
-    u = qmc.Sobol(d=layout.n_tuned, scramble=True, seed=seed).random(GRID_POINTS)
+    u = qmc.Sobol(d=layout.n_tuned, scramble=True, seed=seed).random(n)
     tuned = layout.action_to_tuned(2.0 * u - 1.0)
-    return {f"grid {i}": layout.to_dict(layout.full(t)) for i, t in enumerate(tuned)}
+    return {f"{prefix} {i}": layout.to_dict(layout.full(t)) for i, t in enumerate(tuned)}
 
 
 #: Boxes of recent specs: one tune asks for its box from the env, the baselines and the report.
@@ -114,22 +128,51 @@ def _search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
         return SearchBox(plain, None, None, False)
     ev = Evaluator(spec, Simulator(spec, plant, plain))
 
-    def score(named: dict[str, dict[str, dict[str, float]]]) -> list[tuple[float, str, dict, bool, float, float]]:
+    def score(named: dict[str, dict[str, dict[str, float]]], project: bool) -> list[tuple[float, str, dict, bool, float, float]]:
         names = list(named)
         tuned = np.array([plain.from_dict(named[n])[plain.tuned_idx] for n in names])
-        s = ev.evaluate(tuned)
+        violation = None
+        if project:  # sampled gains that overshoot a requirement are scored on its boundary (gaintune.repair)
+            r = repair(ev, tuned)
+            tuned, violation = r.tuned, r.violation
+            named = {n: plain.to_dict(plain.full(t)) for n, t in zip(names, tuned)}
+        s = ev.evaluate(tuned, violation=violation)
         return [(float(s.merit[i]), n, named[n], bool(s.feasible[i]), float(s.violation[i]), float(s.cost[i]))
                 for i, n in enumerate(names)]
 
     if rules:
         named = {(m if a == 1.0 else f"{m} x {a:.3g}"): _scale(g, a, spec) for m, g in rules.items() for a in SCALES}
+        scored = score(named, project=False)
     else:
-        named = _sobol_candidates(plain, spec.search.seed)
-    scored = score(named)
+        seed = spec.search.seed
+        grid = score(_sobol_candidates(plain, seed), project=True)
+        scored = list(grid)
+        for k, start in enumerate(_distinct_starts(plain, grid, ZOOM_STARTS)):
+            walk = [start]
+            for stage in range(ZOOM_STAGES):
+                centre = min(walk, key=lambda r: r[0])[2]
+                zoom = GainLayout(spec, plant.states, auto_bounds=auto_bounds(spec, centre, BOUNDS_FACTOR), plant=plant)
+                walk += score(_sobol_candidates(zoom, seed + 1 + stage + 10 * k, ZOOM_POINTS, f"zoom{k + 1}.{stage + 1}"),
+                              project=True)
+            scored += walk[1:]
     best = min(scored, key=lambda r: r[0])
     _, source, centre, feasible, _, _ = best
     layout = GainLayout(spec, plant.states, auto_bounds=auto_bounds(spec, centre, BOUNDS_FACTOR), plant=plant)
     return SearchBox(layout, centre, source, feasible, {r[1]: (r[3], r[4], r[5]) for r in scored})
+
+
+def _distinct_starts(layout: GainLayout, scored: list, n: int) -> list:
+    """The ``n`` best-ranked scored designs that lie in different regions (every pair differs by more
+    than BOUNDS_FACTOR in some gain), so the zoom walks explore different valleys."""
+    out, logs = [], []
+    for r in sorted(scored, key=lambda r: r[0]):
+        x = np.log(np.abs(layout.from_dict(r[2])[layout.tuned_idx]) + 1e-300)
+        if all(np.max(np.abs(x - y)) > np.log(BOUNDS_FACTOR) for y in logs):
+            out.append(r)
+            logs.append(x)
+            if len(out) == n:
+                break
+    return out
 
 
 def search_layout(spec: TuningSpec, plant: Plant) -> GainLayout:

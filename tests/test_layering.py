@@ -21,7 +21,7 @@ LAYERS: dict[str, int] = {
     "gaintune.sim": 5,
     "gaintune.verify": 6,
     "gaintune.objective": 7,
-    "gaintune.boundary": 8, "gaintune.search_box": 8,
+    "gaintune.boundary": 8, "gaintune.search_box": 8, "gaintune.repair": 8,
     "gaintune.envs": 9, "gaintune.baselines": 9,
     "gaintune.search": 10,
     "gaintune.export": 11, "gaintune.report": 11, "gaintune.bench": 11,

@@ -31,6 +31,7 @@ from gaintune.search_box import search_layout
 from gaintune.objective import DIVERGED_COST, Evaluator, Scores
 from gaintune.plants import build_plant
 from gaintune.plants.checks import validate_against_plant
+from gaintune.repair import repair
 from gaintune.sim import Simulator
 from gaintune.sim import draws as draws_mod
 from gaintune.sim.draws import Draws
@@ -75,6 +76,8 @@ class GainProblem:
         self.randomized = spec.randomize.active
         self.obs_size = draws_mod.context_size(spec)
         self.cost_scale = self._cost_scale()
+        #: Project stable, infeasible samples onto the requirement boundary before scoring (gaintune.repair).
+        self.repair = spec.search.repair
         #: Optional hook called as ``on_score(tuned, scored)`` after every env scoring (search monitor).
         self.on_score = None
 
@@ -115,10 +118,19 @@ class GainProblem:
         ratio = np.minimum(s.cost / self.cost_scale, COST_CAP)
         return np.where(s.feasible, -ratio, -(COST_CAP + np.minimum(s.violation, VIOLATION_CAP)))
 
+    def repaired(self, tuned: np.ndarray) -> np.ndarray:
+        """(B, d) gains as the search scores them: with ``search.repair``, infeasible rows moved onto the boundary."""
+        tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
+        return repair(self.evaluator, tuned).tuned if self.repair else tuned
+
     def score(self, tuned: np.ndarray, draws: Draws) -> Scored:
         """Score B tuned-gain vectors; ``draws`` has B*K rows (K robust draws per gain set, draw-major)."""
         tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
-        s = self.evaluator.evaluate(tuned, draws)
+        violation = None
+        if self.repair:
+            r = repair(self.evaluator, tuned)
+            tuned, violation = r.tuned, r.violation
+        s = self.evaluator.evaluate(tuned, draws, violation=violation)
         scored = Scored(**{f.name: getattr(s, f.name) for f in dataclasses.fields(Scores)}, reward=self.reward(s))
         if self.on_score is not None:
             self.on_score(tuned, scored)

@@ -260,11 +260,14 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     # the search never loses the start point (the best classical design, gaintune.search_box)
     cand["start"] = layout.tuned_to_action(layout.initial_tuned())
     names = list(cand)
-    first = ev.evaluate(layout.action_to_tuned(np.array([cand[k] for k in names])))
+    # the policy's answer is scored as its samples were: repaired onto the boundary (gaintune.repair)
+    cand_tuned = problem.repaired(layout.action_to_tuned(np.array([cand[k] for k in names])))
+    first = ev.evaluate(cand_tuned)
     k = int(np.argmin(first.merit))  # feasibility first, then the plain cost
-    source, action = names[k], cand[names[k]]
+    source = names[k]
     policy_cost = float(first.cost[names.index("policy")])
-    tuned = layout.action_to_tuned(action)
+    policy_tuned = cand_tuned[names.index("policy")]
+    tuned = cand_tuned[k]
     settled = None
     if verify:
         # Close the gap between the fast requirement estimate and the exact verdict (gaintune.boundary).
@@ -307,7 +310,7 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
         algo=s.algo,
         gains=gains,
         gains_source=source,
-        policy_gains=layout.to_dict(layout.full(layout.action_to_tuned(policy_action))),
+        policy_gains=layout.to_dict(layout.full(policy_tuned)),
         best_seen_gains=layout.to_dict(layout.full(monitor.best_tuned)) if monitor.best_tuned is not None else None,
         cost=float(final.cost[0]),
         violation=violation_after(settled, final),
@@ -356,4 +359,5 @@ def policy_gains(agent_path: str | Path, spec: TuningSpec, context: np.ndarray |
 
         raise SpecError("warm_start", f"agent expects {agent.action_space.shape[0]} gains; this spec tunes {problem.dim}")
     action = np.asarray(agent.predict(obs, deterministic=True)[0], dtype=float).reshape(-1)
-    return problem.layout.to_dict(problem.layout.full(problem.layout.action_to_tuned(action)))
+    tuned = problem.repaired(problem.layout.action_to_tuned(action))[0]
+    return problem.layout.to_dict(problem.layout.full(tuned))

@@ -145,6 +145,11 @@ class SearchSpec(_Model):
     early_stop_patience: int | None = Field(
         None, ge=1, description="Stop after this many simulations without a 0.1 % improvement."
     )
+    repair: bool = Field(
+        True,
+        description="RL search: move a sampled gain set that violates a requirement (but is stable) onto the "
+        "requirement boundary along its loop-gain scale before scoring it (a safety layer; docs/search.md).",
+    )
     refine: bool = Field(True, description="Polish the RL answer with a local search (reported separately).")
 
 

@@ -29,7 +29,7 @@ from gaintune.verify.cascade import build_cascade
 from gaintune.verify.sampled import SampledPlant, sample_plant
 from gaintune.verify.stability import observable_part, sampled_stability
 
-__all__ = ["QuickMargins", "quick_margins", "requirement_violation", "noise_limit_array", "sampled_grid", "UNSTABLE_VIOLATION",
+__all__ = ["QuickMargins", "quick_margins", "requirement_violation", "requirement_scores", "noise_limit_array", "sampled_grid", "UNSTABLE_VIOLATION",
            "FEASIBILITY_MARGIN", "MAX_TERM"]
 
 #: Violation of an unstable closed loop, plus a grade that grows with the largest real pole.
@@ -109,6 +109,7 @@ def quick_margins(
     full_gains: np.ndarray,
     lin: LinearModel | None = None,
     n_freq: int = 320,
+    stability: bool = True,
 ) -> QuickMargins:
     """Batched margin estimates for full gain vectors ``full_gains`` (B, n_gains).
 
@@ -188,6 +189,9 @@ def quick_margins(
             ny_cross = np.isfinite(Ln) & (Ln < 0) & (-Ln > 1.0 / _GM_CAP) & (-Ln < _GM_CAP)
             gm_b = np.minimum(gm_b, np.where(ny_cross, np.abs(20.0 * np.log10(np.abs(Ln))), np.inf))
     tr = lambda x: np.moveaxis(x, 0, -1)  # (R, B) -> (B, R)
+    if not stability:  # the caller checks stability elsewhere (gaintune.repair's final check)
+        return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), tr(mks), tr(wc_b), np.ones(B, dtype=bool),
+                            np.full(B, -np.inf), w, cas.break_names)
     if sp is not None:  # closed-loop stability of the sampled loop: |z| < 1
         stable, max_re = sampled_stability(cas, lin, sp, float(w[0]))
         return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), tr(mks), tr(wc_b), stable, max_re, w, cas.break_names)
@@ -239,12 +243,30 @@ def requirement_violation(
     the spec on the plant's nominal model (:func:`gaintune.plants.noise_limit.noise_limits`;
     a randomised ``lin`` does not move the limit).
     """
+    return requirement_scores(spec, plant, layout, full_gains, lin, noise_limit)[0]
+
+
+def requirement_scores(
+    spec: TuningSpec,
+    plant: Plant,
+    layout: GainLayout,
+    full_gains: np.ndarray,
+    lin: LinearModel | None = None,
+    noise_limit: np.ndarray | None = None,
+    stability: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(violation, shortfall), each (B,): the violation of :func:`requirement_violation`, and the signed
+    tightest relative shortfall (the largest term, FEASIBILITY_MARGIN included; <= 0 exactly when the
+    violation is 0; the unstable grade for an unstable loop). The shortfall is what a root finder
+    along a gain direction needs (:mod:`gaintune.repair`). ``stability=False`` skips the closed-loop
+    stability check (every loop counts as stable): only for a caller that checks it afterwards."""
     if noise_limit is None:
         noise_limit = noise_limit_array(spec, plant)
-    q = quick_margins(spec, plant, layout, full_gains, lin)
+    q = quick_margins(spec, plant, layout, full_gains, lin, stability=stability)
     req = spec.requirements
     B = q.stable.shape[0]
     out = np.zeros(B)
+    short = np.full(B, -np.inf)
     with np.errstate(all="ignore"):
         terms = []
         if req.gm_min_db is not None:
@@ -268,6 +290,8 @@ def requirement_violation(
             t = np.nan_to_num(t, nan=MAX_TERM, posinf=MAX_TERM, neginf=0.0).max(axis=-1)
             t = t + FEASIBILITY_MARGIN  # met means at least FEASIBILITY_MARGIN inside the limit
             out += np.where(t <= 0.0, 0.0, np.minimum(t, MAX_TERM))
+            short = np.maximum(short, np.minimum(t, MAX_TERM))
         w_ref = float(np.sqrt(q.omega[0] * q.omega[-1]))
         grade = np.log1p(np.clip(np.nan_to_num(q.max_real, nan=1e300, posinf=1e300), 0.0, 1e300) / w_ref)
-    return np.where(q.stable, out, UNSTABLE_VIOLATION + np.minimum(grade, 100.0))
+    unstable = UNSTABLE_VIOLATION + np.minimum(grade, 100.0)
+    return np.where(q.stable, out, unstable), np.where(q.stable, short, unstable)

@@ -72,8 +72,9 @@ def test_save_load_and_warm_start_round_trip(tuned):
     spec = _spec()
     from gaintune.envs import GainProblem
 
-    lay = GainProblem(spec).layout
-    gains = lay.to_dict(lay.full(lay.action_to_tuned(np.asarray(action).reshape(-1))))
+    gp = GainProblem(spec)
+    lay = gp.layout  # the policy's gains are scored as its samples were: repaired onto the boundary
+    gains = lay.to_dict(lay.full(gp.repaired(lay.action_to_tuned(np.asarray(action).reshape(-1)))[0]))
     assert gains["loop0"]["Kp"] == pytest.approx(result.policy_gains["loop0"]["Kp"], rel=1e-5)
     # learning on: continue on a changed plant
     changed = load_spec({**EASY, "plant": {**EASY["plant"], "params": {"K": 1.5}}, "search": {**EASY["search"], "budget": 200}})
