@@ -24,6 +24,7 @@ Writes ``search_<suite>.md`` and ``search_<suite>.json`` to ``--out``.
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import warnings
 from collections.abc import Callable, Sequence
@@ -45,15 +46,18 @@ __all__ = ["run_one", "run_search", "summarize", "per_problem", "render_markdown
 
 
 def run_one(problem: Problem, seed: int, *, algo: str = "ppo", budget: int | None = None,
-            reference: dict[str, Any] | None = None) -> dict[str, Any]:
-    """One RL run on ``problem`` and CMA-ES at the same simulation count; the raw figures (no ratios)."""
+            reference: dict[str, Any] | None = None, repair: bool = True) -> dict[str, Any]:
+    """One RL run on ``problem`` and CMA-ES at the same simulation count; the raw figures (no ratios).
+
+    ``repair=False`` turns the RL search's constraint projection off (``search.repair``), for the ablation.
+    """
     from gaintune.baselines import run_baseline
     from gaintune.envs.problem import GainProblem
     from gaintune.search import tune
 
     spec = problem.tuning_spec(budget=budget, seed=seed)
-    if algo != spec.search.algo:
-        spec = spec.model_copy(update={"search": spec.search.model_copy(update={"algo": algo})})
+    if algo != spec.search.algo or not repair:
+        spec = spec.model_copy(update={"search": spec.search.model_copy(update={"algo": algo, "repair": repair})})
     res = tune(spec, verify=True)
     cm = run_baseline(spec, "cmaes", budget=max(int(res.sims), 1), seed=seed, evaluator=GainProblem(spec).evaluator)
     return {
@@ -252,6 +256,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--threads", type=int, default=0,
                     help="torch threads for the run (default 0: keep the library's setting, GAINTUNE_TORCH_THREADS)")
     ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    ap.add_argument("--no-repair", action="store_true",
+                    help="ablation: RL without the projection of infeasible samples onto the boundary (search.repair)")
     return ap
 
 
@@ -270,14 +276,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = ("gaintune bench search " + " ".join(sys.argv[1:] if argv is None else argv)).strip()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        runner = functools.partial(run_one, repair=False) if args.no_repair else None
         result = run_search(problems, args.suite, args.seeds, algo=args.algo, budget=args.budget, out_dir=out,
-                            refresh_reference=args.refresh_reference, log=log)
+                            refresh_reference=args.refresh_reference, log=log, runner=runner)
     result["command"] = command
     from gaintune.provenance import versions
 
     result["versions"] = versions()
     md = render_markdown(result, command)
     stem = f"search_{args.suite}" + (f"-{args.algo}" if args.algo != "ppo" else "")
+    stem += "-no-repair" if args.no_repair else ""
     stem += "-partial" if (args.problems or args.budget is not None) else ""
     jp, mp = write_outputs(result, Path(out), stem, md)
     print(md)
