@@ -19,7 +19,7 @@ __version__ = "0.1.0"
 _EXPORTS = {
     "load_spec": "gaintune.spec",
     "TuningSpec": "gaintune.spec",
-    "tune": "gaintune.search.tune",
+    "tune": "gaintune.search",  # the package resolves it to the function (gaintune.search.__getattr__)
     "TuneResult": "gaintune.search.result",
     "verify": "gaintune.verify",  # the package is callable: it calls gaintune.verify.core.verify
     "VerificationReport": "gaintune.verify.report",

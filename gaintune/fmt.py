@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import math
+import numbers
 from typing import Any
-
-import numpy as np
 
 __all__ = ["fmt"]
 
@@ -18,9 +17,9 @@ def fmt(x: Any, digits: int = 4) -> str:
         return "yes" if x else "no"
     if isinstance(x, str):
         return x
-    if isinstance(x, (int, np.integer)):
+    if isinstance(x, numbers.Integral):  # numpy integers register here: no numpy import for --help
         return str(int(x))
-    if isinstance(x, (float, np.floating)):
+    if isinstance(x, numbers.Real):
         x = float(x)
         if math.isnan(x):
             return "-"

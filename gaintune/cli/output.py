@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Any
-
-from rich.console import Console
-from rich.table import Table
+from typing import TYPE_CHECKING, Any
 
 from gaintune.cli.common import InputError, _f, _json_num, out
+
+if TYPE_CHECKING:  # pragma: no cover
+    from rich.console import Console
 
 __all__ = ["_print_summary", "_write_outputs", "_print_simulation", "_simulation_json", "_plot_runs", "_print_plants", "_print_plant"]
 
@@ -29,6 +29,8 @@ __all__ = ["_print_summary", "_write_outputs", "_print_simulation", "_simulation
 
 
 def _print_summary(result, console: Console = out) -> None:
+    from rich.table import Table  # deferred on purpose: `gaintune verify` prints no rich table
+
     verdict = result.verdict
     passed = verdict == "pass"
     title = "Accepted gains" if passed else ("Gains - FAILED verification, NOT accepted" if verdict == "fail" else "Gains (unverified)")
@@ -121,6 +123,8 @@ def _simulation_json(results, switches, *, traces: bool) -> dict[str, Any]:
 
 def _print_simulation(spec, results, switches) -> None:
     """The ``simulate`` table (one column per scenario) and a warning for every chattering run."""
+    from rich.table import Table  # deferred on purpose: `gaintune verify` prints no rich table
+
     from gaintune.sim.chatter import CHATTER_SWITCHES
 
     keys = ("iae", "ise", "itae", "effort", "tv", "overshoot", "rise_time", "settling_time", "sse", "peak_u", "sat_frac",
@@ -181,6 +185,8 @@ def _plot_runs(spec, sim, results, path: Path) -> None:
 
 def _print_plants() -> None:
     """The table of every built-in plant model."""
+    from rich.table import Table  # deferred on purpose: `gaintune verify` prints no rich table
+
     from gaintune.plants.library import list_models, load_model
 
     t = Table(title="Built-in plant models (use in a spec as plant: {model: NAME})")
@@ -197,6 +203,7 @@ def _print_plants() -> None:
 def _print_plant(m) -> None:
     """One model: parameters with units, signals and its example spec (as YAML, straight to stdout)."""
     import yaml
+    from rich.table import Table  # deferred on purpose: `gaintune verify` prints no rich table
 
     out.print(f"[bold]{m.name}[/]: {m.title}")
     if m.description:

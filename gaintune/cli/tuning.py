@@ -37,7 +37,9 @@ def demo_spec(budget: int | None = None, seed: int | None = None):
 
 def _get_tune() -> Callable:
     try:
-        from gaintune.search import tune
+        # from the module itself: once anything imported the submodule gaintune.search.tune (as
+        # gaintune.__getattr__ does), the package attribute gaintune.search.tune is that module
+        from gaintune.search.tune import tune
     except ImportError as exc:
         err.print(f"error: the RL search (gaintune.search.tune) is not available: {exc}", markup=False)
         raise typer.Exit(1) from None

@@ -16,38 +16,59 @@ import ast
 import math
 from collections.abc import Callable, Mapping
 from functools import lru_cache
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import casadi as ca
 import numpy as np
 
 from gaintune.errors import SpecError
+
+if TYPE_CHECKING:  # pragma: no cover
+    import casadi as ca
 
 __all__ = ["FUNCTIONS", "CONSTANTS", "parse", "names_in", "to_casadi", "to_float", "to_polynomial"]
 
 MAX_LENGTH = 2000
 MAX_DEPTH = 60
 
+
+class _Casadi:
+    """``casadi.<name>``, looked up when called: casadi is imported on purpose only once an
+    expression is evaluated symbolically (ODE plants), not by every LTI run (~15 ms at start-up)."""
+
+    __slots__ = ("name",)
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def __call__(self, *args: Any) -> Any:
+        import casadi  # deferred: see the class docstring
+
+        return getattr(casadi, self.name)(*args)
+
+    def __repr__(self) -> str:
+        return f"casadi.{self.name}"
+
+
 #: Whitelisted functions: name -> (casadi implementation, float implementation).
 FUNCTIONS: dict[str, tuple[Callable[..., Any], Callable[..., Any]]] = {
-    "sin": (ca.sin, math.sin),
-    "cos": (ca.cos, math.cos),
-    "tan": (ca.tan, math.tan),
-    "asin": (ca.asin, math.asin),
-    "acos": (ca.acos, math.acos),
-    "atan": (ca.atan, math.atan),
-    "atan2": (ca.atan2, math.atan2),
-    "sinh": (ca.sinh, math.sinh),
-    "cosh": (ca.cosh, math.cosh),
-    "tanh": (ca.tanh, math.tanh),
-    "exp": (ca.exp, math.exp),
-    "log": (ca.log, math.log),
-    "sqrt": (ca.sqrt, math.sqrt),
-    "abs": (ca.fabs, abs),
-    "sign": (ca.sign, lambda x: float(np.sign(x))),
-    "min": (ca.fmin, min),
-    "max": (ca.fmax, max),
-    "if_else": (ca.if_else, lambda c, a, b: a if c else b),
+    "sin": (_Casadi("sin"), math.sin),
+    "cos": (_Casadi("cos"), math.cos),
+    "tan": (_Casadi("tan"), math.tan),
+    "asin": (_Casadi("asin"), math.asin),
+    "acos": (_Casadi("acos"), math.acos),
+    "atan": (_Casadi("atan"), math.atan),
+    "atan2": (_Casadi("atan2"), math.atan2),
+    "sinh": (_Casadi("sinh"), math.sinh),
+    "cosh": (_Casadi("cosh"), math.cosh),
+    "tanh": (_Casadi("tanh"), math.tanh),
+    "exp": (_Casadi("exp"), math.exp),
+    "log": (_Casadi("log"), math.log),
+    "sqrt": (_Casadi("sqrt"), math.sqrt),
+    "abs": (_Casadi("fabs"), abs),
+    "sign": (_Casadi("sign"), lambda x: float(np.sign(x))),
+    "min": (_Casadi("fmin"), min),
+    "max": (_Casadi("fmax"), max),
+    "if_else": (_Casadi("if_else"), lambda c, a, b: a if c else b),
 }
 CONSTANTS = {"pi": math.pi, "e": math.e}
 
@@ -173,6 +194,8 @@ def _power(a: Any, b: Any, field: str) -> Any:
 
 def to_casadi(text: str, symbols: Mapping[str, Any], field: str = "expression") -> ca.SX:
     """Evaluate an expression into a casadi SX over the given symbols."""
+    import casadi as ca  # deferred (see _Casadi)
+
     funcs = {k: v[0] for k, v in FUNCTIONS.items()}
     return ca.SX(_evaluate(parse(text, field), symbols, funcs, field))
 

@@ -31,7 +31,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-import yaml
 from pydantic import Field, model_validator
 
 from gaintune.errors import SpecError
@@ -163,10 +162,18 @@ def load_spec(source: str | Path | dict[str, Any]) -> TuningSpec:
                 raise SpecError("spec", f"cannot read {path}: {exc.strerror}") from None
         else:
             text = str(source)
-        try:
-            data = json.loads(text) if text.lstrip().startswith("{") else yaml.safe_load(text)
-        except (yaml.YAMLError, json.JSONDecodeError) as exc:
-            raise SpecError("spec", f"not valid YAML/JSON: {exc}") from None
+        if text.lstrip().startswith("{"):
+            try:
+                data = json.loads(text)
+            except json.JSONDecodeError as exc:
+                raise SpecError("spec", f"not valid YAML/JSON: {exc}") from None
+        else:
+            import yaml  # deferred on purpose: JSON specs and dicts (the API, start-up) never need it
+
+            try:
+                data = yaml.safe_load(text)
+            except yaml.YAMLError as exc:
+                raise SpecError("spec", f"not valid YAML/JSON: {exc}") from None
     if not isinstance(data, dict):
         raise SpecError("spec", "must be a mapping with at least 'plant' and 'loops'")
     return TuningSpec.model_validate(data)

@@ -1,0 +1,66 @@
+"""Start-up (issue 13): the light paths stay light. No timings: each test runs a fresh interpreter and
+checks which heavy packages the path loaded (``gaintune bench startup`` measures the times)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+#: Loaded only by the search, the report or ODE plants; never by the verification of an LTI loop.
+SEARCH_AND_REPORT = ("torch", "stable_baselines3", "gymnasium", "control", "scipy.signal", "scipy.stats", "matplotlib",
+                     "jinja2", "cmaes", "casadi", "sympy")
+SPEC = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+        "scenario": {"dt": 0.05, "horizon": 20}, "search": {"budget": 3000, "seed": 0}}
+GAINS = {"loop0": {"Kp": 1.14, "Ki": 0.454}}
+
+
+def loaded(code: str, heavy: tuple[str, ...]) -> list[str]:
+    """The packages of ``heavy`` that are in ``sys.modules`` after running ``code`` in a fresh interpreter."""
+    probe = f"{code}\nimport sys, json\nprint(json.dumps([m for m in {list(heavy)!r} if m in sys.modules]))"
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True, timeout=300).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def test_import_verify_loads_no_simulator_search_or_report() -> None:
+    assert loaded("import gaintune.verify", SEARCH_AND_REPORT + ("numba",)) == []
+
+
+def test_cli_help_loads_no_science_stack() -> None:
+    code = ("from typer.testing import CliRunner\nfrom gaintune.cli import app\n"
+            "assert CliRunner().invoke(app, ['--help']).exit_code == 0")
+    heavy = SEARCH_AND_REPORT + ("numba", "scipy", "pydantic", "gaintune.spec", "gaintune.verify", "rich.console")
+    assert loaded(code, heavy) == []
+
+
+def test_cli_verify_of_an_lti_loop_loads_neither_search_nor_report(tmp_path: Path) -> None:
+    """``gaintune verify`` simulates (numba) but needs no torch, python-control, matplotlib, casadi or rich."""
+    spec = tmp_path / "pi.json"
+    spec.write_text(json.dumps(SPEC))
+    code = ("from typer.testing import CliRunner\nfrom gaintune.cli import app\n"
+            f"res = CliRunner().invoke(app, ['verify', {str(spec)!r}, '--gains', {json.dumps(GAINS)!r}])\n"
+            "assert res.exit_code == 0, res.output\nassert 'nonlinear check: ok' in res.output, res.output")
+    assert loaded(code, SEARCH_AND_REPORT + ("rich.console", "rich.table")) == []
+
+
+def test_reading_and_exporting_a_result_loads_no_search_stack() -> None:
+    code = "import gaintune.search, gaintune.search.result, gaintune.export"
+    assert loaded(code, ("torch", "stable_baselines3", "gymnasium", "numba", "matplotlib", "casadi")) == []
+
+
+@pytest.mark.parametrize("module", ["gaintune.plants", "gaintune.sim.build", "gaintune.sim.kernel"])
+def test_lti_modules_do_not_import_casadi(module: str) -> None:
+    """casadi is imported when an ODE plant is built (symbolic right-hand side, tape), not before."""
+    assert loaded(f"import {module}", ("casadi",)) == []
+
+
+def test_an_ode_plant_still_builds_and_tapes_with_casadi() -> None:
+    code = ("from gaintune.plants.library import load_model\nfrom gaintune.spec import load_spec\n"
+            "from gaintune.plants import build_plant\nfrom gaintune.sim.tape import make_tape, OPS\n"
+            "p = build_plant(load_spec(load_model('water_tank').example_spec()).plant)\n"
+            "t = make_tape(p.f)\nassert p.kind == 'nonlinear' and t.op.size > 0 and len(OPS) > 30\n"
+            "assert p.linearize().A.shape[0] >= 1")
+    assert loaded(code, ("casadi",)) == ["casadi"]
