@@ -78,6 +78,8 @@ class SearchBox:
         Whether the start gains meet every requirement by the search's estimate.
     candidates
         ``{name: (feasible, violation, cost)}`` of everything scored.
+    sims
+        Closed-loop simulations spent choosing the box (a search counts them against its budget).
     """
 
     layout: GainLayout
@@ -85,6 +87,7 @@ class SearchBox:
     source: str | None
     feasible: bool
     candidates: dict[str, tuple[bool, float, float]] = field(default_factory=dict)
+    sims: int = 0
 
 
 def _scale(gains: dict[str, dict[str, float]], a: float, spec: TuningSpec) -> dict[str, dict[str, float]]:
@@ -158,7 +161,7 @@ def _search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
     best = min(scored, key=lambda r: r[0])
     _, source, centre, feasible, _, _ = best
     layout = GainLayout(spec, plant.states, auto_bounds=auto_bounds(spec, centre, BOUNDS_FACTOR), plant=plant)
-    return SearchBox(layout, centre, source, feasible, {r[1]: (r[3], r[4], r[5]) for r in scored})
+    return SearchBox(layout, centre, source, feasible, {r[1]: (r[3], r[4], r[5]) for r in scored}, ev.n_sims)
 
 
 def _distinct_starts(layout: GainLayout, scored: list, n: int) -> list:

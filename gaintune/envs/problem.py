@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gaintune.controllers.layout import GainLayout
-from gaintune.search_box import search_layout
+from gaintune.search_box import search_box
 from gaintune.objective import DIVERGED_COST, Evaluator, Scores
 from gaintune.plants import build_plant
 from gaintune.plants.checks import validate_against_plant
@@ -67,7 +67,11 @@ class GainProblem:
         self.spec = spec
         plant = build_plant(spec.plant)
         validate_against_plant(spec, plant)
-        self.layout = search_layout(spec, plant) if use_auto_bounds else GainLayout(spec, plant.states)
+        if use_auto_bounds:
+            box = search_box(spec, plant)
+            self.layout, self.box_sims = box.layout, box.sims
+        else:
+            self.layout, self.box_sims = GainLayout(spec, plant.states), 0
         self.plant = plant
         self.sim = Simulator(spec, plant, self.layout)
         self.evaluator = Evaluator(spec, self.sim)
@@ -83,8 +87,9 @@ class GainProblem:
 
     @property
     def n_sims(self) -> int:
-        """Every closed-loop simulation run for this problem (env batches and evaluator calls)."""
-        return self.evaluator.n_sims
+        """Every closed-loop simulation run for this problem: choosing the search box (counted even
+        when the box came from the cache), env batches and evaluator calls."""
+        return self.box_sims + self.evaluator.n_sims
 
     @property
     def dim(self) -> int:

@@ -46,3 +46,15 @@ def test_unstable_pid_box_from_one_unlucky_sample_excluded_the_optimum_kd():
         box = search_box(spec, build_plant(spec.plant))
         lo, hi = np.exp(box.layout.log_lo), np.exp(box.layout.log_hi)
         assert np.all((lo < optimum / 2) & (optimum * 2 < hi)), (seed, lo, hi)
+
+
+def test_search_box_simulations_were_not_charged_to_the_search_budget():
+    """Regression (issue 12): choosing a rule-less box ran 1,600 simulations that no budget counted, so
+    "RL-only at <= 5,000 sims" was really up to 6,600. GainProblem.n_sims now starts at the box's cost."""
+    from gaintune.envs.problem import GainProblem
+
+    spec = load_spec(UNSTABLE)
+    box = search_box(spec, build_plant(spec.plant))
+    assert box.sims == GRID_POINTS + ZOOM_STARTS * ZOOM_STAGES * ZOOM_POINTS
+    gp = GainProblem(spec)
+    assert gp.box_sims == box.sims and gp.n_sims >= box.sims + 1  # + the start gains scored for the cost scale
