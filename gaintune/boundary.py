@@ -30,7 +30,8 @@ from gaintune.objective import Evaluator
 from gaintune.verify import verify
 from gaintune.verify.report import VerificationReport
 
-__all__ = ["Settled", "settle", "violation_after", "normalised_margin", "ALPHA_TOL", "PUSH_BAND"]
+__all__ = ["Settled", "settle", "violation_after", "normalised_margin", "loop_gain_exponents", "alpha_floor", "ALPHA_TOL",
+           "PUSH_BAND"]
 
 #: Bisection stops when the alpha bracket is this narrow (relative): Ms then lands within ~1e-3 of a limit.
 ALPHA_TOL = 5e-4
@@ -101,17 +102,39 @@ def _directions(ev: Evaluator, loop: str | None) -> tuple[str, list[np.ndarray]]
     def vec(weights: dict[str, float]) -> np.ndarray:
         return np.array([weights.get(s.name, 0.0) if s.loop_name == loop else 0.0 for s in slots])
 
-    gain = vec({"Kp": 1.0, "Ki": 1.0, "Kd": 1.0} if spec_loop.form == "parallel" else {"Kp": 1.0})
+    gain = loop_gain_exponents(ev, loop)
     integral = vec({"Ki": 1.0} if spec_loop.form == "parallel" else {"Ti": -1.0})
     out = [d for d in (gain, integral, -gain) if d.any()]
     return loop, out
 
 
-def _alpha_min(layout, tuned: np.ndarray, d: np.ndarray) -> float:
-    """Smallest alpha < 1 that keeps ``tuned * alpha**d`` inside the search box."""
+def loop_gain_exponents(ev: Evaluator, loop: str | None = None) -> np.ndarray:
+    """(d,) exponents of the loop-gain move ``tuned * alpha**d``: 1 on the gains that scale a PID
+    controller (Kp, Ki, Kd of a parallel loop; Kp of an ideal one), of ``loop``, or of every PID loop
+    when None (0 for LQ loops)."""
+    out = np.zeros(ev.layout.n_tuned)
+    forms = {lp.name: lp.form for lp in ev.spec.loops if not lp.is_lq and (loop is None or lp.name == loop)}
+    for k, slot in enumerate(ev.layout.tuned_slots):
+        form = forms.get(slot.loop_name)
+        if form is not None and (slot.name == "Kp" or (form == "parallel" and slot.name in ("Ki", "Kd"))):
+            out[k] = 1.0
+    return out
+
+
+def alpha_floor(layout, tuned: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(B,) smallest alpha <= 1 that keeps each row of ``tuned * alpha**d`` (B, n) inside the search box;
+    0 where ``d`` moves nothing. ``d`` is (n,) or one row per gain set."""
     lo, hi = np.exp(layout.log_lo), np.exp(layout.log_hi)
-    lim = [lo[k] / tuned[k] for k in np.nonzero(d > 0)[0]] + [tuned[k] / hi[k] for k in np.nonzero(d < 0)[0]]
-    return float(min(max(lim), 1.0)) if lim else 0.0
+    tuned = np.atleast_2d(tuned)
+    d = np.broadcast_to(d, tuned.shape)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lim = np.where(d > 0, lo / tuned, np.where(d < 0, tuned / hi, -np.inf)).max(axis=1)
+    return np.where(np.isfinite(lim), np.minimum(lim, 1.0), 0.0)
+
+
+def _alpha_min(layout, tuned: np.ndarray, d: np.ndarray) -> float:
+    """Smallest alpha < 1 that keeps ``tuned * alpha**d`` inside the search box (0 when d moves nothing)."""
+    return float(alpha_floor(layout, tuned, d)[0])
 
 
 def settle(ev: Evaluator, tuned: np.ndarray, cost: float | None = None) -> Settled:

@@ -25,10 +25,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gaintune.boundary import alpha_floor, loop_gain_exponents
 from gaintune.objective import Evaluator
 from gaintune.verify.quick import UNSTABLE_VIOLATION
 
-__all__ = ["Repaired", "repair", "loop_gain_exponents", "LADDER", "SECANT_STEPS", "TOL"]
+__all__ = ["Repaired", "repair", "LADDER", "SECANT_STEPS", "TOL"]
 
 #: Relative gain reductions tried at once (alpha = 1 - step): they bracket the boundary.
 LADDER = (0.02, 0.1, 0.3, 0.6, 0.85)
@@ -59,26 +60,6 @@ class Repaired:
     repaired: np.ndarray
 
 
-def loop_gain_exponents(ev: Evaluator) -> np.ndarray:
-    """(d,) exponents of the loop-gain move ``tuned * alpha**d``: 1 on the gains that scale a PID controller."""
-    out = np.zeros(ev.layout.n_tuned)
-    forms = {lp.name: lp.form for lp in ev.spec.loops if not lp.is_lq}
-    for k, slot in enumerate(ev.layout.tuned_slots):
-        form = forms.get(slot.loop_name)
-        if form == "parallel" and slot.name in ("Kp", "Ki", "Kd"):
-            out[k] = 1.0
-        elif form is not None and form != "parallel" and slot.name == "Kp":
-            out[k] = 1.0
-    return out
-
-
-def _alpha_floor(ev: Evaluator, tuned: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """(B,) smallest alpha that keeps every moved gain inside the search box."""
-    lo = np.exp(ev.layout.log_lo)
-    k = d > 0
-    return np.max(lo[k] / tuned[:, k], axis=1) if k.any() else np.ones(len(tuned))
-
-
 def repair(ev: Evaluator, tuned: np.ndarray) -> Repaired:
     """Move each stable but infeasible candidate onto the requirement boundary (see the module docstring).
 
@@ -103,7 +84,7 @@ def repair(ev: Evaluator, tuned: np.ndarray) -> Repaired:
     if not rows.size or not d.any():
         return Repaired(out, v_out, alpha, mask)
     t = tuned[rows]
-    x_floor = np.log(np.minimum(_alpha_floor(ev, t, d), 1.0))
+    x_floor = np.log(alpha_floor(ev.layout, t, d))
     xs = np.maximum(np.log1p(-np.array(LADDER))[None, :], x_floor[:, None])  # (n, L)
     n, L = xs.shape
     # the root find checks margins only (stability is 2/3 of the estimate's cost); the answer is checked in full

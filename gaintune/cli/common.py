@@ -133,16 +133,11 @@ def _read_file(path: Path, field: str) -> str:
 
 
 def _parse_mapping(text: str, field: str) -> Any:
-    if text.lstrip().startswith(("{", "[")):
-        try:
-            return json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise InputError(field, f"not valid JSON/YAML: {exc}") from None
-    import yaml  # deferred on purpose: JSON input (gains, specs written by tools) needs no YAML parser
+    from gaintune.spec import parse_json_or_yaml
 
     try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
+        return parse_json_or_yaml(text)
+    except ValueError as exc:
         raise InputError(field, f"not valid JSON/YAML: {exc}") from None
 
 

@@ -125,16 +125,19 @@ class GainProblem:
 
     def repaired(self, tuned: np.ndarray) -> np.ndarray:
         """(B, d) gains as the search scores them: with ``search.repair``, infeasible rows moved onto the boundary."""
+        return self._project(tuned)[0]
+
+    def _project(self, tuned: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """(gains as scored, their estimated violation when the projection computed it, else None)."""
         tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
-        return repair(self.evaluator, tuned).tuned if self.repair else tuned
+        if not self.repair:
+            return tuned, None
+        r = repair(self.evaluator, tuned)
+        return r.tuned, r.violation
 
     def score(self, tuned: np.ndarray, draws: Draws) -> Scored:
         """Score B tuned-gain vectors; ``draws`` has B*K rows (K robust draws per gain set, draw-major)."""
-        tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
-        violation = None
-        if self.repair:
-            r = repair(self.evaluator, tuned)
-            tuned, violation = r.tuned, r.violation
+        tuned, violation = self._project(tuned)
         s = self.evaluator.evaluate(tuned, draws, violation=violation)
         scored = Scored(**{f.name: getattr(s, f.name) for f in dataclasses.fields(Scores)}, reward=self.reward(s))
         if self.on_score is not None:

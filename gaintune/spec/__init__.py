@@ -50,6 +50,7 @@ from gaintune.spec.settings import DistSpec, RandomizeSpec, RobustSpec, SafetySp
 from gaintune.spec_design import DesignSpec, expand_design
 
 __all__ = [
+    "parse_json_or_yaml",
     "MAX_STEPS",
     "MAX_ORDER",
     "MAX_LOOPS",
@@ -140,6 +141,25 @@ class TuningSpec(_Model):
         return hashlib.sha256(self.model_dump_json().encode()).hexdigest()
 
 
+def parse_json_or_yaml(text: str) -> Any:
+    """Parse ``text`` as JSON when it starts with ``{`` or ``[``, else as YAML.
+
+    Raises
+    ------
+    ValueError
+        With the parser's message when the text is not valid (JSON's error is a ValueError; YAML's
+        is re-raised as one).
+    """
+    if text.lstrip().startswith(("{", "[")):
+        return json.loads(text)
+    import yaml  # deferred on purpose: JSON specs and gains (the API, tools, start-up) never need it
+
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ValueError(str(exc)) from None
+
+
 def load_spec(source: str | Path | dict[str, Any]) -> TuningSpec:
     """Load and validate a spec from a YAML/JSON file path, a YAML/JSON string or a dict.
 
@@ -162,18 +182,10 @@ def load_spec(source: str | Path | dict[str, Any]) -> TuningSpec:
                 raise SpecError("spec", f"cannot read {path}: {exc.strerror}") from None
         else:
             text = str(source)
-        if text.lstrip().startswith("{"):
-            try:
-                data = json.loads(text)
-            except json.JSONDecodeError as exc:
-                raise SpecError("spec", f"not valid YAML/JSON: {exc}") from None
-        else:
-            import yaml  # deferred on purpose: JSON specs and dicts (the API, start-up) never need it
-
-            try:
-                data = yaml.safe_load(text)
-            except yaml.YAMLError as exc:
-                raise SpecError("spec", f"not valid YAML/JSON: {exc}") from None
+        try:
+            data = parse_json_or_yaml(text)
+        except ValueError as exc:
+            raise SpecError("spec", f"not valid YAML/JSON: {exc}") from None
     if not isinstance(data, dict):
         raise SpecError("spec", "must be a mapping with at least 'plant' and 'loops'")
     return TuningSpec.model_validate(data)
