@@ -29,6 +29,9 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import VecEnv
 
+from gaintune.search.eager_optim import install as _install_eager_optim
+from gaintune.search.eager_optim import optimizer_class as _eager_optimizer_class
+
 __all__ = ["ALGOS", "agent_defaults", "make_agent", "load_agent"]
 
 # The batched simulator owns the cores. torch's intra-op pool on top of numba's made each
@@ -87,12 +90,20 @@ def make_agent(
     if horizon > 1:
         kw.update(iterative_defaults(algo, env.num_envs, horizon))
     kw.update(overrides or {})
+    policy_kwargs = dict(kw.get("policy_kwargs") or {})
+    eager = _eager_optimizer_class() if algo == "ppo" and "optimizer_class" not in policy_kwargs else None
+    if eager is not None:  # A2C uses RMSprop, SAC and TD3 build optimizers of their own: unchanged
+        # Same Adam arithmetic without importing torch._dynamo (~1 s): gaintune/search/eager_optim.py.
+        # SB3 gives its default Adam eps=1e-5 (ActorCriticPolicy); keep that for the subclass.
+        policy_kwargs.setdefault("optimizer_kwargs", {"eps": 1e-5})
+        kw["policy_kwargs"] = {**policy_kwargs, "optimizer_class": eager}
     return cls("MlpPolicy", env, seed=seed, verbose=0, device="cpu", **kw)
 
 
 def load_agent(path: str | Path, env: VecEnv | None = None) -> BaseAlgorithm:
     """Load a saved agent zip; the algorithm is read from the file name prefix or tried in turn."""
     path = Path(path)
+    _install_eager_optim()  # loading restores the optimizer state: keep torch._dynamo unloaded
     errors = []
     for name, cls in ALGOS.items():
         try:
