@@ -87,19 +87,22 @@ def sampled_grid(w: np.ndarray, sp: SampledPlant) -> np.ndarray:
 
 
 def _parabolic_peak(V: np.ndarray) -> np.ndarray:
-    """Max over the last axis with a 3-point parabola (in grid index) around the argmax."""
+    """Max over the last axis with a 3-point parabola (in grid index) around the argmax.
+
+    NaN and +inf count as ``_BIG`` (``V`` is a magnitude: never negative)."""
+    V = np.where(np.isfinite(V), V, _BIG)
+    shape, W = V.shape[:-1], V.shape[-1]
+    V = V.reshape(-1, W)  # rows indexed directly: take_along_axis costs more than the arithmetic here
+    rows = np.arange(V.shape[0])
     j = np.argmax(V, axis=-1)
-    W = V.shape[-1]
     jc = np.clip(j, 1, W - 2)
-    a = np.take_along_axis(V, (jc - 1)[..., None], -1)[..., 0]
-    b = np.take_along_axis(V, jc[..., None], -1)[..., 0]
-    c = np.take_along_axis(V, (jc + 1)[..., None], -1)[..., 0]
+    a, b, c = V[rows, jc - 1], V[rows, jc], V[rows, jc + 1]
     den = a - 2 * b + c
     with np.errstate(divide="ignore", invalid="ignore"):
         peak = b - 0.125 * (a - c) ** 2 / den
     ok = (den < 0) & np.isfinite(peak) & (j == jc)
-    vmax = np.take_along_axis(V, j[..., None], -1)[..., 0]
-    return np.where(ok, np.maximum(peak, vmax), vmax)
+    vmax = V[rows, j]
+    return np.where(ok, np.maximum(peak, vmax), vmax).reshape(shape)
 
 
 def quick_margins(
@@ -139,14 +142,14 @@ def quick_margins(
     with np.errstate(all="ignore"):
         Lall, Nall = cas.loop_responses(s, lin, dly, sampled=sp, noise=True)  # (R, B, W+1), (R-1, B, W+1)
         L, L0 = Lall[..., :-1], Lall[..., -1]
-        mks = _parabolic_peak(np.nan_to_num(np.abs(Nall[..., :-1]), nan=_BIG, posinf=_BIG))
+        mks = _parabolic_peak(np.abs(Nall[..., :-1]))
         mks[[lp.kind != "pid" for lp in cas.loops]] = np.nan
         if sp is not None:
             L[..., -1] = L[..., -1].real  # real at z = -1: an end point, like w = 0
         aL = np.abs(L)
         a1 = np.abs(1.0 + L)
-        ms = _parabolic_peak(np.nan_to_num(1.0 / a1, nan=_BIG, posinf=_BIG))
-        mt = _parabolic_peak(np.nan_to_num(aL / a1, nan=_BIG, posinf=_BIG))
+        ms = _parabolic_peak(1.0 / a1)
+        mt = _parabolic_peak(aL / a1)
         lw = np.log(w)
         # gain crossings: only at the (few) sign changes of log|L|
         above = aL > 1.0
