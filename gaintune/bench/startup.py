@@ -10,6 +10,10 @@ machine's load average before and after is printed beside it (the machine is sha
 figures taken side by side). Targets (issue 13): ``gaintune --help`` <= 0.3 s,
 ``import gaintune.verify`` <= 0.4 s, ``gaintune verify`` of a PI loop <= 0.8 s, ``gaintune tune``
 of a PI loop at 3,000 simulations <= 3 s. Where the time goes: docs/benchmarks.md, "Start-up".
+
+``--before DIR`` measures an older checkout beside this one, interleaved in the same run (e.g.
+``git worktree add /tmp/before <rev>``): both run as ``python -m gaintune`` with ``PYTHONPATH``
+set to their own tree, and the table adds the before figures and the after/before ratio.
 """
 
 from __future__ import annotations
@@ -38,31 +42,42 @@ SPEC = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"
 GAINS = {"loop0": {"Kp": 1.14, "Ki": 0.454}}
 
 
-def commands(folder: Path) -> dict[str, list[str]]:
-    """name -> argv of every measured command (files written into ``folder``)."""
+def commands(folder: Path, module: bool = False) -> dict[str, list[str]]:
+    """name -> argv of every measured command (files written into ``folder``).
+
+    ``module``: run the CLI as ``python -m gaintune`` (the tree on ``PYTHONPATH`` answers) instead
+    of the installed ``gaintune`` script."""
     spec, gains = folder / "pi.json", folder / "gains.json"
     spec.write_text(json.dumps(SPEC))
     gains.write_text(json.dumps(GAINS))
-    exe = shutil.which("gaintune") or str(Path(sys.executable).with_name("gaintune"))
     py = sys.executable
+    exe: str | list[str] = [py, "-m", "gaintune"] if module else (
+        shutil.which("gaintune") or str(Path(sys.executable).with_name("gaintune")))
+    exe = exe if isinstance(exe, list) else [exe]
     return {
         "python -c pass": [py, "-c", "pass"],
-        "gaintune --help": [exe, "--help"],
+        "gaintune --help": [*exe, "--help"],
         "import gaintune.verify": [py, "-c", "import gaintune.verify"],
-        "gaintune verify (PI loop)": [exe, "verify", str(spec), "--gains", str(gains)],
-        "gaintune tune (PI loop, 3,000 sims)": [exe, "tune", str(spec), "--out", str(folder / "out")],
+        "gaintune verify (PI loop)": [*exe, "verify", str(spec), "--gains", str(gains)],
+        "gaintune tune (PI loop, 3,000 sims)": [*exe, "tune", str(spec), "--out", str(folder / "out")],
     }
 
 
-def compile_bytecode() -> None:
+def compile_bytecode(package: Path | None = None) -> None:
     """Compile gaintune's bytecode, as installing the package does (a no-op when it is up to date)."""
-    compileall.compile_dir(str(Path(__file__).resolve().parents[1]), quiet=1)  # the gaintune package
+    compileall.compile_dir(str(package or Path(__file__).resolve().parents[1]), quiet=1)
 
 
-def _wall(argv: list[str]) -> float:
+def _wall(argv: list[str], env: dict[str, str] | None = None, cwd: Path | None = None) -> float:
     t0 = time.perf_counter()
-    subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False)
+    # cwd: a folder without a gaintune package, which `python -c`/`-m` would put ahead of PYTHONPATH
+    subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False, env=env, cwd=cwd)
     return time.perf_counter() - t0
+
+
+def _tree_env(tree: Path) -> dict[str, str]:
+    """The environment that makes ``tree``'s gaintune the one imported (ahead of the installed one)."""
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(tree), os.environ.get("PYTHONPATH")]))}
 
 
 def _load(avg: tuple[float, float, float]) -> str:
@@ -72,27 +87,48 @@ def _load(avg: tuple[float, float, float]) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="gaintune bench startup", description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=5, help="timed runs per command (default 5)")
+    ap.add_argument("--before", type=Path, help="an older gaintune checkout to measure beside this one")
     ap.add_argument("--out", type=Path, help="output folder (default: bench/results)")
     args = ap.parse_args(argv)
+    if args.before is not None and not (args.before / "gaintune" / "__init__.py").is_file():
+        print(f"--before: {args.before} holds no gaintune package (give the checkout's top folder)", file=sys.stderr)
+        return 2
+    here = Path(__file__).resolve().parents[2]
+    trees = {"after": here, "before": args.before.resolve()} if args.before else {"after": None}
     load0 = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
-        cmds = commands(Path(tmp))
-        times = {name: [] for name in cmds}
-        compile_bytecode()  # warm-up: gaintune's bytecode, as an installed package has it
-        for name, cmd in cmds.items():
-            _wall(cmd)  # warm-up: OS file cache, numba's on-disk cache
-        for _ in range(args.repeat):  # interleaved, so load changes hit every command alike
+        cmds = commands(Path(tmp), module=args.before is not None)
+        envs = {k: (_tree_env(t) if t is not None else None) for k, t in trees.items()}
+        times = {(k, name): [] for k in trees for name in cmds}
+        for t in trees.values():  # warm-up: bytecode, as an installed package has it
+            compile_bytecode(t / "gaintune" if t is not None else None)
+        for k in trees:
+            for cmd in cmds.values():
+                _wall(cmd, envs[k], Path(tmp))  # warm-up: OS file cache, numba's on-disk cache
+        for _ in range(args.repeat):  # interleaved, so load changes hit every command and tree alike
             for name, cmd in cmds.items():
-                times[name].append(_wall(cmd))
+                for k in trees:
+                    times[(k, name)].append(_wall(cmd, envs[k], Path(tmp)))
     load1 = os.getloadavg()
-    base = float(np.median(times["python -c pass"]))
-    rows = [[name, float(np.median(t)), float(np.min(t)), float(np.median(t)) - base] for name, t in times.items()]
-    table = md_table(["command", "median s", "min s", "median - python -c pass, s"], rows)
+    med = {key: float(np.median(v)) for key, v in times.items()}
+    base = med[("after", "python -c pass")]
+    if args.before:
+        rows = [[name, med[("before", name)], med[("after", name)], float(np.min(times[("after", name)])),
+                 med[("after", name)] / med[("before", name)]] for name in cmds]
+        head = ["command", "before median s", "after median s", "after min s", "after / before"]
+    else:
+        rows = [[name, med[("after", name)], float(np.min(times[("after", name)])), med[("after", name)] - base]
+                for name in cmds]
+        head = ["command", "median s", "min s", "median - python -c pass, s"]
+    table = md_table(head, rows)
     load = f"load average (1, 5, 15 min) before {_load(load0)}, after {_load(load1)}; gaintune bytecode compiled in the warm-up"
+    if args.before:
+        load += f"; before = {args.before}, after = {here}, both as python -m gaintune"
     print(table)
     print(load)
-    _, md = write_outputs({"rows": rows, "repeat": args.repeat, "load_before": load0, "load_after": load1},
+    _, md = write_outputs({"rows": rows, "header": head, "repeat": args.repeat, "load_before": load0, "load_after": load1},
                           args.out or default_out_dir(), "startup",
-                          f"# gaintune bench startup --repeat {args.repeat}\n\n{table}\n\n{load}\n")
+                          f"# gaintune bench startup --repeat {args.repeat}{' --before ' + str(args.before) if args.before else ''}"
+                          f"\n\n{table}\n\n{load}\n")
     print(f"wrote {md}")
     return 0

@@ -1,0 +1,43 @@
+"""``gaintune bench startup``: the side-by-side ``--before`` mode (no timings are asserted)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from gaintune.bench import startup
+
+
+def test_before_without_a_gaintune_package_exits_2(tmp_path: Path, capsys) -> None:
+    assert startup.main(["--before", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
+    assert "--before" in capsys.readouterr().err
+
+
+def test_tree_env_makes_that_trees_gaintune_the_one_imported(tmp_path: Path) -> None:
+    (tmp_path / "gaintune").mkdir()
+    (tmp_path / "gaintune" / "__init__.py").write_text("MARK = 'older checkout'\n")
+    out = subprocess.run([sys.executable, "-c", "import gaintune; print(gaintune.MARK)"], capture_output=True,
+                         text=True, env=startup._tree_env(tmp_path), check=True, cwd=tmp_path / "gaintune").stdout
+    assert out.strip() == "older checkout"
+
+
+def test_module_commands_run_the_cli_of_the_tree_on_the_path(tmp_path: Path) -> None:
+    cmds = startup.commands(tmp_path, module=True)
+    assert cmds["gaintune verify (PI loop)"][:3] == [sys.executable, "-m", "gaintune"]
+    assert json.loads((tmp_path / "pi.json").read_text()) == startup.SPEC
+
+
+def test_before_and_after_rows_side_by_side(tmp_path: Path, monkeypatch) -> None:
+    before = tmp_path / "before"
+    (before / "gaintune").mkdir(parents=True)
+    (before / "gaintune" / "__init__.py").write_text("")
+    py = sys.executable
+    monkeypatch.setattr(startup, "commands", lambda folder, module=False: {
+        "python -c pass": [py, "-c", "pass"], "import gaintune": [py, "-c", "import gaintune"]})
+    assert startup.main(["--repeat", "1", "--before", str(before), "--out", str(tmp_path / "out")]) == 0
+    data = json.loads((tmp_path / "out" / "startup.json").read_text())
+    assert data["header"][-1] == "after / before"
+    assert [r[0] for r in data["rows"]] == ["python -c pass", "import gaintune"]
+    assert all(r[1] > 0 and r[2] > 0 and r[4] > 0 for r in data["rows"])
