@@ -46,6 +46,23 @@ def test_cli_verify_of_an_lti_loop_loads_neither_search_nor_report(tmp_path: Pat
     assert loaded(code, SEARCH_AND_REPORT + ("rich.console", "rich.table")) == []
 
 
+#: A delayed position/speed cascade: the outer loop's path closes the inner loop around a Padé delay.
+CASCADE = {"plant": {"ss": {"A": [[0, 1], [0, -10]], "B": [[0], [10]], "C": [[1, 0], [0, 1]],
+                            "outputs": ["pos", "vel"]}, "delay": 0.02},
+           "loops": [{"name": "pos", "measure": "pos", "type": "p"}, {"name": "vel", "measure": "vel", "type": "pi"}]}
+PI = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}]}
+
+
+@pytest.mark.parametrize("spec", [PI, CASCADE], ids=["pi", "delayed_cascade"])
+def test_classical_rules_load_neither_python_control_nor_scipy_signal(spec: dict) -> None:
+    """Rule candidates (FOTD fits, ultimate gain, closed inner loops) use gaintune.statespace, not python-control (~1 s)."""
+    code = ("import gaintune\nfrom gaintune.plants.plant import build_plant\n"
+            "from gaintune.classical import rule_candidates\n"
+            f"spec = gaintune.load_spec({spec!r})\n"
+            "assert 'simc' in rule_candidates(spec, build_plant(spec.plant))")
+    assert loaded(code, ("control", "scipy.signal", "matplotlib")) == []
+
+
 def test_reading_and_exporting_a_result_loads_no_search_stack() -> None:
     code = "import gaintune.search, gaintune.search.result, gaintune.export"
     assert loaded(code, ("torch", "stable_baselines3", "gymnasium", "numba", "matplotlib", "casadi")) == []

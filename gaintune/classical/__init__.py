@@ -8,7 +8,9 @@
 * :mod:`~gaintune.classical.migo` - the constrained PI optimum under an Ms limit.
 
 Below the simulator and the evaluation in the layering: this package imports only spec,
-plants, controllers and numeric libraries. See ``docs/baselines.md``.
+plants, controllers and numeric libraries. The rules run on :mod:`gaintune.statespace`'s state
+space, not python-control (whose import would cost ``gaintune tune`` about a second);
+python-control objects are still accepted. See ``docs/baselines.md``.
 """
 
 from gaintune.classical.fotd import Fotd, NoModelError, fit_fotd

@@ -2,8 +2,8 @@
 
 Classical tuning rules need a model ``K e^{-Ls}/(Ts + 1)`` (self-regulating) or
 ``Kv e^{-Ls}/s`` (integrating). :func:`fit_fotd` obtains one from a SISO
-linear path (python-control state space of the delay-free part, plus a
-delay in seconds):
+linear path (state space of the delay-free part, :class:`gaintune.statespace.StateSpace`
+or python-control's, plus a delay in seconds):
 
 * **Half rule** (Skogestad 2003) when every pole is real (and stable),
   there are no left-half-plane zeros and no direct feedthrough: with the
@@ -30,6 +30,9 @@ delay in seconds):
 ``K`` (or ``Kv``) is negative for a reverse-acting path; every step above works
 on the signed gain (the step response is normalised by ``K``).
 
+The path is handled with :mod:`gaintune.statespace` (the operations python-control performs,
+without importing it: that import costs about a second of ``gaintune tune``).
+
 No FOTD model applies (and :class:`NoModelError` is raised, naming why) to
 unstable paths, double integrators, paths with zero static gain, and
 oscillatory paths (step-response overshoot above :data:`OSCILLATION_LIMIT`).
@@ -54,6 +57,7 @@ import numpy as np
 
 from gaintune.errors import GaintuneError
 from gaintune.lti import pade_tf
+from gaintune.statespace import StateSpace, as_state_space, ss_to_tf, step_response, tf_minreal, tf_to_ss
 
 __all__ = ["Fotd", "NoModelError", "fit_fotd", "path_poles_zeros", "siso_minreal", "OSCILLATION_LIMIT"]
 
@@ -107,51 +111,67 @@ class Fotd:
 # ---------------------------------------------------------------- helpers
 
 
-def _siso_ss(sys):
-    import control
-
-    sys = control.ss(sys)
+def _siso_ss(sys) -> StateSpace:
+    sys = as_state_space(sys)
     if sys.ninputs != 1 or sys.noutputs != 1:
         raise ValueError(f"need a SISO path, got {sys.noutputs}x{sys.ninputs}")
     return sys
 
 
-def siso_minreal(sys, tol: float = 1e-6):
+def siso_minreal(sys, tol: float = 1e-6) -> StateSpace:
     """Minimal SISO state space: cancels (near-)coincident pole/zero pairs via the transfer function.
 
     Paths cut from a multi-output plant carry unobservable modes (e.g. the
     position integrator seen from a velocity output); they must go before poles
     are classified.
-    """
-    import control
 
-    sys = control.ss(sys)
+    Parameters
+    ----------
+    sys
+        SISO state space (:class:`gaintune.statespace.StateSpace`, python-control's, or a
+        python-control transfer function).
+    tol
+        Largest distance between a cancelled zero and pole.
+
+    Returns
+    -------
+    StateSpace
+        Controller canonical form of the reduced transfer function (no states for a static gain).
+    """
+    sys = as_state_space(sys)
     if sys.nstates == 0:
         return sys
-    g = control.tf(sys)
-    num = np.atleast_1d(np.squeeze(np.asarray(g.num[0][0], dtype=float)))
-    den = np.atleast_1d(np.squeeze(np.asarray(g.den[0][0], dtype=float)))
+    num, den = ss_to_tf(sys)
     # Round-off in the ss -> tf conversion leaves tiny leading numerator terms
     # (spurious zeros near infinity): drop them relative to the coefficient scale.
     scale = max(np.abs(num).max(initial=0.0), 1e-300)
     num = np.where(np.abs(num) < 1e-10 * scale, 0.0, num)
     if np.any(num):
         num = np.trim_zeros(num, "f")
-    g = control.minreal(control.tf(num, den), tol=tol, verbose=False)
+    num, den = tf_minreal(num, den, tol=tol)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return control.ss(g)
+        return tf_to_ss(num, den)
 
 
 def path_poles_zeros(sys) -> tuple[np.ndarray, np.ndarray]:
-    """Poles and (finite) transmission zeros of a SISO state-space path."""
-    import control
+    """Poles and (finite) transmission zeros of a SISO state-space path.
 
+    Parameters
+    ----------
+    sys
+        SISO state space (:class:`gaintune.statespace.StateSpace` or python-control's).
+
+    Returns
+    -------
+    tuple of ndarray
+        Eigenvalues of A and the finite zeros.
+    """
     sys = _siso_ss(sys)
-    p = np.linalg.eigvals(sys.A) if sys.nstates else np.zeros(0)
+    p = sys.poles()
     try:
-        z = np.asarray(control.zeros(sys)) if sys.nstates else np.zeros(0)
-    except Exception:  # pragma: no cover - slycot-free fallbacks may raise on degenerate systems
+        z = sys.zeros()
+    except Exception:  # pragma: no cover - degenerate pencils
         z = np.zeros(0)
     z = z[np.isfinite(z)]
     return p, z
@@ -174,21 +194,15 @@ def _dc_gain(sys) -> float:
     return float((D - C @ np.linalg.solve(A, B))[0, 0])
 
 
-def _remove_integrator(sys):
-    """(Kv, rest) with rest = s*G(s)/Kv ... returned as state space of s*G(s)."""
-    import control
-
-    num, den = control.tfdata(control.tf(sys))
-    num = np.atleast_1d(np.squeeze(np.asarray(num[0][0], dtype=float)))
-    den = np.atleast_1d(np.squeeze(np.asarray(den[0][0], dtype=float)))
+def _remove_integrator(sys: StateSpace) -> tuple[float, StateSpace]:
+    """(Kv, rest): the velocity gain Kv = lim s G(s) and a state space of s G(s), the path without its integrator."""
+    num, den = ss_to_tf(sys)
     den = den / den[0]
-    num = num / 1.0
     rest_den = den[:-1]  # drop the root at the origin (last coefficient ~ 0)
     if rest_den.size == 1:
-        rest = control.ss([], [], [], [[num[-1] / rest_den[0]]])
+        rest = StateSpace(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), [[num[-1] / rest_den[0]]])
         return float(num[-1] / rest_den[-1]), rest
-    rest = control.ss(control.tf(num, rest_den))
-    return float(num[-1] / rest_den[-1]), rest
+    return float(num[-1] / rest_den[-1]), tf_to_ss(num, rest_den)
 
 
 # -------------------------------------------------------------- half rule
@@ -254,12 +268,9 @@ def _half_rule(taus: list[float], inv: float, delay: float, K: float, integratin
 # ------------------------------------------------------ step-response fit
 
 
-def _step(sys, horizon: float, n: int = 2000) -> tuple[np.ndarray, np.ndarray]:
-    import control
-
+def _step(sys: StateSpace, horizon: float, n: int = 2000) -> tuple[np.ndarray, np.ndarray]:
     t = np.linspace(0.0, horizon, n)
-    r = control.step_response(sys, T=t)
-    return t, np.asarray(r.outputs, dtype=float).ravel()
+    return t, np.asarray(step_response(sys, t)[0], dtype=float).ravel()
 
 
 def _fotd_step(t: np.ndarray, K: float, T: float, L: float) -> np.ndarray:
@@ -332,7 +343,9 @@ def fit_fotd(sys, delay: float = 0.0, method: FitMethod = "auto") -> Fotd:
     Parameters
     ----------
     sys
-        Anything ``control.ss`` accepts (StateSpace, TransferFunction), SISO.
+        SISO path: a :class:`gaintune.statespace.StateSpace`, anything with ``A``, ``B``, ``C``,
+        ``D`` (python-control's StateSpace), or anything else ``control.ss`` accepts
+        (TransferFunction; only then is python-control imported).
     delay
         Pure time delay of the path in seconds (added to the model's L).
     method

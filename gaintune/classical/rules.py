@@ -31,6 +31,7 @@ from typing import Callable
 import numpy as np
 
 from gaintune.classical.fotd import Fotd, NoModelError
+from gaintune.statespace import as_state_space
 from gaintune.spec import GAIN_NAMES, LoopSpec
 
 __all__ = [
@@ -259,6 +260,9 @@ def ultimate_gain(sys, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, f
     The phase of G(jw) e^{-jw delay} is unwrapped on a log grid from low
     frequency; the first -180 degree crossing is refined with Brent's method.
 
+    ``sys`` is a SISO state space (:class:`gaintune.statespace.StateSpace`, python-control's, or
+    a python-control transfer function), ``delay`` the path's dead time in seconds.
+
     A path with a negative gain (static gain, or velocity gain of an integrating path) is
     analysed as its negation: ``Ku`` is the magnitude of the ultimate gain either way.
 
@@ -268,12 +272,11 @@ def ultimate_gain(sys, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, f
         When the phase never reaches -180 degrees (Ku infinite) or the low-frequency gain
         is negative after that (open-loop unstable paths).
     """
-    import control
     from scipy.optimize import brentq
 
     from gaintune.controllers.direction import path_gain
 
-    sys = control.ss(sys)
+    sys = as_state_space(sys)
     sgn = 1.0
     if sys.nstates:
         pg = path_gain(np.asarray(sys.A), np.asarray(sys.B)[:, 0], np.asarray(sys.C)[0], float(np.asarray(sys.D)[0, 0]))
@@ -286,7 +289,7 @@ def ultimate_gain(sys, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, f
     w = np.logspace(np.log10(lo) - 3, np.log10(hi) + 3, n_grid)
 
     def resp(x):
-        return sgn * np.asarray(sys(1j * np.atleast_1d(x))).reshape(-1)
+        return sgn * sys.freqresp(1j * np.atleast_1d(x)).reshape(-1)
 
     g = resp(w)
     g0 = g[0]

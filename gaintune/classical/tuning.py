@@ -27,7 +27,7 @@ import numpy as np
 from gaintune.classical.fotd import Fotd, NoModelError, fit_fotd, siso_minreal
 from gaintune.classical.rules import FOTD_RULES, IdealPid, to_loop_gains, ultimate_gain, with_direction, zn_ultimate
 from gaintune.controllers.direction import loop_directions
-from gaintune.lti import pade_tf
+from gaintune.statespace import StateSpace, with_input_delay
 from gaintune.spec import TuningSpec
 
 __all__ = ["ClassicalResult", "tune_classical", "rule_candidates", "auto_bounds", "PADE_ORDER", "BOUNDS_FACTOR",
@@ -50,25 +50,17 @@ class ClassicalResult:
     pid: dict[str, IdealPid] = field(default_factory=dict)
 
 
-def _ss(A, B, C, D):
-    import control
-
-    return control.ss(np.asarray(A, float), np.asarray(B, float), np.asarray(C, float), np.asarray(D, float))
+def _ss(A, B, C, D) -> StateSpace:
+    return StateSpace(np.asarray(A, float), np.asarray(B, float), np.asarray(C, float), np.asarray(D, float))
 
 
-def _with_input_delay(sys, delay: float):
+def _with_input_delay(sys: StateSpace, delay: float) -> StateSpace:
     """Series of a Pade approximation of e^{-delay s} and ``sys`` (single input, any outputs)."""
-    import control
-
-    if delay <= 0:
-        return sys
-    return control.series(control.ss(pade_tf(delay, PADE_ORDER)), sys)
+    return with_input_delay(sys, delay, PADE_ORDER)
 
 
-def _pid_ss(loop, gains: dict[str, float]):
+def _pid_ss(loop, gains: dict[str, float]) -> StateSpace:
     """2-DOF controller u = Kp (b r - y) + Ki/s (r - y) + Kd s/(Tf s + 1) (c r - y); inputs [r, y]."""
-    import control
-
     from gaintune.controllers.pid import pid_params
 
     p = pid_params(loop, gains)
@@ -91,10 +83,10 @@ def _pid_ss(loop, gains: dict[str, float]):
     Am = np.diag([row[0] for row in A]) if n else np.zeros((0, 0))
     Bm = np.array(B, float).reshape(n, 2)
     Cm = np.array(C, float).reshape(1, n)
-    return control.ss(Am, Bm, Cm, np.array([D], float))
+    return StateSpace(Am, Bm, Cm, np.array([D], float))
 
 
-def _close(sys, m: int, K):
+def _close(sys: StateSpace, m: int, K: StateSpace) -> StateSpace:
     """Close u = K [r; y_m] around ``sys`` (u -> all outputs); returns r -> all outputs."""
     A, B, C, D = (np.asarray(x, float) for x in (sys.A, sys.B, sys.C, sys.D))
     Ak, Bk, Ck, Dk = (np.asarray(x, float) for x in (K.A, K.B, K.C, K.D))
