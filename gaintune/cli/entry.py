@@ -20,11 +20,20 @@ Everything else falls back to the ordinary exit, unchanged: a call from anything
 it), a profiler or tracer (``python -m cProfile``, a debugger, coverage: they report after the
 program returns), a failed flush (e.g. a closed pipe: the interpreter reports it),
 ``GAINTUNE_FULL_EXIT=1``, and the long-running ``serve`` command (it sets :data:`FAST_EXIT` to False).
+
+A command run as the program also starts with the cyclic garbage collector's first threshold raised
+to :data:`GC_THRESHOLD0` allocations (CPython's default is 700). Start-up imports millions of objects
+(numba, numpy, pydantic, torch), and at the default every few hundred allocations trigger a
+collection that, every tenth and hundredth time, walks all of them: measured, 0.05 s of a 0.8 s
+``gaintune verify`` and 0.35 s of a 6.4 s ``gaintune tune``. Reference counting still frees acyclic
+garbage at once; cycles wait for at most that many allocations. Embedding callers keep their own
+settings.
 """
 
 from __future__ import annotations
 
 import atexit
+import gc
 import os
 import sys
 import threading
@@ -32,10 +41,12 @@ from typing import Any
 
 import typer
 
-__all__ = ["GaintuneTyper", "FAST_EXIT", "exit_without_teardown"]
+__all__ = ["GaintuneTyper", "FAST_EXIT", "GC_THRESHOLD0", "exit_without_teardown"]
 
 #: Whether a command run as the program may skip interpreter teardown (``serve`` turns it off).
 FAST_EXIT = True
+#: The cyclic collector's first threshold for a command run as the program (see the module docstring).
+GC_THRESHOLD0 = 50_000
 
 
 def _exit_code(code: Any) -> int:
@@ -90,6 +101,8 @@ class GaintuneTyper(typer.Typer):
         caller = sys._getframe(1).f_globals.get("__name__")
         if caller != "__main__":
             return super().__call__(*args, **kwargs)
+        _, t1, t2 = gc.get_threshold()
+        gc.set_threshold(max(GC_THRESHOLD0, gc.get_threshold()[0]), t1, t2)
         try:
             return super().__call__(*args, **kwargs)
         except SystemExit as exc:

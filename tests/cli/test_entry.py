@@ -108,3 +108,18 @@ def test_under_a_profiler_the_ordinary_exit_lets_it_report() -> None:
     res = subprocess.run([sys.executable, "-m", "cProfile", "-m", "gaintune", "--help"], capture_output=True, text=True,
                          timeout=300, env=env)
     assert res.returncode == 0 and "Usage:" in res.stdout and "ncalls" in res.stdout
+
+
+def test_the_program_runs_with_the_raised_gc_threshold_and_an_embedding_caller_keeps_its_own() -> None:
+    """Start-up imports trigger full collections at CPython's default threshold (700): a command run
+    as the program raises it to GC_THRESHOLD0; a caller that embeds the app keeps its setting."""
+    report = "import atexit, gc\natexit.register(lambda: print('threshold', gc.get_threshold()[0]))\n"
+    res = run_main(report + "from gaintune.cli import app\napp(['--help'])")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.rstrip().endswith(f"threshold {entry.GC_THRESHOLD0}")
+    embedded = ("import gc\nfrom gaintune.cli import app\n"  # called from a module other than __main__
+                "try:\n    exec(\"app(['--help'])\", {'__name__': 'embedder', 'app': app})\nexcept SystemExit:\n    pass\n"
+                "print('threshold', gc.get_threshold()[0])\n")
+    res = subprocess.run([sys.executable, "-c", embedded], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.rstrip().endswith("threshold 700")
