@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gaintune.controllers.layout import GainLayout
-from gaintune.lti import pade_response
+from gaintune.lti import pade_response, plant_eigvals
 from gaintune.plants.noise_limit import noise_limits
 from gaintune.plants.plant import LinearModel, Plant
 from gaintune.spec import TuningSpec
@@ -42,6 +42,8 @@ FEASIBILITY_MARGIN = 5e-5
 #: Cap of one requirement's relative violation.
 MAX_TERM = 5.0
 _BIG = 1e10
+#: The sensitivity peaks :func:`quick_margins` can estimate.
+PEAKS = ("ms", "mt", "mks")
 _GM_CAP = 1e4  # GM beyond 80 dB counts as infinite, as in the exact verification
 
 
@@ -67,7 +69,7 @@ class QuickMargins:
 def _grid(lin: LinearModel, T: float, n: int) -> np.ndarray:
     """Log grid from the plant alone (poles/zeros magnitudes and the delay), so that a
     candidate's estimate does not depend on the rest of its batch."""
-    f = [abs(x) for x in np.linalg.eigvals(lin.A)] if lin.A.size else []
+    f = [abs(x) for x in plant_eigvals(lin)]  # remembered per model: the search calls this per batch
     if T > 0:
         f.append(1.0 / T)
     f = np.array([x for x in f if np.isfinite(x) and x > 1e-12])
@@ -113,12 +115,16 @@ def quick_margins(
     lin: LinearModel | None = None,
     n_freq: int = 320,
     stability: bool = True,
+    peaks: tuple[str, ...] = PEAKS,
 ) -> QuickMargins:
     """Batched margin estimates for full gain vectors ``full_gains`` (B, n_gains).
 
     The loop is the one :func:`gaintune.verify.verify` analyses: with ``verify.sampled`` the
     sampled loop on a grid ending at the Nyquist frequency (an end point of the Nyquist curve,
     like w = 0), else the continuous loop with dt/2 (and the computation delay) of extra delay.
+
+    ``peaks``: which of the peaks ``"ms"``, ``"mt"``, ``"mks"`` to estimate (the others are NaN);
+    a caller that needs only some of them saves their cost (``mks`` needs the noise responses).
     """
     full = np.atleast_2d(np.asarray(full_gains, dtype=float))
     lin = lin if lin is not None else plant.linearize()
@@ -140,16 +146,20 @@ def quick_margins(
         dly = np.ones_like(s)
     R, B = len(cas.loops) + 1, full.shape[0]
     with np.errstate(all="ignore"):
-        Lall, Nall = cas.loop_responses(s, lin, dly, sampled=sp, noise=True)  # (R, B, W+1), (R-1, B, W+1)
+        if "mks" in peaks:
+            Lall, Nall = cas.loop_responses(s, lin, dly, sampled=sp, noise=True)  # (R, B, W+1), (R-1, B, W+1)
+            mks = _parabolic_peak(np.abs(Nall[..., :-1]))
+            mks[[lp.kind != "pid" for lp in cas.loops]] = np.nan
+        else:
+            Lall = cas.loop_responses(s, lin, dly, sampled=sp)
+            mks = np.full((R - 1, B), np.nan)
         L, L0 = Lall[..., :-1], Lall[..., -1]
-        mks = _parabolic_peak(np.abs(Nall[..., :-1]))
-        mks[[lp.kind != "pid" for lp in cas.loops]] = np.nan
         if sp is not None:
             L[..., -1] = L[..., -1].real  # real at z = -1: an end point, like w = 0
         aL = np.abs(L)
         a1 = np.abs(1.0 + L)
-        ms = _parabolic_peak(1.0 / a1)
-        mt = _parabolic_peak(aL / a1)
+        ms = _parabolic_peak(1.0 / a1) if "ms" in peaks else np.full((R, B), np.nan)
+        mt = _parabolic_peak(aL / a1) if "mt" in peaks else np.full((R, B), np.nan)
         lw = np.log(w)
         # gain crossings: only at the (few) sign changes of log|L|
         above = aL > 1.0
@@ -265,8 +275,10 @@ def requirement_scores(
     stability check (every loop counts as stable): only for a caller that checks it afterwards."""
     if noise_limit is None:
         noise_limit = noise_limit_array(spec, plant)
-    q = quick_margins(spec, plant, layout, full_gains, lin, stability=stability)
     req = spec.requirements
+    peaks = tuple(name for name, needed in (("ms", req.ms_max is not None), ("mt", req.mt_max is not None),
+                                             ("mks", bool(np.any(np.isfinite(noise_limit))))) if needed)
+    q = quick_margins(spec, plant, layout, full_gains, lin, stability=stability, peaks=peaks)
     B = q.stable.shape[0]
     out = np.zeros(B)
     short = np.full(B, -np.inf)
