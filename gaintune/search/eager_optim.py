@@ -87,6 +87,8 @@ class EagerAdam(torch.optim.Adam):
     """``torch.optim.Adam`` whose ``step`` sets grad mode itself instead of through dynamo's wrapper."""
 
     def step(self, closure=None):  # type: ignore[override]
+        if _ADAM_STEP is None:  # a torch laid out differently (e.g. an agent saved here, loaded elsewhere)
+            return super().step(closure)
         prev = torch.is_grad_enabled()
         try:
             torch.set_grad_enabled(self.defaults["differentiable"])

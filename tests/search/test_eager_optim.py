@@ -49,3 +49,24 @@ def test_eager_adam_trains_bit_identically_without_loading_dynamo() -> None:
     assert [opt for _, opt in stock["agents"]] == ["Adam", "Adam"]
     assert [w for w, _ in fast["agents"]] == [w for w, _ in stock["agents"]]  # bit-identical weights
     assert fast["gains"] == stock["gains"]
+
+
+def test_eager_adam_falls_back_to_torchs_step_when_torch_is_laid_out_differently(monkeypatch) -> None:
+    """An agent saved with EagerAdam and loaded under a torch whose Adam.step has no plain inner step
+    must still train: EagerAdam then runs torch's own step (same update)."""
+    import torch
+
+    from gaintune.search import eager_optim
+
+    def one_step(cls):
+        torch.manual_seed(0)
+        w = torch.nn.Parameter(torch.randn(4))
+        opt = cls([w], lr=0.1, eps=1e-5)
+        (w ** 2).sum().backward()
+        opt.step()
+        return w.detach().clone()
+
+    fast = one_step(eager_optim.EagerAdam)
+    monkeypatch.setattr(eager_optim, "_ADAM_STEP", None)
+    assert torch.equal(one_step(eager_optim.EagerAdam), fast)
+    assert torch.equal(one_step(torch.optim.Adam), fast)
