@@ -51,9 +51,8 @@ def commands(folder: Path, module: bool = False) -> dict[str, list[str]]:
     spec.write_text(json.dumps(SPEC))
     gains.write_text(json.dumps(GAINS))
     py = sys.executable
-    exe: str | list[str] = [py, "-m", "gaintune"] if module else (
-        shutil.which("gaintune") or str(Path(sys.executable).with_name("gaintune")))
-    exe = exe if isinstance(exe, list) else [exe]
+    script = shutil.which("gaintune") or str(Path(sys.executable).with_name("gaintune"))
+    exe = [py, "-m", "gaintune"] if module else [script]
     return {
         "python -c pass": [py, "-c", "pass"],
         "gaintune --help": [*exe, "--help"],

@@ -101,8 +101,8 @@ class GaintuneTyper(typer.Typer):
         caller = sys._getframe(1).f_globals.get("__name__")
         if caller != "__main__":
             return super().__call__(*args, **kwargs)
-        _, t1, t2 = gc.get_threshold()
-        gc.set_threshold(max(GC_THRESHOLD0, gc.get_threshold()[0]), t1, t2)
+        t0, t1, t2 = gc.get_threshold()
+        gc.set_threshold(max(GC_THRESHOLD0, t0), t1, t2)
         try:
             return super().__call__(*args, **kwargs)
         except SystemExit as exc:
