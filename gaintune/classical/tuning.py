@@ -50,10 +50,6 @@ class ClassicalResult:
     pid: dict[str, IdealPid] = field(default_factory=dict)
 
 
-def _ss(A, B, C, D) -> StateSpace:
-    return StateSpace(np.asarray(A, float), np.asarray(B, float), np.asarray(C, float), np.asarray(D, float))
-
-
 def _with_input_delay(sys: StateSpace, delay: float) -> StateSpace:
     """Series of a Pade approximation of e^{-delay s} and ``sys`` (single input, any outputs)."""
     return with_input_delay(sys, delay, PADE_ORDER)
@@ -106,7 +102,7 @@ def _close(sys: StateSpace, m: int, K: StateSpace) -> StateSpace:
     Bcl = np.vstack([B * Ur, Bkr + Bky * dm * Ur]) if nk else B * Ur
     Ccl = np.hstack([C + D @ Ux, D @ Uc]) if nk else C + D @ Ux
     Dcl = D * Ur
-    return _ss(Acl, Bcl, Ccl, Dcl)
+    return StateSpace(Acl, Bcl, Ccl, Dcl)
 
 
 def _fixed_overrides(loop, gains: dict[str, float]) -> dict[str, float]:
@@ -143,7 +139,7 @@ def tune_classical(spec: TuningSpec, plant, method: str, params: dict[str, float
     directions = loop_directions(spec, plant)
     lin = plant.linearize(params)
     h2 = 0.5 * sample_time(spec)
-    sys = _ss(lin.A, lin.B, lin.C, lin.D)
+    sys = StateSpace(lin.A, lin.B, lin.C, lin.D)
     delay = float(lin.delay)
     res = ClassicalResult(gains={})
     for j in range(len(spec.loops) - 1, -1, -1):
@@ -152,7 +148,7 @@ def tune_classical(spec: TuningSpec, plant, method: str, params: dict[str, float
         if loop.is_lq:
             raise NoModelError(f"loops[{j}]", f"{loop.type} loop {name!r}: no classical rule (LQ loops are tuned by Riccati)")
         m = lin.output_index(loop.measure) if loop.measure else 0
-        siso = siso_minreal(_ss(sys.A, sys.B, sys.C[m : m + 1, :], sys.D[m : m + 1, :]))
+        siso = siso_minreal(StateSpace(sys.A, sys.B, sys.C[m : m + 1, :], sys.D[m : m + 1, :]))
         if method == "zn_ultimate":
             try:
                 Ku, Pu = ultimate_gain(siso, delay + h2)

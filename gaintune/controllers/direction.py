@@ -48,6 +48,7 @@ import numpy as np
 
 from gaintune.errors import SpecError
 from gaintune.spec import TuningSpec
+from gaintune.statespace import StateSpace
 
 __all__ = ["LoopDirection", "PathGain", "path_gain", "resolve_directions", "loop_directions", "MAX_CORNER_PARAMS"]
 
@@ -123,14 +124,10 @@ def path_gain(A: np.ndarray, b: np.ndarray, c: np.ndarray, d: float) -> PathGain
     n = A.shape[0]
     if n == 0:
         return PathGain(0, d, 0) if d != 0 else None
-    poles = np.linalg.eigvals(A)
-    M = np.block([[A, b[:, None]], [c[None, :], np.array([[d]])]])
-    N = np.zeros((n + 1, n + 1))
-    N[:n, :n] = np.eye(n)
+    path = StateSpace(A, b[:, None], c[None, :], [[d]])
+    poles = path.poles()
     with np.errstate(all="ignore"):
-        import scipy.linalg  # deferred: importing scipy.linalg costs ~0.2 s, and only this path needs it
-
-        zeros = scipy.linalg.eigvals(M, N)
+        zeros = path.zeros()  # the Rosenbrock pencil's finite generalized eigenvalues
     zeros = zeros[np.isfinite(zeros)]
     mags = np.abs(np.concatenate([poles, zeros]))
     scale = float(mags.max()) if mags.size and mags.max() > 0 else 1.0
