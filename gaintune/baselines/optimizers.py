@@ -39,6 +39,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from gaintune.cma import load_cma
+
 __all__ = ["OptResult", "BudgetExhausted", "Budgeted", "random_search", "cmaes_search", "de_search", "nelder_mead_search", "optimize", "OPTIMIZERS"]
 
 #: Cost substituted for non-finite costs inside the optimisers (ranks stay meaningful).
@@ -185,8 +187,7 @@ def cmaes_search(
 
     ``x0`` is a tuned-gain vector (default: the layout's initial point).
     """
-    from cmaes import CMA
-
+    CMA = load_cma()
     t0 = time.perf_counter()
     f = Budgeted(ev, budget)
     rng = np.random.default_rng(seed)

@@ -1,0 +1,46 @@
+"""gaintune.cma: cmaes imported without scipy.stats, the real CMA class, and scipy.stats still importable."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+
+def _run(code: str) -> dict:
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def test_load_cma_in_a_single_thread_skips_scipy_stats_and_leaves_it_importable() -> None:
+    code = ("import sys, json\nfrom gaintune.cma import load_cma\nC = load_cma()\n"
+            "skipped = 'scipy.stats' not in sys.modules\nimport cmaes\nsame = C is cmaes.CMA\n"
+            "import scipy.stats\nprint(json.dumps(dict(skipped=skipped, same=same, cdf=float(scipy.stats.norm.cdf(0.0)))))")
+    assert _run(code) == {"skipped": True, "same": True, "cdf": 0.5}
+
+
+def test_load_cma_with_another_thread_running_imports_cmaes_as_usual() -> None:
+    """Another thread might import scipy.stats in that moment: then nothing is hidden."""
+    code = ("import sys, json, threading\nev = threading.Event()\nt = threading.Thread(target=ev.wait)\nt.start()\n"
+            "from gaintune.cma import load_cma\nC = load_cma()\nloaded = 'scipy.stats' in sys.modules\nev.set()\nt.join()\n"
+            "print(json.dumps(dict(loaded=loaded)))")
+    assert _run(code) == {"loaded": True}
+
+
+def test_cma_from_load_cma_minimises_a_quadratic_like_cmaes() -> None:
+    from gaintune.cma import load_cma
+
+    CMA = load_cma()
+    opt = CMA(mean=np.array([1.0, -1.0]), sigma=0.5, seed=3)
+    for _ in range(60):
+        xs = [opt.ask() for _ in range(opt.population_size)]
+        opt.tell([(x, float(x @ x)) for x in xs])
+    assert np.linalg.norm(opt.mean) < 1e-3
+
+
+def test_the_tune_path_loads_no_scipy_stats() -> None:
+    """The polish's optimiser comes with gaintune.search.tune, without scipy.stats (~0.3 s)."""
+    code = "import sys, json\nimport gaintune.search.tune\nprint(json.dumps(dict(stats='scipy.stats' in sys.modules)))"
+    assert _run(code) == {"stats": False}
