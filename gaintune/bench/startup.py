@@ -9,7 +9,11 @@ numba's compile cache. The table gives the median and the minimum wall time, and
 machine's load average before and after is printed beside it (the machine is shared: compare
 figures taken side by side). Targets (issue 13): ``gaintune --help`` <= 0.3 s,
 ``import gaintune.verify`` <= 0.4 s, ``gaintune verify`` of a PI loop <= 0.8 s, ``gaintune tune``
-of a PI loop at 3,000 simulations <= 3 s. Where the time goes: docs/benchmarks.md, "Start-up".
+of a PI loop at 3,000 simulations <= 3 s. Three more rows show what that last figure is made of:
+the same tune without ``--out`` (no report or exports written), a 100-simulation tune (the cost
+every tune pays before its search: imports, rules, search box, verification, report) and
+``import stable_baselines3`` (the chosen learner and torch, on their own). Where the time goes:
+docs/benchmarks.md, "Start-up".
 
 ``--before DIR`` measures an older checkout beside this one, interleaved in the same run (e.g.
 ``git worktree add /tmp/before <rev>``): both run as ``python -m gaintune`` with ``PYTHONPATH``
@@ -47,8 +51,9 @@ def commands(folder: Path, module: bool = False) -> dict[str, list[str]]:
 
     ``module``: run the CLI as ``python -m gaintune`` (the tree on ``PYTHONPATH`` answers) instead
     of the installed ``gaintune`` script."""
-    spec, gains = folder / "pi.json", folder / "gains.json"
+    spec, small, gains = folder / "pi.json", folder / "pi_100.json", folder / "gains.json"
     spec.write_text(json.dumps(SPEC))
+    small.write_text(json.dumps({**SPEC, "search": {**SPEC["search"], "budget": 100}}))
     gains.write_text(json.dumps(GAINS))
     py = sys.executable
     script = shutil.which("gaintune") or str(Path(sys.executable).with_name("gaintune"))
@@ -59,6 +64,12 @@ def commands(folder: Path, module: bool = False) -> dict[str, list[str]]:
         "import gaintune.verify": [py, "-c", "import gaintune.verify"],
         "gaintune verify (PI loop)": [*exe, "verify", str(spec), "--gains", str(gains)],
         "gaintune tune (PI loop, 3,000 sims)": [*exe, "tune", str(spec), "--out", str(folder / "out")],
+        # what the 3,000-sim figure is made of: the same tune without writing files (no report), a
+        # 100-sim tune (imports, rules, search box, verification, report: the cost of any tune) and
+        # the import of the chosen learner (torch + stable-baselines3) on its own
+        "gaintune tune (PI loop, 3,000 sims, no --out)": [*exe, "tune", str(spec)],
+        "gaintune tune (PI loop, 100 sims)": [*exe, "tune", str(small), "--out", str(folder / "out_100")],
+        "import stable_baselines3": [py, "-c", "import stable_baselines3"],
     }
 
 

@@ -29,6 +29,17 @@ def test_module_commands_run_the_cli_of_the_tree_on_the_path(tmp_path: Path) -> 
     assert json.loads((tmp_path / "pi.json").read_text()) == startup.SPEC
 
 
+def test_the_tune_rows_break_the_figure_down(tmp_path: Path) -> None:
+    """Beside the 3,000-sim tune: the same without files, a 100-sim tune, and the learner's import."""
+    cmds = startup.commands(tmp_path)
+    assert "--out" in cmds["gaintune tune (PI loop, 3,000 sims)"]
+    assert cmds["gaintune tune (PI loop, 3,000 sims, no --out)"][-2:] == ["tune", str(tmp_path / "pi.json")]
+    small = json.loads((tmp_path / "pi_100.json").read_text())
+    assert small["search"] == {**startup.SPEC["search"], "budget": 100} and small["plant"] == startup.SPEC["plant"]
+    assert str(tmp_path / "pi_100.json") in cmds["gaintune tune (PI loop, 100 sims)"]
+    assert cmds["import stable_baselines3"][1:] == ["-c", "import stable_baselines3"]
+
+
 def test_before_and_after_rows_side_by_side(tmp_path: Path, monkeypatch) -> None:
     before = tmp_path / "before"
     (before / "gaintune").mkdir(parents=True)
