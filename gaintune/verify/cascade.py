@@ -134,11 +134,14 @@ class Cascade:
         for lp in self.loops:
             if lp.kind == "pid":
                 Kp, Ki, Kd, Tf = (a[:, None] for a in (lp.Kp, lp.Ki, lp.Kd, lp.Tf))
-                I = Ki * inv_s if lp.has_i else 0.0
-                Dd = Kd * deriv(Tf) if lp.has_d else 0.0
-                C = Kp + I + Dd
-                F = lp.b * Kp + I + lp.c * Dd
-                m = -C * P[None, :, lp.out_idx]
+                C, F = Kp, lp.b * Kp  # absent terms are skipped, not added as zeros: each is a (B, W) op
+                if lp.has_i:
+                    I = Ki * inv_s
+                    C, F = C + I, F + I
+                if lp.has_d:
+                    Dd = Kd * deriv(Tf)
+                    C, F = C + Dd, F + lp.c * Dd
+                m = C * -P[None, :, lp.out_idx]  # = -C * P, negating the (W,) factor
             else:
                 KX = lp.K @ X.T  # (B, W)
                 I = lp.Kint[:, None] * inv_s if lp.has_i else 0.0
@@ -182,23 +185,26 @@ class Cascade:
     def cascade(self, resp, W: int, inner: bool = False):
         """The break-point loops (n_loops + 1, B, W) from the per-loop (F_k, m_k, C_k).
 
-        ``inner``: return ``(L, H)`` with ``H[k]`` (r_k -> u, loops k..n-1 closed; ``H[n] = 1``)."""
+        ``inner``: return ``(L, H)`` with ``H[k]`` (r_k -> u, loops k..n-1 closed; ``H[n] = 1``) for
+        k >= 1 (``H[0]`` is None)."""
         n = len(self.loops)
         g = []
         prev = np.zeros((self.batch, W), dtype=complex)
-        for F, m, _ in resp:
-            prev = F * prev + m
+        for F, m, _ in resp:  # in place where it saves a (B, W) temporary; the same operations
+            prev = F * prev
+            prev += m
             g.append(prev)
-        H = [None] * (n + 1)
+        H = [None] * (n + 1)  # H[0] (all loops closed, r_0 -> u) is no break point's: not computed
         H[n] = np.ones((self.batch, W), dtype=complex)
         with np.errstate(divide="ignore", invalid="ignore"):
-            for k in range(n - 1, -1, -1):
+            for k in range(n - 1, 0, -1):
                 F, m, _ = resp[k]
                 H[k] = H[k + 1] * F / (1.0 - H[k + 1] * m)
             L = np.empty((n + 1, self.batch, W), dtype=complex)
             for i in range(n):
-                L[i] = -g[i] * H[i + 1]
-        L[n] = -g[n - 1]
+                np.negative(g[i], out=L[i])
+                L[i] *= H[i + 1]
+        np.negative(g[n - 1], out=L[n])
         return (L, H) if inner else L
 
     # -------------------------------------------------------- state space

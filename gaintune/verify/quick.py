@@ -144,16 +144,18 @@ def quick_margins(
         dly = pade_response(s, T, order)
     else:
         dly = np.ones_like(s)
-    R, B = len(cas.loops) + 1, full.shape[0]
+    # The innermost loop's output is the plant input u, so the loop broken there and at the plant
+    # input is one loop: its row is analysed once and reported for both break points (below, `tr`).
+    R, B = len(cas.loops), full.shape[0]
     with np.errstate(all="ignore"):
         if "mks" in peaks:
-            Lall, Nall = cas.loop_responses(s, lin, dly, sampled=sp, noise=True)  # (R, B, W+1), (R-1, B, W+1)
+            Lall, Nall = cas.loop_responses(s, lin, dly, sampled=sp, noise=True)  # (R+1, B, W+1), (R, B, W+1)
             mks = _parabolic_peak(np.abs(Nall[..., :-1]))
             mks[[lp.kind != "pid" for lp in cas.loops]] = np.nan
         else:
             Lall = cas.loop_responses(s, lin, dly, sampled=sp)
-            mks = np.full((R - 1, B), np.nan)
-        L, L0 = Lall[..., :-1], Lall[..., -1]
+            mks = np.full((R, B), np.nan)
+        L, L0 = Lall[:R, :, :-1], Lall[:R, :, -1]
         if sp is not None:
             L[..., -1] = L[..., -1].real  # real at z = -1: an end point, like w = 0
         aL = np.abs(L)
@@ -201,13 +203,14 @@ def quick_margins(
             Ln = L[..., -1].real
             ny_cross = np.isfinite(Ln) & (Ln < 0) & (-Ln > 1.0 / _GM_CAP) & (-Ln < _GM_CAP)
             gm_b = np.minimum(gm_b, np.where(ny_cross, np.abs(20.0 * np.log10(np.abs(Ln))), np.inf))
-    tr = lambda x: np.moveaxis(x, 0, -1)  # (R, B) -> (B, R)
+    tr = lambda x: np.moveaxis(np.concatenate([x, x[-1:]]), 0, -1)  # (R, B) -> (B, R + 1): the plant input last
+    tr_loops = lambda x: np.moveaxis(x, 0, -1)  # (R, B) -> (B, R), per loop (mks)
     if not stability:  # the caller checks stability elsewhere (gaintune.repair's final check)
-        return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), tr(mks), tr(wc_b), np.ones(B, dtype=bool),
+        return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), tr_loops(mks), tr(wc_b), np.ones(B, dtype=bool),
                             np.full(B, -np.inf), w, cas.break_names)
     if sp is not None:  # closed-loop stability of the sampled loop: |z| < 1
         stable, max_re = sampled_stability(cas, lin, sp, float(w[0]))
-        return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), tr(mks), tr(wc_b), stable, max_re, w, cas.break_names)
+        return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), tr_loops(mks), tr(wc_b), stable, max_re, w, cas.break_names)
     # closed-loop stability: batched eigenvalues (delay as Padé)
     w_char = w[-1] / 300.0  # fastest characteristic frequency of the loop (see _grid)
     pade = (T, order or (6 if T * w_char > 0.05 else 2)) if T > 0 else None
@@ -225,7 +228,7 @@ def quick_margins(
     max_re = np.where(finite, ev.real.max(axis=-1) if ev.shape[-1] else -np.inf, np.inf)
     scale = np.maximum(1.0, np.abs(ev).max(axis=-1) if ev.shape[-1] else 1.0)
     stable = (max_re < -1e-12 * scale) & (not extra_unstable)
-    return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), tr(mks), tr(wc_b), stable, max_re, w, cas.break_names)
+    return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), tr_loops(mks), tr(wc_b), stable, max_re, w, cas.break_names)
 
 
 def noise_limit_array(spec: TuningSpec, plant: Plant) -> np.ndarray:
