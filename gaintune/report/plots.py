@@ -36,6 +36,9 @@ def _plt():
         "axes.spines.top": False,
         "axes.spines.right": False,
         "figure.dpi": 100,
+        # A fixed title height. The automatic one measures every tick label at each draw to keep the
+        # title clear of labels on top, which no figure here has (same output, ~0.1 s per report).
+        "axes.titley": 1.0,
     })
     return plt
 
