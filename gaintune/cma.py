@@ -7,7 +7,8 @@ cost ~0.3 s of every ``gaintune tune`` (``python -X importtime``). gaintune uses
 :class:`cmaes.CMA`, which needs neither, so the first import of ``cmaes`` hides
 ``scipy.stats`` for its duration. It does so only while the process runs a single Python
 thread, so that no other thread can be importing ``scipy.stats`` in that moment; otherwise
-``cmaes`` is imported as usual. Later imports of ``scipy.stats`` work as usual.
+``cmaes`` is imported as usual, as it is again should the hidden import fail (a release that
+needs ``scipy.stats``). Later imports of ``scipy.stats`` work as usual.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ def load_cma() -> type[CMA]:
         sys.modules["scipy.stats"] = None  # type: ignore[assignment]  # `from scipy import stats` raises ImportError
         try:
             import cmaes  # noqa: F401
+        except ImportError:  # a cmaes that needs scipy.stats after all: imported as usual below
+            pass
         finally:
             if "scipy.stats" in sys.modules and sys.modules["scipy.stats"] is None:
                 del sys.modules["scipy.stats"]

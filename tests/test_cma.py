@@ -44,3 +44,12 @@ def test_the_tune_path_loads_no_scipy_stats() -> None:
     """The polish's optimiser comes with gaintune.search.tune, without scipy.stats (~0.3 s)."""
     code = "import sys, json\nimport gaintune.search.tune\nprint(json.dumps(dict(stats='scipy.stats' in sys.modules)))"
     assert _run(code) == {"stats": False}
+
+
+def test_a_cmaes_that_needs_scipy_stats_is_imported_as_usual(tmp_path) -> None:
+    """Should a cmaes release import scipy.stats unguarded, the hidden import fails and is retried."""
+    (tmp_path / "cmaes").mkdir()
+    (tmp_path / "cmaes" / "__init__.py").write_text("from scipy import stats\nclass CMA:\n    norm = stats.norm\n")
+    code = (f"import sys, json\nsys.path.insert(0, {str(tmp_path)!r})\nfrom gaintune.cma import load_cma\n"
+            "C = load_cma()\nprint(json.dumps(dict(ok=float(C.norm.cdf(0.0)) == 0.5, mod=C.__module__)))")
+    assert _run(code) == {"ok": True, "mod": "cmaes"}

@@ -105,7 +105,6 @@ class EagerAdam(torch.optim.Adam):
         finally:
             torch.set_grad_enabled(prev)
 
-
     def _flat_step(self) -> bool:
         """Adam's update on one flat buffer per moment; False (nothing done) outside the plain case.
 
