@@ -26,6 +26,7 @@ import numpy as np
 import torch
 from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import VecEnv
 
@@ -97,7 +98,18 @@ def make_agent(
         # SB3 gives its default Adam eps=1e-5 (ActorCriticPolicy); keep that for the subclass.
         policy_kwargs.setdefault("optimizer_kwargs", {"eps": 1e-5})
         kw["policy_kwargs"] = {**policy_kwargs, "optimizer_class": eager}
-    return cls("MlpPolicy", env, seed=seed, verbose=0, device="cpu", **kw)
+    return _silenced(cls("MlpPolicy", env, seed=seed, verbose=0, device="cpu", **kw))
+
+
+def _silenced(agent: BaseAlgorithm) -> BaseAlgorithm:
+    """Give ``agent`` a logger that writes nowhere.
+
+    Without one, ``learn()`` builds SB3's default logger, which creates an empty ``SB3-<date>``
+    folder in the temp directory on every call, even at ``verbose=0``. gaintune reads nothing
+    from that logger.
+    """
+    agent.set_logger(Logger(folder=None, output_formats=[]))
+    return agent
 
 
 def load_agent(path: str | Path, env: VecEnv | None = None) -> BaseAlgorithm:
@@ -107,7 +119,9 @@ def load_agent(path: str | Path, env: VecEnv | None = None) -> BaseAlgorithm:
     errors = []
     for name, cls in ALGOS.items():
         try:
-            return cls.load(path, env=env, device="cpu")
+            agent = cls.load(path, env=env, device="cpu")
         except Exception as exc:  # SB3 raises various errors for a mismatched algorithm class
             errors.append(f"{name}: {type(exc).__name__}")
+        else:
+            return _silenced(agent)
     raise ValueError(f"cannot load agent {path}: " + "; ".join(errors))

@@ -85,6 +85,18 @@ def test_save_load_and_warm_start_round_trip(tuned):
     assert off["loop0"]["Kp"] == pytest.approx(result.policy_gains["loop0"]["Kp"], rel=1e-5)
 
 
+def test_sb3_temp_folder_litter_tune_and_warm_start_create_no_folder(tuned, tmp_path, monkeypatch):
+    """Bug: every learn() made an empty SB3-<date> folder in the temp directory (3,734 found)."""
+    import tempfile
+
+    _, _, out = tuned
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    fresh = tune(_spec(budget=200), verify=False)
+    warm = tune(_spec(budget=200), warm_start=out / "agent.zip", verify=False)
+    assert fresh.rl_sims > 0 and warm.rl_sims > 0  # both agents learned
+    assert [p.name for p in tmp_path.iterdir()] == []
+
+
 def test_seeded_search_is_reproducible():
     a = tune(_spec(budget=200, refine=False), verify=False)
     b = tune(_spec(budget=200, refine=False), verify=False)
