@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 
 
 def test_public_names_import_from_the_top_level():
@@ -15,8 +13,8 @@ def test_public_names_import_from_the_top_level():
     assert callable(tune) and TuneResult.__name__ == "TuneResult" and "numpy" in versions()
 
 
-def test_verify_and_results_do_not_import_torch():
-    code = ("import sys; from gaintune import load_spec, verify, TuneResult, VerificationReport; "
-            "import gaintune.verify.cascade, gaintune.verify.analysis; print('torch' in sys.modules, 'stable_baselines3' in sys.modules)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
-    assert out == ["False", "False"]
+def test_verify_and_results_do_not_import_torch(fresh_python):
+    code = ("import sys, json; from gaintune import load_spec, verify, TuneResult, VerificationReport; "
+            "import gaintune.verify.cascade, gaintune.verify.analysis; "
+            "print(json.dumps(['torch' in sys.modules, 'stable_baselines3' in sys.modules]))")
+    assert fresh_python(code) == [False, False]

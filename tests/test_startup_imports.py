@@ -4,8 +4,6 @@ checks which heavy packages the path loaded (``gaintune bench startup`` measures
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -18,25 +16,29 @@ SPEC = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"
 GAINS = {"loop0": {"Kp": 1.14, "Ki": 0.454}}
 
 
-def loaded(code: str, heavy: tuple[str, ...]) -> list[str]:
-    """The packages of ``heavy`` that are in ``sys.modules`` after running ``code`` in a fresh interpreter."""
-    probe = f"{code}\nimport sys, json\nprint(json.dumps([m for m in {list(heavy)!r} if m in sys.modules]))"
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True, timeout=300).stdout
-    return json.loads(out.strip().splitlines()[-1])
+@pytest.fixture(scope="module")
+def loaded(fresh_python):
+    """``loaded(code, heavy)``: the packages of ``heavy`` in ``sys.modules`` after running ``code``
+    in a fresh interpreter."""
+
+    def probe(code: str, heavy: tuple[str, ...]) -> list[str]:
+        return fresh_python(f"{code}\nimport sys, json\nprint(json.dumps([m for m in {list(heavy)!r} if m in sys.modules]))")
+
+    return probe
 
 
-def test_import_verify_loads_no_simulator_search_or_report() -> None:
+def test_import_verify_loads_no_simulator_search_or_report(loaded) -> None:
     assert loaded("import gaintune.verify", SEARCH_AND_REPORT + ("numba",)) == []
 
 
-def test_cli_help_loads_no_science_stack() -> None:
+def test_cli_help_loads_no_science_stack(loaded) -> None:
     code = ("from typer.testing import CliRunner\nfrom gaintune.cli import app\n"
             "assert CliRunner().invoke(app, ['--help']).exit_code == 0")
     heavy = SEARCH_AND_REPORT + ("numba", "scipy", "pydantic", "gaintune.spec", "gaintune.verify", "rich.console")
     assert loaded(code, heavy) == []
 
 
-def test_cli_verify_of_an_lti_loop_loads_neither_search_nor_report(tmp_path: Path) -> None:
+def test_cli_verify_of_an_lti_loop_loads_neither_search_nor_report(loaded, tmp_path: Path) -> None:
     """``gaintune verify`` simulates (numba) but needs no torch, python-control, matplotlib, casadi or rich."""
     spec = tmp_path / "pi.json"
     spec.write_text(json.dumps(SPEC))
@@ -54,7 +56,7 @@ PI = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}]
 
 
 @pytest.mark.parametrize("spec", [PI, CASCADE], ids=["pi", "delayed_cascade"])
-def test_classical_rules_load_neither_python_control_nor_scipy_signal(spec: dict) -> None:
+def test_classical_rules_load_neither_python_control_nor_scipy_signal(loaded, spec: dict) -> None:
     """Rule candidates (FOTD fits, ultimate gain, closed inner loops) use gaintune.statespace, not python-control (~1 s)."""
     code = ("import gaintune\nfrom gaintune.plants.plant import build_plant\n"
             "from gaintune.classical import rule_candidates\n"
@@ -63,18 +65,18 @@ def test_classical_rules_load_neither_python_control_nor_scipy_signal(spec: dict
     assert loaded(code, ("control", "scipy.signal", "matplotlib")) == []
 
 
-def test_reading_and_exporting_a_result_loads_no_search_stack() -> None:
+def test_reading_and_exporting_a_result_loads_no_search_stack(loaded) -> None:
     code = "import gaintune.search, gaintune.search.result, gaintune.export"
     assert loaded(code, ("torch", "stable_baselines3", "gymnasium", "numba", "matplotlib", "casadi")) == []
 
 
 @pytest.mark.parametrize("module", ["gaintune.plants", "gaintune.sim.build", "gaintune.sim.kernel"])
-def test_lti_modules_do_not_import_casadi(module: str) -> None:
+def test_lti_modules_do_not_import_casadi(loaded, module: str) -> None:
     """casadi is imported when an ODE plant is built (symbolic right-hand side, tape), not before."""
     assert loaded(f"import {module}", ("casadi",)) == []
 
 
-def test_an_ode_plant_still_builds_and_tapes_with_casadi() -> None:
+def test_an_ode_plant_still_builds_and_tapes_with_casadi(loaded) -> None:
     code = ("from gaintune.plants.library import load_model\nfrom gaintune.spec import load_spec\n"
             "from gaintune.plants import build_plant\nfrom gaintune.sim.tape import make_tape, OPS\n"
             "p = build_plant(load_spec(load_model('water_tank').example_spec()).plant)\n"

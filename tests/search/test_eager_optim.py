@@ -3,10 +3,7 @@ and its weights and the tuned gains are bit-identical to torch's stock Adam path
 
 from __future__ import annotations
 
-import json
 import os
-import subprocess
-import sys
 
 #: A short PPO tune, then training continued from its saved agent (loading restores the optimizer
 #: state); prints both answers, a digest of each saved policy and whether torch._dynamo was imported.
@@ -35,15 +32,8 @@ print(json.dumps(out))
 """
 
 
-def _run(stock: bool) -> dict:
-    env = dict(os.environ, GAINTUNE_TORCH_DYNAMO="1" if stock else "0")
-    out = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True, env=env, check=True,
-                         timeout=600).stdout
-    return json.loads(out.strip().splitlines()[-1])
-
-
-def test_eager_adam_trains_bit_identically_without_loading_dynamo() -> None:
-    fast, stock = _run(stock=False), _run(stock=True)
+def test_eager_adam_trains_bit_identically_without_loading_dynamo(fresh_python) -> None:
+    fast, stock = (fresh_python(PROBE, env=dict(os.environ, GAINTUNE_TORCH_DYNAMO=flag), timeout=600) for flag in "01")
     assert not fast["dynamo"] and stock["dynamo"]
     assert [opt for _, opt in fast["agents"]] == ["EagerAdam", "EagerAdam"]
     assert [opt for _, opt in stock["agents"]] == ["Adam", "Adam"]
