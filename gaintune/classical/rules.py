@@ -254,11 +254,19 @@ FOTD_RULES: dict[str, Callable[[Fotd, str], IdealPid]] = {
 # -------------------------------------------------------- ultimate gain
 
 
+#: Finer grids laid inside the -180 degree bracket by :func:`ultimate_gain`, and their points.
+ZOOM_PASSES = 3
+ZOOM_POINTS = 33
+
+
 def ultimate_gain(sys, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, float]:
     """Ultimate gain Ku and period Pu of a SISO path with an exact delay e^{-j w delay}.
 
     The phase of G(jw) e^{-jw delay} is unwrapped on a log grid from low
-    frequency; the first -180 degree crossing is refined with Brent's method.
+    frequency; the first -180 degree crossing is refined by :data:`ZOOM_PASSES` finer grids
+    inside its bracket and a final linear interpolation (~1e-14 relative: the bracket shrinks
+    ~30,000-fold, and the phase is smooth across it). No root finder is imported: scipy.optimize
+    (with scipy.sparse) cost 0.14 s of every tune's start for this one crossing.
 
     ``sys`` is a SISO state space (:class:`gaintune.statespace.StateSpace`, python-control's, or
     a python-control transfer function), ``delay`` the path's dead time in seconds.
@@ -272,8 +280,6 @@ def ultimate_gain(sys, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, f
         When the phase never reaches -180 degrees (Ku infinite) or the low-frequency gain
         is negative after that (open-loop unstable paths).
     """
-    from scipy.optimize import brentq
-
     from gaintune.controllers.direction import path_gain
 
     sys = as_state_space(sys)
@@ -307,10 +313,19 @@ def ultimate_gain(sys, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, f
     w1 = w[k - 1]
     g1 = g[k - 1]
 
-    def phase(x: float) -> float:
-        return ph[k - 1] + float(np.angle(resp(x)[0] / g1)) - (x - w1) * delay + np.pi
+    def phase(x: np.ndarray) -> np.ndarray:
+        """Phase + pi at ``x`` inside the bracket (continuous from ``w1``: the bracket is narrow)."""
+        return ph[k - 1] + np.angle(resp(x) / g1) - (x - w1) * delay + np.pi
 
-    wu = brentq(phase, w[k - 1], w[k], xtol=1e-12 * w[k], rtol=1e-12)
+    lo_w, hi_w = float(w[k - 1]), float(w[k])
+    f_lo, f_hi = float(ph[k - 1] + np.pi), float(ph[k] + np.pi)
+    for _ in range(ZOOM_PASSES):
+        x = np.linspace(lo_w, hi_w, ZOOM_POINTS)
+        f = phase(x)
+        f[0], f[-1] = f_lo, f_hi  # the bracket's ends keep their values: the crossing stays inside
+        j = int(np.argmax(f <= 0.0))
+        lo_w, hi_w, f_lo, f_hi = float(x[j - 1]), float(x[j]), float(f[j - 1]), float(f[j])
+    wu = lo_w + f_lo * (hi_w - lo_w) / (f_lo - f_hi) if f_lo != f_hi else hi_w
     Ku = 1.0 / abs(resp(wu)[0])
     return float(Ku), float(2.0 * np.pi / wu)
 

@@ -218,6 +218,25 @@ def test_ultimate_gain_known_cases():
         R.ultimate_gain(control.ss(1 / (s + 1) ** 2))
 
 
+@pytest.mark.parametrize("g, delay", [
+    (1 / (s + 1) ** 3, 0.0), (1 / (s + 1), 1.0), (1 / (s * (s + 1)), 0.3), ((1 - 0.5 * s) / (s + 1) ** 2, 0.0),
+    (4 / ((s + 1) * (s**2 + 0.4 * s + 4)), 0.0), (1 / (10 * s + 1), 0.05), (1 / ((s + 1) * (0.01 * s + 1)), 2.0),
+], ids=["lag3", "fotd", "integrating", "nmp", "oscillatory", "fast_delay", "long_delay"])
+def test_ultimate_gain_matches_a_brent_root_of_the_phase(g, delay):
+    """The crossing refined on finer grids (no scipy.optimize import) is the root Brent's method finds to 1e-12."""
+    from scipy.optimize import brentq
+
+    Ku, Pu = R.ultimate_gain(control.ss(g), delay=delay)
+    wu = 2 * math.pi / Pu
+
+    def phase(w):  # angle of -G(jw)e^{-jw delay}: 0 where the loop is negative real, no wrap near it
+        return float(np.angle(-control.evalfr(g, 1j * w) * np.exp(-1j * w * delay)))
+
+    ref = brentq(phase, 0.95 * wu, 1.05 * wu, xtol=1e-14, rtol=1e-14)
+    assert wu == pytest.approx(ref, rel=1e-11)
+    assert Ku == pytest.approx(1 / abs(control.evalfr(g, 1j * ref)), rel=1e-10)
+
+
 def test_rule_output_in_loop_form():
     spec = load_spec({**PID3, "loops": [{"type": "pid", "form": "ideal"}]})
     g = R.to_loop_gains(R.IdealPid(2.0, 4.0, 0.5), spec.loops[0])
