@@ -9,10 +9,12 @@ numba's compile cache. The table gives the median and the minimum wall time, and
 machine's load average before and after is printed beside it (the machine is shared: compare
 figures taken side by side). Targets (issue 13): ``gaintune --help`` <= 0.3 s,
 ``import gaintune.verify`` <= 0.4 s, ``gaintune verify`` of a PI loop <= 0.8 s, ``gaintune tune``
-of a PI loop at 3,000 simulations <= 3 s. Three more rows show what that last figure is made of:
+of a PI loop at 3,000 simulations <= 3 s. Four more rows show what that last figure is made of:
 the same tune without ``--out`` (no report or exports written), a 100-simulation tune (the cost
-every tune pays before its search: imports, rules, search box, verification, report) and
-``import stable_baselines3`` (the chosen learner and torch, on their own). Where the time goes:
+every tune pays before its search: imports, rules, search box, verification, report),
+``import stable_baselines3`` (the chosen learner and torch, on their own) and the learner's floor:
+gaintune's PPO trained for the tune's 800 gradient steps on idle environments (:data:`LEARNER_FLOOR`),
+which no change outside the learner's defaults can take below. Where the time goes:
 docs/benchmarks.md, "Start-up".
 
 ``--before DIR`` measures an older checkout beside this one, interleaved in the same run (e.g.
@@ -45,6 +47,28 @@ SPEC = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"
         "scenario": {"dt": 0.05, "horizon": 20}, "search": {"budget": 3000, "seed": 0}}
 GAINS = {"loop0": {"Kp": 1.14, "Ki": 0.454}}
 
+#: The learner's share of the 3,000-sim tune on its own, in a fresh process: torch and SB3 imported,
+#: gaintune's PPO (default hyper-parameters, ``EagerAdam``) built on 32 do-nothing environments
+#: shaped like the PI problem's (1 observation, 2 gains) and trained for the 80 updates of 10
+#: gradient steps that the tune runs (its RL budget is 2,592 simulations: 81 batches of 32, and the
+#: last batch ends the search before an update). No plant, simulation, repair or verification: any
+#: 3,000-sim PPO tune with these defaults costs at least this plus numba's start (see the verify rows).
+LEARNER_FLOOR = """
+import numpy as np, gymnasium as gym
+from stable_baselines3.common.vec_env import DummyVecEnv
+from gaintune.search.agents import make_agent
+class Idle(gym.Env):
+    observation_space = gym.spaces.Box(-5.0, 5.0, (1,), np.float32)
+    action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    def reset(self, seed=None, options=None):
+        return np.zeros(1, np.float32), {}
+    def step(self, action):
+        return np.zeros(1, np.float32), -float(np.sum(np.square(action))), True, False, {}
+agent = make_agent("ppo", DummyVecEnv([Idle] * 32), 0, 2560)
+agent.learn(total_timesteps=2560)
+assert agent._n_updates == 800, agent._n_updates
+"""
+
 
 def commands(folder: Path, module: bool = False) -> dict[str, list[str]]:
     """name -> argv of every measured command (files written into ``folder``).
@@ -70,6 +94,7 @@ def commands(folder: Path, module: bool = False) -> dict[str, list[str]]:
         "gaintune tune (PI loop, 3,000 sims, no --out)": [*exe, "tune", str(spec)],
         "gaintune tune (PI loop, 100 sims)": [*exe, "tune", str(small), "--out", str(folder / "out_100")],
         "import stable_baselines3": [py, "-c", "import stable_baselines3"],
+        "PPO alone: 800 updates on idle envs": [py, "-c", LEARNER_FLOOR],
     }
 
 

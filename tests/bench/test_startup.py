@@ -38,6 +38,12 @@ def test_the_tune_rows_break_the_figure_down(tmp_path: Path) -> None:
     assert small["search"] == {**startup.SPEC["search"], "budget": 100} and small["plant"] == startup.SPEC["plant"]
     assert str(tmp_path / "pi_100.json") in cmds["gaintune tune (PI loop, 100 sims)"]
     assert cmds["import stable_baselines3"][1:] == ["-c", "import stable_baselines3"]
+    assert cmds["PPO alone: 800 updates on idle envs"][1:] == ["-c", startup.LEARNER_FLOOR]
+
+
+def test_the_learner_floor_row_runs_the_tunes_800_updates() -> None:
+    """The floor script trains gaintune's PPO for exactly the PI tune's 800 gradient steps (it asserts so)."""
+    subprocess.run([sys.executable, "-c", startup.LEARNER_FLOOR], check=True, timeout=300)
 
 
 def test_before_and_after_rows_side_by_side(tmp_path: Path, monkeypatch) -> None:
