@@ -71,6 +71,9 @@ FUNCTIONS: dict[str, tuple[Callable[..., Any], Callable[..., Any]]] = {
     "if_else": (_Casadi("if_else"), lambda c, a, b: a if c else b),
 }
 CONSTANTS = {"pi": math.pi, "e": math.e}
+#: Argument counts that differ from 1. Checked at parse time so every evaluator (casadi, float,
+#: polynomial) rejects a wrong count the same way instead of failing inside casadi or Python.
+ARITY: dict[str, int] = {"atan2": 2, "min": 2, "max": 2, "if_else": 3}
 
 _BINOPS = (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow, ast.BitXor)
 _CMPOPS = (ast.Lt, ast.LtE, ast.Gt, ast.GtE)
@@ -122,6 +125,10 @@ def _check(node: ast.AST, field: str, depth: int) -> None:
             )
         if node.keywords:
             raise SpecError(field, "keyword arguments are not allowed")
+        name, want = node.func.id, ARITY.get(node.func.id, 1)
+        if len(node.args) != want:
+            plural = "argument" if want == 1 else "arguments"
+            raise SpecError(field, f"{name}() takes {want} {plural}, got {len(node.args)}")
         for arg in node.args:
             _check(arg, field, depth + 1)
         return
@@ -180,7 +187,7 @@ def _evaluate(node: ast.expr, env: Mapping[str, Any], funcs: Mapping[str, Callab
     args = [_evaluate(a, env, funcs, field) for a in node.args]
     try:
         return funcs[node.func.id](*args)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, NotImplementedError) as exc:  # NotImplementedError: casadi's bad-type error
         raise SpecError(field, f"bad call {node.func.id}(...): {exc}") from None
 
 
@@ -189,7 +196,13 @@ def _power(a: Any, b: Any, field: str) -> Any:
         if isinstance(b, float) and b.is_integer() and 0 <= b <= 40:
             return a ** int(b)
         raise SpecError(field, "a polynomial in s can only be raised to a whole power 0..40")
-    return a**b
+    out = a**b
+    # Python turns a negative float to a fractional power into a complex number; models are real.
+    if isinstance(out, complex):
+        raise SpecError(
+            field, f"value is complex, not real: ({a:g})^{b:g} is a negative number to a fractional power; give a real value"
+        )
+    return out
 
 
 def to_casadi(text: str, symbols: Mapping[str, Any], field: str = "expression") -> ca.SX:
@@ -197,7 +210,11 @@ def to_casadi(text: str, symbols: Mapping[str, Any], field: str = "expression") 
     import casadi as ca  # deferred (see _Casadi)
 
     funcs = {k: v[0] for k, v in FUNCTIONS.items()}
-    return ca.SX(_evaluate(parse(text, field), symbols, funcs, field))
+    try:
+        # Constant sub-expressions (1/0, 0^-1, 10^400) are evaluated with Python floats here too.
+        return ca.SX(_evaluate(parse(text, field), symbols, funcs, field))
+    except (ZeroDivisionError, OverflowError) as exc:
+        raise SpecError(field, f"cannot evaluate {text!r}: {exc}") from None
 
 
 def to_float(value: float | str, env: Mapping[str, float], field: str = "expression") -> float:

@@ -223,24 +223,49 @@ def _build_ode(ode: OdeSpec, params: dict[str, float]):
     return f, h
 
 
+def _solve_u0(plant: Plant, ode: OdeSpec, x0: np.ndarray, pv: np.ndarray) -> float:
+    """Solve f(x0, u, p) = 0 for u in the least-squares sense (the operating input)."""
+    from scipy.optimize import least_squares  # deferred: only ODE plants without u0 need it (~0.15 s)
+
+    def residual(u: float) -> np.ndarray:
+        return np.asarray(plant.f(x0, u, pv), dtype=float).ravel()
+
+    # least_squares starts from u = 0 and raises a bare ValueError if the model is not finite there
+    # (log(0), sqrt(-1), overflow): name the state and the fix instead.
+    start = residual(0.0)
+    if not np.all(np.isfinite(start)):
+        i = int(np.flatnonzero(~np.isfinite(start))[0])
+        raise SpecError(
+            "plant.ode.x0",
+            f"the model is not finite at x0 = {dict(zip(ode.states, x0.tolist()))} with u = 0 "
+            f"(d{ode.states[i]}/dt = {start[i]}); give an x0 inside the model's domain, or set u0",
+        )
+    with np.errstate(invalid="ignore", over="ignore"):  # finite-difference steps may leave the domain
+        res = least_squares(lambda u: residual(u[0]), x0=[0.0])
+    u0 = float(res.x[0])
+    # 'not <=' also rejects NaN (the solver can wander out of the model's domain).
+    if not np.linalg.norm(residual(u0)) <= 1e-6 * (1 + np.abs(x0).sum()):
+        raise SpecError(
+            "plant.ode.x0", "x0 is not an equilibrium for any constant input; give an equilibrium x0 or set u0"
+        )
+    return u0
+
+
 def _linearize_ode(plant: Plant, p: dict[str, float]) -> LinearModel:
     ode = plant.spec.ode
     assert ode is not None and plant.f is not None and plant.h is not None
     pv = plant.param_vector(p)
     n = plant.order
     x0 = np.array([expr.to_float(ode.x0.get(s, 0.0), p, f"plant.ode.x0.{s}") for s in ode.states])
+    for s, v in zip(ode.states, x0):
+        if not np.isfinite(v):
+            raise SpecError(f"plant.ode.x0.{s}", f"must be a finite number, got {v}")
     if ode.u0 is not None:
         u0 = expr.to_float(ode.u0, p, "plant.ode.u0")
+        if not np.isfinite(u0):
+            raise SpecError("plant.ode.u0", f"must be a finite number, got {u0}")
     else:
-        # Solve f(x0, u, p) = 0 for u in the least-squares sense (the operating input).
-        from scipy.optimize import least_squares  # deferred: only ODE plants without u0 need it (~0.15 s)
-
-        res = least_squares(lambda u: np.asarray(plant.f(x0, u[0], pv)).ravel(), x0=[0.0])
-        u0 = float(res.x[0])
-        if np.linalg.norm(np.asarray(plant.f(x0, u0, pv))) > 1e-6 * (1 + np.abs(x0).sum()):
-            raise SpecError(
-                "plant.ode.x0", "x0 is not an equilibrium for any constant input; give an equilibrium x0 or set u0"
-            )
+        u0 = _solve_u0(plant, ode, x0, pv)
     import casadi as ca  # deferred (see _build_ode)
 
     xs, us, ps = ca.SX.sym("x", n), ca.SX.sym("u"), ca.SX.sym("p", len(pv))
