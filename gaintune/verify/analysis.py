@@ -14,7 +14,7 @@ figure or the stability count (the tail, with the bounds of :mod:`gaintune.verif
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -37,6 +37,18 @@ class Analysis:
     figures: list[BreakFigures]
     stability: Stability
     omega_range: tuple[float, float]
+    #: Why the figures cannot be trusted (the loop response overflowed on the grid); empty when fine.
+    problems: list[str] = field(default_factory=list)
+
+
+def _overflow_problems(L: np.ndarray) -> list[str]:
+    """A non-finite L on the grid (absurd gains or plant coefficients) makes every margin figure
+    unreliable: crossings and peaks may be missed, so the margins are not certified."""
+    bad = int(np.count_nonzero(~np.isfinite(L)))
+    if not bad:
+        return []
+    return [f"margins not computable: the loop response overflows (non-finite) at {bad} of {L.size} grid points; "
+            "gains or plant coefficients too large to analyse"]
 
 
 def sampling_delay(spec: TuningSpec) -> float:
@@ -145,7 +157,7 @@ def _analyse_sampled(cas: Cascade, lin: LinearModel, sp: SampledPlant, n_freq: i
     L[:, -1] = Lend
     figs = all_margins(ev, w, L, aL, cas, L0, Lend)
     stab = closed_loop_stability_sampled(ev, cas, lin, sp, max(400, n_freq // 2))
-    return Analysis(figs, stab, (float(w[0]), float(w[-1])))
+    return Analysis(figs, stab, (float(w[0]), float(w[-1])), _overflow_problems(L))
 
 
 #: Band widenings tried (x10 each) when the tail above the band cannot be proven harmless.
@@ -205,8 +217,8 @@ def analyse(cas: Cascade, lin: LinearModel, delay: DelayModel | None, n_freq: in
             continue
         stab = closed_loop_stability(ev, cas, lin, delay, cap, n_ap, capped=True, g_u=g_u)
         if stab is not None:
-            return Analysis(figs, stab, (float(w[0]), float(w[-1])))
+            return Analysis(figs, stab, (float(w[0]), float(w[-1])), _overflow_problems(L))
     w, L, aL = _grid(ev, lo, hi, n_freq)
     figs = all_margins(ev, w, L, aL, cas, L0)
     stab = closed_loop_stability(ev, cas, lin, delay, float(w[-1]), n_ap)
-    return Analysis(figs, stab, (float(w[0]), float(w[-1])))
+    return Analysis(figs, stab, (float(w[0]), float(w[-1])), _overflow_problems(L))

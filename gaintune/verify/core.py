@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -12,7 +13,7 @@ from gaintune.controllers.layout import GainLayout
 from gaintune.errors import GainError
 from gaintune.plants.noise_limit import noise_limits
 from gaintune.plants.plant import Plant, build_plant
-from gaintune.spec import TuningSpec
+from gaintune.spec import TuningSpec, load_spec
 from gaintune.verify.analysis import Analysis, analyse, sampling_delay
 from gaintune.verify.cascade import build_cascade
 from gaintune.verify.context import spec_context
@@ -173,9 +174,10 @@ def analysis_band(spec: TuningSpec) -> float:
 
 
 def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis, nominal_mks, sampled: SampledPlant | None = None
-            ) -> tuple[RobustReport, list[WorstCase]]:
-    """Worst figures over the robust samples. ``sampled``: the nominal sampled plant (its dt,
-    computation delay and method are applied to every sample); else the continuous analysis
+            ) -> tuple[RobustReport, list[WorstCase], int]:
+    """Worst figures over the robust samples, and how many samples could not be analysed (their
+    loop response overflowed: figures not trustworthy). ``sampled``: the nominal sampled plant (its
+    dt, computation delay and method are applied to every sample); else the continuous analysis
     with ``t_s`` of extra delay."""
     samples, n_corners, n_mc = robust_samples(spec)
     dt = analysis_dt(spec)
@@ -187,6 +189,7 @@ def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis, nominal_mks, samp
     mks_worst: list[tuple[float | None, dict]] = [(nominal_mks[r][0] if r < n_loops else None, {"nominal": 1.0})
                                                   for r in range(R)]
     unstable: list[dict[str, float]] = []
+    n_bad = 0
     for smp in samples:
         params = {k: v for k, v in smp.items() if k != DELAY_KEY}
         lin = plant.linearize(params)
@@ -198,6 +201,7 @@ def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis, nominal_mks, samp
             a = analyse(cas, lin, DelayModel(tau + t_s, spec.verify.pade_order), spec.verify.n_freq, analysis_band(spec))
         if not a.stability.stable:
             unstable.append(dict(smp))
+        n_bad += bool(a.problems or a.stability.uncertain)
         mks = noise_peaks(cas, lin, a.omega_range, DelayModel(tau + t_s) if sampled is None else None,
                           sp if sampled is not None else None)
         for r, (v, _) in enumerate(mks):
@@ -222,7 +226,7 @@ def _robust(spec, plant, cas, lin_nom, t_s, nominal: Analysis, nominal_mks, samp
         n_unstable=len(unstable), unstable_samples=[{("delay" if k == DELAY_KEY else k): v for k, v in u.items()} for u in unstable[:20]],
         worst=wc,
     )
-    return rep, wc
+    return rep, wc, n_bad
 
 
 def _requirement_lines(spec: TuningSpec, loops: list[LoopFigures], worst: list[WorstCase] | None) -> list[RequirementLine]:
@@ -275,7 +279,7 @@ def _noise_line(loops: list[LoopFigures], worst: list[WorstCase] | None) -> Requ
 
 
 def verify(
-    spec: TuningSpec,
+    spec: TuningSpec | dict[str, Any] | str | Path,
     gains: Any,
     *,
     robust: bool | None = None,
@@ -297,7 +301,8 @@ def verify(
     Parameters
     ----------
     spec
-        The tuning problem.
+        The tuning problem: a :class:`TuningSpec`, or anything :func:`gaintune.spec.load_spec` takes
+        (a dict, a YAML/JSON file path or text).
     gains
         ``{loop: {gain: value}}``, or a vector of all gains (layout order) or of the tuned gains only.
     robust
@@ -318,8 +323,12 @@ def verify(
     ------
     GainError
         For NaN, non-positive, missing/unknown gains or a wrong count.
+    SpecError, pydantic.ValidationError
+        For a spec that is not a valid :class:`TuningSpec` (the message names the field).
     """
     t0 = time.perf_counter()
+    if not isinstance(spec, TuningSpec):
+        spec = load_spec(spec)
     ctx = spec_context(spec, plant, layout, spec_hash=spec_hash) if cache else None
     if ctx is not None:
         plant, layout, lin = ctx.plant, ctx.layout, ctx.lin
@@ -363,19 +372,25 @@ def verify(
         if limits[i].note:
             notes.append(f"{loops[i].loop}: {limits[i].note}")
     stab = _stability_model(nom)
-    if not stab.stable:
+    if nom.stability.uncertain:
+        reasons.append(f"closed-loop stability not certified: {nom.stability.uncertain}")
+    elif not stab.stable:
         where = "|z| >= 1" if stab.domain == "z" else "Re >= 0"
         reasons.append(f"closed loop unstable: {stab.rhp_count} pole(s) with {where} ({stab.method})")
+    reasons.extend(nom.problems)
     rob = None
     worst = None
     if robust is None:
         robust = bool(spec.randomize.params or spec.randomize.delay)
     if robust:
-        rob, worst = _robust(spec, plant, cas, lin, t_s + vs.compute_delay * dt, nom, mks, sp)
+        rob, worst, n_bad = _robust(spec, plant, cas, lin, t_s + vs.compute_delay * dt, nom, mks, sp)
         if rob.n_samples == 0:
             notes.append("robust check requested but the spec randomises neither plant parameters nor the delay")
         if rob.n_unstable:
             reasons.append(f"robust: {rob.n_unstable} of {rob.n_samples} sampled plants give an unstable closed loop")
+        if n_bad:
+            reasons.append(f"robust: {n_bad} of {rob.n_samples} sampled plants could not be analysed (the loop "
+                           "overflows: gains or plant coefficients too large to analyse)")
     nl = None
     if nonlinear:
         nl = nonlinear_check(spec, plant, layout, full, sim=ctx.simulator(spec) if ctx is not None else None,

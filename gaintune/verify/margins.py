@@ -125,7 +125,8 @@ def disk_from_alpha(alpha: float) -> tuple[float, float]:
     gmin = (1 - 0.5 * alpha) / (1 + 0.5 * alpha)
     gmax = (1 + 0.5 * alpha) / (1 - 0.5 * alpha) if alpha != 2 else math.inf
     with np.errstate(all="ignore"):
-        dgm = 20 * np.log10(np.minimum(1 / gmin, gmax))
+        # alpha == 2 (S ~ 0 everywhere, e.g. huge gains) rounds gmin to 0: infinite, not a ZeroDivisionError
+        dgm = 20 * np.log10(np.minimum(1 / gmin if gmin != 0 else math.inf, gmax))
     dgm = math.inf if (np.isnan(dgm) or alpha >= 2) else float(dgm)
     if np.isinf(gmax):
         dpm = 90.0

@@ -38,6 +38,7 @@ from __future__ import annotations
 import math
 import numpy as np
 
+from gaintune.errors import SpecError
 from gaintune.plants.plant import LinearModel
 
 __all__ = ["SampledPlant", "sample_plant", "zoh_delay", "rk4_matrices", "discrete_ops"]
@@ -195,6 +196,19 @@ class SampledPlant:
 _CACHE: dict[tuple, tuple[LinearModel, SampledPlant]] = {}
 
 
+def _check_finite(sp: SampledPlant, A: np.ndarray) -> None:
+    """Raise SpecError when the sampled plant overflowed (plant time scales absurd for dt, or dt
+    for the plant): no figure of such a loop could be trusted."""
+    if all(np.all(np.isfinite(M)) for M in (sp.Ad, sp.G0, sp.G1, sp.C, sp.D)):
+        return
+    with np.errstate(all="ignore"):
+        a = float(np.max(np.abs(A))) if A.size else 1.0
+    # blame whichever of the plant's rate |A| and dt is further from ordinary scales
+    field = "plant" if not math.isfinite(a) or abs(math.log10(max(a, 1e-320))) >= abs(math.log10(sp.dt)) else "scenario.dt"
+    raise SpecError(field, f"the plant sampled at dt = {sp.dt:.3g} s (the largest scenario dt) is not finite "
+                           f"(plant matrix entries up to {a:.3g}): plant coefficients or dt out of any usable range")
+
+
 def sample_plant(lin: LinearModel, dt: float, compute_delay: int = 0, nonlinear: bool = False,
                  delay: float | None = None) -> SampledPlant:
     """The sampled plant of ``lin`` at ``dt`` (memoised per model object, dt, delays and method).
@@ -221,6 +235,7 @@ def sample_plant(lin: LinearModel, dt: float, compute_delay: int = 0, nonlinear:
             d = int(math.floor(delay / dt + 1e-9))
             Ad, G0, G1, frac = np.zeros((0, 0)), np.zeros(0), np.zeros(0), 0.0
         sp = SampledPlant(lin, dt, Ad, G0, G1, d + c, frac, d + c, "zoh", c, delay)
+    _check_finite(sp, A)
     if len(_CACHE) > 512:
         _CACHE.clear()
     _CACHE[key] = (lin, sp)

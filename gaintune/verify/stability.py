@@ -49,6 +49,26 @@ class Stability:
     #: "s": continuous poles; "z": poles of the sampled loop (max_real_pole is then ln(max|z|)/dt)
     domain: str = "s"
     spectral_radius: float | None = None
+    #: Why stability could not be decided (non-finite closed loop or count: absurd gains or plant
+    #: coefficients); ``stable`` is then False. None when decided.
+    uncertain: str | None = None
+
+
+#: The reason given when overflow leaves the closed loop undecidable.
+_OVERFLOW = "the closed loop overflows (non-finite matrix, poles or Nyquist count): gains or plant coefficients too large to analyse"
+
+
+def _eigvals_finite(A: np.ndarray) -> np.ndarray | None:
+    """Eigenvalues of A, or None when A or its eigenvalues are not finite (overflow: nothing can be certified)."""
+    if not A.size:
+        return np.zeros(0, dtype=complex)
+    if not np.all(np.isfinite(A)):
+        return None
+    try:
+        poles = np.linalg.eigvals(A)
+    except np.linalg.LinAlgError:
+        return None
+    return poles if np.all(np.isfinite(poles)) else None
 
 
 _OBS_CACHE: dict[tuple, tuple[LinearModel, LinearModel, np.ndarray]] = {}
@@ -146,6 +166,8 @@ def _argument_principle(ev: Evaluator, ol_poles: np.ndarray, w_hi: float, eps: f
     total = d_ol.sum() + d_one_plus_L
     n = ol_poles.size
     z_real = (n * np.pi / 2 - total) / np.pi
+    if not math.isfinite(z_real):  # L overflowed on the contour: no count
+        return None, math.inf, False, float(np.abs(far - 1.0))
     z = int(round(z_real))
     return z, abs(z_real - z), tail_ok, float(np.abs(far - 1.0))
 
@@ -166,6 +188,8 @@ def _discrete_nyquist(ev: Evaluator, ol_z: np.ndarray, eps: float, n_freq: int):
     turns = (ang[-1] - ang[0]) / np.pi  # full turns of 1 + L_u around the closed contour
     p_out = int(np.sum(np.abs(ol_z) >= rho))
     z_real = p_out - turns
+    if not math.isfinite(z_real):  # L overflowed on the contour (or |z| = rho rounded to 1): no count
+        return None, math.inf
     z = int(round(z_real))
     return z, abs(z_real - z)
 
@@ -201,11 +225,12 @@ def closed_loop_stability(ev: Evaluator, cas: Cascade, lin: LinearModel, delay: 
     if meas is not None:
         lin, unobs = observable_part(lin, meas)
     A = cas.closed_loop_A(lin, pade)[0]
-    poles = np.linalg.eigvals(A) if A.size else np.zeros(0, dtype=complex)
+    eig = _eigvals_finite(A)
+    poles = eig if eig is not None else np.zeros(0, dtype=complex)
     scale = max(1.0, float(np.max(np.abs(poles))) if poles.size else 1.0)
     eps = 1e-7 * float(char_freqs(cas, lin, delay).min())
-    max_re = float(np.max(poles.real)) if poles.size else -math.inf
-    rhp_poles = int(np.sum(poles.real > -1e-12 * scale))
+    max_re = float(np.max(poles.real)) if poles.size else (-math.inf if eig is not None else math.nan)
+    rhp_poles = int(np.sum(poles.real > -1e-12 * scale)) if eig is not None else None
     ol = cas.open_loop_poles(lin, pade if not exact_delay else None)[0]
     proven = False
     if capped:
@@ -220,22 +245,31 @@ def closed_loop_stability(ev: Evaluator, cas: Cascade, lin: LinearModel, delay: 
     if exact_delay:
         method = "nyquist"
         rhp = nyq
-        if not tail_ok:
+        if nyq is None:
+            pass  # undecided: see below
+        elif not tail_ok:
             notes.append(f"|L(jw)| does not fall below 1 at high frequency (|L| -> {l_inf:.3g}): neutral delay loop, unstable")
             rhp = max(rhp, 1)
-        if frac_err > 0.25:
+        if frac_err > 0.25 and nyq is not None:
             notes.append("argument-principle count is not close to an integer; grid may be too coarse")
         poles_method = f"pade{pade[1]}" if pade else "exact"
     else:
         method = "poles"
         rhp = rhp_poles
         poles_method = "exact" if not has_delay else f"pade{delay.pade_order}"
-        if nyq != rhp_poles:
+        if nyq is None and rhp is not None:
+            notes.append("Nyquist count not computable (the loop response overflows); poles decide")
+        elif nyq != rhp_poles and rhp is not None:
             notes.append(f"Nyquist count ({nyq}) differs from the pole count ({rhp_poles}); poles decide")
+    uncertain = None
+    if rhp is None:  # overflow: nothing certified, so not stable
+        uncertain, rhp = _OVERFLOW, 1
+        notes.append(_OVERFLOW)
     if unobs.size:
         tol = 1e-9 * max(1.0, float(np.max(np.abs(plant_eigvals(lin_full)))))
         rhp += _unmeasured_modes(unobs[unobs.real > tol], unobs[np.abs(unobs.real) <= tol], notes)
-    return Stability(rhp == 0, method, int(rhp), int(nyq), poles, poles_method, max_re, notes)
+    return Stability(rhp == 0, method, int(rhp), None if nyq is None else int(nyq), poles, poles_method, max_re, notes,
+                     uncertain=uncertain)
 
 
 #: Largest closed-loop state dimension of a sampled loop whose eigenvalues are computed (a long
@@ -261,11 +295,14 @@ def closed_loop_stability_sampled(ev: Evaluator, cas: Cascade, lin: LinearModel,
     nyq, frac_err = _discrete_nyquist(ev, ol, eps, n_freq)
     if N <= EIG_MAX:
         A = cas.closed_loop_sampled(spr)[0]
-        poles = np.linalg.eigvals(A) if A.size else np.zeros(0, dtype=complex)
-        rad = float(np.max(np.abs(poles))) if poles.size else 0.0
-        rhp = int(np.sum(np.abs(poles) > 1.0 - 1e-10))
+        eig = _eigvals_finite(A)
+        poles = eig if eig is not None else np.zeros(0, dtype=complex)
+        rad = (float(np.max(np.abs(poles))) if poles.size else 0.0) if eig is not None else math.nan
+        rhp = int(np.sum(np.abs(poles) > 1.0 - 1e-10)) if eig is not None else None
         method, poles_method = "poles", "exact"
-        if nyq != rhp:
+        if nyq is None and rhp is not None:
+            notes.append("discrete Nyquist count not computable (the loop response overflows); poles decide")
+        elif nyq != rhp and rhp is not None:
             notes.append(f"discrete Nyquist count ({nyq}) differs from the pole count ({rhp}); poles decide")
     else:
         poles = np.zeros(0, dtype=complex)
@@ -274,15 +311,19 @@ def closed_loop_stability_sampled(ev: Evaluator, cas: Cascade, lin: LinearModel,
         method, poles_method = "nyquist", "none"
         notes.append(f"{N} closed-loop states (input buffer of {spr.buffer_len} samples): the discrete Nyquist "
                      "criterion decides; poles not listed")
-        if frac_err > 0.25:
+        if frac_err > 0.25 and nyq is not None:
             notes.append("discrete Nyquist count is not close to an integer; grid may be too coarse")
+    uncertain = None
+    if rhp is None:  # overflow: nothing certified, so not stable
+        uncertain, rhp = _OVERFLOW, 1
+        notes.append(_OVERFLOW)
     if unobs.size:
         zu = np.abs(sp.mode_factor(unobs))
         rhp += _unmeasured_modes(unobs[zu > 1.0 + 1e-9], unobs[np.abs(zu - 1.0) <= 1e-9], notes)
     with np.errstate(divide="ignore"):
         max_re = math.log(rad) / sp.dt if math.isfinite(rad) and rad > 0 else (-math.inf if rad == 0 else math.nan)
-    return Stability(rhp == 0, method, int(rhp), int(nyq), poles, poles_method, max_re, notes, "z",
-                     rad if math.isfinite(rad) else None)
+    return Stability(rhp == 0, method, int(rhp), None if nyq is None else int(nyq), poles, poles_method, max_re, notes,
+                     "z", rad if math.isfinite(rad) else None, uncertain)
 
 
 # --------------------------------------------------------------- batched (the quick estimate)
