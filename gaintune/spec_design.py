@@ -64,6 +64,19 @@ def _scenarios(d: DesignSpec) -> list[dict[str, Any]]:
     return [{**track, "weight": 0.5}, {**load, "weight": 0.5}]
 
 
+def _number(req: dict[str, Any], key: str) -> float | None:
+    """``req[key]`` as a float, None when absent; a ValueError naming the field when it is not a number."""
+    v = req.get(key)
+    if v is None:
+        return None
+    try:
+        if isinstance(v, bool) or not isinstance(v, (int, float, str)):
+            raise TypeError
+        return float(v)  # a numeric string passes, as the schema's lax mode would take it
+    except (TypeError, ValueError):
+        raise ValueError(f"requirements.{key} must be a number, got {v!r}") from None
+
+
 def expand_design(data: dict[str, Any]) -> dict[str, Any]:
     """Fill ``requirements.pm_min_deg`` (and ``wc_min``/``wc_max`` for a crossover) and, when absent,
     ``scenarios`` from ``data["design"]``.
@@ -76,19 +89,24 @@ def expand_design(data: dict[str, Any]) -> dict[str, Any]:
         return data
     d = raw if isinstance(raw, DesignSpec) else DesignSpec.model_validate(raw)
     out = dict(data)
-    req = dict(out.get("requirements") or {})
-    given = req.get("pm_min_deg")
-    if given is not None and abs(float(given) - d.phase_margin) > 1e-12:
+    raw_req = out.get("requirements")
+    if raw_req is not None and not isinstance(raw_req, (dict, BaseModel)):
+        return data  # not a mapping: the schema's own check names `requirements`
+    req = dict(raw_req or {})
+    given = _number(req, "pm_min_deg")
+    if given is not None and abs(given - d.phase_margin) > 1e-12:
         raise ValueError(f"requirements.pm_min_deg ({given}) and design.phase_margin ({d.phase_margin}) disagree; "
                          "give the phase margin once")
     req["pm_min_deg"] = d.phase_margin
     if d.crossover is not None:
-        if len(out.get("loops") or []) != 1:
+        loops = out.get("loops")
+        if isinstance(loops, (list, tuple)) and len(loops) != 1:
             raise ValueError("design.crossover applies to a single loop; for a cascade set requirements.wc_min "
                              "and requirements.wc_max instead")
         band = {"wc_min": d.crossover / (1.0 + d.crossover_tolerance), "wc_max": d.crossover * (1.0 + d.crossover_tolerance)}
         for k, v in band.items():  # a dumped spec carries both; they must agree
-            if req.get(k) is not None and abs(float(req[k]) - v) > 1e-12 * v:
+            given = _number(req, k)
+            if given is not None and abs(given - v) > 1e-12 * v:
                 raise ValueError(f"requirements.{k} ({req[k]}) and design.crossover ({d.crossover}) both set the "
                                  "crossover; give it once")
         req.update(band)

@@ -68,7 +68,7 @@ def render_markdown() -> str:
         "# Spec reference",
         "",
         "Generated from `gaintune/spec.py` by `python -m gaintune.spec_doc > docs/spec.md` (a test checks it is current).",
-        f"Limits: horizon/dt <= {S.MAX_STEPS} steps, plant order <= {S.MAX_ORDER}, cascade depth <= {S.MAX_LOOPS}.",
+        f"Limits: horizon/dt <= {S.MAX_STEPS} steps, delay/dt (plant.delay, the top of randomize.delay) <= {S.MAX_DELAY_STEPS} samples, plant order <= {S.MAX_ORDER}, cascade depth <= {S.MAX_LOOPS}.",
         "",
     ]
     for title, model in _SECTIONS:

@@ -29,7 +29,8 @@ import typer
 
 from gaintune.cli.bench import BENCH, bench_app  # noqa: F401 - BENCH: gaintune.cli.BENCH (tests)
 from gaintune.cli.common import (
-    EPILOG, EXIT_INPUT, EXIT_OK, EXIT_VERIFY, InputError, _command_line, apply_overrides, err, handle_errors, load_gains,
+    EPILOG, EXIT_INPUT, EXIT_OK, EXIT_VERIFY, InputError, _command_line, apply_overrides, check_out_dir, err, handle_errors,
+    load_gains, output_errors,
     load_result, load_spec_file, out,
 )
 from gaintune.cli.entry import GaintuneTyper
@@ -74,6 +75,8 @@ def tune(
 ) -> None:
     """Tune the gains of SPEC with RL, verify them and print a summary. Exit 3 if verification fails."""
     spec = apply_overrides(load_spec_file(spec_path), algo=algo, budget=budget, seed=seed, workers=workers)
+    if out_dir is not None:
+        check_out_dir(out_dir)
     command = _command_line("tune", spec_path, algo=algo, budget=budget, seed=spec.search.seed, workers=workers, baselines=baselines)
     result = _run_tune(_get_tune(), spec, out_dir=out_dir, json_out=json_out, baselines=baselines, command=command)
     _finish(result, out_dir=out_dir, json_out=json_out, command=command)
@@ -89,6 +92,7 @@ def demo(
 ) -> None:
     """Tune the built-in demo loop (PID on 1/(s+1)^3), verify it and write result, report and exports to --out."""
     spec = demo_spec(budget, seed)
+    check_out_dir(out_dir)
     command = _command_line("demo", budget=budget, seed=spec.search.seed)
     result = _run_tune(_get_tune(), spec, out_dir=out_dir, json_out=json_out, baselines=False, command=command)
     _finish(result, out_dir=out_dir, json_out=json_out, command=command)
@@ -156,7 +160,8 @@ def report(
     from gaintune.report import ReportError, render_pdf, render_report
 
     result = load_result(result_path)
-    path = render_report(result, output)
+    with output_errors(output):
+        path = render_report(result, output)
     out.print(f"wrote {path}")
     if pdf:
         try:
@@ -216,19 +221,28 @@ def export(
     if output is None:
         sys.stdout.write(text)
     else:
-        output.parent.mkdir(parents=True, exist_ok=True)
-        output.write_text(text)
+        with output_errors(output):
+            output.parent.mkdir(parents=True, exist_ok=True)
+            output.write_text(text)
         err.print(f"wrote {output}")
 
 
 @app.command()
 def serve(
     host: str = typer.Option("127.0.0.1", "--host"),
-    port: int = typer.Option(8000, "--port"),
-    workers: int = typer.Option(1, "--workers", help="Worker processes for tuning jobs."),
+    port: int = typer.Option(8000, "--port", min=0, max=65535),
+    workers: int = typer.Option(1, "--workers", min=0, max=64, help="Worker processes for tuning jobs (0: none)."),
 ) -> None:
     """Run the REST API (FastAPI app in api/)."""
+    import socket
+
     from gaintune.cli import entry
+
+    try:  # an unknown host otherwise surfaces as a logged traceback from the server's start-up
+        socket.getaddrinfo(host, port)
+    except (socket.gaierror, UnicodeError) as exc:
+        err.print(f"error: host: cannot resolve {host!r} ({exc}); give an address such as 127.0.0.1", markup=False)
+        raise typer.Exit(EXIT_INPUT) from None
 
     entry.FAST_EXIT = False  # a server's shutdown is not start-up time: the ordinary interpreter exit
     try:

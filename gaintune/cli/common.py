@@ -19,6 +19,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+import os
 import shlex
 from pathlib import Path
 from typing import Any, Callable
@@ -86,6 +87,9 @@ def _problem_lines(exc: BaseException) -> list[str]:
 
     if isinstance(exc, InputError):
         return [f"{exc.field}: {exc.message}"]
+    if isinstance(exc, OSError) and not isinstance(exc, (FileNotFoundError, IsADirectoryError)):
+        # a file the command reads or writes: full disk, no permission, a file where a folder goes
+        return [f"{exc.filename or 'file'}: {exc.strerror or exc}"]
     return [f"{d['loc']}: {d['msg']}" if d["loc"] else d["msg"] for d in problem_details(exc)]
 
 
@@ -95,7 +99,7 @@ def _input_errors() -> tuple[type[BaseException], ...]:
 
     from gaintune.errors import GaintuneError
 
-    return (InputError, GaintuneError, ValidationError, yaml.YAMLError, json.JSONDecodeError, FileNotFoundError, IsADirectoryError)
+    return (InputError, GaintuneError, ValidationError, yaml.YAMLError, json.JSONDecodeError, OSError)
 
 
 def handle_errors(fn: Callable) -> Callable:
@@ -119,6 +123,36 @@ def handle_errors(fn: Callable) -> Callable:
 
 
 # ----------------------------------------------------------------- inputs
+
+
+class output_errors:
+    """``with output_errors(path):`` an OSError while writing ``path`` becomes an :class:`InputError`
+    naming the ``--output`` option and the file (full disk, no permission, a file where a folder goes)."""
+
+    def __init__(self, path: Path, field: str = "output") -> None:
+        self.path, self.field = path, field
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, typ: Any, exc: Any, tb: Any) -> bool:
+        if isinstance(exc, OSError):
+            raise InputError(self.field, f"cannot write {self.path}: {exc.strerror or exc}") from None
+        return False
+
+
+def check_out_dir(path: Path, field: str = "out") -> None:
+    """Fail before any work when ``path`` cannot become an output folder (a file in the way, or read-only).
+
+    A tune writes its folder only at the end; without this check a file named like ``--out`` cost
+    the whole search before the command failed."""
+    for p in (path, *path.parents):
+        if p.exists():
+            if not p.is_dir():
+                raise InputError(field, f"{p} is a file, not a folder; give --out a folder path")
+            if not os.access(p, os.W_OK):
+                raise InputError(field, f"{p} is not writable; give --out a folder you can write to")
+            return
 
 
 def _read_file(path: Path, field: str) -> str:

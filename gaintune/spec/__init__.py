@@ -34,7 +34,7 @@ from typing import Any
 from pydantic import Field, model_validator
 
 from gaintune.errors import SpecError
-from gaintune.spec.base import MAX_LOOPS, MAX_ORDER, MAX_STEPS, _Model
+from gaintune.spec.base import MAX_DELAY_STEPS, MAX_LOOPS, MAX_ORDER, MAX_STEPS, _Model
 from gaintune.spec.loops import GAIN_NAMES, ActuatorSpec, DerivativeFilterSpec, GainSpec, LoopSpec
 from gaintune.spec.plant import (
     Coef,
@@ -52,6 +52,7 @@ from gaintune.spec_design import DesignSpec, expand_design
 __all__ = [
     "parse_json_or_yaml",
     "MAX_STEPS",
+    "MAX_DELAY_STEPS",
     "MAX_ORDER",
     "MAX_LOOPS",
     "Coef",
@@ -103,6 +104,17 @@ class TuningSpec(_Model):
 
     @model_validator(mode="before")
     @classmethod
+    def _valid_unicode(cls, data: Any) -> Any:
+        # JSON may carry a lone surrogate ("\ud800"): a valid Python str that no UTF-8 encoder
+        # accepts, so the spec's hash and every dump of it would fail far from the input.
+        bad = _lone_surrogate(data, "")
+        if bad is not None:
+            raise ValueError(f"{bad or 'spec'}: the text is not valid Unicode (a lone surrogate escape such as \\ud800); "
+                             "use plain UTF-8 text")
+        return data
+
+    @model_validator(mode="before")
+    @classmethod
     def _design_shortcut(cls, data: Any) -> Any:
         return expand_design(data) if isinstance(data, dict) else data
 
@@ -128,17 +140,60 @@ class TuningSpec(_Model):
         for i, loop in enumerate(self.loops):
             if loop.is_lq and i != len(self.loops) - 1:
                 raise ValueError(f"loops[{i}]: an {loop.type} loop must be the innermost (last) loop")
+        self._check_delay_steps()
         mks = self.requirements.mks_max
         if isinstance(mks, dict) and set(mks) - set(names):
             raise ValueError(f"requirements.mks_max names unknown loops {sorted(set(mks) - set(names))}; "
                              f"the loops are {names}")
         return self
 
+    def _check_delay_steps(self) -> None:
+        """A delay is held in a buffer of delay/dt samples per simulated lane: bound it like the horizon."""
+        dt = min((sc.dt for sc in self.scenarios), default=None)
+        if dt is None:
+            return
+        delays = []
+        try:  # a number, or an expression that is a plain number ("1e300"); parameter expressions are
+            # bounded where the plant is built (gaintune.sim.simulator)
+            delays.append(("plant.delay", float(self.plant.delay)))
+        except (TypeError, ValueError):
+            pass
+        if self.randomize.delay is not None:
+            delays.append(("randomize.delay", float(self.randomize.delay.box[1])))
+        for where, d in delays:
+            if d / dt > MAX_DELAY_STEPS:
+                raise ValueError(f"{where} = {d:g} s is {d / dt:.3g} samples at dt = {dt:g} s, over the limit of "
+                                 f"{MAX_DELAY_STEPS}; give a delay <= {MAX_DELAY_STEPS * dt:g} s or raise dt")
+
     def content_hash(self) -> str:
         """Stable SHA-256 of the canonical JSON of this spec (provenance)."""
         import hashlib
 
         return hashlib.sha256(self.model_dump_json().encode()).hexdigest()
+
+
+def _lone_surrogate(data: Any, path: str) -> str | None:
+    """The path of the first string (key or value) in ``data`` holding a lone surrogate, else None."""
+    if isinstance(data, str):
+        try:
+            data.encode("utf-8")
+        except UnicodeEncodeError:
+            return path
+        return None
+    if isinstance(data, dict):
+        for k, v in data.items():
+            sub = f"{path}.{k}" if path else str(k)
+            if isinstance(k, str) and _lone_surrogate(k, sub) is not None:
+                return sub
+            found = _lone_surrogate(v, sub)
+            if found is not None:
+                return found
+    elif isinstance(data, (list, tuple)):
+        for i, v in enumerate(data):
+            found = _lone_surrogate(v, f"{path}.{i}" if path else str(i))
+            if found is not None:
+                return found
+    return None
 
 
 def parse_json_or_yaml(text: str) -> Any:
@@ -150,14 +205,17 @@ def parse_json_or_yaml(text: str) -> Any:
         With the parser's message when the text is not valid (JSON's error is a ValueError; YAML's
         is re-raised as one).
     """
-    if text.lstrip().startswith(("{", "[")):
-        return json.loads(text)
-    import yaml  # deferred on purpose: JSON specs and gains (the API, tools, start-up) never need it
-
     try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ValueError(str(exc)) from None
+        if text.lstrip().startswith(("{", "[")):
+            return json.loads(text)
+        import yaml  # deferred on purpose: JSON specs and gains (the API, tools, start-up) never need it
+
+        try:
+            return yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise ValueError(str(exc)) from None
+    except RecursionError:
+        raise ValueError("nested too deeply (thousands of levels of lists or mappings)") from None
 
 
 def load_spec(source: str | Path | dict[str, Any]) -> TuningSpec:
@@ -172,6 +230,8 @@ def load_spec(source: str | Path | dict[str, Any]) -> TuningSpec:
     """
     if isinstance(source, dict):
         data = source
+    elif not isinstance(source, (str, Path)):
+        raise SpecError("spec", f"expected a file path, a YAML/JSON string or a dict, got {type(source).__name__}")
     else:
         text: str
         path = Path(source) if not (isinstance(source, str) and "\n" in source) else None
@@ -180,6 +240,8 @@ def load_spec(source: str | Path | dict[str, Any]) -> TuningSpec:
                 text = path.read_text()
             except OSError as exc:
                 raise SpecError("spec", f"cannot read {path}: {exc.strerror}") from None
+            except UnicodeDecodeError as exc:
+                raise SpecError("spec", f"cannot read {path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
         else:
             text = str(source)
         try:

@@ -12,10 +12,14 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict
 
-__all__ = ["MAX_STEPS", "MAX_ORDER", "MAX_LOOPS"]
+__all__ = ["MAX_STEPS", "MAX_DELAY_STEPS", "MAX_ORDER", "MAX_LOOPS"]
 
 #: Largest number of simulation steps (horizon / dt) in one scenario.
 MAX_STEPS = 200_000
+#: Largest plant delay in samples (delay / dt): the simulator holds that many past inputs per lane,
+#: 40 MB each at this limit (a 1e7 s delay at dt = 0.05 s took ~5 GB and 1e300 s overflowed). Larger
+#: than MAX_STEPS on purpose: a long delay sampled finely (5 s at dt = 1 us) is a valid verification.
+MAX_DELAY_STEPS = 5_000_000
 #: Largest plant state dimension accepted.
 MAX_ORDER = 20
 #: Deepest cascade accepted.

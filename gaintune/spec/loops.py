@@ -7,7 +7,7 @@ fixes the gain names of every PID type and form, and their order in the action l
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
@@ -94,6 +94,12 @@ class LoopSpec(_Model):
             "Bounds are magnitudes either way. Not for LQ loops."
         ),
     )
+
+    @field_validator("b", "c")
+    @classmethod
+    def _finite_weight(cls, v: float, info: Any) -> float:
+        # YAML's .inf passes ge=0; an infinite weight makes inf * 0 = NaN in the loop algebra
+        return _finite(v, info.field_name)
 
     @model_validator(mode="after")
     def _lq_direction(self) -> "LoopSpec":

@@ -139,7 +139,7 @@ class SearchSpec(_Model):
     env: Literal["oneshot", "iterative"] = Field("oneshot", description="Gains chosen in one action, or refined in steps.")
     budget: int = Field(3000, ge=10, description="Hard limit on closed-loop simulations.")
     wall_time: float | None = Field(None, gt=0, description="Wall-time limit in seconds.")
-    seed: int = 0
+    seed: int = Field(0, ge=0, le=2**32 - 1, description="Random seed of the search and the draws (0 .. 2^32 - 1, numpy's range).")
     n_envs: int = Field(32, ge=1, le=4096, description="Parallel environments, simulated in one batched call.")
     robust: RobustSpec = Field(default_factory=RobustSpec)
     early_stop_patience: int | None = Field(

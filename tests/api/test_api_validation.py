@@ -184,3 +184,36 @@ def test_extreme_gains_never_5xx(client, kp):
     for path in ("/v1/verify", "/v1/simulate"):
         r = client.post(path, json={"spec": SPEC, "gains": {"loop0": {"Kp": kp, "Ki": kp}}})
         assert r.status_code in (200, 422), (path, kp, r.text)
+
+
+# Found by a fuzzer (tenth session): each of these was an HTTP 500 on all three POST routes.
+FUZZ_500S = {
+    "design_with_list_requirements": ({**SPEC, "design": {"phase_margin": 60}, "requirements": [1, 2]}, "requirements"),
+    "design_with_list_pm_min_deg": ({**SPEC, "design": {"phase_margin": 60}, "requirements": {"pm_min_deg": [1]}},
+                                    "requirements.pm_min_deg"),
+    "design_crossover_with_int_loops": ({**SPEC, "design": {"crossover": 1.0}, "loops": 5}, "loops"),
+    "design_crossover_with_list_wc_min": ({**SPEC, "design": {"crossover": 1.0}, "requirements": {"wc_min": [1]}},
+                                          "requirements.wc_min"),
+    "seed_beyond_numpys_range": ({**SPEC, "search": {"seed": 2**70}}, "search.seed"),
+    "negative_seed": ({**SPEC, "search": {"seed": -5, "budget": 200}}, "search.seed"),
+    "delay_of_1e300_seconds": ({**SPEC, "plant": {**SPEC["plant"], "delay": 1e300}}, "plant.delay"),
+}
+
+
+@pytest.mark.parametrize("path", ["/v1/verify", "/v1/simulate", "/v1/tune"])
+@pytest.mark.parametrize("case", sorted(FUZZ_500S))
+def test_fuzzer_found_500s_are_422_naming_the_field(client, path: str, case: str) -> None:
+    spec, field = FUZZ_500S[case]
+    body = spec if path == "/v1/tune" else {"spec": spec, "gains": {"loop0": {"Kp": 1, "Ki": 0.5}}}
+    problem = assert_problem(client.post(path, json=body), 422)
+    assert field in json.dumps(problem["errors"]), problem
+
+
+@pytest.mark.parametrize("path", ["/v1/verify", "/v1/simulate", "/v1/tune"])
+def test_lone_surrogate_in_spec_is_422_not_500(client, path: str) -> None:
+    """JSON may carry "\\ud800": a valid Python str that no UTF-8 encoder takes (the spec hash raised)."""
+    spec = {**SPEC, "name": "SURROGATE"}
+    body = spec if path == "/v1/tune" else {"spec": spec, "gains": {"loop0": {"Kp": 1, "Ki": 0.5}}}
+    raw = json.dumps(body).replace('"SURROGATE"', '"\\ud800"').encode()
+    problem = assert_problem(client.post(path, content=raw, headers={"content-type": "application/json"}), 422)
+    assert "not valid Unicode" in json.dumps(problem["errors"]), problem
