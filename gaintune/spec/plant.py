@@ -82,6 +82,15 @@ class StateSpaceSpec(_Model):
     def _coefs(cls, v: Any) -> Any:
         return _check_coefs(v, "matrix entry")
 
+    @field_validator("outputs", "states")
+    @classmethod
+    def _unique_names(cls, v: list[str] | None, info: Any) -> list[str] | None:
+        # loops measure outputs and reports list states by name: a repeated name would merge two of them
+        if v is not None and len(set(v)) != len(v):
+            dup = sorted({n for n in v if v.count(n) > 1})
+            raise ValueError(f"{info.field_name} names must be unique, {dup} repeat")
+        return v
+
 
 class OdeSpec(_Model):
     """A nonlinear plant dx/dt = f(x, u, p), y = h(x, u, p) written as expressions."""
@@ -95,6 +104,8 @@ class OdeSpec(_Model):
 
     @model_validator(mode="after")
     def _rhs_matches_states(self) -> "OdeSpec":
+        if len(set(self.states)) != len(self.states):
+            raise ValueError(f"states names must be unique, {sorted({n for n in self.states if self.states.count(n) > 1})} repeat")
         missing = [s for s in self.states if s not in self.rhs]
         extra = [s for s in self.rhs if s not in self.states]
         if missing:

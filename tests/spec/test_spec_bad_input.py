@@ -92,3 +92,10 @@ def test_infinite_setpoint_weight_from_yaml_names_the_weight(weight: str) -> Non
     """YAML's .inf passed ``ge=0``; the verification then met inf * 0 = NaN (a NaN Nyquist count)."""
     _invalid(f"plant: {{tf: {{num: [1], den: [1, 1]}}}}\nloops: [{{type: pid, {weight}: .inf}}]\n",
              f"loops.0.{weight}", "must be finite")
+
+
+@pytest.mark.parametrize("field", ["outputs", "states"])
+def test_duplicate_state_space_names_are_rejected_not_merged(field: str) -> None:
+    """Two states or outputs of one name were accepted and merged in the report."""
+    ss = {"A": [[-1, 0], [0, -2]], "B": [[1], [1]], "C": [[1, 0], [0, 1]], field: ["a", "a"]}
+    _invalid({**BASE, "plant": {"ss": ss}}, f"plant.ss.{field}", "must be unique")
