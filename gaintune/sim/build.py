@@ -17,7 +17,7 @@ from gaintune.errors import GainError, SpecError
 from gaintune.plants.plant import LinearModel, Plant
 from gaintune.sim.draws import REF_KINDS, Draws
 from gaintune.sim.tape import Tape, make_tape
-from gaintune.spec import ProfileSpec, ScenarioSpec, TuningSpec
+from gaintune.spec import ProfileSpec, ScenarioSpec, TuningSpec, check_delay_samples
 
 __all__ = ["Problem", "discretize", "profile_pieces"]
 
@@ -128,6 +128,7 @@ class Problem:
         y_op = y_all[:, self.meas].T.copy()
         if np.any(draws.delay + 1e-12 < 0):
             raise SpecError("randomize.delay", "delays must be >= 0")
+        check_delay_samples(float(np.max(draws.delay, initial=0.0)), sc.dt)
         # Distinct (parameter row, delay) pairs are discretised once.
         keys = np.stack([inv.astype(float), draws.delay], axis=1)
         ukeys, kinv = np.unique(keys, axis=0, return_inverse=True)

@@ -34,7 +34,7 @@ from typing import Any
 from pydantic import Field, model_validator
 
 from gaintune.errors import SpecError
-from gaintune.spec.base import MAX_DELAY_STEPS, MAX_LOOPS, MAX_ORDER, MAX_STEPS, _Model
+from gaintune.spec.base import MAX_DELAY_STEPS, MAX_LOOPS, MAX_ORDER, MAX_STEPS, _Model, check_delay_samples
 from gaintune.spec.loops import GAIN_NAMES, ActuatorSpec, DerivativeFilterSpec, GainSpec, LoopSpec
 from gaintune.spec.plant import (
     Coef,
@@ -53,6 +53,7 @@ __all__ = [
     "parse_json_or_yaml",
     "MAX_STEPS",
     "MAX_DELAY_STEPS",
+    "check_delay_samples",
     "MAX_ORDER",
     "MAX_LOOPS",
     "Coef",

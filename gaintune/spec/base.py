@@ -12,7 +12,9 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict
 
-__all__ = ["MAX_STEPS", "MAX_DELAY_STEPS", "MAX_ORDER", "MAX_LOOPS"]
+from gaintune.errors import SpecError
+
+__all__ = ["MAX_STEPS", "MAX_DELAY_STEPS", "MAX_ORDER", "MAX_LOOPS", "check_delay_samples"]
 
 #: Largest number of simulation steps (horizon / dt) in one scenario.
 MAX_STEPS = 200_000
@@ -36,3 +38,12 @@ def _finite(v: Any, what: str) -> Any:
     if isinstance(v, float) and not math.isfinite(v):
         raise ValueError(f"{what} must be finite, got {v}; use a real number")
     return v
+
+
+def check_delay_samples(delay: float, dt: float) -> None:
+    """SpecError when ``delay`` is more than MAX_DELAY_STEPS samples of ``dt``: each simulated lane
+    holds that many past inputs. The spec bounds numeric delays when it loads; this catches one
+    written as a parameter expression (``delay: "T"`` with ``T: 1e300``) once it has a value."""
+    if not delay / dt <= MAX_DELAY_STEPS:
+        raise SpecError("plant.delay", f"the delay, {delay:g} s, is {delay / dt:.3g} samples at dt = {dt:g} s, over the "
+                                       f"limit of {MAX_DELAY_STEPS}; give a shorter delay or a larger dt")

@@ -40,6 +40,7 @@ import numpy as np
 
 from gaintune.errors import SpecError
 from gaintune.plants.plant import LinearModel
+from gaintune.spec import check_delay_samples
 
 __all__ = ["SampledPlant", "sample_plant", "zoh_delay", "rk4_matrices", "discrete_ops"]
 
@@ -222,6 +223,7 @@ def sample_plant(lin: LinearModel, dt: float, compute_delay: int = 0, nonlinear:
     hit = _CACHE.get(key)
     if hit is not None and hit[0] is lin:
         return hit[1]
+    check_delay_samples(delay, dt)
     A, B = lin.A, lin.B
     c = int(compute_delay)
     if nonlinear:

@@ -168,3 +168,20 @@ def test_verify_of_a_dict_or_a_spec_file_loads_it_instead_of_attribute_error(tmp
     assert verify(data, gains).verdict == want
     assert verify(str(path), gains).verdict == want
     assert verify(path, gains).verdict == want
+
+
+def test_delay_written_as_a_parameter_expression_is_bounded_where_it_gets_a_value() -> None:
+    """``delay: "T"`` with ``T: 1e300``: the spec cannot evaluate it, so the sampled plant (verify) and
+    the simulator's plant arrays check delay/dt against MAX_DELAY_STEPS (it overflowed a buffer size)."""
+    from gaintune import load_spec, verify
+    from gaintune.errors import SpecError
+    from gaintune.plants import build_plant
+    from gaintune.sim import Simulator
+
+    spec = load_spec({"plant": {"tf": {"num": [1], "den": [1, 1]}, "params": {"T": 1e300}, "delay": "T"},
+                      "loops": [{"type": "pi"}], "scenario": {"dt": 0.05, "horizon": 5}})
+    with pytest.raises(SpecError, match="plant.delay.*over the limit"):
+        verify(spec, {"loop0": {"Kp": 1.0, "Ki": 0.5}})
+    with pytest.raises(SpecError, match="plant.delay.*over the limit"):
+        sim = Simulator(spec, build_plant(spec.plant))
+        sim.run(sim.layout.from_dict({"loop0": {"Kp": 1.0, "Ki": 0.5}})[None, :])
