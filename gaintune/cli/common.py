@@ -16,13 +16,14 @@ import them from here.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import math
 import os
 import shlex
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import typer
 
@@ -125,20 +126,14 @@ def handle_errors(fn: Callable) -> Callable:
 # ----------------------------------------------------------------- inputs
 
 
-class output_errors:
+@contextlib.contextmanager
+def output_errors(path: Path, field: str = "output") -> Iterator[None]:
     """``with output_errors(path):`` an OSError while writing ``path`` becomes an :class:`InputError`
     naming the ``--output`` option and the file (full disk, no permission, a file where a folder goes)."""
-
-    def __init__(self, path: Path, field: str = "output") -> None:
-        self.path, self.field = path, field
-
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, typ: Any, exc: Any, tb: Any) -> bool:
-        if isinstance(exc, OSError):
-            raise InputError(self.field, f"cannot write {self.path}: {exc.strerror or exc}") from None
-        return False
+    try:
+        yield
+    except OSError as exc:
+        raise InputError(field, f"cannot write {path}: {exc.strerror or exc}") from None
 
 
 def check_out_dir(path: Path, field: str = "out") -> None:

@@ -162,9 +162,10 @@ class TuningSpec(_Model):
         if self.randomize.delay is not None:
             delays.append(("randomize.delay", float(self.randomize.delay.box[1])))
         for where, d in delays:
-            if d / dt > MAX_DELAY_STEPS:
-                raise ValueError(f"{where} = {d:g} s is {d / dt:.3g} samples at dt = {dt:g} s, over the limit of "
-                                 f"{MAX_DELAY_STEPS}; give a delay <= {MAX_DELAY_STEPS * dt:g} s or raise dt")
+            try:
+                check_delay_samples(d, dt, where)
+            except SpecError as exc:  # inside a validator pydantic wants a ValueError
+                raise ValueError(str(exc)) from None
 
     def content_hash(self) -> str:
         """Stable SHA-256 of the canonical JSON of this spec (provenance)."""

@@ -40,10 +40,10 @@ def _finite(v: Any, what: str) -> Any:
     return v
 
 
-def check_delay_samples(delay: float, dt: float) -> None:
+def check_delay_samples(delay: float, dt: float, field: str = "plant.delay") -> None:
     """SpecError when ``delay`` is more than MAX_DELAY_STEPS samples of ``dt``: each simulated lane
     holds that many past inputs. The spec bounds numeric delays when it loads; this catches one
     written as a parameter expression (``delay: "T"`` with ``T: 1e300``) once it has a value."""
     if not delay / dt <= MAX_DELAY_STEPS:
-        raise SpecError("plant.delay", f"the delay, {delay:g} s, is {delay / dt:.3g} samples at dt = {dt:g} s, over the "
-                                       f"limit of {MAX_DELAY_STEPS}; give a shorter delay or a larger dt")
+        raise SpecError(field, f"the delay, {delay:g} s, is {delay / dt:.3g} samples at dt = {dt:g} s, over the limit "
+                               f"of {MAX_DELAY_STEPS}; give a delay <= {MAX_DELAY_STEPS * dt:g} s or a larger dt")
