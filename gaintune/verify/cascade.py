@@ -52,14 +52,6 @@ from gaintune.verify.sampled import SampledPlant, discrete_ops
 __all__ = ["LoopCtl", "Cascade", "build_cascade", "controller_state_index", "pid_arrays"]
 
 
-def finite_or_zero(F: np.ndarray | complex | float) -> np.ndarray | complex | float:
-    """F with non-finite entries as 0 (F itself when finite: the same arithmetic). The outermost
-    loop's setpoint path F multiplies a zero (nothing is outside it): a huge setpoint weight must
-    not turn that into inf * 0 = NaN in every loop response."""
-    with np.errstate(invalid="ignore"):
-        return F if np.all(np.isfinite(F)) else np.where(np.isfinite(F), F, 0.0)
-
-
 def controller_state_index(loops, start: int) -> tuple[list[tuple[int | None, int | None]], int]:
     """State indices of each loop's integrator and derivative filter, numbered from ``start``.
 
@@ -197,10 +189,13 @@ class Cascade:
         k >= 1 (``H[0]`` is None)."""
         n = len(self.loops)
         g = []
-        prev = np.zeros((self.batch, W), dtype=complex)
-        for k, (F, m, _) in enumerate(resp):  # in place where it saves a (B, W) temporary; the same operations
-            prev = (F if k else finite_or_zero(F)) * prev
-            prev += m
+        for k, (F, m, _) in enumerate(resp):
+            if k:  # in place where it saves a (B, W) temporary
+                prev = F * prev
+                prev += m
+            else:  # nothing is outside the outermost loop: its setpoint path F would multiply zero
+                # (skipped: an F that overflowed, e.g. a huge setpoint weight, made inf * 0 = NaN)
+                prev = m
             g.append(prev)
         H = [None] * (n + 1)  # H[0] (all loops closed, r_0 -> u) is no break point's: not computed
         H[n] = np.ones((self.batch, W), dtype=complex)

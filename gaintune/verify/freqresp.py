@@ -18,7 +18,7 @@ import numpy as np
 
 from gaintune.lti import complex_schur, pade_response, plant_eigvals
 from gaintune.plants.plant import LinearModel
-from gaintune.verify.cascade import Cascade, finite_or_zero
+from gaintune.verify.cascade import Cascade
 from gaintune.verify.sampled import SampledPlant
 
 __all__ = ["DelayModel", "Evaluator", "char_freqs", "zoom_roots"]
@@ -214,7 +214,7 @@ class Evaluator:
         g = []
         prev = 0.0
         for k, (F, m) in enumerate(resp):
-            prev = (F if k else finite_or_zero(F)) * prev + m
+            prev = F * prev + m if k else m  # the outermost loop's F would multiply zero (see Cascade.cascade)
             g.append(prev)
         L = np.empty((nl + 1, s.size), dtype=complex)
         H = 1.0
