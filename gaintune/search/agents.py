@@ -40,6 +40,10 @@ __all__ = ["ALGOS", "agent_defaults", "make_agent", "load_agent"]
 # Changing the count per call rebuilds the pool, so it is set once, here.
 torch.set_num_threads(int(os.environ.get("GAINTUNE_TORCH_THREADS", "1")))
 
+#: Replay-buffer cap of the off-policy agents (SB3's own default size): a buffer holds every step
+#: of the search up to this, the oldest are overwritten beyond it.
+REPLAY_MAX = 1_000_000
+
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3, "a2c": A2C, "ddpg": DDPG}
 
 
@@ -58,7 +62,7 @@ def agent_defaults(algo: str, n_envs: int, dim: int, budget_steps: int) -> dict[
             policy_kwargs=dict(net_arch=dict(pi=net, vf=net), log_std_init=-1.0),
         )
     off = dict(
-        learning_rate=1e-3, buffer_size=max(budget_steps, 1000), learning_starts=min(4 * n_envs, 256),
+        learning_rate=1e-3, buffer_size=min(max(budget_steps, 1000), REPLAY_MAX), learning_starts=min(4 * n_envs, 256),
         batch_size=256, gamma=0.0, tau=0.05, train_freq=1, gradient_steps=max(1, n_envs // 4),
         policy_kwargs=dict(net_arch=net),
     )

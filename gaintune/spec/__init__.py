@@ -18,7 +18,7 @@ and :func:`load_spec` and re-exports every public name, so ``from gaintune.spec 
 is the one import path:
 
 * :mod:`gaintune.spec.base`: the strict base model, finiteness checks and the limits
-  (:data:`MAX_STEPS`, :data:`MAX_ORDER`, :data:`MAX_LOOPS`);
+  (:data:`MAX_STEPS`, :data:`MAX_DELAY_STEPS`, :data:`MAX_ORDER`, :data:`MAX_LOOPS`, :data:`MAX_BUDGET`);
 * :mod:`gaintune.spec.plant`: ``plant`` (transfer function, state space, ODE, built-in model);
 * :mod:`gaintune.spec.loops`: ``loops`` (the cascade, gains, derivative filter) and ``actuator``;
 * :mod:`gaintune.spec.scenarios`: ``scenarios``, ``objective`` and ``requirements``;
@@ -34,7 +34,7 @@ from typing import Any
 from pydantic import Field, model_validator
 
 from gaintune.errors import SpecError
-from gaintune.spec.base import MAX_DELAY_STEPS, MAX_LOOPS, MAX_ORDER, MAX_STEPS, _Model, check_delay_samples
+from gaintune.spec.base import MAX_BUDGET, MAX_DELAY_STEPS, MAX_LOOPS, MAX_ORDER, MAX_STEPS, _Model, check_delay_samples
 from gaintune.spec.loops import GAIN_NAMES, ActuatorSpec, DerivativeFilterSpec, GainSpec, LoopSpec
 from gaintune.spec.plant import (
     Coef,
@@ -55,6 +55,7 @@ __all__ = [
     "MAX_DELAY_STEPS",
     "check_delay_samples",
     "MAX_ORDER",
+    "MAX_BUDGET",
     "MAX_LOOPS",
     "Coef",
     "TransferFunctionSpec",

@@ -14,7 +14,7 @@ from pydantic import BaseModel, ConfigDict
 
 from gaintune.errors import SpecError
 
-__all__ = ["MAX_STEPS", "MAX_DELAY_STEPS", "MAX_ORDER", "MAX_LOOPS", "check_delay_samples"]
+__all__ = ["MAX_STEPS", "MAX_DELAY_STEPS", "MAX_ORDER", "MAX_LOOPS", "MAX_BUDGET", "check_delay_samples"]
 
 #: Largest number of simulation steps (horizon / dt) in one scenario.
 MAX_STEPS = 200_000
@@ -26,6 +26,10 @@ MAX_DELAY_STEPS = 5_000_000
 MAX_ORDER = 20
 #: Deepest cascade accepted.
 MAX_LOOPS = 6
+#: Largest search budget (closed-loop simulations). Far beyond any useful search (a 3,000-sim tune
+#: takes seconds; this is hours), it keeps a mistyped budget (1e23) from training for ever and
+#: from sizing an off-policy agent's replay buffer in terabytes.
+MAX_BUDGET = 10_000_000
 
 
 class _Model(BaseModel):

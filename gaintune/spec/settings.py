@@ -13,7 +13,7 @@ from pydantic import Field, GetJsonSchemaHandler, model_validator
 from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import core_schema as cs
 
-from gaintune.spec.base import _finite, _Model
+from gaintune.spec.base import MAX_BUDGET, _finite, _Model
 
 __all__ = ["DistSpec", "RandomizeSpec", "SafetySpec", "RobustSpec", "SearchSpec", "VerifySpec"]
 
@@ -137,7 +137,10 @@ class SearchSpec(_Model):
 
     algo: Literal["ppo", "sac", "td3", "a2c", "ddpg"] = "ppo"
     env: Literal["oneshot", "iterative"] = Field("oneshot", description="Gains chosen in one action, or refined in steps.")
-    budget: int = Field(3000, ge=10, description="Hard limit on closed-loop simulations.")
+    budget: int = Field(
+        3000, ge=10, le=MAX_BUDGET,
+        description=f"Hard limit on closed-loop simulations (10 .. {MAX_BUDGET:,}; use wall_time for a time limit).",
+    )
     wall_time: float | None = Field(None, gt=0, description="Wall-time limit in seconds.")
     seed: int = Field(0, ge=0, le=2**32 - 1, description="Random seed of the search and the draws (0 .. 2^32 - 1, numpy's range).")
     n_envs: int = Field(32, ge=1, le=4096, description="Parallel environments, simulated in one batched call.")

@@ -137,3 +137,19 @@ def test_tune_never_loses_the_start_point():
     r = tune(spec)
     assert r.violation == 0 and bool(start.feasible[0])
     assert r.cost <= float(start.cost[0]) * (1 + 1e-9)
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3", "ddpg"])
+def test_off_policy_replay_buffer_is_capped_not_sized_by_a_huge_budget(algo):
+    # a 1e12-sim budget asked numpy for a 3.6 TiB replay buffer (MemoryError traceback)
+    import gymnasium as gym
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from gaintune.search.agents import REPLAY_MAX, make_agent
+
+    class Idle(gym.Env):
+        observation_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+        action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+    agent = make_agent(algo, DummyVecEnv([Idle] * 4), 0, 10**12)
+    assert agent.replay_buffer.buffer_size * agent.n_envs <= REPLAY_MAX

@@ -7,7 +7,7 @@ import pytest
 from pydantic import ValidationError
 
 from gaintune.errors import SpecError
-from gaintune.spec import MAX_DELAY_STEPS, load_spec
+from gaintune.spec import MAX_BUDGET, MAX_DELAY_STEPS, load_spec
 
 BASE = {"plant": {"tf": {"num": [1], "den": "(s+1)^2"}}, "loops": [{"type": "pi"}], "scenario": {"dt": 0.05, "horizon": 5}}
 
@@ -99,3 +99,10 @@ def test_duplicate_state_space_names_are_rejected_not_merged(field: str) -> None
     """Two states or outputs of one name were accepted and merged in the report."""
     ss = {"A": [[-1, 0], [0, -2]], "B": [[1], [1]], "C": [[1, 0], [0, 1]], field: ["a", "a"]}
     _invalid({**BASE, "plant": {"ss": ss}}, f"plant.ss.{field}", "must be unique")
+
+
+def test_budget_beyond_max_budget_is_refused_not_trained_for_ever() -> None:
+    # search.budget 1e23 was accepted: the search trained until killed, and SAC/TD3/DDPG sized their
+    # replay buffer from it (numpy asked for terabytes and raised a MemoryError traceback)
+    _invalid({**BASE, "search": {"budget": 10**23}}, "search.budget", "less than or equal to")
+    assert load_spec({**BASE, "search": {"budget": MAX_BUDGET}}).search.budget == MAX_BUDGET
