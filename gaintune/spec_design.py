@@ -31,7 +31,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 __all__ = ["DesignSpec", "expand_design"]
 
@@ -87,7 +87,10 @@ def expand_design(data: dict[str, Any]) -> dict[str, Any]:
     raw = data.get("design")
     if raw is None:
         return data
-    d = raw if isinstance(raw, DesignSpec) else DesignSpec.model_validate(raw)
+    try:
+        d = raw if isinstance(raw, DesignSpec) else DesignSpec.model_validate(raw)
+    except ValidationError:
+        return data  # the schema's own check of the `design` field names design.<field>
     out = dict(data)
     raw_req = out.get("requirements")
     if raw_req is not None and not isinstance(raw_req, (dict, BaseModel)):

@@ -296,7 +296,8 @@ def _margins(ev: Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names,
             if np.isfinite(z) and 0 < abs(z) < 1e8 and z.real < 0 and abs(z.imag) < 1e-9 * abs(z):
                 o = np.argsort(np.concatenate([[we], gm_w[r]]), kind="stable")
                 gm_w[r] = np.concatenate([[we], gm_w[r]])[o]
-                gm_k[r] = np.concatenate([[1.0 / abs(z)], gm_k[r]])[o]
+                with np.errstate(over="ignore"):  # |L| denormal (a 1e308 plant gain): GM inf, as meant
+                    gm_k[r] = np.concatenate([[1.0 / abs(z)], gm_k[r]])[o]
     pm_w = [wg[r_g == r] for r in range(R)]
     pm_deg = [np.degrees(np.angle(Lg[r_g == r])) for r in range(R)]
     # ---- peaks: Ms, Mt, 1/alpha (all rows and figures zoomed together)

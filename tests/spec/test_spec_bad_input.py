@@ -106,3 +106,12 @@ def test_budget_beyond_max_budget_is_refused_not_trained_for_ever() -> None:
     # replay buffer from it (numpy asked for terabytes and raised a MemoryError traceback)
     _invalid({**BASE, "search": {"budget": 10**23}}, "search.budget", "less than or equal to")
     assert load_spec({**BASE, "search": {"budget": MAX_BUDGET}}).search.budget == MAX_BUDGET
+
+
+@pytest.mark.parametrize("design, needle", [({"phase_margin": 200}, "design.phase_margin"),
+                                            ({"phase_margin": "abc"}, "design.phase_margin"),
+                                            ({"focus": "fast"}, "design.focus"), (5, "design")])
+def test_invalid_design_shortcut_error_names_design_field_not_top_level(design, needle: str) -> None:
+    # the shortcut's errors were reported at the top level ("phase_margin: ..."), not under design
+    text = _invalid({**BASE, "design": design}, needle)
+    assert "\nphase_margin" not in text
