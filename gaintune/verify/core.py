@@ -80,6 +80,21 @@ def coerce_gains(layout: GainLayout, gains: Any) -> np.ndarray:
     return layout.from_dict(layout.to_dict(full))
 
 
+def _fixed_gain_overrides(spec: TuningSpec, layout: GainLayout, full: np.ndarray) -> list[str]:
+    """A note per gain the spec fixes (``tune: false``) but the given gains set to another value.
+
+    The given value is the one verified (an engineer adjusts a fixed gain by hand and checks it), so
+    the report says so instead of letting a reader assume the spec's value."""
+    out = []
+    for k, slot in enumerate(layout.slots):
+        given = spec.loops[slot.loop].gains.get(slot.name)
+        if slot.tuned or given is None or given.value is None or full[k] == given.value:
+            continue
+        out.append(f"{slot.loop_name}.{slot.name} = {full[k]:g} was verified, not the spec's fixed value "
+                   f"{given.value:g} (loops[{slot.loop}].gains.{slot.name}, tune: false)")
+    return out
+
+
 #: Most phase crossings listed per break point (those of smallest |GM|; delays give infinitely many).
 MAX_PHASE_CROSSINGS = 20
 
@@ -340,7 +355,7 @@ def verify(
     vs = spec.verify
     dt = analysis_dt(spec)
     cas = build_cascade(spec, layout, full[None, :], lin)
-    notes: list[str] = []
+    notes: list[str] = _fixed_gain_overrides(spec, layout, full)
     reasons: list[str] = []
     pade = None
     sp = None

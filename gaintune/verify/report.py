@@ -267,6 +267,9 @@ def _f(x: float | None, fmt: str = "{:.3g}") -> str:
 def format_table(report: VerificationReport) -> str:
     """Plain-text summary used by ``gaintune verify``."""
     lines = [f"verification of {report.spec_name!r}: {report.verdict.upper()}"]
+    # the verdict belongs to these gains: print them, so that a table is never read without them
+    lines.append("gains: " + "; ".join(
+        f"{loop} " + ", ".join(f"{g} {_f(v, '{:.6g}')}" for g, v in gains.items()) for loop, gains in report.gains.items()))
     st = report.stability
     cd = f", computation delay {report.compute_delay} sample(s)" if report.compute_delay else ""
     if report.sampled:

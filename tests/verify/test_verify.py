@@ -435,3 +435,21 @@ def test_report_json_round_trip():
     assert "crossings" in data["loops"][0] and "requirements" in data
     back = VerificationReport.model_validate_json(text)
     assert back.loops[0].pm_deg == pytest.approx(rep.loops[0].pm_deg)
+
+
+def test_fixed_gain_set_by_the_gains_file_is_verified_and_said_not_silently_swapped():
+    # a gains file's value for a `tune: false` gain replaced the spec's without a word in the report
+    spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}},
+                      "loops": [{"type": "pid", "gains": {"Kd": {"value": 0.4, "tune": False}}}],
+                      "scenario": {"dt": 0.05, "horizon": 20}})
+    given = verify(spec, {"loop0": {"Kp": 1.2, "Ki": 0.5, "Kd": 0.9}})
+    assert given.gains["loop0"]["Kd"] == 0.9
+    assert any("loop0.Kd = 0.9 was verified, not the spec's fixed value 0.4" in n for n in given.notes), given.notes
+    text = format_table(given)
+    assert text.splitlines()[1] == "gains: loop0 Kp 1.2, Ki 0.5, Kd 0.9"
+    assert "note: loop0.Kd = 0.9 was verified" in text
+    # the figures are those of Kd = 0.9, not 0.4
+    spec_value = verify(spec, {"loop0": {"Kp": 1.2, "Ki": 0.5}})
+    assert spec_value.gains["loop0"]["Kd"] == 0.4
+    assert not any("was verified, not" in n for n in spec_value.notes)
+    assert given.loops[0].pm_deg != spec_value.loops[0].pm_deg
