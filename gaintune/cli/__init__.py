@@ -72,13 +72,18 @@ def tune(
     seed: Optional[int] = typer.Option(None, "--seed", help="Override search.seed."),
     workers: Optional[int] = typer.Option(None, "--workers", help="Override search.n_envs (parallel environments)."),
     baselines: bool = typer.Option(False, "--baselines", help="Also run the baselines for comparison (in the result and report)."),
+    warm_start: Optional[Path] = typer.Option(
+        None, "--warm-start", metavar="AGENT.zip",
+        help="Continue training a saved agent (a tune's agent.zip) on this spec: same loops and randomised parameters."),
 ) -> None:
     """Tune the gains of SPEC with RL, verify them and print a summary. Exit 3 if verification fails."""
     spec = apply_overrides(load_spec_file(spec_path), algo=algo, budget=budget, seed=seed, workers=workers)
     if out_dir is not None:
         check_out_dir(out_dir)
-    command = _command_line("tune", spec_path, algo=algo, budget=budget, seed=spec.search.seed, workers=workers, baselines=baselines)
-    result = _run_tune(_get_tune(), spec, out_dir=out_dir, json_out=json_out, baselines=baselines, command=command)
+    command = _command_line("tune", spec_path, algo=algo, budget=budget, seed=spec.search.seed, workers=workers,
+                            baselines=baselines, warm_start=warm_start)
+    result = _run_tune(_get_tune(), spec, out_dir=out_dir, json_out=json_out, baselines=baselines, command=command,
+                       warm_start=warm_start)
     _finish(result, out_dir=out_dir, json_out=json_out, command=command)
 
 

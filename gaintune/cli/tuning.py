@@ -46,9 +46,12 @@ def _get_tune() -> Callable:
     return tune
 
 
-def _run_tune(tune: Callable, spec, *, out_dir: Path | None, json_out: bool, baselines: bool, command: str) -> Any:
+def _run_tune(tune: Callable, spec, *, out_dir: Path | None, json_out: bool, baselines: bool, command: str,
+              warm_start: Path | None = None) -> Any:
     """Run ``tune`` (from :func:`_get_tune`) on ``spec``: quietly with ``json_out``, else with a progress bar on stderr."""
     kwargs: dict[str, Any] = dict(out_dir=str(out_dir) if out_dir else None, verify=True, baselines=baselines)
+    if warm_start is not None:
+        kwargs["warm_start"] = str(warm_start)
     import inspect
 
     try:

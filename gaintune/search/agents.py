@@ -28,8 +28,10 @@ from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.vec_env import VecEnv
 
+from gaintune.errors import SpecError
 from gaintune.search.eager_optim import install as _install_eager_optim
 from gaintune.search.eager_optim import optimizer_class as _eager_optimizer_class
 
@@ -116,16 +118,40 @@ def _silenced(agent: BaseAlgorithm) -> BaseAlgorithm:
     return agent
 
 
-def load_agent(path: str | Path, env: VecEnv | None = None) -> BaseAlgorithm:
-    """Load a saved agent zip; the algorithm is read from the file name prefix or tried in turn."""
+def load_agent(path: str | Path, env: VecEnv | None = None, *, field: str = "warm_start") -> BaseAlgorithm:
+    """Load a saved agent zip (any of :data:`ALGOS`, tried in turn) and attach ``env`` to it.
+
+    Raises
+    ------
+    SpecError
+        Naming ``field``: the file is missing or not a saved agent, or the agent was trained on
+        another number of gains or context values than ``env`` has (other loops, or other
+        randomised parameters), which a warm start cannot bridge.
+    """
     path = Path(path)
+    if not path.is_file():
+        raise SpecError(field, f"no saved agent at {path} (give the agent.zip a tune wrote with --out)")
+    try:  # the saved spaces first: a mismatch is a message about the spec, not five failed loads
+        data, _, _ = load_from_zip_file(path, device="cpu")
+        saved = (tuple(data["action_space"].shape), tuple(data["observation_space"].shape))
+    except Exception as exc:  # not a zip, no data, no spaces: whatever it is, it is no saved agent
+        raise SpecError(field, f"{path} is not an agent saved by gaintune ({type(exc).__name__})") from None
+    if env is not None and saved != (env.action_space.shape, env.observation_space.shape):
+        raise SpecError(field, f"the agent at {path} was trained on {_count(saved)}; this spec has "
+                        f"{_count((env.action_space.shape, env.observation_space.shape))}. A trained agent "
+                        "continues only on the same loops, tuned gains and randomised parameters")
     _install_eager_optim()  # loading restores the optimizer state: keep torch._dynamo unloaded
     errors = []
     for name, cls in ALGOS.items():
         try:
             agent = cls.load(path, env=env, device="cpu")
-        except Exception as exc:  # SB3 raises various errors for a mismatched algorithm class
+        except Exception as exc:  # SB3 raises various errors for a file of another algorithm class
             errors.append(f"{name}: {type(exc).__name__}")
         else:
             return _silenced(agent)
-    raise ValueError(f"cannot load agent {path}: " + "; ".join(errors))
+    raise SpecError(field, f"{path} is not an agent saved by gaintune ({'; '.join(errors)})")
+
+
+def _count(shapes: tuple) -> str:
+    act, obs = shapes
+    return f"{int(np.prod(act))} tuned gains and {int(np.prod(obs))} context value(s)"

@@ -256,6 +256,27 @@ def test_tune_for_real_with_a_tiny_budget(spec_file: Path) -> None:
     assert doc["verification"]["verdict"] in ("pass", "fail") and doc["sims"] <= 400
 
 
+def test_tune_warm_start_continues_a_saved_agent_and_refuses_a_mismatched_one(spec_file: Path, tmp_path: Path) -> None:
+    """Learning on from the CLI: ``--warm-start agent.zip``; a wrong file or layout exits 2 naming warm_start."""
+    first = run("tune", str(spec_file), "--budget", "200", "--workers", "8", "--out", str(tmp_path / "a"), "--json")
+    assert first.exit_code in (0, 3), first.output
+    agent = tmp_path / "a" / "agent.zip"
+    res = run("tune", str(spec_file), "--budget", "200", "--workers", "8", "--warm-start", str(agent), "--json")
+    assert res.exit_code in (0, 3), res.output
+    doc = json.loads(res.stdout)
+    assert doc["rl_sims"] > 0 and f"--warm-start {agent}" in doc["provenance"]["command"]
+    pi = tmp_path / "pi.yaml"
+    data = load_model("lag_n").example_spec()
+    pi.write_text(yaml.safe_dump({**data, "loops": [{"name": "main", "type": "pi"}]}, sort_keys=False))
+    junk = tmp_path / "junk.zip"
+    junk.write_text("not an agent")
+    for spec, path, needle in [(pi, agent, "trained on 3 tuned gains"), (spec_file, junk, "is not an agent saved by gaintune"),
+                               (spec_file, tmp_path / "none.zip", "no saved agent at")]:
+        res = run("tune", str(spec), "--budget", "200", "--warm-start", str(path), "--json")
+        _no_traceback(res)
+        assert res.exit_code == 2 and "error: warm_start: " in res.stderr and needle in res.stderr, res.output
+
+
 # ----------------------------------------------------------- bench, serve
 
 
