@@ -353,6 +353,8 @@ def policy_gains(agent_path: str | Path, spec: TuningSpec, context: np.ndarray |
     """"Learning off": the saved agent's deterministic gains for ``spec`` (nominal context by default).
 
     The spec must have the same loop structure (gain layout) as the one the agent was trained on.
+    The gains are **not verified** and carry no verdict: pass them to :func:`gaintune.verify.verify`
+    before handing them out, or run ``tune(spec, warm_start=agent_path)``, whose result is verified.
     """
     problem = GainProblem(spec)
     agent = load_agent(agent_path)
