@@ -199,11 +199,14 @@ def load_result(path: Path):
 
     text = _read_file(path, "result")
     try:
-        return TuneResult.model_validate_json(text)
+        result = TuneResult.model_validate_json(text)
     except ValidationError as exc:
         if any(e["type"] == "json_invalid" for e in exc.errors()):
             raise InputError("result", f"{path} is not valid JSON") from None
         raise
+    if result.verification_set_aside:
+        err.print(f"note: {path}: {result.verification_set_aside}; the gains are verified again here", markup=False)
+    return result
 
 
 def apply_overrides(spec, *, algo: str | None = None, budget: int | None = None, seed: int | None = None, workers: int | None = None):

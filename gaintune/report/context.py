@@ -385,6 +385,7 @@ def build_context(result, *, command: str | None = None) -> dict[str, Any]:
         "diagnosis": result.diagnosis.model_dump() if result.diagnosis is not None else None,
         "verdict": rep.verdict,
         "verified_now": verified_now,
+        "set_aside": result.verification_set_aside,
         "reasons": rep.reasons,
         "notes": rep.notes,
         "plant": ps,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from typing import Any, Literal
 
-from pydantic import BaseModel, Field, field_serializer, field_validator
+from pydantic import BaseModel, Field, field_serializer, field_validator, model_validator
 
 from gaintune.verify.report import VerificationReport, load_report
 
@@ -104,6 +104,9 @@ class TuneResult(BaseModel):
     tripped_episodes: int = Field(0, description="Search episodes in which the safety monitor tripped.")
     agent_path: str | None = None
     verification: VerificationReport | None = Field(None, description="The verification report, when verified.")
+    verification_set_aside: str | None = Field(
+        None, description="Why a stored verification was set aside when this result was read: it was for other gains or "
+        "another spec (the result was edited after it was verified). The gains are unverified until verified again.")
     baselines: list[dict[str, Any]] = Field(default_factory=list, description="Baseline results for comparison.")
     diagnosis: Diagnosis | None = None
     provenance: Provenance
@@ -112,6 +115,16 @@ class TuneResult(BaseModel):
     @classmethod
     def _stored_verification(cls, v: Any) -> Any:
         return load_report(v) if isinstance(v, dict) else v
+
+    @model_validator(mode="after")
+    def _verification_belongs_to_these_gains(self) -> TuneResult:
+        # A verdict is only ever shown beside the gains and spec it was reached on: a result edited
+        # by hand (gains or requirements) keeps its numbers but loses the verdict (report, exports, API).
+        why = _verification_mismatch(self.spec, self.gains, self.verification)
+        if why is not None:
+            # the diagnosis was read from that verdict ("the gains pass verification ..."): it goes too
+            self.verification, self.verification_set_aside, self.diagnosis = None, why, None
+        return self
 
     @field_serializer("verification")
     def _verification_json(self, v: VerificationReport | None) -> dict[str, Any] | None:
@@ -126,3 +139,22 @@ class TuneResult(BaseModel):
     def accepted_gains(self) -> Gains | None:
         """The gains, only when verification passed; otherwise None."""
         return self.gains if self.verdict == "pass" else None
+
+
+def _verification_mismatch(spec: dict[str, Any], gains: Gains, report: VerificationReport | None) -> str | None:
+    """Why ``report`` is not the verification of ``gains`` on ``spec`` (None when it is, or when there is none)."""
+    if report is None:
+        return None
+    if report.gains != gains:
+        return ("the stored verification was for other gains than this result's (edited after the tune?); "
+                "its verdict does not hold for them")
+    from gaintune.spec import TuningSpec  # validating the stored spec: the library's layer below, loaded anyway
+
+    try:
+        spec_hash = TuningSpec.model_validate(spec).content_hash()
+    except ValueError:
+        return "the stored spec does not validate, so its verification cannot be vouched for"
+    if spec_hash != report.spec_hash:
+        return ("the stored verification was for another spec than this result's (edited after the tune, or written "
+                "by a gaintune with other defaults); its verdict does not hold for it")
+    return None

@@ -314,3 +314,19 @@ def test_serve_calls_api(monkeypatch) -> None:
     monkeypatch.setitem(sys.modules, "gaintune_api.main", fake)
     res = run("serve", "--host", "0.0.0.0", "--port", "9000", "--workers", "3")
     assert res.exit_code == 0 and seen == {"host": "0.0.0.0", "port": 9000, "workers": 3}
+
+
+def test_export_and_report_of_gains_edited_in_result_json_reverify_not_stamp_pass(result_file: Path, tmp_path: Path) -> None:
+    """Bug (fuzzing): editing result.json's gains kept its stored PASS: a C header said GT_VERIFIED 1 for unstable gains."""
+    doc = json.loads(result_file.read_text())
+    doc["gains"]["main"] = {"Kp": 50.0, "Ki": 5000.0, "Kd": 0.01}
+    edited = tmp_path / "edited.json"
+    edited.write_text(json.dumps(doc))
+    res = run("export", str(edited), "--format", "c", "-o", str(tmp_path / "g.h"))
+    _no_traceback(res)
+    assert res.exit_code == 3 and not (tmp_path / "g.h").exists(), res.output
+    assert "verification was for other gains" in res.stderr and "FAILED" in res.stderr
+    res = run("report", str(edited), "-o", str(tmp_path / "r.html"))
+    assert res.exit_code == 0, res.output
+    html = (tmp_path / "r.html").read_text()
+    assert 'class="verdict fail">FAILED<' in html and "verification was for other gains" in html

@@ -105,3 +105,23 @@ def test_invalid_stored_verification_is_still_an_error(passed: TuneResult) -> No
     doc["verification"]["loops"][0]["ms"] = "high"  # not a number (and not a null infinity)
     with pytest.raises(ValidationError, match="ms"):
         TuneResult.model_validate(doc)
+
+
+def test_result_edited_after_verification_loses_its_verdict_instead_of_showing_pass(passed: TuneResult) -> None:
+    """Bug (fuzzing): gains edited in result.json kept the stored PASS, so `gaintune export -f c` wrote
+    GT_VERIFIED 1 for unstable gains and the report said PASS. Same for a tightened requirement."""
+    doc = json.loads(passed.model_dump_json())
+    doc["gains"]["loop0"] = {"Kp": 50.0, "Ki": 5000.0}
+    doc["diagnosis"] = {"status": "pass", "summary": "the gains pass verification"}
+    edited = TuneResult.model_validate(doc)
+    assert edited.verification is None and edited.verdict is None and edited.accepted_gains is None
+    assert edited.diagnosis is None and "other gains" in edited.verification_set_aside
+    doc = json.loads(passed.model_dump_json())
+    doc["spec"]["requirements"]["pm_min_deg"] = 89.0
+    edited = TuneResult.model_validate(doc)
+    assert edited.verification is None and "another spec" in edited.verification_set_aside
+    doc["spec"]["scenarios"][0]["dt"] = -1.0
+    assert "does not validate" in TuneResult.model_validate(doc).verification_set_aside
+    # untouched, and the dict form the API stores: kept
+    same = TuneResult.model_validate(json.loads(passed.model_dump_json()))
+    assert same.verdict == "pass" and same.verification_set_aside is None
