@@ -100,6 +100,8 @@ def check_spec(spec: TuningSpec, settings: Settings, purpose: Purpose, *, prefix
                             "msg": f"plant order {plant.order} exceeds this server's limit of {settings.max_order}"}])
         validate_against_plant(spec, plant)
         layout = GainLayout(spec, plant.states)
+        if purpose == "tune":
+            layout.require_tuned()
         if purpose in ("tune", "simulate"):
             from gaintune.sim.build import Problem
 

@@ -180,6 +180,13 @@ class GainLayout:
             f"give a {want} value or set loops[{loop}].direction: {d.other}"
         )
 
+    def require_tuned(self) -> None:
+        """Raise a SpecError (field ``loops``) when no gain is left to tune: a search needs one."""
+        if not self.n_tuned:
+            raise SpecError("loops", "every gain is fixed (tune: false), so there is nothing to tune; check these gains "
+                            "with 'gaintune verify SPEC --gains ...' (the POST /v1/verify route), or set tune: true on "
+                            "the gains to search")
+
     # ---------------------------------------------------------------- sizes
     @property
     def n_gains(self) -> int:

@@ -72,6 +72,7 @@ class GainProblem:
             self.layout, self.box_sims = box.layout, box.sims
         else:
             self.layout, self.box_sims = GainLayout(spec, plant.states), 0
+        self.layout.require_tuned()  # a search with nothing to search fails deep in the agent otherwise
         self.plant = plant
         self.sim = Simulator(spec, plant, self.layout)
         self.evaluator = Evaluator(spec, self.sim)

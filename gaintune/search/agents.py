@@ -53,8 +53,10 @@ def agent_defaults(algo: str, n_envs: int, dim: int, budget_steps: int) -> dict[
     """Documented default hyper-parameters per algorithm (see docs/search.md)."""
     net = [64, 64]
     if algo == "ppo":
+        # one rollout = one step of every env; SB3's PPO needs a minibatch of 2 or more, so a single
+        # env collects 2 steps per update
         return dict(
-            n_steps=1, batch_size=n_envs, n_epochs=10, learning_rate=3e-3, gamma=0.0, gae_lambda=1.0,
+            n_steps=1 if n_envs > 1 else 2, batch_size=max(n_envs, 2), n_epochs=10, learning_rate=3e-3, gamma=0.0, gae_lambda=1.0,
             clip_range=0.2, ent_coef=0.0, vf_coef=0.5, max_grad_norm=0.5, normalize_advantage=True,
             policy_kwargs=dict(net_arch=dict(pi=net, vf=net), log_std_init=-1.0, ortho_init=True),
         )

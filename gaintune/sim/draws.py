@@ -147,7 +147,10 @@ def context(spec: TuningSpec, plant: Plant, d: Draws) -> np.ndarray:
             cols.append((d.ref_kind == i).astype(float))
     for dist, v in ((rz.reference_amplitude, d.ref_amp), (rz.disturbance_size, d.dist_size), (rz.disturbance_time, d.dist_time)):
         if dist:
-            cols.append(norm(v, dist))
+            # NaN = "the scenario's own value" (the nominal draw): the centre of the box, 0, as the
+            # policy's input must be a number (a NaN observation made torch refuse the policy)
+            with np.errstate(invalid="ignore"):
+                cols.append(np.where(np.isnan(v), 0.0, norm(v, dist)))
     if not cols:
         return np.zeros((len(d), 1), dtype=np.float32)
     return np.stack(cols, axis=1).astype(np.float32)

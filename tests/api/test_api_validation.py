@@ -217,3 +217,12 @@ def test_lone_surrogate_in_spec_is_422_not_500(client, path: str) -> None:
     raw = json.dumps(body).replace('"SURROGATE"', '"\\ud800"').encode()
     problem = assert_problem(client.post(path, content=raw, headers={"content-type": "application/json"}), 422)
     assert "not valid Unicode" in json.dumps(problem["errors"]), problem
+
+
+def test_tune_with_every_gain_fixed_is_422_not_accepted_then_failed(client) -> None:
+    """Fuzzing: /v1/tune took a spec with nothing to tune (202), then the job failed with an internal error."""
+    spec = {**SPEC, "loops": [{"type": "pi", "gains": {"Kp": {"value": 1, "tune": False}, "Ki": {"value": 0.5, "tune": False}}}]}
+    problem = assert_problem(client.post("/v1/tune", json=spec), 422)
+    assert "every gain is fixed" in json.dumps(problem["errors"]) and '"loops"' in json.dumps(problem["errors"]), problem
+    # verifying those gains is what the spec is for, and stays allowed
+    assert client.post("/v1/verify", json={"spec": spec, "gains": {}}).status_code == 200

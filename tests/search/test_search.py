@@ -153,3 +153,33 @@ def test_off_policy_replay_buffer_is_capped_not_sized_by_a_huge_budget(algo):
 
     agent = make_agent(algo, DummyVecEnv([Idle] * 4), 0, 10**12)
     assert agent.replay_buffer.buffer_size * agent.n_envs <= REPLAY_MAX
+
+
+def test_ppo_with_a_single_env_tunes_instead_of_failing_on_batch_size():
+    # n_envs 1 (--workers 1) made SB3's PPO assert `batch_size` > 1: a traceback, a failed API job
+    r = tune(_spec(n_envs=1, budget=200), verify=False)
+    assert r.rl_sims > 0 and np.isfinite(r.cost)
+
+
+def test_every_gain_fixed_is_a_spec_error_not_a_reshape_crash():
+    from gaintune.errors import SpecError
+
+    data = {**EASY, "loops": [{"type": "pi", "gains": {"Kp": {"value": 1, "tune": False}, "Ki": {"value": 0.5, "tune": False}}}]}
+    with pytest.raises(SpecError, match="loops: every gain is fixed"):
+        tune(load_spec(data), verify=False)
+
+
+@pytest.mark.parametrize("key", ["reference_amplitude", "disturbance_size", "disturbance_time"])
+def test_randomised_reference_or_disturbance_tunes_with_a_finite_nominal_context(key):
+    # the nominal draw keeps each scenario's own value (NaN in the draws), which reached the policy as
+    # a NaN observation: torch refused it, and every such tune crashed
+    from gaintune.envs import GainProblem
+    from gaintune.sim import draws as draws_mod
+
+    scenario = {**EASY["scenario"], "disturbance": {"kind": "step", "time": 2, "amplitude": 0.5}}
+    box = [1.0, 3.0] if key == "disturbance_time" else [0.5, 2.0]
+    spec = load_spec({**EASY, "scenario": scenario, "randomize": {key: box}, "search": {**EASY["search"], "budget": 300}})
+    gp = GainProblem(spec)
+    assert np.all(gp.context(draws_mod.nominal(spec, gp.plant, 1)) == 0.0)
+    r = tune(spec, verify=False)
+    assert r.rl_sims > 0 and np.isfinite(r.cost)
