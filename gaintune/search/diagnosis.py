@@ -15,11 +15,12 @@ import numpy as np
 from gaintune.controllers.layout import GainLayout
 from gaintune.plants.advice import plant_warnings
 from gaintune.plants.plant import Plant
+from gaintune.search.budget import min_budget_for_rl, rollout_sims
 from gaintune.search.result import Diagnosis, TuneResult
 from gaintune.spec import TuningSpec
 from gaintune.verify.report import RequirementLine, VerificationReport
 
-__all__ = ["diagnose", "bound_hints", "direction_hints", "REQUIREMENT_TEXT"]
+__all__ = ["diagnose", "budget_hints", "bound_hints", "direction_hints", "REQUIREMENT_TEXT"]
 
 #: requirement field -> (figure label, comparison) used in messages.
 REQUIREMENT_TEXT: dict[str, tuple[str, str]] = {
@@ -52,6 +53,24 @@ def bound_hints(layout: GainLayout, tuned: np.ndarray) -> list[str]:
     return hints
 
 
+def budget_hints(result: TuneResult) -> list[str]:
+    """What the budget did not buy: no RL search at all, or a set-up that alone exceeded it."""
+    spec = TuningSpec.model_validate(result.spec)
+    s = spec.search
+    per = s.robust.samples * len(spec.scenarios)
+    rollout = rollout_sims(s.n_envs, per, s.env)
+    if result.rl_sims == 0 and result.stopped not in ("cancelled", "wall_time"):
+        need = min_budget_for_rl(result.setup_sims, per, rollout, s.refine)
+        return [f"no RL search ran: after the set-up's {result.setup_sims} simulations (search box, reward scale), "
+                f"search.budget {s.budget} left too few for one rollout ({s.n_envs} gain sets x {per} simulation(s)) "
+                f"beside the final checks and the refinement reserve; the answer is the search box's start or the "
+                f"untrained policy. Raise search.budget to at least {need}, or lower search.n_envs"]
+    if result.sims > s.budget:
+        return [f"the tune ran {result.sims} simulations, more than search.budget {s.budget}: the set-up (search box, "
+                "reward scale) and the final checks are always run in full"]
+    return []
+
+
 def _relative_margin(q: RequirementLine) -> float:
     return q.margin / max(abs(q.limit), 1e-12)
 
@@ -74,7 +93,8 @@ def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray, plant: P
     With ``plant``, warnings about the plant itself (open-loop unstable, non-equilibrium
     operating point, :func:`gaintune.plants.advice.plant_warnings`) come first among the hints.
     """
-    hints = (plant_warnings(plant) if plant is not None else []) + bound_hints(layout, tuned)
+    hints = (budget_hints(result) + (plant_warnings(plant) if plant is not None else [])
+             + bound_hints(layout, tuned))
     ver = result.verification
     if ver is None:
         return Diagnosis(status="unverified", summary="the gains were not verified; they are not accepted", hints=hints)

@@ -97,6 +97,7 @@ class TuneResult(BaseModel):
     )
     curve: list[CurvePoint] = Field(default_factory=list)
     sims: int = 0
+    setup_sims: int = Field(0, description="Simulations spent before the search: the search box and the reward scale.")
     rl_sims: int = 0
     wall_time: float = 0.0
     stopped: str = Field("budget", description="Why the search stopped: budget, wall_time, converged, cancelled.")

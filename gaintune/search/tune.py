@@ -21,6 +21,8 @@ from gaintune.envs.problem import GainProblem, Scored
 from gaintune.envs.vec import BatchedGainVecEnv
 from gaintune.objective import DIVERGED_COST, merit
 from gaintune.search.agents import load_agent, make_agent
+from gaintune.search.budget import refine_reserve, rollout_sims
+from gaintune.search.budget import rl_budget as rl_budget_of
 from gaintune.boundary import settle, violation_after
 from gaintune.cma import load_cma
 from gaintune.search.diagnosis import diagnose
@@ -218,10 +220,11 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     problem = GainProblem(spec)
     per_candidate = problem.k * len(spec.scenarios)
     n_envs = s.n_envs
-    batch = n_envs * per_candidate
-    # Hard budget: set-up sims already spent + RL + the final evaluations (up to 5) + the refinement reserve.
-    reserve = min(int(0.1 * s.budget), 1000) if s.refine else 0
-    rl_budget = max(s.budget - problem.n_sims - reserve - 5 * per_candidate, 0)
+    batch = rollout_sims(n_envs, per_candidate, s.env)
+    # Budget: set-up sims already spent + RL + the final evaluations + the refinement reserve (gaintune.search.budget).
+    reserve = refine_reserve(s.budget, s.refine)
+    setup_sims = problem.n_sims
+    rl_budget = rl_budget_of(s.budget, setup_sims, per_candidate, s.refine)
     monitor = SearchMonitor(problem, rl_budget, s.wall_time, progress, cancel, s.early_stop_patience)
     problem.on_score = monitor.on_batch
     horizon = 1
@@ -236,8 +239,6 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
         env.seed(s.seed)
     else:
         env = BatchedGainVecEnv(problem, n_envs, seed=s.seed)
-    if s.env == "iterative":
-        batch = 2 * n_envs * per_candidate  # a step may also reset (score the start gains of) every env
     steps = max(rl_budget // per_candidate, n_envs)
     if warm_start is not None:
         agent = load_agent(warm_start, env=env)
@@ -325,6 +326,7 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
         metrics=metrics,
         curve=monitor.curve,
         sims=problem.n_sims,
+        setup_sims=setup_sims,
         rl_sims=rl_sims,
         wall_time=0.0,
         stopped=monitor.stopped,
