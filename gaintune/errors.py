@@ -35,7 +35,9 @@ def problem_details(exc: Exception) -> list[dict[str, Any]]:
         out = []
         for err in exc.errors(include_url=False, include_input=False):
             loc = ".".join(str(p) for p in err["loc"])
-            out.append({"loc": loc, "msg": err["msg"]})
+            # a validator's ValueError reads "Value error, <our message>": the prefix is pydantic's, not news
+            msg = err["msg"].removeprefix("Value error, ") if err["type"] == "value_error" else err["msg"]
+            out.append({"loc": loc, "msg": msg})
         return out
     if isinstance(exc, GaintuneError):
         return [exc.to_dict()]

@@ -145,6 +145,19 @@ class RequirementsSpec(_Model):
         "<= 1): Mks <= 10/|static gain|, so the design no longer follows the sample time; no limit elsewhere. "
         "null: no limit.")
 
+    @field_validator("mks_max", mode="before")
+    @classmethod
+    def _mks_form(cls, v: Any) -> Any:
+        # one message for a value of none of the four forms (pydantic would list its union's internals)
+        if v is None or v == "auto" or isinstance(v, dict) or (isinstance(v, (int, float)) and not isinstance(v, bool)):
+            return v
+        if isinstance(v, str):
+            try:
+                return float(v)
+            except ValueError:
+                pass
+        raise ValueError(f"give a number, 'auto', null or {{loop: limit}}, got {v!r}")
+
     @field_validator("mks_max")
     @classmethod
     def _positive_mks(cls, v: Any) -> Any:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import Field, GetJsonSchemaHandler, model_validator
+from pydantic import Field, GetJsonSchemaHandler, ValidationInfo, field_validator, model_validator
 from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import core_schema as cs
 
@@ -56,8 +56,12 @@ class DistSpec(_Model):
             if self.mean is None or self.std is None:
                 raise ValueError("a normal distribution needs mean and std")
         else:
-            if self.low is None or self.high is None or not self.low <= self.high:
-                raise ValueError(f"a {self.dist} distribution needs low <= high")
+            missing = [k for k in ("low", "high") if getattr(self, k) is None]
+            if missing:
+                other = " (mean and std describe a normal one: set dist: normal)" if self.mean is not None or self.std is not None else ""
+                raise ValueError(f"a {self.dist} distribution needs low and high; {' and '.join(missing)} missing{other}")
+            if not self.low <= self.high:
+                raise ValueError(f"a {self.dist} distribution needs low <= high, got low {self.low} > high {self.high}")
             if self.dist == "loguniform" and self.low <= 0:
                 raise ValueError("a loguniform distribution needs low > 0")
         return self
@@ -82,6 +86,19 @@ class RandomizeSpec(_Model):
     reference_amplitude: DistSpec | None = None
     disturbance_size: DistSpec | None = None
     disturbance_time: DistSpec | None = None
+
+    @field_validator("delay", "actuator_scale")
+    @classmethod
+    def _physical_range(cls, d: DistSpec | None, info: ValidationInfo) -> DistSpec | None:
+        # Draws are clipped where a value has no meaning (a delay below 0, a scale at or below 0). A
+        # whole range there would be replaced silently, so it is refused; a normal's far tail is clipped.
+        if d is None:
+            return d
+        strict = info.field_name == "actuator_scale"
+        what, lowest = ("mean", d.mean) if d.dist == "normal" else ("low", d.low)
+        if lowest < 0 or (strict and lowest == 0):
+            raise ValueError(f"{what} must be {'> 0' if strict else '>= 0 s'}, got {lowest}")
+        return d
 
     @property
     def active(self) -> bool:

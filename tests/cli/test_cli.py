@@ -95,7 +95,7 @@ def test_verify_accepts_a_result_file_as_gains(spec_file: Path, result_file: Pat
         ("plant: {tf: {num: [1], den: [1, 1]}}\nloops: [{type: pidd}]\n", "{}", "error: loops.0.type: Input should be"),
         ("plant: {tf: {num: [1], den: [1, 1]}\nloops: [", "{}", "error: spec: not valid JSON/YAML"),
         ("- just\n- a list\n", "{}", "error: spec: must be a mapping"),
-        ("plant: {tf: {num: [1], den: [1, 1]}}\nloops: [{type: pi}]\nscenario: {dt: -1}\n", "{}", "error: scenarios.0: Value error, dt must be > 0"),
+        ("plant: {tf: {num: [1], den: [1, 1]}}\nloops: [{type: pi}]\nscenario: {dt: -1}\n", "{}", "error: scenarios.0: dt must be > 0"),
         (None, '{"main": {"Kp": -1, "Ki": 1, "Kd": 1}}', "error: gains.main.Kp: must be > 0"),
         (None, '{"main": {"Kp": 1', "error: gains: not valid JSON/YAML"),
         (None, '{"nope": {"Kp": 1}}', "error: gains: unknown loop(s) ['nope']"),

@@ -115,3 +115,33 @@ def test_invalid_design_shortcut_error_names_design_field_not_top_level(design, 
     # the shortcut's errors were reported at the top level ("phase_margin: ..."), not under design
     text = _invalid({**BASE, "design": design}, needle)
     assert "\nphase_margin" not in text
+
+
+@pytest.mark.parametrize("randomize, needle", [
+    ({"delay": [-1, -0.5]}, "randomize.delay\n  Value error, low must be >= 0 s"),
+    ({"delay": {"dist": "normal", "mean": -0.1, "std": 0.1}}, "randomize.delay\n  Value error, mean must be >= 0 s"),
+    ({"actuator_scale": [0, 1]}, "randomize.actuator_scale\n  Value error, low must be > 0"),
+])
+def test_randomised_range_with_no_physical_meaning_is_refused_not_silently_clipped(randomize, needle) -> None:
+    # randomize.delay: [-1, -0.5] passed and every draw was clipped to a delay of 0 (actuator scale: 1e-6)
+    _invalid({**BASE, "randomize": randomize}, needle)
+
+
+def test_uniform_distribution_without_low_high_says_what_is_missing() -> None:
+    text = _invalid({**BASE, "randomize": {"params": {}, "delay": {"dist": "uniform", "mean": 1, "std": 0.1}}},
+                    "needs low and high; low and high missing", "set dist: normal")
+    assert "low <= high" not in text
+
+
+def test_mks_max_of_no_accepted_form_is_one_message_not_union_internals() -> None:
+    text = _invalid({**BASE, "requirements": {"mks_max": "zz"}}, "requirements.mks_max", "give a number, 'auto', null")
+    assert "literal" not in text and "dict[" not in text
+    assert load_spec({**BASE, "requirements": {"mks_max": "12"}}).requirements.mks_max == 12.0
+
+
+def test_problem_details_drop_pydantics_value_error_prefix() -> None:
+    from gaintune.errors import problem_details
+
+    with pytest.raises(ValidationError) as info:
+        load_spec({**BASE, "randomize": {"delay": [-1, 0]}})
+    assert problem_details(info.value) == [{"loc": "randomize.delay", "msg": "low must be >= 0 s, got -1.0"}]
