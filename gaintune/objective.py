@@ -116,7 +116,7 @@ class Scores:
 def scenario_cost(m: dict[str, np.ndarray], obj: ObjectiveSpec, sc: ScenarioSpec) -> np.ndarray:
     """Cost of one scenario's metrics (each (B,)); diverged runs get DIVERGED_COST."""
     settle = np.where(np.isnan(m["settling_time"]), sc.horizon, m["settling_time"])
-    with np.errstate(invalid="ignore"):  # inf * 0 weight on diverged rows; those rows are replaced below
+    with np.errstate(invalid="ignore", over="ignore"):  # inf * 0 weight on diverged rows, or a weight of 1e300: replaced below
         cost = (
             m[obj.measure]
             + obj.effort_weight * m["effort"]

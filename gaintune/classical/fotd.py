@@ -199,6 +199,11 @@ def _remove_integrator(sys: StateSpace) -> tuple[float, StateSpace]:
     num, den = ss_to_tf(sys)
     den = den / den[0]
     rest_den = den[:-1]  # drop the root at the origin (last coefficient ~ 0)
+    # ss_to_tf leaves round-off (~1e-17) where a leading numerator coefficient is zero: scipy then
+    # warns "badly conditioned filter coefficients" for a plain P-PI cascade; drop it
+    num = np.asarray(num, dtype=float).ravel()
+    num = np.where(np.abs(num) <= 1e-12 * np.max(np.abs(num), initial=0.0), 0.0, num)
+    num = np.trim_zeros(num, "f") if np.any(num) else np.zeros(1)
     if rest_den.size == 1:
         rest = StateSpace(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), [[num[-1] / rest_den[0]]])
         return float(num[-1] / rest_den[-1]), rest

@@ -47,7 +47,10 @@ def to_svg(fig: Any) -> str:
     """Render a figure to an ``<svg>`` string (no XML prolog) with unique ids, then close it."""
     plt = _plt()
     buf = io.StringIO()
-    fig.savefig(buf, format="svg")
+    # data near the float limit (gains of 1e308, a diverged run) overflows matplotlib's tick
+    # arithmetic: the figure is still drawn, so its numpy warnings are only noise on stderr
+    with np.errstate(over="ignore", invalid="ignore"):
+        fig.savefig(buf, format="svg")
     plt.close(fig)
     text = buf.getvalue()
     text = text[text.index("<svg"):]
@@ -59,6 +62,17 @@ def to_svg(fig: Any) -> str:
     # scale with the page: keep the viewBox, drop the fixed size
     text = re.sub(r'<svg([^>]*?)\swidth="[^"]+"\sheight="[^"]+"', r'<svg\1 class="plot"', text, count=1)
     return text
+
+
+#: Time-domain data is drawn clipped to +-this: values near the float limit (a diverged run, gains of
+#: 1e308) overflow matplotlib's tick arithmetic ("arange: cannot compute length"), and beyond it a
+#: plot shows nothing more.
+PLOT_LIMIT = 1e100
+
+
+def _plottable(v: Any) -> np.ndarray:
+    """``v`` as floats clipped to +-PLOT_LIMIT (NaN stays a gap in the line)."""
+    return np.clip(np.asarray(v, dtype=float), -PLOT_LIMIT, PLOT_LIMIT)
 
 
 def _layout(fig: Any, hspace: float = 0.25, wspace: float = 0.2) -> None:
@@ -108,12 +122,12 @@ def time_figure(t: np.ndarray, loops: list[dict], u: np.ndarray, u_limits: tuple
     n = len(loops) + 1
     fig, axes = plt.subplots(n, 1, figsize=(8, 1.9 * n + 0.4), sharex=True)
     for ax, lp in zip(axes, loops):
-        ax.plot(t, lp["sp"], color="0.4", ls="--", lw=1.0, label=f"setpoint {lp['name']}")
-        ax.plot(t, lp["y"], color=COLORS[0], lw=1.4, label=f"{lp['name']} ({lp['measure']})")
+        ax.plot(t, _plottable(lp["sp"]), color="0.4", ls="--", lw=1.0, label=f"setpoint {lp['name']}")
+        ax.plot(t, _plottable(lp["y"]), color=COLORS[0], lw=1.4, label=f"{lp['name']} ({lp['measure']})")
         ax.set_ylabel(lp["measure"] + (f" [{lp['unit']}]" if lp.get("unit") and lp["unit"] != "-" else ""))
         ax.legend(loc="lower right", fontsize=8, framealpha=0.8)
     ax = axes[-1]
-    ax.plot(t, u, color=COLORS[1], lw=1.2, label="u (actuator)")
+    ax.plot(t, _plottable(u), color=COLORS[1], lw=1.2, label="u (actuator)")
     if u_limits is not None:
         for v in u_limits:
             if math.isfinite(v):
@@ -230,6 +244,7 @@ def envelope_figure(t: np.ndarray, ys: np.ndarray, y_nom: np.ndarray, sp: np.nda
     """Min-max band over the draws, a few draws, and the nominal response."""
     plt = _plt()
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 4.6), sharex=True)
+    ys, y_nom, sp, us, u_nom = (_plottable(v) for v in (ys, y_nom, sp, us, u_nom))
     a1.fill_between(t, np.nanmin(ys, 0), np.nanmax(ys, 0), color=COLORS[0], alpha=0.2, lw=0, label=f"envelope ({ys.shape[0]} plants)")
     for row in ys[: min(12, ys.shape[0])]:
         a1.plot(t, row, color=COLORS[0], lw=0.4, alpha=0.5)
@@ -272,8 +287,9 @@ def overlay_figure(t: np.ndarray, sp: np.ndarray, runs: list[tuple[str, np.ndarr
     """Outer-loop output and actuator of several gain sets overlaid."""
     plt = _plt()
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 4.6), sharex=True)
-    a1.plot(t, sp, color="0.4", ls="--", lw=1, label="setpoint")
+    a1.plot(t, _plottable(sp), color="0.4", ls="--", lw=1, label="setpoint")
     for i, (name, y, u) in enumerate(runs):
+        y, u = _plottable(y), _plottable(u)
         c = COLORS[i % len(COLORS)]
         lw = 1.8 if i == 0 else 1.1
         a1.plot(t, y, color=c, lw=lw, label=name)

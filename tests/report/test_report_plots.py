@@ -45,3 +45,19 @@ def test_whole_report_renders_without_mathtext(no_mathtext) -> None:
     r = result_from_gains(spec, AMIGO, algo="ppo")
     r.curve = [CurvePoint(sims=s, best_cost=c, wall_time=0.1 * i) for i, (s, c) in enumerate([(32, 5.0), (320, 3.0), (1000, 2.5)])]
     assert render_html(r).count("<svg") >= 6
+
+
+def test_plot_of_values_near_the_float_limit_prints_no_overflow_warning() -> None:
+    # a report of gains of 1e308 printed matplotlib's "overflow encountered in multiply" on stderr
+    import warnings
+
+    import numpy as np
+
+    from gaintune.report.plots import time_figure
+
+    t = np.linspace(0, 1, 50)
+    big = np.full(50, 1e308)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        svg = time_figure(t, [{"name": "loop0", "sp": np.ones(50), "y": big, "measure": "y"}], -big, None, "huge")
+    assert svg.startswith("<svg")
