@@ -7,10 +7,11 @@ submodules import them from here.
 from __future__ import annotations
 
 import math
-import re
 from typing import Any
 
 from gaintune.errors import GaintuneError
+from gaintune.spec.names import ident as _ident
+from gaintune.spec.names import unsafe_char
 
 __all__ = ["ExportError", "Gains"]
 
@@ -49,9 +50,25 @@ def _check_dt(dt: Any) -> float:
 
 
 def _one_line(text: str) -> str:
-    return " ".join(str(text).split())
+    """``text`` on one line: runs of whitespace (newlines too) become one space, other control characters ``?``.
+
+    Free text (names, verdict reasons) written into a comment of a generated file goes through
+    this, so it cannot start a line of code there, even when the spec predates the name rules
+    of :mod:`gaintune.spec.names`.
+    """
+    flat = " ".join(str(text).split())
+    return "".join("?" if unsafe_char(ch) is not None else ch for ch in flat)
 
 
-def _ident(name: str) -> str:
-    s = re.sub(r"[^0-9A-Za-z_]", "_", name)
-    return s if s and not s[0].isdigit() else f"_{s}"
+def _unique_idents(names: list[str], style: str) -> None:
+    """ExportError when two loop names give one identifier (``style``: "c" upper-cases, "matlab" keeps case).
+
+    Validation rejects such specs (loops[i].name); this guards specs built without it.
+    """
+    seen: dict[str, str] = {}
+    for i, name in enumerate(names):
+        key = _ident(name).upper() if style == "c" else _ident(name)
+        if key in seen:
+            raise ExportError(f"loops.{i}.name", f"loop name {name!r} and {seen[key]!r} both become the identifier {key}; "
+                                                 "rename one so they differ after non-alphanumerics become _")
+        seen[key] = name

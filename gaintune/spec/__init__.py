@@ -22,7 +22,8 @@ is the one import path:
 * :mod:`gaintune.spec.plant`: ``plant`` (transfer function, state space, ODE, built-in model);
 * :mod:`gaintune.spec.loops`: ``loops`` (the cascade, gains, derivative filter) and ``actuator``;
 * :mod:`gaintune.spec.scenarios`: ``scenarios``, ``objective`` and ``requirements``;
-* :mod:`gaintune.spec.settings`: ``randomize``, ``safety``, ``search`` and ``verify``.
+* :mod:`gaintune.spec.settings`: ``randomize``, ``safety``, ``search`` and ``verify``;
+* :mod:`gaintune.spec.names`: what a spec or loop name may hold, and the identifier the exporters derive from it.
 """
 
 from __future__ import annotations
@@ -31,11 +32,13 @@ import json
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from gaintune.errors import SpecError
 from gaintune.spec.base import MAX_BUDGET, MAX_DELAY_STEPS, MAX_LOOPS, MAX_ORDER, MAX_STEPS, _Model, check_delay_samples
 from gaintune.spec.loops import GAIN_NAMES, ActuatorSpec, DerivativeFilterSpec, GainSpec, LoopSpec
+from gaintune.spec.names import ident_key, name_problem
 from gaintune.spec.plant import (
     Coef,
     FiniteParams,
@@ -88,7 +91,11 @@ __all__ = [
 class TuningSpec(_Model):
     """A complete gain-tuning problem."""
 
-    name: str = "untitled"
+    name: str = Field(
+        "untitled",
+        description="Label of the spec, written into the exported files (gains.h, gains.m): printable text on one line, "
+        "no control characters and no '/*' or '*/'.",
+    )
     description: str = ""
     plant: PlantSpec
     loops: list[LoopSpec] = Field(min_length=1, max_length=MAX_LOOPS)
@@ -115,6 +122,15 @@ class TuningSpec(_Model):
                              "use plain UTF-8 text")
         return data
 
+    @field_validator("name")
+    @classmethod
+    def _printable_name(cls, v: str) -> str:
+        # the name lands in comments of gains.h / gains.m: a newline or '*/' there would turn it into code
+        problem = name_problem(v)
+        if problem is not None:
+            raise PydanticCustomError("spec_name", "{problem}", {"problem": f"spec name {v!r} {problem}"})
+        return v
+
     @model_validator(mode="before")
     @classmethod
     def _design_shortcut(cls, data: Any) -> Any:
@@ -139,15 +155,28 @@ class TuningSpec(_Model):
         names = [lp.name for lp in self.loops]
         if len(set(names)) != len(names):
             raise ValueError(f"loop names must be unique, got {names}")
+        self._check_identifiers()
         for i, loop in enumerate(self.loops):
             if loop.is_lq and i != len(self.loops) - 1:
                 raise ValueError(f"loops[{i}]: an {loop.type} loop must be the innermost (last) loop")
         self._check_delay_steps()
         mks = self.requirements.mks_max
         if isinstance(mks, dict) and set(mks) - set(names):
-            raise ValueError(f"requirements.mks_max names unknown loops {sorted(set(mks) - set(names))}; "
-                             f"the loops are {names}")
+            raise _error_at(("requirements", "mks_max"), f"unknown loop(s) {sorted(set(mks) - set(names))}; the loops "
+                            f"are {names}", mks)
         return self
+
+    def _check_identifiers(self) -> None:
+        """Two loops whose names give one C/MATLAB identifier would redefine each other's gains in the exports."""
+        seen: dict[str, int] = {}
+        for i, loop in enumerate(self.loops):
+            key = ident_key(loop.name)
+            j = seen.setdefault(key, i)
+            if j != i:
+                msg = (f"loop name {loop.name!r} collides with loops[{j}].name {self.loops[j].name!r}: both become the "
+                       f"identifier {key} in gains.h and gains.m; names must differ after every character other "
+                       "than A-Z, a-z, 0-9 and _ becomes _ (and ignoring case), so rename one of them")
+                raise _error_at(("loops", i, "name"), msg, loop.name)
 
     def _check_delay_steps(self) -> None:
         """A delay is held in a buffer of delay/dt samples per simulated lane: bound it like the horizon."""
@@ -173,6 +202,12 @@ class TuningSpec(_Model):
         import hashlib
 
         return hashlib.sha256(self.model_dump_json().encode()).hexdigest()
+
+
+def _error_at(loc: tuple, msg: str, value: Any) -> ValidationError:
+    """A ValidationError located at the field ``loc`` (a ValueError raised in a model validator has no location)."""
+    return ValidationError.from_exception_data("TuningSpec", [InitErrorDetails(
+        type=PydanticCustomError("spec_field", "{msg}", {"msg": msg}), loc=loc, input=value)])
 
 
 def _lone_surrogate(data: Any, path: str) -> str | None:

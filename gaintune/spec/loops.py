@@ -10,8 +10,10 @@ import math
 from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from gaintune.spec.base import _finite, _Model
+from gaintune.spec.names import name_problem
 
 __all__ = ["GAIN_NAMES", "GainSpec", "DerivativeFilterSpec", "LoopSpec", "ActuatorSpec"]
 
@@ -60,7 +62,15 @@ class DerivativeFilterSpec(_Model):
 class LoopSpec(_Model):
     """One loop of a cascade. Loops are listed outer first; the innermost drives the actuator."""
 
-    name: str | None = Field(None, description="Label; default loop0, loop1, ...")
+    name: str | None = Field(
+        None,
+        description=(
+            "Label; default loop0, loop1, ... Printable text on one line (no control characters, no '/*' or '*/'): "
+            "it is written into gains.h and gains.m. Names must also differ after every character other than "
+            "A-Z, a-z, 0-9 and _ becomes _ and letters are upper-cased, as they form the C macro and MATLAB "
+            "variable names (loop 'a b' gives GT_A_B_KP and gt_a_b)."
+        ),
+    )
     measure: str | None = Field(None, description="Plant output this loop measures; default: the first output.")
     type: Literal["p", "pi", "pd", "pid", "lqr", "lqi"] = "pid"
     form: Literal["parallel", "ideal"] = "parallel"
@@ -94,6 +104,15 @@ class LoopSpec(_Model):
             "Bounds are magnitudes either way. Not for LQ loops."
         ),
     )
+
+    @field_validator("name")
+    @classmethod
+    def _printable_name(cls, v: str | None) -> str | None:
+        # the name lands in comments of gains.h / gains.m: a newline or '*/' there would turn it into code
+        problem = None if v is None else name_problem(v)
+        if problem is not None:
+            raise PydanticCustomError("loop_name", "{problem}", {"problem": f"loop name {v!r} {problem}"})
+        return v
 
     @field_validator("b", "c")
     @classmethod
