@@ -64,7 +64,8 @@ def budget_hints(result: TuneResult) -> list[str]:
         return [f"no RL search ran: after the set-up's {result.setup_sims} simulations (search box, reward scale), "
                 f"search.budget {s.budget} left too few for one rollout ({s.n_envs} gain sets x {per} simulation(s)) "
                 f"beside the final checks and the refinement reserve; the answer is the search box's start or the "
-                f"untrained policy. Raise search.budget to at least {need}, or lower search.n_envs"]
+                f"{'saved policy of ' + result.warm_start + ' as it is (learning off)' if result.warm_start else 'untrained policy'}. "
+                f"Raise search.budget to at least {need}, or lower search.n_envs"]
     if result.sims > s.budget:
         return [f"the tune ran {result.sims} simulations, more than search.budget {s.budget}: the set-up (search box, "
                 "reward scale) and the final checks are always run in full"]

@@ -104,6 +104,7 @@ class TuneResult(BaseModel):
     diverged_episodes: int = Field(0, description="Search episodes whose simulation diverged.")
     tripped_episodes: int = Field(0, description="Search episodes in which the safety monitor tripped.")
     agent_path: str | None = None
+    warm_start: str | None = Field(None, description="The saved agent this search continued from (learning on), if any.")
     verification: VerificationReport | None = Field(None, description="The verification report, when verified.")
     verification_set_aside: str | None = Field(
         None, description="Why a stored verification was set aside when this result was read: it was for other gains or "

@@ -333,6 +333,7 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
         diverged_episodes=monitor.n_diverged,
         tripped_episodes=monitor.n_tripped,
         agent_path=agent_path,
+        warm_start=None if warm_start is None else str(warm_start),
         provenance=Provenance(spec_hash=spec.content_hash(), seed=s.seed, versions=versions(), command=command),
     )
     if verify:

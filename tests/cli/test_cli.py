@@ -264,7 +264,11 @@ def test_tune_warm_start_continues_a_saved_agent_and_refuses_a_mismatched_one(sp
     res = run("tune", str(spec_file), "--budget", "200", "--workers", "8", "--warm-start", str(agent), "--json")
     assert res.exit_code in (0, 3), res.output
     doc = json.loads(res.stdout)
-    assert doc["rl_sims"] > 0 and f"--warm-start {agent}" in doc["provenance"]["command"]
+    assert doc["rl_sims"] > 0 and f"--warm-start {agent}" in doc["provenance"]["command"] and doc["warm_start"] == str(agent)
+    res = run("tune", str(spec_file), "--budget", "10", "--warm-start", str(agent), "--json")  # learning off
+    doc = json.loads(res.stdout)
+    assert doc["rl_sims"] == 0 and doc["verification"]["verdict"] in ("pass", "fail")
+    assert f"saved policy of {agent} as it is (learning off)" in doc["diagnosis"]["hints"][0]
     pi = tmp_path / "pi.yaml"
     data = load_model("lag_n").example_spec()
     pi.write_text(yaml.safe_dump({**data, "loops": [{"name": "main", "type": "pi"}]}, sort_keys=False))
