@@ -7,9 +7,9 @@ Prints RL-only and policy-mean cost ratios to the reference optimum (docs/search
 
 from __future__ import annotations
 
-import argparse
 import time
 
+from gaintune.bench.arguments import BenchParser, budget_int, positive_float, seed_int
 from gaintune.search import tune
 from gaintune.spec import load_spec
 
@@ -25,11 +25,12 @@ CONFIGS = {
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="gaintune bench ablation", description=__doc__.splitlines()[0])
-    ap.add_argument("--budget", type=int, default=5000)
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0])
-    ap.add_argument("--reference", type=float, default=1.602535, help="reference optimum cost")
-    ap.add_argument("--configs", nargs="+", default=list(CONFIGS))
+    ap = BenchParser(prog="gaintune bench ablation", description=__doc__.splitlines()[0])
+    ap.add_argument("--budget", type=budget_int, default=5000, help="simulations per run (default 5000)")
+    ap.add_argument("--seeds", type=seed_int, nargs="+", default=[0])
+    ap.add_argument("--reference", type=positive_float, default=1.602535, help="reference optimum cost (> 0)")
+    ap.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS), metavar="CONFIG",
+                    help="configurations to run, quoted, from: " + ", ".join(f"'{c}'" for c in CONFIGS) + " (default: all)")
     a = ap.parse_args(argv)
     print("| config | seed | RL-only / optimum | policy / optimum | sims | wall s |")
     print("|---|---|---|---|---|---|")

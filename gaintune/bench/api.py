@@ -24,7 +24,6 @@ Targets (issue): verify p95 <= 50 ms and >= 200 requests/s; GET stays low while 
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import json
 import os
@@ -34,9 +33,12 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+
+from gaintune.bench.arguments import BenchParser, int_list, int_range, non_negative_int, positive_float, positive_int
 
 __all__ = ["main", "CASCADE_SPEC", "NOMINAL_GAINS"]
 
@@ -61,6 +63,8 @@ CASCADE_SPEC = {
     "scenario": {"dt": 1e-3, "horizon": 0.5},
 }
 NOMINAL_GAINS = {"speed": {"Kp": 2.0, "Ki": 40.0}, "current": {"Kp": 10.0, "Ki": 1000.0}}
+#: Most requests in flight: each holds a socket (a file descriptor) and the server has 2 job workers.
+MAX_CONCURRENCY = 1000
 
 
 def _free_port() -> int:
@@ -183,13 +187,46 @@ async def _load(client, make_request, n: int, seconds: float, concurrency: int) 
             "errors": errors}
 
 
+def _term_with_parent() -> Callable[[], None] | None:
+    """A ``preexec_fn`` that has Linux send the child SIGTERM when this process dies (None elsewhere).
+
+    The ``finally`` of :func:`_run` stops the server on every exception, but not when this
+    process is SIGKILLed (``timeout -s KILL``, the OOM killer): the server and its job workers
+    were left running. SIGTERM lets the server stop its workers itself. libc is loaded here,
+    in the parent: the child between fork and exec only calls it.
+    """
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        import ctypes
+
+        prctl = ctypes.CDLL("libc.so.6", use_errno=True).prctl
+    except OSError:  # pragma: no cover - no glibc
+        return None
+    return lambda: prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+
+
 def _start_server(tmp: Path, port: int, workers: int, compute_processes: int | None = None) -> subprocess.Popen:
     env = dict(os.environ, GAINTUNE_DB_PATH=str(tmp / "jobs.db"), GAINTUNE_DATA_DIR=str(tmp / "data"))
     if compute_processes is not None:
         env["GAINTUNE_COMPUTE_PROCESSES"] = str(compute_processes)
     cmd = [sys.executable, "-m", "gaintune_api", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers),
            "--log-level", "warning"]
-    return subprocess.Popen(cmd, cwd=tmp, env=env, stdout=open(tmp / "server.log", "w"), stderr=subprocess.STDOUT)
+    with open(tmp / "server.log", "w") as log:  # the child keeps its own copy of the descriptor
+        return subprocess.Popen(cmd, cwd=tmp, env=env, stdout=log, stderr=subprocess.STDOUT,
+                                preexec_fn=_term_with_parent())
+
+
+def _stop_server(proc: subprocess.Popen) -> None:
+    """SIGTERM, then SIGKILL after 15 s: the server must never outlive the benchmark."""
+    if proc.poll() is not None:
+        return
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(15)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
 
 
 def _in_process_verify_ms(n: int = 20) -> float:
@@ -217,12 +254,12 @@ async def _run(args) -> dict:
     port = _free_port()
     load0 = [round(x, 2) for x in os.getloadavg()]
     in_process = _in_process_verify_ms()
-    proc = _start_server(tmp, port, workers=2, compute_processes=args.compute_processes)
     out: dict = {"url": f"http://127.0.0.1:{port}", "cpus": os.cpu_count(), "concurrency": args.concurrency,
                  "client": args.client,
                  "loadavg_start": load0, "verify_in_process_ms": in_process,
                  "compute_processes": "default" if args.compute_processes is None else args.compute_processes}
-    try:
+    proc = _start_server(tmp, port, workers=2, compute_processes=args.compute_processes)
+    try:  # nothing between the start and this try may raise: the finally stops the server
         limits = httpx.Limits(max_connections=args.concurrency * 2)
         async with httpx.AsyncClient(base_url=out["url"], timeout=60, limits=limits) as c:
             t0 = time.perf_counter()
@@ -302,25 +339,23 @@ async def _run(args) -> dict:
             if lc is not c:
                 await lc.aclose()
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(15)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        _stop_server(proc)
     return out
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="gaintune bench api", description="REST API latency/throughput on a real server.")
-    ap.add_argument("--requests", type=int, default=500, help="requests per phase (upper bound)")
-    ap.add_argument("--seconds", type=float, default=20.0, help="seconds per phase (upper bound)")
-    ap.add_argument("--concurrency", type=int, default=8, help="requests in flight in every phase")
-    ap.add_argument("--sweep", type=lambda v: [int(x) for x in v.split(",") if x], default=[],
+    # every argument is checked here, before the server starts (concurrency 0 waited for ever on no requests)
+    ap = BenchParser(prog="gaintune bench api", description="REST API latency/throughput on a real server.")
+    ap.add_argument("--requests", type=positive_int, default=500, help="requests per phase (upper bound)")
+    ap.add_argument("--seconds", type=positive_float, default=20.0, help="seconds per phase (upper bound)")
+    ap.add_argument("--concurrency", type=int_range(1, MAX_CONCURRENCY), default=8,
+                    help=f"requests in flight in every phase, 1 .. {MAX_CONCURRENCY}")
+    ap.add_argument("--sweep", type=int_list(1, MAX_CONCURRENCY), default=[],
                     help="extra verify_distinct runs at these concurrencies, e.g. 1,2,4,8,16")
-    ap.add_argument("--sweep-requests", type=int, default=300, help="requests per sweep point (upper bound)")
-    ap.add_argument("--job-start-timeout", type=float, default=300.0,
+    ap.add_argument("--sweep-requests", type=positive_int, default=300, help="requests per sweep point (upper bound)")
+    ap.add_argument("--job-start-timeout", type=positive_float, default=300.0,
                     help="seconds to wait for the 2 tuning jobs to report progress (cold numba caches compile first)")
-    ap.add_argument("--compute-processes", type=int, default=None,
+    ap.add_argument("--compute-processes", type=non_negative_int, default=None,
                     help="server's compute_processes (default: the server default; 0: compute in the server process)")
     ap.add_argument("--client", choices=("raw", "httpx"), default="raw",
                     help="load-phase HTTP client: raw (light keep-alive HTTP/1.1, default) or httpx (about 2.5 ms CPU "

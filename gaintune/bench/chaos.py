@@ -22,7 +22,6 @@ first progress report: freezes land mid-job) and ``GAINTUNE_TEST_STORAGE_FAULT_F
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import random
@@ -35,6 +34,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
+from gaintune.bench.arguments import BenchParser, budget_int, non_negative_int, positive_int
 from gaintune.bench.chaos_procs import Server, _agent_ok, _proc_state, _serving, _wait, _Worker, job_spec
 
 __all__ = ["main", "job_spec"]
@@ -195,7 +195,7 @@ def stale(root: Path, rounds: int, budget: int, log: Callable) -> dict:
 def _stale_round(srv: Server, victim: _Worker, hold: Path, r: int, budget: int) -> bool:
     """One freeze-recover-finish-resume round; True when the finished job's agent or result changed."""
     hold.touch()
-    job = srv.client.post("/v1/tune", json=job_spec(100 + r, budget)).json()["id"]
+    job = srv.submit(job_spec(100 + r, budget))
     _wait(lambda: (lambda j: j["status"] == "running" and j["progress"])(srv.job(job)), 300, "the job to run")
     _freeze_outside_tx(srv, victim.proc.pid)
     _wait(lambda: srv.job(job)["status"] == "queued", 60, "the lease to expire and the job to be re-queued")
@@ -233,13 +233,13 @@ def storage_and_connections(root: Path, budget: int, log: Callable) -> tuple[dic
 def storage(srv: Server, hold: Path, faults: Path, budget: int, log: Callable) -> tuple[dict, dict[str, str]]:
     """Every endpoint under each storage fault: count 5xx without a named cause and /readyz 200s."""
     c = srv.client
-    done = c.post("/v1/tune", json=job_spec(200, budget)).json()["id"]
+    done = srv.submit(job_spec(200, budget))
     _wait(lambda: srv.job(done)["status"] == "succeeded", 300, "a finished job")
     hold.touch()
-    held = c.post("/v1/tune", json=job_spec(201, budget)).json()["id"]
+    held = srv.submit(job_spec(201, budget))
     _wait(lambda: srv.job(held)["progress"], 300, "a running job")
     faults_order = ("data:readonly", "data:full", "db:readonly", "db:full")  # data first: the report is not cached
-    queued = {f: c.post("/v1/tune", json=job_spec(210 + i, budget)).json()["id"] for i, f in enumerate(faults_order)}
+    queued = {f: srv.submit(job_spec(210 + i, budget)) for i, f in enumerate(faults_order)}
     out = {"responses": 0, "storage_5xx": 0, "unnamed_5xx": 0, "readyz_polls": 0, "readyz_ready": 0,
            "by_fault": {}}
     for fault in faults_order:
@@ -342,13 +342,14 @@ def connections(srv: Server, jobs: dict[str, str], log: Callable) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the campaign and print the figures (``--json``: as JSON). Exit 1 if any figure is off target."""
-    ap = argparse.ArgumentParser(prog="gaintune bench chaos", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--jobs", type=int, default=40)
-    ap.add_argument("--worker-kills", type=int, default=10)
-    ap.add_argument("--server-kills", type=int, default=2)
-    ap.add_argument("--budget", type=int, default=1000,
+    # checked before any server starts: a budget the API refuses (422) used to surface as KeyError: 'id'
+    ap = BenchParser(prog="gaintune bench chaos", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--jobs", type=positive_int, default=40)
+    ap.add_argument("--worker-kills", type=non_negative_int, default=10)
+    ap.add_argument("--server-kills", type=non_negative_int, default=2)
+    ap.add_argument("--budget", type=budget_int, default=1000,
                     help="simulations per job: small, but long enough (a few s) for kills to land mid-job")
-    ap.add_argument("--rounds", type=int, default=3, help="freeze rounds in the frozen and stale phases")
+    ap.add_argument("--rounds", type=non_negative_int, default=3, help="freeze rounds in the frozen and stale phases")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--keep", action="store_true", help="keep the temporary folder (logs, databases)")
     args = ap.parse_args(argv)

@@ -110,6 +110,14 @@ class Server:
     def job(self, job_id: str) -> dict:
         return self.client.get(f"/v1/jobs/{job_id}").json()
 
+    def submit(self, spec: dict[str, Any]) -> str:
+        """``POST /v1/tune``: the new job's id. A refused job raises naming the status and the body
+        (a 422 problem body read as a job was a bare ``KeyError: 'id'``)."""
+        r = self.client.post("/v1/tune", json=spec)
+        if r.status_code != 202:
+            raise RuntimeError(f"POST /v1/tune answered {r.status_code}, not 202: {r.text[:500]}")
+        return r.json()["id"]
+
     def kill(self) -> None:
         """SIGKILL the server; wait until its workers are gone (they die with it)."""
         assert self.proc is not None

@@ -29,13 +29,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from gaintune.fmt import fmt
-from gaintune.bench.references import default_out_dir, reference_for, reference_summary
+from gaintune.bench.arguments import (
+    BenchParser, add_out_argument, budget_int, fail, non_negative_int, resolve_out, seed_int, select_problems,
+)
+from gaintune.bench.references import reference_for, reference_summary
 from gaintune.bench.suite import (
     Problem,
     describe_problems,
-    get_suite,
     timed_row,
-    select,
     suite_names,
 )
 
@@ -374,10 +375,15 @@ def render_markdown(result: dict[str, Any], command: str = "") -> str:
 
 
 def write_outputs(result: dict[str, Any], out_dir: Path, stem: str, markdown: str) -> tuple[Path, Path]:
-    out_dir.mkdir(parents=True, exist_ok=True)
+    """Write ``<stem>.json`` and ``<stem>.md`` to ``out_dir`` (created if missing); exit 2 naming ``--out`` if it cannot."""
+    out_dir = Path(out_dir)
     jp, mp = out_dir / f"{stem}.json", out_dir / f"{stem}.md"
-    jp.write_text(json.dumps(_jsonable(result), indent=1) + "\n")
-    mp.write_text(markdown)
+    try:  # --out was checked at parse time; this catches a folder removed or filled since
+        out_dir.mkdir(parents=True, exist_ok=True)
+        jp.write_text(json.dumps(_jsonable(result), indent=1) + "\n")
+        mp.write_text(markdown)
+    except OSError as exc:
+        fail("--out", f"cannot write {exc.filename or out_dir} ({exc.strerror or exc}); give a writable folder")
     return jp, mp
 
 
@@ -397,43 +403,32 @@ def set_threads(n: int | None) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
+    from gaintune.baselines import METHODS
+
+    ap = BenchParser(
         prog="gaintune bench compare",
         description="Compare classical rules, black-box optimisers, the RL search and the reference optimum on a benchmark suite.",
     )
     ap.add_argument("--suite", default="default", choices=suite_names(), help="benchmark suite (default: default)")
     ap.add_argument("--problems", nargs="+", metavar="NAME", help="only these problems of the suite")
-    ap.add_argument("--methods", nargs="+", metavar="METHOD", default=list(DEFAULT_METHODS),
-                    help=f"methods in table order (default: {' '.join(DEFAULT_METHODS)})")
-    ap.add_argument("--seed", type=int, default=0, help="seed of the stochastic methods (default 0)")
-    ap.add_argument("--budget", type=int, help="simulation budget of every problem (default: each problem's own)")
-    ap.add_argument("--out", type=Path, help="output folder (default: bench/results)")
+    ap.add_argument("--methods", nargs="+", metavar="METHOD", default=list(DEFAULT_METHODS), choices=[*METHODS, "rl"],
+                    help=f"methods in table order, from {' '.join([*METHODS, 'rl'])} (default: {' '.join(DEFAULT_METHODS)})")
+    ap.add_argument("--seed", type=seed_int, default=0, help="seed of the stochastic methods (default 0)")
+    ap.add_argument("--budget", type=budget_int, help="simulation budget of every problem (default: each problem's own)")
+    add_out_argument(ap)
     ap.add_argument("--refresh-reference", action="store_true", help="recompute the cached reference optima")
-    ap.add_argument("--threads", type=int, default=0,
+    ap.add_argument("--threads", type=non_negative_int, default=0,
                     help="torch threads for the run (default 0: keep the library's setting, GAINTUNE_TORCH_THREADS)")
     ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     return ap
 
 
-def _check_methods(methods: Sequence[str]) -> None:
-    from gaintune.baselines import METHODS
-
-    known = set(METHODS) | {"rl"}
-    bad = [m for m in methods if m not in known]
-    if bad:
-        raise SystemExit(f"unknown method(s) {bad}; choose from {', '.join([*METHODS, 'rl'])}")
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``gaintune bench compare`` (returns the exit code)."""
     args = build_parser().parse_args(argv)
-    _check_methods(args.methods)
-    try:
-        problems = select(get_suite(args.suite), args.problems)
-    except ValueError as exc:
-        raise SystemExit(str(exc)) from None
+    problems = select_problems(args.suite, args.problems)
+    out = resolve_out(args.out)
     set_threads(args.threads)
-    out = args.out or default_out_dir()
     log = None if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     command = "gaintune bench compare " + " ".join(sys.argv[1:] if argv is None else argv)
     with warnings.catch_warnings():

@@ -19,14 +19,15 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from gaintune.bench.arguments import (
+    MAX_BATCH, BenchParser, add_out_argument, float_range, int_range, resolve_out, seed_int, select_problems,
+)
 from gaintune.bench.compare import md_table, write_outputs
-from gaintune.bench.references import default_out_dir
-from gaintune.bench.suite import get_suite, select, suite_names
+from gaintune.bench.suite import suite_names
 
 __all__ = ["agreement", "main"]
 
@@ -95,23 +96,22 @@ def agreement(problem, n: int = 200, spread: float = 0.03, seed: int = 0) -> dic
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="gaintune bench constraints", description=__doc__.splitlines()[0])
+    ap = BenchParser(prog="gaintune bench constraints", description=__doc__.splitlines()[0])
     ap.add_argument("--suite", default="standard", choices=suite_names())
     ap.add_argument("--problems", nargs="+", metavar="NAME")
-    ap.add_argument("--n", type=int, default=200, help="candidates per problem (default 200)")
-    ap.add_argument("--spread", type=float, default=0.03, help="relative log-normal spread of each gain (default 0.03)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, help="output folder (default: bench/results)")
+    ap.add_argument("--n", type=int_range(1, MAX_BATCH), default=200, help="candidates per problem (default 200)")
+    # above a spread of 1 (100 %) the far tail of exp(N(0, spread)) overflows the gains to inf
+    ap.add_argument("--spread", type=float_range(0.0, 1.0), default=0.03,
+                    help="relative log-normal spread of each gain, > 0 and <= 1 (default 0.03)")
+    ap.add_argument("--seed", type=seed_int, default=0)
+    add_out_argument(ap)
     return ap
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    try:
-        problems = select(get_suite(args.suite), args.problems)
-    except ValueError as exc:
-        print(f"error: {exc}")
-        return 2
+    problems = select_problems(args.suite, args.problems)
+    out = resolve_out(args.out)
     rows = []
     for p in problems:
         r = agreement(p, args.n, args.spread, args.seed)
@@ -130,6 +130,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(table)
     print(summary)
     write_outputs({"rows": rows, "summary": summary, "spread": args.spread, "n": args.n},
-                  args.out or default_out_dir(), f"constraints_{args.suite}",
+                  out, f"constraints_{args.suite}",
                   f"# gaintune bench constraints --suite {args.suite}\n\n{table}\n\n{summary}\n")
     return 0

@@ -1,8 +1,13 @@
 """``gaintune bench kernel``: the simulator kernel timed side by side with an earlier revision of it.
 
-Run from the repository (it reads the old kernel with ``git show``)::
+Run from a git checkout of gaintune (it reads the old kernel with ``git show`` in the
+checkout this package is imported from)::
 
-    gaintune bench kernel [--rev e0e478f3] [--batch 512] [--min-time 0.4]
+    gaintune bench kernel --rev REV [--batch 512] [--min-time 0.4]
+
+``--rev`` has no default: which earlier revision is worth comparing depends on the
+checkout (a shallow or rewritten history lacks any fixed hash). Without it, the error
+names the last commit that changed the kernel as an example.
 
 The kernel source of ``--rev`` is taken from git into a temporary module (or package,
 for revisions where the kernel is the package ``gaintune/sim/kernel/``), so both
@@ -22,7 +27,6 @@ The old kernel at ``e0e478f3`` takes a leading ``chunk`` argument; it is passed 
 
 from __future__ import annotations
 
-import argparse
 import functools
 import importlib.util
 import inspect
@@ -37,11 +41,41 @@ from pathlib import Path
 import numpy as np
 
 from gaintune.bench import sim as bench_sim
+from gaintune.bench.arguments import MAX_BATCH, BenchParser, fail, int_range, positive_float, positive_int
 from gaintune.sim import kernel as new_kernel
 
 
+#: The checkout this package is imported from: its history holds the earlier kernels.
+REPO = Path(__file__).resolve().parents[2]
+#: Where the kernel lives (a package now; one module in early revisions).
+KERNEL_PATHS = ("gaintune/sim/kernel/", "gaintune/sim/kernel.py")
+
+
+def _git(*args: str, check: bool = True) -> subprocess.CompletedProcess:
+    return subprocess.run(["git", "-C", str(REPO), *args], capture_output=True, text=True, check=check)
+
+
 def _git_show(rev: str, path: str) -> str:
-    return subprocess.run(["git", "show", f"{rev}:{path}"], capture_output=True, text=True, check=True).stdout
+    return _git("show", f"{rev}:{path}").stdout
+
+
+def check_rev(rev: str | None) -> str:
+    """``rev`` if it is a commit of this checkout that has a kernel; else exit 2 naming ``--rev`` and an example."""
+    try:
+        last = _git("log", "-1", "--format=%h", "--", *KERNEL_PATHS, check=False)
+    except OSError:  # no git executable
+        fail("--rev", "needs git to read the earlier kernel; install git")
+    if last.returncode != 0:
+        fail("--rev", f"needs a git checkout of gaintune to read the earlier kernel ({REPO} is not one)")
+    hint = (f"e.g. --rev {last.stdout.strip()} (the last commit that changed the kernel; "
+            f"`git log --oneline -- gaintune/sim/kernel` lists the others)")
+    if rev is None:
+        fail("--rev", f"give the git revision to compare the working-tree kernel with, {hint}")
+    if _git("rev-parse", "--verify", "--quiet", f"{rev}^{{commit}}", check=False).returncode != 0:
+        fail("--rev", f"{rev!r} is not a commit of this checkout; {hint}")
+    if not _git("ls-tree", "--name-only", rev, "--", *KERNEL_PATHS).stdout.strip():
+        fail("--rev", f"{rev} has no simulator kernel ({' or '.join(KERNEL_PATHS)}); {hint}")
+    return rev
 
 
 @functools.lru_cache(maxsize=None)
@@ -53,8 +87,7 @@ def _load_module(rev: str) -> types.ModuleType:
     """
     name = "kernel_" + re.sub(r"\W", "_", rev)
     tmp = Path(tempfile.mkdtemp())
-    listing = subprocess.run(["git", "ls-tree", "--name-only", rev, "gaintune/sim/kernel/"],
-                             capture_output=True, text=True, check=True).stdout.split()
+    listing = _git("ls-tree", "--name-only", rev, "gaintune/sim/kernel/").stdout.split()
     if listing:
         pkg = tmp / name
         pkg.mkdir()
@@ -82,16 +115,22 @@ def _load_old(rev: str, variant: str = "simulate_kernel_serial"):
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="gaintune bench kernel", description=__doc__.splitlines()[0])
-    ap.add_argument("--rev", default="e0e478f3")
-    ap.add_argument("--batch", type=int, default=512)
-    ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--min-time", type=float, default=0.4)
-    ap.add_argument("--parallel-batch", type=int, default=4096, help="0 skips the parallel rows")
+    ap = BenchParser(prog="gaintune bench kernel", description=__doc__.splitlines()[0])
+    ap.add_argument("--rev", help="git revision of the earlier kernel (required; the error without it suggests one)")
+    ap.add_argument("--batch", type=int_range(1, MAX_BATCH), default=512)
+    ap.add_argument("--repeat", type=positive_int, default=3)
+    ap.add_argument("--min-time", type=positive_float, default=0.4, help="seconds of back-to-back calls per timing")
+    ap.add_argument("--parallel-batch", type=int_range(0, MAX_BATCH), default=4096, help="0 skips the parallel rows")
     a = ap.parse_args(argv)
-    old = _load_old(a.rev)
-    # batch 1 runs on the single-lane variant; revisions before it existed run it serially
-    old1 = _load_old(a.rev, "simulate_kernel_single") if hasattr(_load_module(a.rev), "simulate_kernel_single") else old
+    check_rev(a.rev)
+    try:  # a revision's kernel may not fit this tree's arguments or imports: say so, not a traceback
+        old = _load_old(a.rev)
+        # batch 1 runs on the single-lane variant; revisions before it existed run it serially
+        old1 = _load_old(a.rev, "simulate_kernel_single") if hasattr(_load_module(a.rev), "simulate_kernel_single") else old
+        old_par = _load_old(a.rev, "simulate_kernel_parallel") if a.parallel_batch else None
+    except Exception as exc:
+        fail("--rev", f"the kernel of {a.rev} does not load beside this tree ({type(exc).__name__}: {exc}); "
+                      "pick a later revision")
     print(f"serial kernel, one core (thread CPU time), old = {a.rev}, new = working tree")
     print("| case | batch | old sims/s | new sims/s | new ms/sim | speed-up | identical |")
     print("|---|---:|---:|---:|---:|---:|---|")
@@ -111,7 +150,6 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| {name} | {B} | {B / to:,.0f} | {B / tn:,.0f} | {1e3 * tn / B:.4f} | {to / tn:.2f}x | {same} |", flush=True)
     if a.parallel_batch:
         B = a.parallel_batch
-        old_par = _load_old(a.rev, "simulate_kernel_parallel")
         print(f"\nparallel kernel, all cores (wall clock), batch {B}")
         print("| case | old sims/s | new sims/s | speed-up | identical |")
         print("|---|---:|---:|---:|---|")

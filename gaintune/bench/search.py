@@ -31,14 +31,15 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from gaintune.bench.arguments import (
+    BenchParser, add_out_argument, budget_int, non_negative_int, resolve_out, seed_int, select_problems,
+)
 from gaintune.bench.compare import fmt, fmt_ratio, md_table, ratio, set_threads, stats, write_outputs
-from gaintune.bench.references import default_out_dir, reference_for, reference_summary
+from gaintune.bench.references import reference_for, reference_summary
 from gaintune.bench.suite import (
     Problem,
     describe_problems,
-    get_suite,
     timed_row,
-    select,
     suite_names,
 )
 
@@ -242,18 +243,18 @@ def render_markdown(result: dict[str, Any], command: str = "") -> str:
 def build_parser() -> argparse.ArgumentParser:
     from gaintune.search.agents import ALGOS
 
-    ap = argparse.ArgumentParser(
+    ap = BenchParser(
         prog="gaintune bench search",
         description="Measure the RL gain search against the reference optimum and CMA-ES at the same budget.",
     )
     ap.add_argument("--suite", default="default", choices=suite_names(), help="benchmark suite (default: default)")
     ap.add_argument("--problems", nargs="+", metavar="NAME", help="only these problems of the suite")
     ap.add_argument("--algo", default="ppo", choices=sorted(ALGOS), help="RL algorithm (default ppo)")
-    ap.add_argument("--budget", type=int, help="simulation budget of every problem (default: each problem's own)")
-    ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2], help="seeds (default 0 1 2)")
-    ap.add_argument("--out", type=Path, help="output folder (default: bench/results)")
+    ap.add_argument("--budget", type=budget_int, help="simulation budget of every problem (default: each problem's own)")
+    ap.add_argument("--seeds", nargs="+", type=seed_int, default=[0, 1, 2], help="seeds (default 0 1 2)")
+    add_out_argument(ap)
     ap.add_argument("--refresh-reference", action="store_true", help="recompute the cached reference optima")
-    ap.add_argument("--threads", type=int, default=0,
+    ap.add_argument("--threads", type=non_negative_int, default=0,
                     help="torch threads for the run (default 0: keep the library's setting, GAINTUNE_TORCH_THREADS)")
     ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     ap.add_argument("--no-repair", action="store_true",
@@ -264,14 +265,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``gaintune bench search`` (returns the exit code)."""
     args = build_parser().parse_args(argv)
-    try:
-        problems = select(get_suite(args.suite), args.problems)
-    except ValueError as exc:
-        raise SystemExit(str(exc)) from None
-    if args.budget is not None and args.budget < 10:
-        raise SystemExit("--budget must be at least 10 simulations")
+    problems = select_problems(args.suite, args.problems)
+    out = resolve_out(args.out)
     set_threads(args.threads)
-    out = args.out or default_out_dir()
     log = None if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     command = ("gaintune bench search " + " ".join(sys.argv[1:] if argv is None else argv)).strip()
     with warnings.catch_warnings():

@@ -51,6 +51,8 @@ from typing import Any
 
 import numpy as np
 
+from gaintune.bench.arguments import MAX_BATCH, BenchParser, fail, int_range, positive_float, positive_int
+
 __all__ = ["CASES", "main", "numpy_rollout", "make_case", "run_benchmark"]
 
 LAG3_SPEC: dict[str, Any] = {
@@ -307,7 +309,7 @@ def _per_call(fn: Callable[[], Any], min_time: float, clock: Callable[[], float]
         fn()
         n += 1
         el = clock() - t0
-        if el >= min_time:
+        if not el < min_time:  # not `el >= min_time`: a NaN limit must end the loop too
             return el / n
 
 
@@ -444,11 +446,12 @@ def markdown(result: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="gaintune bench sim", description="Closed-loop simulations per second: kernel vs NumPy.")
+    ap = BenchParser(prog="gaintune bench sim", description="Closed-loop simulations per second: kernel vs NumPy.")
     ap.add_argument("--case", nargs="+", choices=CASES, default=list(CASES))
-    ap.add_argument("--batch", nargs="+", type=int, default=[1, 4096])
-    ap.add_argument("--repeat", type=int, default=5, help="interleaved repetitions (median reported)")
-    ap.add_argument("--min-time", type=float, default=0.3, help="seconds of back-to-back calls per repetition")
+    ap.add_argument("--batch", nargs="+", type=int_range(1, MAX_BATCH), default=[1, 4096],
+                    help=f"batch sizes, 1 .. {MAX_BATCH:,} (default 1 4096)")
+    ap.add_argument("--repeat", type=positive_int, default=5, help="interleaved repetitions (median reported)")
+    ap.add_argument("--min-time", type=positive_float, default=0.3, help="seconds of back-to-back calls per repetition")
     ap.add_argument("--no-memory", action="store_true", help="skip the subprocess peak-memory runs")
     ap.add_argument("--no-numpy", action="store_true", help="skip the NumPy baseline")
     ap.add_argument("--json", action="store_true", help="print JSON instead of a Markdown table")
@@ -458,7 +461,10 @@ def main(argv: list[str] | None = None) -> int:
         name, impl, B = a._memory
         print(json.dumps(_memory_worker(name, impl, int(B))))
         return 0
-    res = run_benchmark(a.case, a.batch, a.repeat, a.min_time, memory=not a.no_memory, numpy_baseline=not a.no_numpy)
+    try:
+        res = run_benchmark(a.case, a.batch, a.repeat, a.min_time, memory=not a.no_memory, numpy_baseline=not a.no_numpy)
+    except MemoryError:  # within MAX_BATCH, but more than this machine holds
+        fail("--batch", f"out of memory at batch {max(a.batch):,}; give a smaller --batch")
     print(json.dumps(res, indent=2, default=float) if a.json else markdown(res))
     return 0
 

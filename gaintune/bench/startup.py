@@ -24,7 +24,6 @@ set to their own tree, and the table adds the before figures and the after/befor
 
 from __future__ import annotations
 
-import argparse
 import compileall
 import json
 import os
@@ -38,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gaintune.bench.arguments import BenchParser, add_out_argument, positive_int, resolve_out
 from gaintune.bench.compare import md_table, write_outputs
-from gaintune.bench.references import default_out_dir
 
 __all__ = ["commands", "main"]
 
@@ -120,14 +119,15 @@ def _load(avg: tuple[float, float, float]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="gaintune bench startup", description=__doc__.splitlines()[0])
-    ap.add_argument("--repeat", type=int, default=5, help="timed runs per command (default 5)")
+    ap = BenchParser(prog="gaintune bench startup", description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=positive_int, default=5, help="timed runs per command (default 5)")
     ap.add_argument("--before", type=Path, help="an older gaintune checkout to measure beside this one")
-    ap.add_argument("--out", type=Path, help="output folder (default: bench/results)")
+    add_out_argument(ap)
     args = ap.parse_args(argv)
     if args.before is not None and not (args.before / "gaintune" / "__init__.py").is_file():
-        print(f"--before: {args.before} holds no gaintune package (give the checkout's top folder)", file=sys.stderr)
+        print(f"error: --before: {args.before} holds no gaintune package (give the checkout's top folder)", file=sys.stderr)
         return 2
+    out = resolve_out(args.out)
     here = Path(__file__).resolve().parents[2]
     trees = {"after": here, "before": args.before.resolve()} if args.before else {"after": None}
     load0 = os.getloadavg()
@@ -162,7 +162,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(table)
     print(load)
     _, md = write_outputs({"rows": rows, "header": head, "repeat": args.repeat, "load_before": load0, "load_after": load1},
-                          args.out or default_out_dir(), "startup",
+                          out, "startup",
                           f"# gaintune bench startup --repeat {args.repeat}{' --before ' + str(args.before) if args.before else ''}"
                           f"\n\n{table}\n\n{load}\n")
     print(f"wrote {md}")

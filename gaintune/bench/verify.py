@@ -17,15 +17,13 @@ compare figures from one run. Written to ``--out`` (default ``bench/results``) a
 
 from __future__ import annotations
 
-import argparse
 import time
 from collections.abc import Callable, Sequence
-from pathlib import Path
 
 import numpy as np
 
+from gaintune.bench.arguments import BenchParser, add_out_argument, positive_int, resolve_out
 from gaintune.bench.compare import md_table, write_outputs
-from gaintune.bench.references import default_out_dir
 
 __all__ = ["CASES", "main"]
 
@@ -101,14 +99,15 @@ def measure(repeat: int) -> list[list]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="gaintune bench verify", description=__doc__.splitlines()[0])
-    ap.add_argument("--repeat", type=int, default=50, help="timed calls per figure (default 50)")
-    ap.add_argument("--out", type=Path, help="output folder (default: bench/results)")
+    ap = BenchParser(prog="gaintune bench verify", description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=positive_int, default=50, help="timed calls per figure (default 50)")
+    add_out_argument(ap)
     args = ap.parse_args(argv)
+    out = resolve_out(args.out)
     rows = measure(args.repeat)
     table = md_table(["case", "what", "mean ms", "p95 ms", "verdict"], rows)
     print(table)
-    _, md = write_outputs({"rows": rows, "repeat": args.repeat}, args.out or default_out_dir(), "verify",
+    _, md = write_outputs({"rows": rows, "repeat": args.repeat}, out, "verify",
                           f"# gaintune bench verify --repeat {args.repeat}\n\n{table}\n")
     print(f"wrote {md}")
     return 0

@@ -287,9 +287,11 @@ def test_run_compare_na_ratios_and_summary(tmp_path):
     assert data["summary"]["simc"]["worst_ratio"] == "inf"
 
 
-def test_compare_rejects_unknown_method(tmp_path):
-    with pytest.raises(SystemExit, match="unknown method"):
+def test_compare_rejects_unknown_method(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
         C.main(["--suite", "quick", "--methods", "simc", "magic", "--out", str(tmp_path)])
+    assert exc.value.code == 2  # invalid input (docs/cli.md), not 1
+    assert capsys.readouterr().err.startswith("error: --methods: invalid choice: 'magic'")
 
 
 def test_gain_figures_on_a_real_problem():
