@@ -10,6 +10,7 @@ This package holds the typer :data:`app` and its commands; its modules hold the 
 * :mod:`gaintune.cli.output`: result summaries, tables, plots and ``--out`` folders;
 * :mod:`gaintune.cli.tuning`: running a tune with its progress bar (``tune``, ``demo``);
 * :mod:`gaintune.cli.exporting`: the verdict gate of ``export``;
+* :mod:`gaintune.cli.policy`: a trained tuner's gains for other plants (``policy``);
 * :mod:`gaintune.cli.bench`: the ``bench`` sub-app (:data:`BENCH`);
 * :mod:`gaintune.cli.entry`: :data:`app`'s class, which ends a command run as the program
   without interpreter teardown (0.9 s after a tune).
@@ -36,6 +37,7 @@ from gaintune.cli.common import (
 from gaintune.cli.entry import GaintuneTyper
 from gaintune.cli.exporting import _checked_at_dt
 from gaintune.cli.output import _plot_runs, _print_plant, _print_plants, _print_simulation, _simulation_json
+from gaintune.cli.policy import run_policy
 from gaintune.cli.output import _write_outputs  # noqa: F401 - gaintune.cli._write_outputs, used by tests
 # the commands call _get_tune through this module, so gaintune.cli._get_tune can be replaced (tests do)
 from gaintune.cli.tuning import _finish, _get_tune, _run_tune, demo_spec
@@ -230,6 +232,20 @@ def export(
             output.parent.mkdir(parents=True, exist_ok=True)
             output.write_text(text)
         err.print(f"wrote {output}")
+
+
+@app.command()
+@handle_errors
+def policy(
+    run: Path = typer.Argument(..., metavar="RUN", help="A folder 'gaintune tune --out' wrote (result.json + agent.zip)."),
+    param: list[str] = typer.Option([], "--param", "-p", metavar="NAME=V[,V...]",
+                                    help="Plant parameter value(s); several values or several --param give a grid (a gain schedule)."),
+    json_out: bool = typer.Option(False, "--json", help="Print the answers as JSON."),
+) -> None:
+    """Gains of RUN's trained policy for plants of its family (parameters in its randomize ranges), each verified.
+
+    Exit 3 if any answer fails verification."""
+    run_policy(run, param, json_out)
 
 
 @app.command()

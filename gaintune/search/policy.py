@@ -1,0 +1,138 @@
+"""A trained tuner: the saved policy answers gains for a plant in its training range, verified, in milliseconds.
+
+A search with domain randomisation (``randomize.params``) trains a policy whose input is the
+plant's parameters, normalised to the training ranges (:func:`gaintune.sim.draws.context`). Kept
+with the spec it was trained on, that policy gives gains for another plant of the same family
+without a new search: instant gains for a new plant, and, over a grid of parameters, a gain
+schedule. :class:`PolicyTuner` loads the agent and the training problem once; each
+:meth:`PolicyTuner.answer` then maps the parameters to the policy's gains, moves them onto the
+requirement boundary as the search did (:mod:`gaintune.repair`), and verifies them on the plant
+at those parameters. As everywhere in gaintune, only a ``pass`` releases the gains
+(:attr:`PolicyAnswer.accepted_gains`).
+
+The action is read in the training search box (the box of the training spec's nominal plant),
+so the policy means what it meant when it was trained.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+import numpy as np
+from pydantic import BaseModel, Field
+
+from gaintune.envs.problem import GainProblem
+from gaintune.errors import SpecError
+from gaintune.objective import Evaluator
+from gaintune.plants import build_plant
+from gaintune.repair import repair
+from gaintune.search.agents import load_agent
+from gaintune.sim import Simulator
+from gaintune.sim import draws as draws_mod
+from gaintune.spec import RandomizeSpec, TuningSpec, load_spec
+from gaintune.verify import VerificationReport, verify
+
+__all__ = ["PolicyAnswer", "PolicyTuner"]
+
+
+class PolicyAnswer(BaseModel):
+    """The trained policy's gains for one plant, and their verification on that plant."""
+
+    params: dict[str, float] = Field(description="Plant parameters the gains are for (the training spec's nominal values where not given).")
+    gains: dict[str, dict[str, float]] = Field(description="The policy's gains, moved onto the requirement boundary as the search does.")
+    verification: VerificationReport = Field(description="Verification of the gains on the plant at these parameters (nominal, no robust set).")
+    outside: list[str] = Field(default_factory=list, description="Parameters outside their training range: the policy extrapolates there.")
+    elapsed_ms: float = Field(description="Wall time of this answer (policy, repair and verification), milliseconds.")
+
+    @property
+    def verdict(self) -> str:
+        return self.verification.verdict
+
+    @property
+    def accepted_gains(self) -> dict[str, dict[str, float]] | None:
+        """The gains, only when their verification passed; otherwise None."""
+        return self.gains if self.verdict == "pass" else None
+
+
+class PolicyTuner:
+    """A saved agent and the spec it was trained on, loaded once.
+
+    Parameters
+    ----------
+    agent_path
+        The ``agent.zip`` a tune wrote (``gaintune tune --out DIR``).
+    spec
+        The spec it was trained on (``DIR/result.json`` holds it; :meth:`from_run` reads both).
+
+    Raises
+    ------
+    SpecError
+        The agent is missing, not an agent, or was trained on other gains or context values.
+    """
+
+    def __init__(self, agent_path: str | Path, spec: TuningSpec) -> None:
+        self.spec = spec
+        self.problem = GainProblem(spec)  # the training box: the search box is a function of the spec
+        self.agent = load_agent(agent_path, field="agent")
+        want = (self.agent.action_space.shape, self.agent.observation_space.shape)
+        have = ((self.problem.dim,), (draws_mod.context_size(spec),))
+        if want != have:
+            raise SpecError("agent", f"the agent at {agent_path} was not trained on this spec: it takes {want[1][0]} "
+                            f"context value(s) and gives {want[0][0]} gains; the spec has {have[1][0]} and {have[0][0]}")
+        self.ranges = {name: d.box for name, d in spec.randomize.params.items()}
+
+    @classmethod
+    def from_run(cls, folder: str | Path) -> PolicyTuner:
+        """Load ``folder/agent.zip`` with the spec of ``folder/result.json`` (a ``gaintune tune --out`` folder)."""
+        folder = Path(folder)
+        try:
+            data = json.loads((folder / "result.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise SpecError("run", f"{folder} holds no readable result.json ({type(exc).__name__}); give the folder "
+                            "a 'gaintune tune --out' wrote") from None
+        if not isinstance(data, dict) or not isinstance(data.get("spec"), dict):
+            raise SpecError("run", f"{folder / 'result.json'} is not a gaintune result (no spec)")
+        return cls(folder / "agent.zip", load_spec(data["spec"]))
+
+    def spec_at(self, params: dict[str, float]) -> TuningSpec:
+        """The training spec with its nominal plant parameters replaced by ``params`` (names checked)."""
+        for name, value in params.items():
+            if name not in self.ranges:
+                known = sorted(self.ranges) or "none"
+                raise SpecError(f"params.{name}", f"not a parameter the policy was trained over "
+                                f"(randomize.params: {known}); it cannot say how {name!r} changes the gains")
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise SpecError(f"params.{name}", f"must be a finite number, got {value!r}")
+        data = self.spec.model_dump(mode="json")
+        data["plant"]["params"] = {**data["plant"].get("params", {}), **{k: float(v) for k, v in params.items()}}
+        return TuningSpec.model_validate(data)
+
+    def answer(self, params: dict[str, float] | None = None) -> PolicyAnswer:
+        """The policy's gains for the plant at ``params`` (unnamed parameters keep their nominal values), verified there."""
+        t0 = time.perf_counter()
+        spec = self.spec_at(params or {})
+        plant = build_plant(spec.plant)
+        layout = self.problem.layout
+        obs = draws_mod.context(self.spec, plant, draws_mod.nominal(spec, plant, 1))  # the training ranges normalise
+        # the answer is for this one plant: its requirements hold on it, not over the training family
+        spec = spec.model_copy(update={"randomize": RandomizeSpec()})
+        action = np.asarray(self.agent.predict(obs, deterministic=True)[0], dtype=float).reshape(-1)
+        tuned = layout.action_to_tuned(action)[None, :]
+        if spec.search.repair:  # scored as the search scored its samples: on the boundary of this plant
+            tuned = repair(Evaluator(spec, Simulator(spec, plant, layout)), tuned).tuned
+        gains = layout.to_dict(layout.full(tuned[0]))
+        report = verify(spec, gains, plant=plant, layout=layout, cache=False)
+        values = dict(zip(plant.param_names, map(float, plant.param_vector())))
+        outside = [n for n, (lo, hi) in self.ranges.items() if not lo <= values[n] <= hi]
+        return PolicyAnswer(params={n: values[n] for n in self.ranges},
+                            gains=gains, verification=report, outside=outside,
+                            elapsed_ms=1e3 * (time.perf_counter() - t0))
+
+    def schedule(self, grid: dict[str, list[float]]) -> list[PolicyAnswer]:
+        """One answer per point of the product of ``grid`` (parameter -> values): a gain schedule."""
+        names = list(grid)
+        points = np.array(np.meshgrid(*[np.asarray(grid[n], dtype=float) for n in names], indexing="ij")).reshape(len(names), -1).T
+        return [self.answer(dict(zip(names, map(float, p)))) for p in points] if names else [self.answer()]
+

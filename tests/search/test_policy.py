@@ -1,0 +1,92 @@
+"""Trained tuners (gaintune.search.policy): the saved policy's gains for other plants of its family, each verified."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from gaintune import cli
+from gaintune.errors import SpecError
+from gaintune.search import tune
+from gaintune.search.policy import PolicyTuner
+from gaintune.spec import load_spec
+
+FAMILY = {
+    "name": "family",
+    "plant": {"tf": {"num": ["K"], "den": "(T*s+1)^2"}, "params": {"K": 1.0, "T": 1.0}},
+    "loops": [{"type": "pi"}],
+    "scenario": {"dt": 0.05, "horizon": 15},
+    "requirements": {"ms_max": 1.6},
+    "randomize": {"params": {"K": [0.5, 2.0], "T": [0.5, 2.0]}},
+    "search": {"budget": 600, "n_envs": 16, "seed": 3},
+}
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    result = tune(load_spec(FAMILY), out_dir=out)
+    (out / "result.json").write_text(result.model_dump_json())
+    return out
+
+
+@pytest.fixture(scope="module")
+def tuner(run) -> PolicyTuner:
+    return PolicyTuner.from_run(run)
+
+
+def test_answer_is_verified_on_the_plant_at_those_parameters(tuner: PolicyTuner) -> None:
+    a = tuner.answer({"K": 1.7})
+    assert a.params == {"K": 1.7, "T": 1.0} and a.outside == []
+    assert a.verification.spec_hash != tuner.spec.content_hash()  # verified on the K = 1.7 plant, not the nominal one
+    assert a.accepted_gains == (a.gains if a.verdict == "pass" else None)
+    assert a.elapsed_ms > 0 and set(a.gains["loop0"]) == {"Kp", "Ki"}
+    # the verdict is the one gaintune.verify gives those gains on that plant
+    from gaintune.verify import verify
+
+    plant_spec = load_spec({**FAMILY, "plant": {**FAMILY["plant"], "params": {"K": 1.7, "T": 1.0}}, "randomize": {}})
+    assert verify(plant_spec, a.gains).verdict == a.verdict
+
+
+def test_parameters_change_the_answer_and_the_grid_is_a_schedule(tuner: PolicyTuner) -> None:
+    answers = tuner.schedule({"K": [0.6, 1.9], "T": [0.7, 1.5]})
+    assert [a.params for a in answers] == [{"K": 0.6, "T": 0.7}, {"K": 0.6, "T": 1.5}, {"K": 1.9, "T": 0.7}, {"K": 1.9, "T": 1.5}]
+    kp = [a.gains["loop0"]["Kp"] for a in answers]
+    assert len(set(np.round(kp, 9))) > 1  # the context reaches the policy
+
+
+def test_outside_the_training_range_is_flagged_and_still_verified(tuner: PolicyTuner) -> None:
+    a = tuner.answer({"K": 3.0})
+    assert a.outside == ["K"] and a.verdict in ("pass", "fail")
+
+
+@pytest.mark.parametrize("params, field", [({"Z": 1.0}, "params.Z"), ({"K": float("nan")}, "params.K"), ({"K": "x"}, "params.K")])
+def test_unknown_or_bad_parameter_is_a_spec_error_naming_it(tuner: PolicyTuner, params, field: str) -> None:
+    with pytest.raises(SpecError) as info:
+        tuner.answer(params)
+    assert info.value.field == field
+
+
+def test_agent_of_another_spec_is_refused(run) -> None:
+    other = load_spec({**FAMILY, "randomize": {"params": {"K": [0.5, 2.0]}}})  # one context value, not two
+    with pytest.raises(SpecError, match="was not trained on this spec"):
+        PolicyTuner(run / "agent.zip", other)
+
+
+def test_cli_policy_table_json_and_bad_input(run) -> None:
+    runner = CliRunner()
+    res = runner.invoke(cli.app, ["policy", str(run), "-p", "K=0.8,1.6", "-p", "T=1"])
+    assert res.exit_code in (0, 3), res.output
+    assert "only PASS rows are accepted" in res.output and res.output.count("PASS") + res.output.count("FAIL") >= 2
+    res = runner.invoke(cli.app, ["policy", str(run), "--json", "-p", "K=1.2"])
+    docs = json.loads(res.stdout)
+    assert docs[0]["params"]["K"] == 1.2 and docs[0]["verdict"] in ("pass", "fail")
+    assert docs[0]["accepted_gains"] == (docs[0]["gains"] if docs[0]["verdict"] == "pass" else None)
+    for args, needle in [(["-p", "Z=1"], "error: params.Z:"), (["-p", "K=abc"], "error: --param:"), (["-p", "K"], "error: --param:")]:
+        res = runner.invoke(cli.app, ["policy", str(run), *args])
+        assert res.exit_code == 2 and needle in res.stderr, res.output
+    res = runner.invoke(cli.app, ["policy", str(run / "nope")])
+    assert res.exit_code == 2 and "error: run:" in res.stderr
