@@ -83,6 +83,25 @@ def compute_verify(spec, gains, robust, nonlinear, plant=None, layout=None, spec
     return "ok", report.model_dump_json().encode()
 
 
+def compute_policy(tuners: LRU[str, Any], key: str, agent: Any, spec: dict[str, Any], grid: dict[str, Any],
+                   max_points: int) -> tuple[str, Any]:
+    """Answers of a job's trained policy over ``grid`` -> ("ok", JSON bytes) or ("invalid", [{loc, msg}]).
+
+    The tuner (agent and training problem: torch, the search box) is loaded once per job and kept in
+    ``tuners``, so a later request costs the answers only (milliseconds each)."""
+    from gaintune.errors import GaintuneError, problem_details
+    from gaintune.search.policy import PolicyTuner
+    from gaintune.spec import load_spec
+    from gaintune_api.schemas import PolicyAnswers
+
+    try:
+        tuner = tuners.get_or_build(key, lambda: PolicyTuner(agent, load_spec(spec)))
+        answers = tuner.schedule({k: v if isinstance(v, list) else [v] for k, v in grid.items()}, max_points)
+    except GaintuneError as exc:
+        return "invalid", problem_details(exc)
+    return "ok", PolicyAnswers(answers=answers).model_dump_json().encode()
+
+
 def compute_simulate(spec, gains, chosen: list[int], max_points: int, plant=None, layout=None) -> tuple[str, Any]:
     """``("ok", SimulateResponse)`` | ``("gains", problem details)`` | ``("error", message)``."""
     from gaintune_api.simulation import simulate_response

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from gaintune.search.result import PolicyAnswer
 from gaintune.spec import TuningSpec
 
 if TYPE_CHECKING:
@@ -110,6 +111,17 @@ class VerifyRequest(_In):
     gains: Gains = Field(description="{loop_name: {gain_name: value}}; fixed gains may be omitted.")
     robust: bool | None = Field(None, description="Check the randomisation set; default: when the spec randomises.")
     nonlinear: bool = Field(True, description="Run the nonlinear simulation check.")
+
+
+class PolicyRequest(_In):
+    params: dict[str, float | list[float]] = Field(
+        default_factory=dict, description="Plant parameter -> value, or values: several values (or several parameters) "
+        "make a grid, answered point by point (a gain schedule). Parameters left out keep the training spec's nominal "
+        "values; only parameters the job randomised (randomize.params) are accepted.")
+
+
+class PolicyAnswers(BaseModel):
+    answers: list[PolicyAnswer] = Field(description="One answer per grid point (the product of the values, in order).")
 
 
 class SimulateRequest(_In):

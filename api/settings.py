@@ -78,6 +78,8 @@ class Settings(BaseSettings):
         "when compute_processes is 0 (GIL-bound: more threads add contention, not throughput)."
     )
     verify_cache_size: int = Field(256, ge=0, description="LRU entries of identical /v1/verify requests (0: off).")
+    max_policy_points: int = Field(256, ge=1, le=100_000, description="Most plants one /v1/jobs/{id}/policy request answers.")
+    policy_cache_size: int = Field(8, ge=1, le=1024, description="Trained tuners (agent + training problem) kept loaded.")
 
     # ------------------------------------------------------- security
     api_keys: Annotated[list[str], NoDecode] = Field(

@@ -6,17 +6,19 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Body, Header, Query, Response
+from fastapi import APIRouter, Body, Header, Query, Request, Response
 from fastapi.responses import FileResponse, HTMLResponse
 
 from gaintune_api.artifacts import EXPORT_MEDIA, export_gains, export_verdict, render_report, render_report_html
-from gaintune_api.deps import FilesDep, OwnerDep, SettingsDep, StoreDep
+from gaintune_api.compute import compute_policy
+from gaintune_api.deps import FilesDep, OwnerDep, SettingsDep, StoreDep, run_compute
 from gaintune_api.jobfiles import ArtifactMismatch, ArtifactMissing
 from gaintune_api.jsonbody import StrictJSONRoute
 from gaintune_api.problems import ApiError, log
-from gaintune_api.schemas import ExportFormat, JobList, JobPublic, JobResultPublic, JobStatus, JobSummary, ProgressPublic
+from gaintune_api.schemas import ExportFormat, JobList, PolicyAnswers, PolicyRequest, JobPublic, JobResultPublic, JobStatus, JobSummary, ProgressPublic
 from gaintune_api.store import IdempotencyConflict, JobRow, QueueFull, loads
 from gaintune_api.validation import check_spec
+from gaintune.cache import LRU
 from gaintune.spec import TuningSpec
 
 router = APIRouter(prefix="/v1", tags=["jobs"], route_class=StrictJSONRoute)
@@ -222,6 +224,48 @@ def job_report(job_id: str, store: StoreDep, files: FilesDep, owner: OwnerDep) -
     return FileResponse(path, media_type="text/html; charset=utf-8")
 
 
+def _checked_agent(row: JobRow, files) -> tuple[Path, str | None, dict[str, Any]]:
+    """(path, SHA-256, result) of a finished job's agent, checked against the digest recorded when it finished."""
+    r = _finished_result(row)
+    if not r.get("agent_path"):
+        raise ApiError(409, f"Job {row.id} saved no agent.")
+    try:
+        path, digest = files.artifact(row.id, Path(r["agent_path"]).name, loads(row.artifacts))
+    except ArtifactMissing as exc:
+        raise ApiError(410, f"The agent of job {row.id} was saved, but its file is gone: {exc}.") from None
+    except ArtifactMismatch as exc:
+        log.error("job %s: %s", row.id, exc)
+        raise ApiError(500, f"The agent file of job {row.id} was changed after the job finished: {exc}.",
+                       title="Stored artefact does not match", extra={"cause": "artifact-mismatch"}) from None
+    return path, digest, r
+
+
+@router.post("/jobs/{job_id}/policy", response_model=PolicyAnswers,
+             summary="Gains of the job's trained policy for other plants of its family, each verified",
+             responses={**NOT_FOUND,
+                        409: {"description": "No result, or the job saved no agent.", **_PROBLEM},
+                        410: {"description": "The agent file is gone from the data directory.", **_PROBLEM},
+                        422: {"description": "A parameter the job did not randomise, a bad value, or too many points.",
+                              **_PROBLEM}})
+async def job_policy(job_id: str, body: PolicyRequest, request: Request, store: StoreDep, files: FilesDep,
+                     owner: OwnerDep, settings: SettingsDep) -> Response:
+    """For each plant (the job's spec with ``params`` as its nominal parameters), the trained policy's gains,
+    moved onto that plant's requirement boundary and verified there. Only answers whose ``verdict`` is
+    ``pass`` carry ``accepted_gains``. The first request of a job loads its agent (about 2 s); later ones
+    cost milliseconds per plant."""
+    row = _get(store, job_id, owner)
+    path, digest, r = _checked_agent(row, files)
+    st = request.app.state
+    if getattr(st, "policy_tuners", None) is None:  # only the event loop runs this: no race
+        st.policy_tuners = LRU(settings.policy_cache_size)
+    tuners = st.policy_tuners
+    tag, data = await run_compute(request, compute_policy, tuners, f"{row.id}:{digest}", path, r["spec"],
+                                  body.params, settings.max_policy_points)
+    if tag != "ok":
+        raise ApiError(422, "The policy cannot answer these parameters.", errors=data)
+    return Response(data, media_type="application/json")
+
+
 @router.get("/jobs/{job_id}/agent", summary="Trained SB3 agent (zip)",
             responses={**NOT_FOUND, 200: {"content": {"application/zip": {}}},
                        409: {"description": "No result, or the job saved no agent.", **_PROBLEM},
@@ -233,17 +277,7 @@ def job_agent(job_id: str, store: StoreDep, files: FilesDep, owner: OwnerDep) ->
     import base64
 
     row = _get(store, job_id, owner)
-    r = _finished_result(row)
-    if not r.get("agent_path"):
-        raise ApiError(409, f"Job {job_id} saved no agent.")
-    try:
-        path, digest = files.artifact(row.id, Path(r["agent_path"]).name, loads(row.artifacts))
-    except ArtifactMissing as exc:
-        raise ApiError(410, f"The agent of job {job_id} was saved, but its file is gone: {exc}.") from None
-    except ArtifactMismatch as exc:
-        log.error("job %s: %s", job_id, exc)
-        raise ApiError(500, f"The agent file of job {job_id} was changed after the job finished: {exc}.",
-                       title="Stored artefact does not match", extra={"cause": "artifact-mismatch"}) from None
+    path, digest, _ = _checked_agent(row, files)
     headers = {}
     if digest is not None:
         headers["Repr-Digest"] = f"sha-256=:{base64.b64encode(bytes.fromhex(digest)).decode()}:"

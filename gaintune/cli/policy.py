@@ -52,8 +52,7 @@ def run_policy(run: Path, params: list[str], json_out: bool) -> None:
 
     answers = PolicyTuner.from_run(run).schedule(grid)
     if json_out:
-        docs = [{**a.model_dump(mode="json"), "verdict": a.verdict, "accepted_gains": a.accepted_gains} for a in answers]
-        print(json.dumps(docs if len(docs) > 1 or grid else docs[0], indent=2))
+        print(json.dumps([a.model_dump(mode="json") for a in answers], indent=2))
     else:
         _print_answers(answers)
     if any(a.verdict != "pass" for a in answers):

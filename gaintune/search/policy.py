@@ -18,10 +18,11 @@ from __future__ import annotations
 
 import json
 import math
+import threading
 import time
 from pathlib import Path
+
 import numpy as np
-from pydantic import BaseModel, Field
 
 from gaintune.envs.problem import GainProblem
 from gaintune.errors import SpecError
@@ -29,31 +30,13 @@ from gaintune.objective import Evaluator
 from gaintune.plants import build_plant
 from gaintune.repair import repair
 from gaintune.search.agents import load_agent
+from gaintune.search.result import PolicyAnswer
 from gaintune.sim import Simulator
 from gaintune.sim import draws as draws_mod
 from gaintune.spec import RandomizeSpec, TuningSpec, load_spec
-from gaintune.verify import VerificationReport, verify
+from gaintune.verify import verify
 
 __all__ = ["PolicyAnswer", "PolicyTuner"]
-
-
-class PolicyAnswer(BaseModel):
-    """The trained policy's gains for one plant, and their verification on that plant."""
-
-    params: dict[str, float] = Field(description="Plant parameters the gains are for (the training spec's nominal values where not given).")
-    gains: dict[str, dict[str, float]] = Field(description="The policy's gains, moved onto the requirement boundary as the search does.")
-    verification: VerificationReport = Field(description="Verification of the gains on the plant at these parameters (nominal, no robust set).")
-    outside: list[str] = Field(default_factory=list, description="Parameters outside their training range: the policy extrapolates there.")
-    elapsed_ms: float = Field(description="Wall time of this answer (policy, repair and verification), milliseconds.")
-
-    @property
-    def verdict(self) -> str:
-        return self.verification.verdict
-
-    @property
-    def accepted_gains(self) -> dict[str, dict[str, float]] | None:
-        """The gains, only when their verification passed; otherwise None."""
-        return self.gains if self.verdict == "pass" else None
 
 
 class PolicyTuner:
@@ -82,6 +65,7 @@ class PolicyTuner:
             raise SpecError("agent", f"the agent at {agent_path} was not trained on this spec: it takes {want[1][0]} "
                             f"context value(s) and gives {want[0][0]} gains; the spec has {have[1][0]} and {have[0][0]}")
         self.ranges = {name: d.box for name, d in spec.randomize.params.items()}
+        self._lock = threading.Lock()  # one answer at a time: SB3's predict switches the policy's mode
 
     @classmethod
     def from_run(cls, folder: str | Path) -> PolicyTuner:
@@ -116,9 +100,10 @@ class PolicyTuner:
         plant = build_plant(spec.plant)
         layout = self.problem.layout
         obs = draws_mod.context(self.spec, plant, draws_mod.nominal(spec, plant, 1))  # the training ranges normalise
+        with self._lock:
+            action = np.asarray(self.agent.predict(obs, deterministic=True)[0], dtype=float).reshape(-1)
         # the answer is for this one plant: its requirements hold on it, not over the training family
         spec = spec.model_copy(update={"randomize": RandomizeSpec()})
-        action = np.asarray(self.agent.predict(obs, deterministic=True)[0], dtype=float).reshape(-1)
         tuned = layout.action_to_tuned(action)[None, :]
         if spec.search.repair:  # scored as the search scored its samples: on the boundary of this plant
             tuned = repair(Evaluator(spec, Simulator(spec, plant, layout)), tuned).tuned
@@ -130,9 +115,22 @@ class PolicyTuner:
                             gains=gains, verification=report, outside=outside,
                             elapsed_ms=1e3 * (time.perf_counter() - t0))
 
-    def schedule(self, grid: dict[str, list[float]]) -> list[PolicyAnswer]:
-        """One answer per point of the product of ``grid`` (parameter -> values): a gain schedule."""
-        names = list(grid)
-        points = np.array(np.meshgrid(*[np.asarray(grid[n], dtype=float) for n in names], indexing="ij")).reshape(len(names), -1).T
-        return [self.answer(dict(zip(names, map(float, p)))) for p in points] if names else [self.answer()]
+    def schedule(self, grid: dict[str, list[float]], max_points: int | None = None) -> list[PolicyAnswer]:
+        """One answer per point of the product of ``grid`` (parameter -> values): a gain schedule.
 
+        Raises SpecError naming ``params.<name>`` for a value that is no number, and ``params`` for a
+        grid of more than ``max_points`` points."""
+        names = list(grid)
+        axes = []
+        for n in names:
+            try:
+                axes.append(np.atleast_1d(np.asarray(grid[n], dtype=float)))
+            except (TypeError, ValueError):
+                raise SpecError(f"params.{n}", f"values must be numbers, got {grid[n]!r}") from None
+        count = int(np.prod([a.size for a in axes])) if axes else 1
+        if max_points is not None and count > max_points:
+            raise SpecError("params", f"the grid has {count:,} points, more than {max_points:,}; give fewer values")
+        if not names:
+            return [self.answer()]
+        points = np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(names), -1).T
+        return [self.answer(dict(zip(names, map(float, p)))) for p in points]

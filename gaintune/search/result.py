@@ -5,11 +5,11 @@ from __future__ import annotations
 import json
 from typing import Any, Literal
 
-from pydantic import BaseModel, Field, field_serializer, field_validator, model_validator
+from pydantic import BaseModel, Field, computed_field, field_serializer, field_validator, model_validator
 
 from gaintune.verify.report import VerificationReport, load_report
 
-__all__ = ["CurvePoint", "Progress", "Provenance", "SettleInfo", "Diagnosis", "TuneResult"]
+__all__ = ["CurvePoint", "Progress", "Provenance", "SettleInfo", "Diagnosis", "TuneResult", "PolicyAnswer"]
 
 Gains = dict[str, dict[str, float]]
 
@@ -140,6 +140,32 @@ class TuneResult(BaseModel):
     @property
     def accepted_gains(self) -> Gains | None:
         """The gains, only when verification passed; otherwise None."""
+        return self.gains if self.verdict == "pass" else None
+
+
+
+class PolicyAnswer(BaseModel):
+    """The trained policy's gains for one plant, and their verification on that plant."""
+
+    params: dict[str, float] = Field(description="Plant parameters the gains are for (the training spec's nominal values where not given).")
+    gains: dict[str, dict[str, float]] = Field(description="The policy's gains, moved onto the requirement boundary as the search does.")
+    verification: VerificationReport = Field(description="Verification of the gains on the plant at these parameters (nominal, no robust set).")
+    outside: list[str] = Field(default_factory=list, description="Parameters outside their training range: the policy extrapolates there.")
+    elapsed_ms: float = Field(description="Wall time of this answer (policy, repair and verification), milliseconds.")
+
+    @field_serializer("verification")
+    def _verification_json(self, v: VerificationReport) -> dict[str, Any]:
+        return json.loads(v.model_dump_json())  # the report's own JSON form ("Infinity" strings), as in TuneResult
+
+    @computed_field(description="pass or fail: the verification's verdict.")
+    @property
+    def verdict(self) -> str:
+        return self.verification.verdict
+
+    @computed_field(description="The gains when the verdict is pass, else null.")
+    @property
+    def accepted_gains(self) -> dict[str, dict[str, float]] | None:
+        """The gains, only when their verification passed; otherwise None."""
         return self.gains if self.verdict == "pass" else None
 
 

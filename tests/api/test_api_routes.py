@@ -590,3 +590,45 @@ def test_compute_pool_matches_in_process_and_leaves_no_process(make_client, tmp_
         except ProcessLookupError:
             continue
         raise AssertionError(f"compute worker {pid} still alive after shutdown")
+
+
+# ------------------------------------------------------------ trained policy
+
+FAMILY = {
+    "name": "family",
+    "plant": {"tf": {"num": ["K"], "den": "(s+1)^2"}, "params": {"K": 1.0}},
+    "loops": [{"type": "pi"}],
+    "scenario": {"dt": 0.05, "horizon": 10.0},
+    "randomize": {"params": {"K": [0.5, 2.0]}},
+    "search": {"budget": 300, "n_envs": 16},
+}
+
+
+def test_job_policy_answers_other_plants_each_verified_and_refuses_bad_params(client):
+    """POST /v1/jobs/{id}/policy: the job's trained policy, loaded once, answers a grid of plants."""
+    from gaintune.search.tune import tune
+
+    job = submit(client, FAMILY)
+    assert run_next(client, tune) == "succeeded"
+    r = client.post(f"/v1/jobs/{job['id']}/policy", json={"params": {"K": [0.7, 1.8]}})
+    assert r.status_code == 200, r.text
+    answers = r.json()["answers"]
+    assert [a["params"] for a in answers] == [{"K": 0.7}, {"K": 1.8}]
+    for a in answers:
+        assert a["verdict"] == a["verification"]["verdict"] in ("pass", "fail")
+        assert a["accepted_gains"] == (a["gains"] if a["verdict"] == "pass" else None)
+        assert a["outside"] == [] and a["elapsed_ms"] > 0
+    assert len(client.app.state.policy_tuners) == 1
+    for body, loc in [({"params": {"Z": 1.0}}, "params.Z"), ({"params": {"K": list(range(300))}}, "params")]:
+        r = client.post(f"/v1/jobs/{job['id']}/policy", json=body)
+        assert r.status_code == 422 and r.json()["errors"][0]["loc"] == loc, r.text
+    r = client.post(f"/v1/jobs/{job['id']}/policy", json={"params": {"K": "x"}})
+    assert r.status_code == 422
+    assert client.post("/v1/jobs/nope/policy", json={}).status_code == 404
+
+
+def test_job_policy_of_a_job_without_a_real_agent_is_422_not_500(client):
+    job = submit(client)
+    run_next(client)  # the fake search saves a zip that is no agent
+    r = client.post(f"/v1/jobs/{job['id']}/policy", json={})
+    assert r.status_code == 422 and r.json()["errors"][0]["loc"] == "agent", r.text
