@@ -120,8 +120,12 @@ def _silenced(agent: BaseAlgorithm) -> BaseAlgorithm:
     return agent
 
 
-def load_agent(path: str | Path, env: VecEnv | None = None, *, field: str = "warm_start") -> BaseAlgorithm:
+def load_agent(path: str | Path, env: VecEnv | None = None, *, field: str = "warm_start",
+               shapes: tuple[tuple[int, ...], tuple[int, ...]] | None = None) -> BaseAlgorithm:
     """Load a saved agent zip (any of :data:`ALGOS`, tried in turn) and attach ``env`` to it.
+
+    ``shapes``: the (action, observation) shapes the agent must have when there is no ``env``
+    to take them from.
 
     Raises
     ------
@@ -138,10 +142,10 @@ def load_agent(path: str | Path, env: VecEnv | None = None, *, field: str = "war
         saved = (tuple(data["action_space"].shape), tuple(data["observation_space"].shape))
     except Exception as exc:  # not a zip, no data, no spaces: whatever it is, it is no saved agent
         raise SpecError(field, f"{path} is not an agent saved by gaintune ({type(exc).__name__})") from None
-    if env is not None and saved != (env.action_space.shape, env.observation_space.shape):
-        raise SpecError(field, f"the agent at {path} was trained on {_count(saved)}; this spec has "
-                        f"{_count((env.action_space.shape, env.observation_space.shape))}. A trained agent "
-                        "continues only on the same loops, tuned gains and randomised parameters")
+    want = (env.action_space.shape, env.observation_space.shape) if env is not None else shapes
+    if want is not None and saved != tuple(map(tuple, want)):
+        raise SpecError(field, f"the agent at {path} was trained on {_count(saved)}; this spec has {_count(want)}. "
+                        "A trained agent serves only the same loops, tuned gains and randomised parameters")
     _install_eager_optim()  # loading restores the optimizer state: keep torch._dynamo unloaded
     errors = []
     for name, cls in ALGOS.items():

@@ -58,12 +58,8 @@ class PolicyTuner:
     def __init__(self, agent_path: str | Path, spec: TuningSpec) -> None:
         self.spec = spec
         self.problem = GainProblem(spec)  # the training box: the search box is a function of the spec
-        self.agent = load_agent(agent_path, field="agent")
-        want = (self.agent.action_space.shape, self.agent.observation_space.shape)
-        have = ((self.problem.dim,), (draws_mod.context_size(spec),))
-        if want != have:
-            raise SpecError("agent", f"the agent at {agent_path} was not trained on this spec: it takes {want[1][0]} "
-                            f"context value(s) and gives {want[0][0]} gains; the spec has {have[1][0]} and {have[0][0]}")
+        self.agent = load_agent(agent_path, field="agent",
+                                shapes=((self.problem.dim,), (draws_mod.context_size(spec),)))
         self.ranges = {name: d.box for name, d in spec.randomize.params.items()}
         self._lock = threading.Lock()  # one answer at a time: SB3's predict switches the policy's mode
 

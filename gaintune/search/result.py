@@ -14,6 +14,12 @@ __all__ = ["CurvePoint", "Progress", "Provenance", "SettleInfo", "Diagnosis", "T
 Gains = dict[str, dict[str, float]]
 
 
+def report_json(v: VerificationReport | None) -> dict[str, Any] | None:
+    """A verification report in its own JSON form ("Infinity" strings), in python mode too, so that
+    stored results and answers keep one form."""
+    return None if v is None else json.loads(v.model_dump_json())
+
+
 class CurvePoint(BaseModel):
     """Best candidate found after a number of simulations (ranked feasibility first)."""
 
@@ -130,8 +136,7 @@ class TuneResult(BaseModel):
 
     @field_serializer("verification")
     def _verification_json(self, v: VerificationReport | None) -> dict[str, Any] | None:
-        # the report's own JSON ("Infinity" strings), in python mode too: stored results keep one form
-        return None if v is None else json.loads(v.model_dump_json())
+        return report_json(v)
 
     @property
     def verdict(self) -> str | None:
@@ -154,8 +159,8 @@ class PolicyAnswer(BaseModel):
     elapsed_ms: float = Field(description="Wall time of this answer (policy, repair and verification), milliseconds.")
 
     @field_serializer("verification")
-    def _verification_json(self, v: VerificationReport) -> dict[str, Any]:
-        return json.loads(v.model_dump_json())  # the report's own JSON form ("Infinity" strings), as in TuneResult
+    def _verification_json(self, v: VerificationReport) -> dict[str, Any] | None:
+        return report_json(v)
 
     @computed_field(description="pass or fail: the verification's verdict.")
     @property

@@ -72,7 +72,7 @@ def test_unknown_or_bad_parameter_is_a_spec_error_naming_it(tuner: PolicyTuner, 
 
 def test_agent_of_another_spec_is_refused(run) -> None:
     other = load_spec({**FAMILY, "randomize": {"params": {"K": [0.5, 2.0]}}})  # one context value, not two
-    with pytest.raises(SpecError, match="was not trained on this spec"):
+    with pytest.raises(SpecError, match="was trained on 2 tuned gains and 2 context value"):
         PolicyTuner(run / "agent.zip", other)
 
 
