@@ -93,7 +93,10 @@ class PolicyTuner:
         """The policy's gains for the plant at ``params`` (unnamed parameters keep their nominal values), verified there."""
         t0 = time.perf_counter()
         spec = self.spec_at(params or {})
-        plant = build_plant(spec.plant)
+        try:
+            plant = build_plant(spec.plant)
+        except SpecError as exc:  # e.g. T = 0 drops the plant's order: say which parameters did it
+            raise SpecError("params", f"the plant at {params} cannot be built: {exc}") from None
         layout = self.problem.layout
         obs = draws_mod.context(self.spec, plant, draws_mod.nominal(spec, plant, 1))  # the training ranges normalise
         with self._lock:

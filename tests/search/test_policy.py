@@ -63,7 +63,8 @@ def test_outside_the_training_range_is_flagged_and_still_verified(tuner: PolicyT
     assert a.outside == ["K"] and a.verdict in ("pass", "fail")
 
 
-@pytest.mark.parametrize("params, field", [({"Z": 1.0}, "params.Z"), ({"K": float("nan")}, "params.K"), ({"K": "x"}, "params.K")])
+@pytest.mark.parametrize("params, field", [({"Z": 1.0}, "params.Z"), ({"K": float("nan")}, "params.K"), ({"K": "x"}, "params.K"),
+                                           ({"T": 0.0}, "params")])
 def test_unknown_or_bad_parameter_is_a_spec_error_naming_it(tuner: PolicyTuner, params, field: str) -> None:
     with pytest.raises(SpecError) as info:
         tuner.answer(params)
