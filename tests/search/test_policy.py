@@ -9,20 +9,14 @@ import pytest
 from typer.testing import CliRunner
 
 from gaintune import cli
+from gaintune.bench import policy as P
 from gaintune.errors import SpecError
 from gaintune.search import tune
 from gaintune.search.policy import PolicyTuner
 from gaintune.spec import load_spec
 
-FAMILY = {
-    "name": "family",
-    "plant": {"tf": {"num": ["K"], "den": "(T*s+1)^2"}, "params": {"K": 1.0, "T": 1.0}},
-    "loops": [{"type": "pi"}],
-    "scenario": {"dt": 0.05, "horizon": 15},
-    "requirements": {"ms_max": 1.6},
-    "randomize": {"params": {"K": [0.5, 2.0], "T": [0.5, 2.0]}},
-    "search": {"budget": 600, "n_envs": 16, "seed": 3},
-}
+# the benchmark's plant family (PI on K/(T s + 1)^2, K and T randomised), with a shorter horizon and search
+FAMILY = {**P.FAMILY, "scenario": {"dt": 0.05, "horizon": 15}, "search": {"budget": 600, "n_envs": 16, "seed": 3}}
 
 
 @pytest.fixture(scope="module")
