@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: Layer of every top-level module or package of gaintune (and api), lowest first.
 LAYERS: dict[str, int] = {
-    "gaintune.cache": 0, "gaintune.cma": 0, "gaintune.errors": 0, "gaintune.fmt": 0, "gaintune.lti": 0, "gaintune.statespace": 0, "gaintune.provenance": 0, "gaintune.spec_design": 0,
+    "gaintune.cache": 0, "gaintune.cma": 0, "gaintune.errors": 0, "gaintune.files": 0, "gaintune.fmt": 0, "gaintune.lti": 0, "gaintune.statespace": 0, "gaintune.provenance": 0, "gaintune.spec_design": 0,
     "gaintune.spec": 1, "gaintune.spec_doc": 2,
     "gaintune.plants": 2,
     "gaintune.controllers": 3,
