@@ -28,14 +28,16 @@ from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import NormalActionNoise
-from stable_baselines3.common.save_util import load_from_zip_file
+from stable_baselines3.common.save_util import recursive_getattr
 from stable_baselines3.common.vec_env import VecEnv
 
 from gaintune.errors import SpecError
+from gaintune.search.agent_file import load_module_state, load_optimizer_state, load_variables, read_agent_file
 from gaintune.search.eager_optim import install as _install_eager_optim
 from gaintune.search.eager_optim import optimizer_class as _eager_optimizer_class
+from gaintune.spec import TuningSpec
 
-__all__ = ["ALGOS", "agent_defaults", "make_agent", "load_agent"]
+__all__ = ["ALGOS", "agent_defaults", "make_agent", "load_agent", "load_weights"]
 
 # The batched simulator owns the cores. torch's intra-op pool on top of numba's made each
 # PPO update 16x slower (measured: a 200-simulation search took 11.4 s instead of 0.7 s).
@@ -120,42 +122,76 @@ def _silenced(agent: BaseAlgorithm) -> BaseAlgorithm:
     return agent
 
 
-def load_agent(path: str | Path, env: VecEnv | None = None, *, field: str = "warm_start",
-               shapes: tuple[tuple[int, ...], tuple[int, ...]] | None = None) -> BaseAlgorithm:
-    """Load a saved agent zip (any of :data:`ALGOS`, tried in turn) and attach ``env`` to it.
+def load_agent(path: str | Path, spec: TuningSpec, env: VecEnv | None = None, *, field: str = "warm_start",
+               budget_steps: int = 1) -> BaseAlgorithm:
+    """The agent ``spec`` builds (``search.algo`` with gaintune's defaults), holding the weights saved at ``path``.
 
-    ``shapes``: the (action, observation) shapes the agent must have when there is no ``env``
-    to take them from.
+    Nothing in the file is executed: see :func:`load_weights`.
+
+    Parameters
+    ----------
+    path
+        An ``agent.zip`` a tune wrote.
+    spec
+        The spec the agent serves; its ``search`` section sets the algorithm, seed and parallel envs.
+    env
+        The env to attach; by default the spec's batched env (:class:`~gaintune.envs.BatchedGainVecEnv`).
+    field
+        The field a :class:`~gaintune.errors.SpecError` names.
+    budget_steps
+        Steps the agent will train for (sizes an off-policy replay buffer).
+    """
+    if env is None:
+        from gaintune.envs.problem import GainProblem
+        from gaintune.envs.vec import BatchedGainVecEnv
+
+        env = BatchedGainVecEnv(GainProblem(spec), spec.search.n_envs, seed=spec.search.seed)
+    return load_weights(make_agent(spec.search.algo, env, spec.search.seed, budget_steps), path, field=field)
+
+
+def load_weights(agent: BaseAlgorithm, path: str | Path, *, field: str = "warm_start") -> BaseAlgorithm:
+    """Put the weights of the agent file at ``path`` into ``agent``, which :func:`make_agent` built from the spec.
+
+    The file is read as weights only (:func:`gaintune.search.agent_file.read_agent_file`): nothing in
+    it is unpickled or executed. The policy weights must fit ``agent`` exactly (names, shapes, types)
+    and be finite. The optimizer states and SAC's learned entropy coefficient are restored when the
+    file has them (a warm start then continues as the saved training would have); a file without them
+    starts them afresh. Hyper-parameters (learning rate, ...) are the spec's, never the file's.
 
     Raises
     ------
     SpecError
-        Naming ``field``: the file is missing or not a saved agent, or the agent was trained on
-        another number of gains or context values than ``env`` has (other loops, or other
-        randomised parameters), which a warm start cannot bridge.
+        Naming ``field``: the file is missing, too large, not an agent zip or needs unpickling; or its
+        agent was trained on other numbers of gains or context values, or by another algorithm or
+        network than ``agent`` has.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise SpecError(field, f"no saved agent at {path} (give the agent.zip a tune wrote with --out)")
-    try:  # the saved spaces first: a mismatch is a message about the spec, not five failed loads
-        data, _, _ = load_from_zip_file(path, device="cpu")
-        saved = (tuple(data["action_space"].shape), tuple(data["observation_space"].shape))
-    except Exception as exc:  # not a zip, no data, no spaces: whatever it is, it is no saved agent
-        raise SpecError(field, f"{path} is not an agent saved by gaintune ({type(exc).__name__})") from None
-    want = (env.action_space.shape, env.observation_space.shape) if env is not None else shapes
-    if want is not None and saved != tuple(map(tuple, want)):
-        raise SpecError(field, f"the agent at {path} was trained on {_count(saved)}; this spec has {_count(want)}. "
+    saved = read_agent_file(path, field)
+    want = (tuple(agent.action_space.shape), tuple(agent.observation_space.shape))
+    if saved.shapes is not None and saved.shapes != want:
+        raise SpecError(field, f"the agent at {path} was trained on {_count(saved.shapes)}; this spec has {_count(want)}. "
                         "A trained agent serves only the same loops, tuned gains and randomised parameters")
-    _install_eager_optim()  # loading restores the optimizer state: keep torch._dynamo unloaded
-    errors = []
-    for name, cls in ALGOS.items():
-        try:
-            agent = cls.load(path, env=env, device="cpu")
-        except Exception as exc:  # SB3 raises various errors for a file of another algorithm class
-            errors.append(f"{name}: {type(exc).__name__}")
-        else:
-            return _silenced(agent)
-    raise SpecError(field, f"{path} is not an agent saved by gaintune ({'; '.join(errors)})")
+    misfit = f"the weights in {path} do not fit the {agent.__class__.__name__} agent this spec builds"
+    modules, variables = agent._get_torch_save_params()
+    _install_eager_optim()  # loading an optimizer state: keep torch._dynamo unloaded
+    for name in modules:
+        target = recursive_getattr(agent, name)
+        if isinstance(target, torch.optim.Optimizer):
+            if name in saved.states:
+                problem = load_optimizer_state(target, saved.states[name])
+                if problem:
+                    raise SpecError(field, f"{misfit}: its optimizer state {name} {problem}. Give an agent trained "
+                                    "with this search.algo")
+            continue
+        if name not in saved.states:
+            raise SpecError(field, f"{misfit}: it has no {name}.pth")
+        problem = load_module_state(target, saved.states[name])
+        if problem:
+            raise SpecError(field, f"{misfit} ({problem}). Give an agent trained with this search.algo "
+                            "and the default network")
+    load_variables(agent, variables, saved.states.get("pytorch_variables"))
+    if saved.num_timesteps is not None:  # the steps trained so far: an off-policy agent skips its random warm-up
+        agent.num_timesteps = saved.num_timesteps
+    return agent
 
 
 def _count(shapes: tuple) -> str:

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from gaintune.envs.problem import GainProblem
+from gaintune.envs.vec import BatchedGainVecEnv
 from gaintune.errors import SpecError
 from gaintune.objective import Evaluator
 from gaintune.plants import build_plant
@@ -52,14 +53,17 @@ class PolicyTuner:
     Raises
     ------
     SpecError
-        The agent is missing, not an agent, or was trained on other gains or context values.
+        Naming ``agent``: the file is missing, not an agent, needs unpickling (refused: agent files are
+        read as weights only, :mod:`gaintune.search.agent_file`), or its agent was trained on other gains
+        or context values, or by another algorithm than ``spec.search.algo``.
     """
 
     def __init__(self, agent_path: str | Path, spec: TuningSpec) -> None:
         self.spec = spec
         self.problem = GainProblem(spec)  # the training box: the search box is a function of the spec
-        self.agent = load_agent(agent_path, field="agent",
-                                shapes=((self.problem.dim,), (draws_mod.context_size(spec),)))
+        # the spec's agent with the file's weights, read as weights only: nothing in the file is executed
+        env = BatchedGainVecEnv(self.problem, spec.search.n_envs, seed=spec.search.seed)
+        self.agent = load_agent(agent_path, spec, env, field="agent")
         self.ranges = {name: d.box for name, d in spec.randomize.params.items()}
         self._lock = threading.Lock()  # one answer at a time: SB3's predict switches the policy's mode
 

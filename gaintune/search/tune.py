@@ -20,7 +20,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 from gaintune.envs.problem import GainProblem, Scored
 from gaintune.envs.vec import BatchedGainVecEnv
 from gaintune.objective import DIVERGED_COST, merit
-from gaintune.search.agents import load_agent, make_agent
+from gaintune.search.agent_file import save_agent
+from gaintune.search.agents import load_agent, load_weights, make_agent
 from gaintune.search.budget import refine_reserve, rollout_sims
 from gaintune.search.budget import rl_budget as rl_budget_of
 from gaintune.boundary import settle, violation_after
@@ -207,7 +208,8 @@ def tune(
         An object with ``is_set()`` (e.g. ``threading.Event``) that stops the search.
     warm_start
         A saved agent zip: training continues from it ("learning on"). With a zero
-        budget its policy is used as is ("learning off").
+        budget its policy is used as is ("learning off"). The file is read as weights
+        only, into the agent this spec builds (:func:`gaintune.search.agents.load_weights`).
     agent_overrides
         SB3 hyper-parameters replacing the defaults of :mod:`gaintune.search.agents`.
     """
@@ -240,11 +242,10 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     else:
         env = BatchedGainVecEnv(problem, n_envs, seed=s.seed)
     steps = max(rl_budget // per_candidate, n_envs)
-    if warm_start is not None:
-        agent = load_agent(warm_start, env=env)
+    agent = make_agent(s.algo, env, s.seed, steps, agent_overrides, horizon=horizon)
+    if warm_start is not None:  # the spec's agent with the saved weights, read as weights only (nothing is executed)
+        load_weights(agent, warm_start)
         agent.set_random_seed(s.seed)
-    else:
-        agent = make_agent(s.algo, env, s.seed, steps, agent_overrides, horizon=horizon)
     if rl_budget >= batch:
         agent.learn(total_timesteps=steps, callback=_StopCallback(monitor, batch), reset_num_timesteps=warm_start is None)
     rl_sims = monitor.sims
@@ -307,8 +308,7 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        agent.save(out / "agent.zip")
-        agent_path = str(out / "agent.zip")
+        agent_path = str(save_agent(agent, out / "agent.zip"))  # atomic: a symlink there is replaced, not followed
     result = TuneResult(
         spec=spec.model_dump(mode="json"),
         algo=s.algo,
@@ -360,7 +360,7 @@ def policy_gains(agent_path: str | Path, spec: TuningSpec, context: np.ndarray |
     before handing them out, or run ``tune(spec, warm_start=agent_path)``, whose result is verified.
     """
     problem = GainProblem(spec)
-    agent = load_agent(agent_path)
+    agent = load_agent(agent_path, spec, BatchedGainVecEnv(problem, spec.search.n_envs, seed=spec.search.seed))
     obs = _nominal_obs(problem) if context is None else np.atleast_2d(context).astype(np.float32)
     if agent.action_space.shape != (problem.dim,) or agent.observation_space.shape != obs.shape[1:]:
         from gaintune.errors import SpecError

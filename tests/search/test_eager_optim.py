@@ -14,7 +14,7 @@ from gaintune import load_spec, tune
 from gaintune.search.agents import load_agent
 
 def digest(path):
-    agent = load_agent(path)
+    agent = load_agent(path, load_spec(spec))
     h = hashlib.sha256()
     for p in agent.policy.parameters():
         h.update(p.detach().numpy().tobytes())

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import json
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
+
+from agent_forgery import RunsCode, pickled_code_in_data, rewrite, torch_saved
 
 from gaintune import cli
 from gaintune.bench import policy as P
@@ -85,3 +89,57 @@ def test_cli_policy_table_json_and_bad_input(run) -> None:
         assert res.exit_code == 2 and needle in res.stderr, res.output
     res = runner.invoke(cli.app, ["policy", str(run / "nope")])
     assert res.exit_code == 2 and "error: run:" in res.stderr
+
+
+def _forged_run(run: Path, folder: Path, **members: bytes | None) -> Path:
+    """A copy of the run folder whose agent.zip has ``members`` replaced (see agent_forgery)."""
+    folder.mkdir()
+    shutil.copy(run / "result.json", folder / "result.json")
+    rewrite(run / "agent.zip", folder / "agent.zip", **members)
+    return folder
+
+
+def test_agent_zip_with_pickled_code_is_refused_and_runs_nothing(run, tmp_path) -> None:
+    """Bug (issue 24): `gaintune policy` and `tune --warm-start` loaded agent.zip with SB3's loader, which
+    unpickles the zip's data entry, so a foreign file ran its code."""
+    marker = tmp_path / "ran"
+    runner = CliRunner()
+    spec = tmp_path / "spec.json"
+    spec.write_text(json.dumps(FAMILY))
+    code_in_data = pickled_code_in_data(run / "agent.zip", marker)
+    forged = {  # member replaced -> what the refusal says
+        "data": ({"data": code_in_data, "policy.pth": None}, "holds no policy weights (policy.pth)"),
+        "policy.pth": ({"data": code_in_data, "policy.pth": torch_saved({"w": RunsCode(marker)})},
+                       "policy.pth is not plain weights (it asks for posix.system)"),
+    }
+    for name, (members, needle) in forged.items():
+        evil = _forged_run(run, tmp_path / name, **members)
+        for args, field in [(["policy", str(evil), "-p", "K=1"], "agent"),
+                            (["tune", str(spec), "--warm-start", str(evil / "agent.zip"), "--budget", "100"], "warm_start")]:
+            res = runner.invoke(cli.app, args)
+            assert not marker.exists(), f"{args[0]} ran code from {name}"  # code run from a loaded file: 0
+            assert res.exit_code == 2 and f"error: {field}:" in res.stderr and needle in res.stderr, res.output
+            assert "Traceback" not in res.output
+
+
+def test_pickled_code_in_agent_data_never_runs_and_the_weights_still_answer(run, tuner: PolicyTuner, tmp_path) -> None:
+    """The data entry's cloudpickled objects are never decoded: the run answers from its weights as before."""
+    marker = tmp_path / "ran"
+    forged = _forged_run(run, tmp_path / "forged", data=pickled_code_in_data(run / "agent.zip", marker))
+    res = CliRunner().invoke(cli.app, ["policy", str(forged), "--json", "-p", "K=1.2"])
+    assert not marker.exists()
+    assert res.exit_code in (0, 3), res.output
+    assert json.loads(res.stdout)[0]["gains"] == tuner.answer({"K": 1.2}).gains
+
+
+def test_saved_agent_answers_as_sb3_loaded_it_and_still_warm_starts(run, tuner: PolicyTuner) -> None:
+    """gaintune's own agent.zip: the weights-only loader gives the policy SB3's load gave (round trip), and a
+    warm start on it learns on."""
+    from stable_baselines3 import PPO
+
+    reference = PPO.load(run / "agent.zip", device="cpu")  # written by the fixture's tune: trusted
+    obs = np.random.default_rng(1).uniform(-1, 1, (6, 2)).astype(np.float32)
+    assert np.array_equal(tuner.agent.predict(obs, deterministic=True)[0], reference.predict(obs, deterministic=True)[0])
+    spec = load_spec({**FAMILY, "search": {**FAMILY["search"], "budget": 200}})
+    warm = tune(spec, warm_start=run / "agent.zip", verify=False)
+    assert warm.rl_sims > 0 and warm.warm_start == str(run / "agent.zip")

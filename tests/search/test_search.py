@@ -67,7 +67,7 @@ def test_save_load_and_warm_start_round_trip(tuned):
     result, _, out = tuned
     agent_path = out / "agent.zip"
     assert result.agent_path == str(agent_path) and agent_path.exists()
-    agent = load_agent(agent_path)
+    agent = load_agent(agent_path, _spec())
     action = agent.predict(np.zeros((1, 1), dtype=np.float32), deterministic=True)[0]
     spec = _spec()
     from gaintune.envs import GainProblem
