@@ -8,12 +8,12 @@ from __future__ import annotations
 import copy
 import json
 from datetime import datetime
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from gaintune.search.result import PolicyAnswer
-from gaintune.spec import TuningSpec
+from gaintune.spec import FiniteNumber, TuningSpec
 
 if TYPE_CHECKING:
     from fastapi import FastAPI
@@ -25,7 +25,8 @@ __all__ = [
     "request_schema_names", "request_defaults_optional", "install_client_openapi",
 ]
 
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+#: A finite number; true/false are refused, not read as 1/0.
+FiniteFloat = FiniteNumber
 #: ``{loop_name: {gain_name: value}}``
 Gains = dict[str, dict[str, FiniteFloat]]
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
@@ -114,7 +115,7 @@ class VerifyRequest(_In):
 
 
 class PolicyRequest(_In):
-    params: dict[str, float | list[float]] = Field(
+    params: dict[str, FiniteFloat | list[FiniteFloat]] = Field(
         default_factory=dict, description="Plant parameter -> value, or values: several values (or several parameters) "
         "make a grid, answered point by point (a gain schedule). Parameters left out keep the training spec's nominal "
         "values; only parameters the job randomised (randomize.params) are accepted.")

@@ -27,6 +27,13 @@ __all__ = ["Checked", "check_spec", "cached_check", "check_and_remember", "check
 log = logging.getLogger("gaintune.api")
 
 Purpose = Literal["tune", "verify", "simulate"]
+#: CPU seconds a request's thread may spend building its plant and checking it at the randomised
+#: parameters' ends before the spec is refused (422 naming the expression's field). A cooperative
+#: limit (:func:`gaintune.plants.expr.cpu_budget`), checked at every expression node evaluated: a
+#: thread cannot be stopped from outside, and the work between two checks is bounded (degree <=
+#: MAX_ORDER, expressions <= 2000 characters). Thread CPU time, so load from other requests does not
+#: count. The simulator set-up (Problem.build) runs outside it: a cold server compiles kernels there.
+SPEC_CPU_SECONDS = 5.0
 _CHECK_LOCK = threading.Lock()
 
 
@@ -92,13 +99,15 @@ def check_spec(spec: TuningSpec, settings: Settings, purpose: Purpose, *, prefix
     from gaintune.controllers.layout import GainLayout
     from gaintune.plants import build_plant
     from gaintune.plants.checks import validate_against_plant
+    from gaintune.plants.expr import cpu_budget
 
     try:
-        plant = build_plant(spec.plant)
-        if plant.order > settings.max_order:
-            raise invalid([{"loc": f"{prefix + '.' if prefix else ''}plant",
-                            "msg": f"plant order {plant.order} exceeds this server's limit of {settings.max_order}"}])
-        validate_against_plant(spec, plant)
+        with cpu_budget(SPEC_CPU_SECONDS):  # bounds the plant's expressions; see SPEC_CPU_SECONDS
+            plant = build_plant(spec.plant)
+            if plant.order > settings.max_order:
+                raise invalid([{"loc": f"{prefix + '.' if prefix else ''}plant",
+                                "msg": f"plant order {plant.order} exceeds this server's limit of {settings.max_order}"}])
+            validate_against_plant(spec, plant)
         layout = GainLayout(spec, plant.states)
         if purpose == "tune":
             layout.require_tuned()

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
 
 __all__ = ["DesignSpec", "expand_design"]
 
@@ -39,7 +39,8 @@ __all__ = ["DesignSpec", "expand_design"]
 class DesignSpec(BaseModel):
     """pidtune-style design goals, expanded into requirements and scenarios (see :mod:`gaintune.spec_design`)."""
 
-    model_config = ConfigDict(extra="forbid")
+    # as the spec's own models (gaintune.spec.base._Model): numbers are finite and not booleans
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     phase_margin: float = Field(60.0, gt=0, lt=90, description="Target (minimum) phase margin in degrees, as pidtune's default.")
     focus: Literal["balanced", "reference_tracking", "disturbance_rejection"] = Field(
@@ -51,6 +52,13 @@ class DesignSpec(BaseModel):
     crossover_tolerance: float = Field(0.1, gt=0, le=1, description="Relative width of the crossover band.")
     dt: float = Field(0.01, gt=0, description="Sample time of the generated scenarios (s).")
     horizon: float = Field(20.0, gt=0, description="Length of the generated scenarios (s).")
+
+    @field_validator("phase_margin", "crossover", "crossover_tolerance", "dt", "horizon", mode="before")
+    @classmethod
+    def _not_boolean(cls, v: Any, info: ValidationInfo) -> Any:
+        if isinstance(v, bool):  # pydantic's lax mode would read true as 1.0
+            raise ValueError(f"{info.field_name} must be a number, not a boolean ({str(v).lower()})")
+        return v
 
 
 def _scenarios(d: DesignSpec) -> list[dict[str, Any]]:

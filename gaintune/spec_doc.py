@@ -70,6 +70,14 @@ def render_markdown() -> str:
         "Generated from `gaintune/spec.py` by `python -m gaintune.spec_doc > docs/spec.md` (a test checks it is current).",
         f"Limits: horizon/dt <= {S.MAX_STEPS} steps, delay/dt (plant.delay, the top of randomize.delay) <= {S.MAX_DELAY_STEPS} samples, plant order <= {S.MAX_ORDER}, cascade depth <= {S.MAX_LOOPS}.",
         "",
+        "Numbers: every numeric field takes finite numbers only (NaN and infinity, YAML's `.nan`/`.inf` included, are refused), "
+        "and `true`/`false` are refused where a number belongs rather than read as 1/0. "
+        f"YAML: aliases (`*name`) may expand a document to at most {S.MAX_YAML_NODES:,} nodes. "
+        f"Polynomials in `s` (`plant.tf.num`/`den` as text): every part can reach a degree of at most {S.MAX_ORDER}, "
+        "bounded from the expression before it is expanded (products add degrees, powers multiply them). "
+        "Names: an ODE state may not be named like the input, a parameter not like a state, the ODE input or, "
+        "in a `tf` plant, the Laplace variable `s`.",
+        "",
     ]
     for title, model in _SECTIONS:
         doc = (model.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ")

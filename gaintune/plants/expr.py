@@ -8,27 +8,45 @@ passed to ``eval``/``exec``.
 
 The same parsed tree can be evaluated with casadi (symbolic ODEs), with plain
 floats, or with :class:`numpy.polynomial.Polynomial` (transfer functions in s).
+
+Work on an expression is bounded before it starts: the text length and nesting are
+limited when it is parsed, numbers are floats (``10**10**10`` overflows at once instead
+of growing a huge integer), and a polynomial's degree is bounded from the parsed tree
+(:func:`degree_bound`) before anything is expanded. :func:`cpu_budget` adds a limit on
+the CPU time a thread may spend evaluating expressions (the API builds specs under one).
 """
 
 from __future__ import annotations
 
 import ast
 import math
-from collections.abc import Callable, Mapping
+import time
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from contextvars import ContextVar
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from gaintune.errors import SpecError
+from gaintune.spec.base import MAX_ORDER
 
 if TYPE_CHECKING:  # pragma: no cover
     import casadi as ca
 
-__all__ = ["FUNCTIONS", "CONSTANTS", "parse", "names_in", "to_casadi", "to_float", "to_polynomial"]
+__all__ = [
+    "FUNCTIONS", "CONSTANTS", "parse", "names_in", "to_casadi", "to_float", "to_polynomial", "degree_bound",
+    "cpu_budget", "MAX_DEGREE", "MAX_POWER",
+]
 
 MAX_LENGTH = 2000
 MAX_DEPTH = 60
+#: Highest degree in s any part of a polynomial expression may reach: a transfer function's
+#: numerator and denominator cannot exceed the largest plant order, so nothing larger is expanded.
+MAX_DEGREE = MAX_ORDER
+#: Largest whole power a polynomial in s may be raised to.
+MAX_POWER = 40
 
 
 class _Casadi:
@@ -74,6 +92,7 @@ CONSTANTS = {"pi": math.pi, "e": math.e}
 #: Argument counts that differ from 1. Checked at parse time so every evaluator (casadi, float,
 #: polynomial) rejects a wrong count the same way instead of failing inside casadi or Python.
 ARITY: dict[str, int] = {"atan2": 2, "min": 2, "max": 2, "if_else": 3}
+_FLOAT_FUNCS = {k: v[1] for k, v in FUNCTIONS.items()}
 
 _BINOPS = (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow, ast.BitXor)
 _CMPOPS = (ast.Lt, ast.LtE, ast.Gt, ast.GtE)
@@ -147,7 +166,85 @@ def names_in(text: str, field: str = "expression") -> set[str]:
     return out
 
 
+def _whole_power(b: Any, field: str) -> int:
+    """The exponent ``b`` of a polynomial in s as an int, or SpecError."""
+    if isinstance(b, float) and b.is_integer() and 0 <= b <= MAX_POWER:
+        return int(b)
+    raise SpecError(field, f"a polynomial in s can only be raised to a whole power 0..{MAX_POWER}")
+
+
+def degree_bound(node: ast.expr, scope: Mapping[str, Any], field: str = "expression") -> int:
+    """An upper bound of the degree in ``s`` of a parsed polynomial expression, from its tree alone.
+
+    The degree of ``a**n`` is n times the degree of ``a``, of ``a*b`` the sum, of ``a+b`` and
+    ``a-b`` the larger one, of ``a/b`` that of ``a`` (a divisor holding s is refused when evaluated);
+    a number, a parameter and a function's value have degree 0. Only the exponents of powers whose
+    base holds s are evaluated (``scope``: the names, ``s`` included), each after its own subtree
+    has been bounded, so nothing of a higher degree is ever built.
+
+    Raises
+    ------
+    SpecError
+        When any part of the expression can reach a degree above :data:`MAX_DEGREE`, or a
+        polynomial in s is raised to anything but a whole power 0..:data:`MAX_POWER`.
+    """
+    if isinstance(node, ast.Name):
+        return 1 if node.id == "s" else 0
+    if isinstance(node, ast.UnaryOp):
+        return degree_bound(node.operand, scope, field)
+    if isinstance(node, ast.BinOp):
+        a, b = degree_bound(node.left, scope, field), degree_bound(node.right, scope, field)
+        if isinstance(node.op, (ast.Add, ast.Sub)):
+            d = max(a, b)
+        elif isinstance(node.op, ast.Mult):
+            d = a + b
+        elif isinstance(node.op, ast.Div):
+            d = a
+        elif a == 0 or b > 0:  # a number to a power; an exponent holding s fails when evaluated
+            d = 0
+        else:
+            d = a * _whole_power(_evaluate(node.right, scope, _FLOAT_FUNCS, field), field)
+        if d > MAX_DEGREE:
+            raise SpecError(field, f"the polynomial can reach degree {d} (degrees add up in products and multiply "
+                                   f"in powers), which exceeds the limit of {MAX_DEGREE}, the largest plant order; "
+                                   f"write one of degree <= {MAX_DEGREE}")
+        return d
+    for child in ast.iter_child_nodes(node):  # calls and comparisons: bound their operands, value of degree 0
+        if isinstance(child, ast.expr):
+            degree_bound(child, scope, field)
+    return 0
+
+
+# ------------------------------------------------------------------ CPU budget
+
+_BUDGET: ContextVar[tuple[float, float] | None] = ContextVar("gaintune_expr_cpu_budget", default=None)
+
+
+@contextmanager
+def cpu_budget(seconds: float) -> Iterator[None]:
+    """Inside the block, evaluating an expression raises SpecError once the calling thread has
+    spent ``seconds`` of CPU time since the block began.
+
+    A cooperative limit, checked at every node evaluated: the work between two checks is one
+    operation on floats, casadi expressions or polynomials of degree <= :data:`MAX_DEGREE`, so
+    it stays small. Thread CPU time, not wall time, so a loaded machine does not trip it.
+    """
+    token = _BUDGET.set((time.thread_time() + seconds, seconds))
+    try:
+        yield
+    finally:
+        _BUDGET.reset(token)
+
+
+def _check_budget(field: str) -> None:
+    budget = _BUDGET.get()
+    if budget is not None and time.thread_time() >= budget[0]:
+        raise SpecError(field, f"evaluating the expressions took more than the limit of {budget[1]:g} s of CPU "
+                               "time; simplify them")
+
+
 def _evaluate(node: ast.expr, env: Mapping[str, Any], funcs: Mapping[str, Callable[..., Any]], field: str) -> Any:
+    _check_budget(field)
     if isinstance(node, ast.Constant):
         return float(node.value)
     if isinstance(node, ast.Name):
@@ -193,9 +290,7 @@ def _evaluate(node: ast.expr, env: Mapping[str, Any], funcs: Mapping[str, Callab
 
 def _power(a: Any, b: Any, field: str) -> Any:
     if isinstance(a, np.polynomial.Polynomial):
-        if isinstance(b, float) and b.is_integer() and 0 <= b <= 40:
-            return a ** int(b)
-        raise SpecError(field, "a polynomial in s can only be raised to a whole power 0..40")
+        return a ** _whole_power(b, field)
     out = a**b
     # Python turns a negative float to a fractional power into a complex number; models are real.
     if isinstance(out, complex):
@@ -221,9 +316,8 @@ def to_float(value: float | str, env: Mapping[str, float], field: str = "express
     """A number as is, or an expression evaluated over numeric parameters."""
     if not isinstance(value, str):
         return float(value)
-    funcs = {k: v[1] for k, v in FUNCTIONS.items()}
     try:
-        out = _evaluate(parse(value, field), env, funcs, field)
+        out = _evaluate(parse(value, field), env, _FLOAT_FUNCS, field)
     except (ZeroDivisionError, OverflowError, ValueError) as exc:
         raise SpecError(field, f"cannot evaluate {value!r}: {exc}") from None
     return float(out)
@@ -231,11 +325,12 @@ def to_float(value: float | str, env: Mapping[str, float], field: str = "express
 
 def to_polynomial(text: str, env: Mapping[str, float], field: str = "expression") -> np.ndarray:
     """Evaluate a polynomial expression in ``s``; return coefficients in descending powers."""
-    funcs = {k: v[1] for k, v in FUNCTIONS.items()}
     scope = dict(env)
     scope["s"] = np.polynomial.Polynomial([0.0, 1.0])
     try:
-        out = _evaluate(parse(text, field), scope, funcs, field)
+        tree = parse(text, field)
+        degree_bound(tree, scope, field)  # before anything is expanded
+        out = _evaluate(tree, scope, _FLOAT_FUNCS, field)
     except (ZeroDivisionError, OverflowError) as exc:
         raise SpecError(field, f"cannot evaluate {text!r}: {exc}") from None
     except TypeError:

@@ -23,7 +23,8 @@ is the one import path:
 * :mod:`gaintune.spec.loops`: ``loops`` (the cascade, gains, derivative filter) and ``actuator``;
 * :mod:`gaintune.spec.scenarios`: ``scenarios``, ``objective`` and ``requirements``;
 * :mod:`gaintune.spec.settings`: ``randomize``, ``safety``, ``search`` and ``verify``;
-* :mod:`gaintune.spec.names`: what a spec or loop name may hold, and the identifier the exporters derive from it.
+* :mod:`gaintune.spec.names`: what a spec or loop name may hold, and the identifier the exporters derive from it;
+* :mod:`gaintune.spec.yamlload`: YAML loading with a bound on alias expansion (:data:`MAX_YAML_NODES`).
 """
 
 from __future__ import annotations
@@ -32,11 +33,21 @@ import json
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, ValidationError, field_validator, model_validator
-from pydantic_core import InitErrorDetails, PydanticCustomError
+from pydantic import Field, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from gaintune.errors import SpecError
-from gaintune.spec.base import MAX_BUDGET, MAX_DELAY_STEPS, MAX_LOOPS, MAX_ORDER, MAX_STEPS, _Model, check_delay_samples
+from gaintune.spec.base import (
+    MAX_BUDGET,
+    MAX_DELAY_STEPS,
+    MAX_LOOPS,
+    MAX_ORDER,
+    MAX_STEPS,
+    FiniteNumber,
+    _error_at,
+    _Model,
+    check_delay_samples,
+)
 from gaintune.spec.loops import GAIN_NAMES, ActuatorSpec, DerivativeFilterSpec, GainSpec, LoopSpec
 from gaintune.spec.names import ident_key, name_problem
 from gaintune.spec.plant import (
@@ -50,10 +61,12 @@ from gaintune.spec.plant import (
 )
 from gaintune.spec.scenarios import DisturbanceSpec, ObjectiveSpec, ProfileSpec, RequirementsSpec, ScenarioSpec
 from gaintune.spec.settings import DistSpec, RandomizeSpec, RobustSpec, SafetySpec, SearchSpec, VerifySpec
+from gaintune.spec.yamlload import MAX_YAML_NODES, load_yaml
 from gaintune.spec_design import DesignSpec, expand_design
 
 __all__ = [
     "parse_json_or_yaml",
+    "MAX_YAML_NODES",
     "MAX_STEPS",
     "MAX_DELAY_STEPS",
     "check_delay_samples",
@@ -85,6 +98,7 @@ __all__ = [
     "GAIN_NAMES",
     "DisturbanceSpec",
     "FiniteParams",
+    "FiniteNumber",
 ]
 
 
@@ -204,54 +218,86 @@ class TuningSpec(_Model):
         return hashlib.sha256(self.model_dump_json().encode()).hexdigest()
 
 
-def _error_at(loc: tuple, msg: str, value: Any) -> ValidationError:
-    """A ValidationError located at the field ``loc`` (a ValueError raised in a model validator has no location)."""
-    return ValidationError.from_exception_data("TuningSpec", [InitErrorDetails(
-        type=PydanticCustomError("spec_field", "{msg}", {"msg": msg}), loc=loc, input=value)])
-
-
 def _lone_surrogate(data: Any, path: str) -> str | None:
-    """The path of the first string (key or value) in ``data`` holding a lone surrogate, else None."""
-    if isinstance(data, str):
-        try:
-            data.encode("utf-8")
-        except UnicodeEncodeError:
-            return path
+    """The path of the first string (key or value) in ``data`` holding a lone surrogate, else None.
+
+    Each container is visited once: one reached again through another reference (a YAML alias, a
+    shared dict) was checked already, so shared and cyclic data cost their size, not the size of
+    every copy. Paths are built only once a bad string is known to be there."""
+    if not _has_bad_text(data):
         return None
-    if isinstance(data, dict):
-        for k, v in data.items():
-            sub = f"{path}.{k}" if path else str(k)
-            if isinstance(k, str) and _lone_surrogate(k, sub) is not None:
+    seen: set[int] = set()
+    stack: list[tuple[Any, str]] = [(data, path)]
+    while stack:
+        node, at = stack.pop()
+        if isinstance(node, str):
+            if not _utf8(node):
+                return at
+            continue
+        if not isinstance(node, (dict, list, tuple)) or id(node) in seen:
+            continue
+        seen.add(id(node))
+        children = []
+        for k, v in node.items() if isinstance(node, dict) else enumerate(node):
+            sub = f"{at}.{k}" if at else str(k)
+            if isinstance(k, str) and not _utf8(k):
                 return sub
-            found = _lone_surrogate(v, sub)
-            if found is not None:
-                return found
-    elif isinstance(data, (list, tuple)):
-        for i, v in enumerate(data):
-            found = _lone_surrogate(v, f"{path}.{i}" if path else str(i))
-            if found is not None:
-                return found
-    return None
+            children.append((v, sub))
+        stack.extend(reversed(children))  # depth first, in document order
+    return path
+
+
+def _has_bad_text(data: Any) -> bool:
+    """True when a string in ``data`` (a key or a value) is not valid UTF-8; each container once."""
+    if isinstance(data, str):
+        return not _utf8(data)
+    seen: set[int] = set()
+    stack = [data]
+    while stack:
+        node = stack.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        if isinstance(node, dict):
+            if not all(_utf8(k) for k in node if isinstance(k, str)):
+                return True
+            node = node.values()
+        elif not isinstance(node, (list, tuple)):
+            continue
+        for x in node:
+            if isinstance(x, str):
+                if not _utf8(x):
+                    return True
+            elif isinstance(x, (dict, list, tuple)):
+                stack.append(x)
+    return False
+
+
+def _utf8(text: str) -> bool:
+    if text.isascii():
+        return True
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def parse_json_or_yaml(text: str) -> Any:
     """Parse ``text`` as JSON when it starts with ``{`` or ``[``, else as YAML.
 
+    YAML aliases may expand the document to at most :data:`MAX_YAML_NODES` nodes.
+
     Raises
     ------
     ValueError
         With the parser's message when the text is not valid (JSON's error is a ValueError; YAML's
-        is re-raised as one).
+        is re-raised as one), or when the YAML expands beyond :data:`MAX_YAML_NODES` nodes.
     """
     try:
         if text.lstrip().startswith(("{", "[")):
             return json.loads(text)
-        import yaml  # deferred on purpose: JSON specs and gains (the API, tools, start-up) never need it
-
-        try:
-            return yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise ValueError(str(exc)) from None
+        return load_yaml(text)
     except RecursionError:
         raise ValueError("nested too deeply (thousands of levels of lists or mappings)") from None
 

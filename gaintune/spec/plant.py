@@ -11,7 +11,7 @@ from typing import Annotated, Any, Union
 
 from pydantic import AfterValidator, Field, field_validator, model_validator
 
-from gaintune.spec.base import _finite, _Model
+from gaintune.spec.base import _error_at, _finite, _Model
 
 __all__ = [
     "Coef",
@@ -106,6 +106,12 @@ class OdeSpec(_Model):
     def _rhs_matches_states(self) -> "OdeSpec":
         if len(set(self.states)) != len(self.states):
             raise ValueError(f"states names must be unique, {sorted({n for n in self.states if self.states.count(n) > 1})} repeat")
+        if self.input in self.states:
+            # the expressions would read the name as the input: the state would vanish from the model
+            i = self.states.index(self.input)
+            raise _error_at(("states", i), f"state {self.input!r} has the name of the input (input: {self.input}); "
+                            "in the expressions that name means the input, so rename the state or set 'input' to "
+                            "another name", self.input)
         missing = [s for s in self.states if s not in self.rhs]
         extra = [s for s in self.rhs if s not in self.states]
         if missing:
@@ -154,4 +160,18 @@ class PlantSpec(_Model):
             )
         if isinstance(self.model, str):
             self.model = ModelRefSpec(name=self.model)
+        self._check_param_names()
         return self
+
+    def _check_param_names(self) -> None:
+        """A parameter named like a name the expressions already use would be shadowed by it (or shadow it)."""
+        taken: dict[str, str] = {}
+        if self.ode is not None:
+            taken = {name: f"ode.states[{i}]" for i, name in enumerate(self.ode.states)}
+            taken[self.ode.input] = "ode.input"
+        elif self.tf is not None:
+            taken["s"] = "the Laplace variable s of tf expressions"
+        for name in self.params:
+            if name in taken:
+                raise _error_at(("params", name), f"parameter {name!r} clashes with {taken[name]} (the same name); "
+                                "in the expressions one would hide the other, so rename the parameter", self.params[name])

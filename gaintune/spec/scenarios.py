@@ -149,6 +149,9 @@ class RequirementsSpec(_Model):
     @classmethod
     def _mks_form(cls, v: Any) -> Any:
         # one message for a value of none of the four forms (pydantic would list its union's internals)
+        for x in v.values() if isinstance(v, dict) else [v]:
+            if isinstance(x, float) and not math.isfinite(x):
+                raise ValueError(f"noise-sensitivity limits must be finite and > 0, got {x}")
         if v is None or v == "auto" or isinstance(v, dict) or (isinstance(v, (int, float)) and not isinstance(v, bool)):
             return v
         if isinstance(v, str):

@@ -64,6 +64,8 @@ def coerce_gains(layout: GainLayout, gains: Any) -> np.ndarray:
     """
     if isinstance(gains, dict):
         return layout.from_dict(gains)
+    if _has_boolean(gains):  # numpy would read true as 1.0
+        raise GainError("gains", "must be numbers, not booleans (true/false)")
     try:
         arr = np.asarray(gains, dtype=float)
     except (TypeError, ValueError):
@@ -78,6 +80,15 @@ def coerce_gains(layout: GainLayout, gains: Any) -> np.ndarray:
         names = [f"{s.loop_name}.{s.name}" for s in layout.slots]
         raise GainError("gains", f"expected {layout.n_gains} gains ({', '.join(names)}), got {arr.size}")
     return layout.from_dict(layout.to_dict(full))
+
+
+def _has_boolean(gains: Any) -> bool:
+    """True when a gain vector holds a bool (a bool array, or one in a list or tuple)."""
+    if isinstance(gains, np.ndarray):
+        return gains.dtype == bool
+    if isinstance(gains, (list, tuple)):
+        return any(isinstance(g, (bool, np.bool_)) for g in gains)
+    return isinstance(gains, (bool, np.bool_))
 
 
 def _fixed_gain_overrides(spec: TuningSpec, layout: GainLayout, full: np.ndarray) -> list[str]:

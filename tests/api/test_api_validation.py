@@ -226,3 +226,54 @@ def test_tune_with_every_gain_fixed_is_422_not_accepted_then_failed(client) -> N
     assert "every gain is fixed" in json.dumps(problem["errors"]) and '"loops"' in json.dumps(problem["errors"]), problem
     # verifying those gains is what the spec is for, and stays allowed
     assert client.post("/v1/verify", json={"spec": spec, "gains": {}}).status_code == 200
+
+
+# ------------------------------------------------- issue 24: bounded spec checks, booleans
+
+NESTED_POWER = "((((s+1)**40)**40)**40)**40"
+
+
+@pytest.mark.parametrize("path", ["/v1/tune", "/v1/verify", "/v1/simulate"])
+def test_nested_power_expression_refused_fast(client, path: str) -> None:
+    """This den kept both cores busy for minutes (129 CPU-s in 75 s) after the client had gone. The degree
+    bound refuses it from the expression tree (tests/plants/test_expr_limits.py shows nothing is expanded)."""
+    spec = _with("plant.tf.den", NESTED_POWER)
+    body = spec if path == "/v1/tune" else {"spec": spec, "gains": {"loop0": {"Kp": 1, "Ki": 0.5}}}
+    problem = assert_problem(client.post(path, json=body), 422)
+    (err,) = problem["errors"]
+    assert err["loc"] == ("plant.tf.den" if path == "/v1/tune" else "spec.plant.tf.den")
+    assert "can reach degree 40" in err["msg"] and "limit of 20" in err["msg"]
+
+
+def test_spec_check_runs_under_a_cpu_budget(client, monkeypatch) -> None:
+    """The plant build of a request is refused (422 naming the expression) once it has used the budget."""
+    import gaintune_api.validation as validation
+
+    monkeypatch.setattr(validation, "SPEC_CPU_SECONDS", 0.0)  # already spent: the first expression node trips it
+    problem = assert_problem(client.post("/v1/tune", json={**SPEC, "name": "cpu budget"}), 422, "plant.tf.den")
+    assert "s of CPU time" in json.dumps(problem["errors"])
+
+
+@pytest.mark.parametrize("path", ["/v1/verify", "/v1/simulate"])
+@pytest.mark.parametrize("value", [True, False])
+def test_verify_refuses_boolean_gain(client, path: str, value: bool) -> None:
+    """`"Kp": true` was verified as Kp = 1.0."""
+    body = {"spec": SPEC, "gains": {"loop0": {"Kp": value, "Ki": 0.5}}}
+    problem = assert_problem(client.post(path, json=body), 422, "gains.loop0.Kp")
+    assert "not a boolean" in json.dumps(problem["errors"])
+
+
+def test_boolean_in_a_spec_number_is_422(client) -> None:
+    spec = _with("loops.0.gains", {"Kp": {"bounds": [True, 10]}})
+    problem = assert_problem(client.post("/v1/tune", json=spec), 422, "loops.0.gains.Kp.bounds")
+    assert "not a boolean" in json.dumps(problem["errors"])
+
+
+def test_yaml_body_is_not_parsed(client) -> None:
+    """The API reads JSON only: a YAML alias bomb sent as YAML is refused without being expanded."""
+    lines = ["b0: &b0 [x, x, x, x, x, x, x, x, x]"]
+    lines += [f"b{i}: &b{i} [{', '.join([f'*b{i - 1}'] * 9)}]" for i in range(1, 10)]
+    laughs = "\n".join(lines) + "\n"
+    for ctype in ("application/yaml", "application/x-yaml", "text/yaml"):
+        r = client.post("/v1/tune", content=laughs, headers={"content-type": ctype})
+        assert 400 <= r.status_code < 500, r.text

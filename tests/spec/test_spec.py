@@ -163,7 +163,7 @@ def test_bad_plant(plant: dict[str, Any], fragments: tuple[str, ...]) -> None:
         ({"dt": -0.01}, ("scenarios.0", "dt must be > 0")),
         ({"horizon": 0}, ("scenarios.0", "horizon must be > 0")),
         ({"horizon": -5}, ("scenarios.0", "horizon must be > 0")),
-        ({"dt": float("nan")}, ("scenarios.0", "dt must be finite")),
+        ({"dt": float("nan")}, ("scenarios.0.dt", "finite number")),
         ({"dt": 1e-4, "horizon": MAX_STEPS * 1e-4 * 1.01}, ("scenarios.0", "exceeds the limit")),
         ({"dt": 1.0, "horizon": 1.0}, ("scenarios.0", "at least 2 samples")),
         ({"reference": {"kind": "sequence"}}, ("scenarios.0.reference", "points")),

@@ -91,7 +91,7 @@ def test_deeply_nested_yaml_string_is_a_spec_error() -> None:
 def test_infinite_setpoint_weight_from_yaml_names_the_weight(weight: str) -> None:
     """YAML's .inf passed ``ge=0``; the verification then met inf * 0 = NaN (a NaN Nyquist count)."""
     _invalid(f"plant: {{tf: {{num: [1], den: [1, 1]}}}}\nloops: [{{type: pid, {weight}: .inf}}]\n",
-             f"loops.0.{weight}", "must be finite")
+             f"loops.0.{weight}", "finite number")
 
 
 @pytest.mark.parametrize("field", ["outputs", "states"])
