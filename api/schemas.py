@@ -29,7 +29,7 @@ FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 #: ``{loop_name: {gain_name: value}}``
 Gains = dict[str, dict[str, FiniteFloat]]
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
-ExportFormat = Literal["json", "yaml", "c", "matlab"]
+ExportFormat = Literal["json", "yaml", "c", "matlab", "python"]
 #: A number, or "Infinity"/"-Infinity"/"NaN" for non-finite figures (JSON has no such numbers).
 Num = float | str | None
 
