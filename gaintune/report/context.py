@@ -103,7 +103,7 @@ def _requirements(rep) -> list[dict[str, Any]]:
              "wc_min": "crossover >= (rad/s)", "wc_max": "crossover <= (rad/s)"}
     return [{
         "name": names.get(q.requirement, q.requirement), "value": _fmt(q.value), "limit": _fmt(q.limit),
-        "margin": _fmt(q.margin), "passed": q.passed,
+        "margin": _fmt(q.margin), "passed": q.passed, "status": q.status,
         "where": f"{q.loop} / {q.break_point} / {q.case}" if q.loop else q.case,
     } for q in rep.requirements]
 

@@ -273,6 +273,12 @@ def _requirement_lines(spec: TuningSpec, loops: list[LoopFigures], worst: list[W
     return lines
 
 
+def _not_applicable(lines: list[RequirementLine], *, nominal_stable: bool, robust_stable: bool) -> list[RequirementLine]:
+    """Mark the lines read on an unstable closed loop as not applicable (never pass): the instability is the reason."""
+    stable = {"nominal": nominal_stable, "worst": robust_stable and nominal_stable}
+    return [q if stable[q.case] else q.model_copy(update={"applicable": False, "passed": False}) for q in lines]
+
+
 def _noise_line(loops: list[LoopFigures], worst: list[WorstCase] | None) -> RequirementLine | None:
     """The Mks requirement at its binding loop: limits differ per loop, so the one with the least
     relative margin binds (the line states that loop's limit)."""
@@ -410,12 +416,15 @@ def verify(
     if nonlinear:
         nl = nonlinear_check(spec, plant, layout, full, sim=ctx.simulator(spec) if ctx is not None else None,
                              compute_delay=vs.compute_delay)
-        if nl.ran and not nl.passed:
+        if nl.ran and not stab.stable:  # a bounded run of an unstable loop is no "ok": saturation only hides it
+            nl = nl.model_copy(update={"passed": None, "note": "not applicable: the linearised closed loop is unstable"})
+        elif nl.ran and not nl.passed:
             reasons.append(f"nonlinear check failed: {nl.note}")
         elif not nl.ran:
             notes.append(f"nonlinear check not run: {nl.note}")
-    req = _requirement_lines(spec, loops, worst)
-    failing = sorted((q for q in req if not q.passed), key=lambda q: q.margin / max(abs(q.limit), 1e-12))
+    req = _not_applicable(_requirement_lines(spec, loops, worst), nominal_stable=stab.stable,
+                          robust_stable=rob is None or rob.n_unstable == 0)
+    failing = sorted((q for q in req if q.applicable and not q.passed), key=lambda q: q.margin / max(abs(q.limit), 1e-12))
     for q in failing:
         reasons.append(
             f"{q.requirement}: {q.figure} = {q.value:.4g} vs limit {q.limit:.4g} (margin {q.margin:+.4g}) "
