@@ -160,11 +160,14 @@ def _pade_check(order: int, pade: Analysis, exact: Analysis) -> PadeCheck:
 
 
 def loop_frequency_responses(spec: TuningSpec, plant: Plant, layout: GainLayout, full: np.ndarray, w: np.ndarray,
-                             lin=None) -> np.ndarray:
+                             lin=None, *, noise: bool = False) -> np.ndarray:
     """L (n_loops + 1, W) at the frequencies ``w`` (rad/s) of every break point of the loop
     :func:`verify` analyses (rows as ``report.loops``): the sampled loop at z = e^{jw dt} (then
     w <= pi/dt is meaningful, higher w are aliases), or the continuous loop with dt/2 and the
-    computation delay. For plots of the verified loop (Bode, Nyquist, sensitivity)."""
+    computation delay. For plots of the verified loop (Bode, Nyquist, sensitivity).
+
+    ``noise``: return instead each loop's noise response N_i (n_loops, W), whose peak is Mks
+    (:mod:`gaintune.verify.noise`; -C S for one loop)."""
     lin = lin if lin is not None else plant.linearize()
     full = np.asarray(full, dtype=float).reshape(1, -1)
     cas = build_cascade(spec, layout, full, lin)
@@ -173,9 +176,11 @@ def loop_frequency_responses(spec: TuningSpec, plant: Plant, layout: GainLayout,
     with np.errstate(all="ignore"):
         if vs.sampled:
             sp = sample_plant(lin, dt, vs.compute_delay, plant.kind == "nonlinear")
-            return cas.loop_responses(s, lin, sampled=sp)[:, 0, :]
-        T = lin.delay + sampling_delay(spec) + vs.compute_delay * dt
-        return cas.loop_responses(s, lin, DelayModel(T, vs.pade_order).factor(s))[:, 0, :]
+            out = cas.loop_responses(s, lin, sampled=sp, noise=noise)
+        else:
+            T = lin.delay + sampling_delay(spec) + vs.compute_delay * dt
+            out = cas.loop_responses(s, lin, DelayModel(T, vs.pade_order).factor(s), noise=noise)
+    return out[1][:, 0, :] if noise else out[:, 0, :]
 
 
 def analysis_dt(spec: TuningSpec) -> float:
