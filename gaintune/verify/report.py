@@ -277,12 +277,29 @@ def _f(x: float | None, fmt: str = "{:.3g}") -> str:
     return fmt.format(x)
 
 
+def _other_form(gains: dict[str, float]) -> str:
+    """`` (ideal: Ti 2.5 s, Td 0.5 s)`` for a parallel PID's gains, `` (parallel: Ki ..)`` for an ideal one."""
+    from gaintune.controllers.forms import IDEAL, PARALLEL, equivalent
+
+    names = set(gains)
+    if names <= set(PARALLEL) and names & {"Ki", "Kd"}:
+        form, other = "parallel", "ideal"
+    elif names <= set(IDEAL) and names & {"Ti", "Td"}:
+        form, other = "ideal", "parallel"
+    else:
+        return ""
+    alt = {k: v for k, v in equivalent(form, gains).items() if k not in gains}
+    unit = {"Ti": " s", "Td": " s"}
+    return f" ({other}: " + ", ".join(f"{k} {_f(v, '{:.4g}')}{unit.get(k, '')}" for k, v in alt.items()) + ")"
+
+
 def format_table(report: VerificationReport) -> str:
     """Plain-text summary used by ``gaintune verify``."""
     lines = [f"verification of {report.spec_name!r}: {report.verdict.upper()}"]
     # the verdict belongs to these gains: print them, so that a table is never read without them
     lines.append("gains: " + "; ".join(
-        f"{loop} " + ", ".join(f"{g} {_f(v, '{:.6g}')}" for g, v in gains.items()) for loop, gains in report.gains.items()))
+        f"{loop} " + ", ".join(f"{g} {_f(v, '{:.6g}')}" for g, v in gains.items()) + _other_form(gains)
+        for loop, gains in report.gains.items()))
     st = report.stability
     cd = f", computation delay {report.compute_delay} sample(s)" if report.compute_delay else ""
     if report.sampled:
