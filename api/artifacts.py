@@ -18,6 +18,7 @@ EXPORT_MEDIA = {
     "yaml": ("application/yaml", "yaml"),
     "c": ("text/x-c", "h"),
     "matlab": ("text/x-matlab", "m"),
+    "python": ("text/x-python", "py"),
 }
 
 

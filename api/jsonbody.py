@@ -17,7 +17,7 @@ from fastapi.routing import APIRoute
 
 from gaintune_api.problems import ApiError
 
-__all__ = ["StrictJSONRoute", "parse_strict", "check_shape"]
+__all__ = ["StrictJSONRoute", "parse_strict", "parse_yaml", "body_kind", "check_shape"]
 
 
 def _reject_constant(name: str) -> Any:
@@ -63,6 +63,56 @@ def check_shape(data: Any, max_depth: int, max_items: int) -> None:
                 stack.extend((v, (*path, k), depth + 1) for k, v in node.items() if isinstance(v, (dict, list)))
 
 
+YAML_TYPES = ("application/yaml", "application/x-yaml", "text/yaml", "text/x-yaml")
+
+
+def body_kind(content_type: str) -> str | None:
+    """``"json"``, ``"yaml"`` or None (a type the API does not read) for a Content-Type header.
+
+    A missing type is read as JSON, as FastAPI does; ``application/*+json`` is JSON.
+    """
+    media = content_type.split(";", 1)[0].strip().lower()
+    if not media or media == "application/json" or (media.startswith("application/") and media.endswith("+json")):
+        return "json"
+    return "yaml" if media in YAML_TYPES else None
+
+
+def parse_yaml(body: bytes) -> Any:
+    """Parse a YAML body with the spec loader's own (bounded) parser; ApiError(400) when invalid."""
+    from gaintune.spec import parse_json_or_yaml
+
+    try:
+        text = body.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ApiError(400, "The request body is not valid UTF-8.") from None
+    try:
+        data = parse_json_or_yaml(text)
+    except ValueError as exc:
+        raise ApiError(400, f"The request body is not valid YAML: {str(exc)[:300]}") from None
+    _reject_nonfinite(data)
+    return data
+
+
+def _reject_nonfinite(data: Any) -> None:
+    """YAML's .nan and .inf are floats: refuse them as the JSON parser refuses NaN and Infinity."""
+    stack = [data]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, float) and not math.isfinite(node):
+            raise ApiError(400, "The request body holds a NaN or infinite number; numbers must be finite.")
+        if isinstance(node, dict):
+            stack.extend(node.values())
+        elif isinstance(node, list):
+            stack.extend(node)
+
+
+def _declare_json(request: Request) -> None:
+    """Tell FastAPI the (already parsed) body is JSON, so it validates ``request._json``."""
+    headers = [(k, v) for k, v in request.scope["headers"] if k != b"content-type"]
+    request.scope["headers"] = [*headers, (b"content-type", b"application/json")]
+    request.__dict__.pop("_headers", None)
+
+
 class StrictJSONRoute(APIRoute):
     """APIRoute that pre-checks JSON bodies (limits from ``app.state.settings``)."""
 
@@ -72,12 +122,18 @@ class StrictJSONRoute(APIRoute):
         async def strict_handler(request: Request) -> Response:
             if request.method in ("POST", "PUT", "PATCH"):
                 body = await request.body()
-                ctype = request.headers.get("content-type", "")
-                if body and (not ctype or "json" in ctype):
-                    data = parse_strict(body)
+                kind = body_kind(request.headers.get("content-type", ""))
+                if body and kind is not None:
+                    data = parse_strict(body) if kind == "json" else parse_yaml(body)
                     s = request.app.state.settings
                     check_shape(data, s.max_json_depth, s.max_array_items)
                     request._json = data  # starlette caches the parsed body here; FastAPI reuses it
+                    if kind == "yaml":
+                        _declare_json(request)
+                elif body:
+                    raise ApiError(415, "Send the body as JSON with 'Content-Type: application/json' "
+                                        "(a spec may also be sent as YAML with 'Content-Type: application/yaml').",
+                                   errors=[{"loc": "header.content-type", "msg": "send application/json or application/yaml"}])
             return await handler(request)
 
         return strict_handler

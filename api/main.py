@@ -20,6 +20,7 @@ from gaintune_api.metrics import Metrics
 from gaintune_api.middleware import BodySizeLimit, CatchAll, DocsAuth, LatencyMetrics
 from gaintune_api.problems import SafeJSONResponse, install_handlers
 from gaintune_api.routes import jobs, ops, plants, simulate, verify
+from gaintune_api.routes.docs import install_docs
 from gaintune_api.schemas import install_client_openapi
 from gaintune_api.settings import Settings, warn_unknown_settings
 from gaintune_api.storage import FaultInjector, StorageFault
@@ -112,6 +113,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         description=API_DESCRIPTION,
         lifespan=lifespan,
         default_response_class=SafeJSONResponse,
+        docs_url=None,  # served by routes/docs.py from local assets: FastAPI's pages need a CDN
+        redoc_url=None,
     )
     app.state.settings = settings
     app.state.files = JobFiles(settings.jobs_dir, FaultInjector(settings.test_storage_fault_file))
@@ -124,12 +127,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_handlers(app)
     for r in (jobs.router, verify.router, simulate.router, plants.router, ops.router):
         app.include_router(r)
+    docs = install_docs(app)
     install_client_openapi(app)  # request schemas: defaulted fields optional for generated clients
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
                            allow_headers=["*"], expose_headers=["Location", "Retry-After"])
     if settings.api_keys and not settings.docs_public:
-        docs = {p for p in (app.openapi_url, app.docs_url, app.redoc_url, app.swagger_ui_oauth2_redirect_url) if p}
         app.add_middleware(DocsAuth, paths=docs, keys=settings.api_keys)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
     app.add_middleware(LatencyMetrics, metrics=app.state.metrics)

@@ -30,7 +30,7 @@ FiniteFloat = FiniteNumber
 #: ``{loop_name: {gain_name: value}}``
 Gains = dict[str, dict[str, FiniteFloat]]
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
-ExportFormat = Literal["json", "yaml", "c", "matlab"]
+ExportFormat = Literal["json", "yaml", "c", "matlab", "python"]
 #: A number, or "Infinity"/"-Infinity"/"NaN" for non-finite figures (JSON has no such numbers).
 Num = float | str | None
 

@@ -285,7 +285,7 @@ def job_agent(job_id: str, store: StoreDep, files: FilesDep, owner: OwnerDep) ->
     return FileResponse(path, media_type="application/zip", filename=f"agent_{row.id}.zip", headers=headers)
 
 
-@router.get("/jobs/{job_id}/export", summary="Gains exported as json, yaml, C or MATLAB, verified at the export dt",
+@router.get("/jobs/{job_id}/export", summary="Gains exported as json, yaml, C, MATLAB or Python, verified at the export dt",
             responses={**NOT_FOUND,
                        409: {"description": "No result, or the gains' verdict at this dt is not pass.", **_PROBLEM},
                        422: {"description": "Bad format or dt (the field is named in `errors`).", **_PROBLEM},

@@ -25,6 +25,7 @@ import numpy as np
 
 from gaintune.controllers.direction import LoopDirection, loop_directions, resolve_directions
 from gaintune.errors import GainError, SpecError
+from gaintune.controllers.forms import to_form
 from gaintune.spec import GAIN_NAMES, LoopSpec, TuningSpec
 
 __all__ = [
@@ -59,6 +60,20 @@ def loop_gain_names(loop: LoopSpec, states: list[str]) -> tuple[str, ...]:
             names = [f"k_{s}" for s in states] + (["k_int"] if loop.type == "lqi" else [])
         return tuple(names)
     return GAIN_NAMES[(loop.type, loop.form)]
+
+
+def _in_form(form: str, given: dict[str, Any], where: str) -> dict[str, Any]:
+    """``given`` gains of one PID loop in the loop's ``form`` (K/Ti/Td read on a parallel loop, Ki/Kd on an ideal one).
+
+    Non-numbers are left for the caller's check, which names them.
+    """
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in given.values()):
+        return given
+    ti = given.get("Ti")
+    if form == "parallel" and ti is not None and not ti > 0:
+        raise GainError(f"{where}.Ti", f"must be > 0, got {ti:g} (the integral time; to turn integral action off, "
+                        "use a PD loop or give Ki: 0)")
+    return to_form(form, given)
 
 
 def gain_sign(loop: LoopSpec, name: str, direction: int) -> int:
@@ -131,6 +146,7 @@ class GainLayout:
                 LoopDirection(int(d), "set", "set", None, "given to the layout") for d in directions
             )
         self.directions: tuple[int, ...] = tuple(d.sign for d in self.direction_info)
+        self._pid_forms = {i: lp.form for i, lp in enumerate(spec.loops) if not lp.is_lq}
         for i, loop in enumerate(spec.loops):
             names = loop_gain_names(loop, states)
             unknown = set(loop.gains) - set(names)
@@ -279,6 +295,8 @@ class GainLayout:
             given = gains.get(slot.loop_name, {})
             if not isinstance(given, dict):
                 raise GainError(f"{field}.{slot.loop_name}", "must be a mapping {gain_name: value}")
+            if slot.loop in self._pid_forms:  # K/Ti/Td on a parallel loop (or Ki/Kd on an ideal one): converted
+                given = _in_form(self._pid_forms[slot.loop], given, f"{field}.{slot.loop_name}")
             names = {s.name for s in self.slots if s.loop_name == slot.loop_name}
             extra = set(given) - names
             if extra:
@@ -296,8 +314,10 @@ class GainLayout:
             v = float(v)
             if not math.isfinite(v):
                 raise GainError(f"{field}.{slot.loop_name}.{slot.name}", f"must be finite, got {v}")
-            # Direct state-feedback entries may take any sign; every other gain has its slot's sign.
-            if slot.sign != 0 and not v * slot.sign > 0:
+            # Direct state-feedback entries may take any sign; every other gain has its slot's sign. A PID gain
+            # (Kp, Ki, Kd) or Td of 0 is legal: that action is off.
+            off_ok = slot.name in SIGNED_GAINS + ("Td",) and slot.loop in self._pid_forms
+            if slot.sign != 0 and not (v * slot.sign > 0 or (v == 0 and off_ok)):
                 raise GainError(f"{field}.{slot.loop_name}.{slot.name}", self._sign_message(slot.loop, slot.name, v))
             out[k] = v
         return out

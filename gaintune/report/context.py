@@ -41,7 +41,9 @@ def _plant_summary(spec: TuningSpec, plant) -> dict[str, Any]:
         m = load_model(p.model.name)
         out["title"] = f"{m.title} (built-in model '{m.name}')"
         out["description"] = m.description
-        units = {k: v.unit for k, v in m.outputs.items()}
+        units = {k: v.unit for k, v in m.outputs.items() if v.unit and v.unit != "-"}
+        if m.input.unit and m.input.unit != "-":
+            out["input_unit"] = m.input.unit
         out["param_units"] = {k: v.unit for k, v in m.parameters.items()}
         if m.plant.tf is not None:
             out["structure"] = f"G(s) = {_wrap(_poly(m.plant.tf.num))} / {_wrap(_poly(m.plant.tf.den))}"
@@ -97,13 +99,39 @@ def _loop_rows(spec: TuningSpec, plant) -> list[dict[str, Any]]:
     return rows
 
 
+def _gain_rows(spec: TuningSpec, plant, gains: Gains, ps: dict[str, Any]) -> list[dict[str, Any]]:
+    """One row per gain: value, unit (where the model gives units) and the other PID form's equivalent."""
+    from gaintune.controllers.forms import equivalent, gain_unit
+
+    units, rows = ps["units"], []
+    loops = {lp.name: (i, lp) for i, lp in enumerate(spec.loops)}
+    for loop, g in gains.items():
+        i, lp = loops.get(loop, (None, None))
+        pid = lp is not None and not lp.is_lq
+        other: dict[str, float] = equivalent(lp.form, g) if pid else {}
+        y_unit = units.get((lp.measure or plant.outputs[0]) if lp is not None else "", "")
+        if lp is None:
+            u_unit = ""
+        elif i == len(spec.loops) - 1:
+            u_unit = ps.get("input_unit", "")
+        else:
+            nxt = spec.loops[i + 1]
+            u_unit = units.get(nxt.measure or plant.outputs[0], "")
+        alt = [f"{k} {_fmt(v, 4)}" + (f" {gain_unit(k, u_unit, y_unit)}" if gain_unit(k, u_unit, y_unit) else "")
+               for k, v in other.items() if k not in g]
+        for k, v in g.items():
+            rows.append({"loop": loop, "gain": k, "value": _fmt(v, 6), "unit": gain_unit(k, u_unit, y_unit) if pid else "",
+                         "other": ", ".join(alt) if k == next(iter(g)) else ""})
+    return rows
+
+
 def _requirements(rep) -> list[dict[str, Any]]:
     names = {"gm_min_db": "gain margin >= (dB)", "pm_min_deg": "phase margin >= (deg)", "dm_min": "delay margin >= (s)",
              "ms_max": "Ms <=", "mt_max": "Mt <=", "mks_max": "Mks <=",
              "wc_min": "crossover >= (rad/s)", "wc_max": "crossover <= (rad/s)"}
     return [{
         "name": names.get(q.requirement, q.requirement), "value": _fmt(q.value), "limit": _fmt(q.limit),
-        "margin": _fmt(q.margin), "passed": q.passed,
+        "margin": _fmt(q.margin), "passed": q.passed, "status": q.status,
         "where": f"{q.loop} / {q.break_point} / {q.case}" if q.loop else q.case,
     } for q in rep.requirements]
 
@@ -146,9 +174,24 @@ def _load_scenario(spec: TuningSpec, u_final: float, u0: float) -> ScenarioSpec 
     })
 
 
-def _time_section(spec, plant, sim, full, units) -> tuple[list[dict], dict]:
-    figs = []
+def _setpoint_scenario(spec: TuningSpec) -> ScenarioSpec | None:
+    """A unit setpoint step derived from the first scenario, when no scenario changes the reference."""
+    if any(sc.reference.kind != "none" for sc in spec.scenarios):
+        return None
+    return spec.scenarios[0].model_copy(update={
+        "name": "setpoint_step", "reference": ProfileSpec(kind="step", amplitude=1.0, time=0.0),
+        "disturbance": DisturbanceSpec(kind="none"), "noise_std": 0.0,
+    })
+
+
+def _time_section(spec, plant, sim, full, ps) -> tuple[list[dict], dict]:
+    units, u_unit = ps["units"], ps.get("input_unit", "")
     lim = spec.actuator.limits
+
+    def figure(res, title: str) -> str:
+        return plots.time_figure(res.t, _loop_traces(res, spec, plant, units), res.traces["u"][0], lim, title, u_unit=u_unit)
+
+    figs = []
     nominal_runs = {}
     for i, sc in enumerate(spec.scenarios):
         res = sim.run(full[None], scenario=i, traces=True)
@@ -156,7 +199,7 @@ def _time_section(spec, plant, sim, full, units) -> tuple[list[dict], dict]:
         kind = sc.reference.kind if sc.reference.kind != "none" else "no reference change"
         dist = "" if sc.disturbance.kind == "none" else f", {sc.disturbance.kind} load disturbance at the {sc.disturbance.entry}"
         title = f"Scenario '{sc.name}': reference {kind}{dist}"
-        figs.append({"title": title, "svg": plots.time_figure(res.t, _loop_traces(res, spec, plant, units), res.traces["u"][0], lim, title)})
+        figs.append({"title": title, "svg": figure(res, title)})
     lin = plant.linearize()
     u_final = float(nominal_runs[0].traces["u"][0][-1])
     load = _load_scenario(spec, u_final, float(lin.u0))
@@ -164,9 +207,14 @@ def _time_section(spec, plant, sim, full, units) -> tuple[list[dict], dict]:
         res = sim.run(full[None], scenario=load, traces=True)
         title = (f"Load disturbance: input step of {load.disturbance.amplitude:.3g} at t = {load.disturbance.time:g} s "
                  "(derived from the first scenario, reference held)")
+        figs.append({"title": title, "svg": figure(res, title), "note": f"load IAE {_fmt(float(res.metrics['load_iae'][0]))}"})
+    step = _setpoint_scenario(spec)
+    if step is not None:
+        res = sim.run(full[None], scenario=step, traces=True)
+        title = "Setpoint step of 1, for information (the spec tunes for its load scenarios only)"
         m = res.metrics
-        figs.append({"title": title, "svg": plots.time_figure(res.t, _loop_traces(res, spec, plant, units), res.traces["u"][0], lim, title),
-                     "note": f"load IAE {_fmt(float(m['load_iae'][0]))}"})
+        figs.append({"title": title, "svg": figure(res, title),
+                     "note": f"overshoot {_fmt(float(m['overshoot'][0]))}, settling time {_fmt(float(m['settling_time'][0]))} s"})
     return figs, nominal_runs
 
 
@@ -213,6 +261,7 @@ def _freq_section(spec, plant, layout, full, rep) -> dict[str, Any]:
     req = spec.requirements
     ms_vals = [f.ms for f in rep.loops]
     return {
+        "noise": _noise_plot(spec, plant, layout, full, w, lin, rep),
         "bodes": bodes,
         "nyquist": plots.nyquist_figure(curves, req.ms_max, [max(ms_vals)] if ms_vals else []),
         "sensitivity": plots.sensitivity_figure(w, curves, req.ms_max, req.mt_max),
@@ -225,6 +274,19 @@ def _freq_section(spec, plant, layout, full, rep) -> dict[str, Any]:
             f"{sampling_delay(spec):.4g} s, " + ("exact e^(-jwT)." if spec.verify.pade_order is None
                                                  else f"Padé order {spec.verify.pade_order}.")),
     }
+
+
+def _noise_plot(spec, plant, layout, full, w, lin, rep) -> str | None:
+    """The |C S| plot with the Mks limits, when Mks is a requirement of some loop (else None)."""
+    from gaintune.verify.core import loop_frequency_responses
+
+    limits = {f.loop: f.mks_max for f in rep.loops if f.break_point == "controller_output" and f.mks_max}
+    if not limits:
+        return None
+    N = loop_frequency_responses(spec, plant, layout, full, w, lin, noise=True)
+    names = [lp.name for lp in spec.loops]
+    curves = [(n, N[i], limits.get(n)) for i, n in enumerate(names) if not spec.loops[i].is_lq]
+    return plots.noise_figure(w, curves) if curves else None
 
 
 def _concat_draws(a, b):
@@ -361,11 +423,8 @@ def build_context(result, *, command: str | None = None) -> dict[str, Any]:
     passed = rep.verdict == "pass"
     ps = _plant_summary(spec, plant)
     units = ps["units"]
-    gains_rows = []
-    for loop, g in result.gains.items():
-        for k, v in g.items():
-            gains_rows.append({"loop": loop, "gain": k, "value": _fmt(v, 6)})
-    time_figs, nominal_res = _time_section(spec, plant, sim, full, units)
+    gains_rows = _gain_rows(spec, plant, result.gains, ps)
+    time_figs, nominal_res = _time_section(spec, plant, sim, full, ps)
     metric_keys = ("iae", "ise", "effort", "overshoot", "rise_time", "settling_time", "sse", "peak_u", "sat_frac")
     metrics = []
     for i, sc in enumerate(spec.scenarios):

@@ -116,7 +116,7 @@ def _plain_log_labels(axis) -> None:
 
 
 def time_figure(t: np.ndarray, loops: list[dict], u: np.ndarray, u_limits: tuple[float, float] | None,
-                title: str, extra_u: list[tuple[str, np.ndarray]] | None = None) -> str:
+                title: str, extra_u: list[tuple[str, np.ndarray]] | None = None, u_unit: str = "") -> str:
     """One subplot per loop (output vs setpoint) and one for the control effort with saturation limits."""
     plt = _plt()
     n = len(loops) + 1
@@ -135,7 +135,7 @@ def time_figure(t: np.ndarray, loops: list[dict], u: np.ndarray, u_limits: tuple
         lab = [f"{v:g}" for v in u_limits if math.isfinite(v)]
         if lab:
             ax.plot([], [], "k:", label="saturation " + " / ".join(lab))
-    ax.set_ylabel("u")
+    ax.set_ylabel("u" + (f" [{u_unit}]" if u_unit else ""))
     ax.set_xlabel("time [s]")
     ax.legend(loc="lower right", fontsize=8, framealpha=0.8)
     axes[0].set_title(title)
@@ -236,6 +236,25 @@ def sensitivity_figure(w: np.ndarray, curves: list[tuple[str, np.ndarray]], ms_m
         a.set_ylim(-60, 20)
         a.legend(loc="lower right", fontsize=7)
     _layout(fig, wspace=0.2)
+    return to_svg(fig)
+
+
+def noise_figure(w: np.ndarray, curves: list[tuple[str, np.ndarray, float | None]]) -> str:
+    """|C S| (each loop's measurement noise to the plant input) with its Mks limit, where one is required."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(8, 3.0))
+    for i, (name, N, limit) in enumerate(curves):
+        c = COLORS[i % len(COLORS)]
+        with np.errstate(all="ignore"):
+            ax.plot(w, 20 * np.log10(np.abs(N)), color=c, lw=1.3, label=name)
+        if limit:
+            ax.axhline(20 * math.log10(limit), color=c, ls="--", lw=1, label=f"Mks limit {limit:.4g} ({name})")
+    _logx(ax)
+    ax.set_title("|C S|: measurement noise to plant input")
+    ax.set_xlabel("frequency [rad/s]")
+    ax.set_ylabel("dB")
+    ax.legend(loc="lower right", fontsize=7)
+    _layout(fig)
     return to_svg(fig)
 
 

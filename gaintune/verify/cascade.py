@@ -462,10 +462,11 @@ def build_cascade(
         else:
             pa = pid_arrays(loop, G, names)
             has_d = "d" in loop.type[1:]
-            if has_d and np.any(pa["Tf"] <= 0):
+            if has_d and np.any((pa["Tf"] <= 0) & (pa["Kd"] != 0)):  # Kd = 0: no derivative, no filter needed
                 raise GainError(f"gains.{name}", "derivative filter time constant is zero; give Kp > 0")
             loops.append(
-                LoopCtl(name, "pid", out_idx, has_i="i" in loop.type[1:], has_d=has_d, Kp=pa["Kp"], Ki=pa["Ki"],
+                # Ki = 0 turns integral action off: no integrator state, whose pole at s = 0 would count as unstable
+                LoopCtl(name, "pid", out_idx, has_i="i" in loop.type[1:] and bool(np.any(pa["Ki"] != 0)), has_d=has_d, Kp=pa["Kp"], Ki=pa["Ki"],
                         Kd=pa["Kd"], Tf=pa["Tf"], b=loop.b, c=loop.c)
             )
     return Cascade(loops, Bsz, [lp.name for lp in loops])

@@ -171,11 +171,14 @@ def _pade_check(order: int, pade: Analysis, exact: Analysis) -> PadeCheck:
 
 
 def loop_frequency_responses(spec: TuningSpec, plant: Plant, layout: GainLayout, full: np.ndarray, w: np.ndarray,
-                             lin=None) -> np.ndarray:
+                             lin=None, *, noise: bool = False) -> np.ndarray:
     """L (n_loops + 1, W) at the frequencies ``w`` (rad/s) of every break point of the loop
     :func:`verify` analyses (rows as ``report.loops``): the sampled loop at z = e^{jw dt} (then
     w <= pi/dt is meaningful, higher w are aliases), or the continuous loop with dt/2 and the
-    computation delay. For plots of the verified loop (Bode, Nyquist, sensitivity)."""
+    computation delay. For plots of the verified loop (Bode, Nyquist, sensitivity).
+
+    ``noise``: return instead each loop's noise response N_i (n_loops, W), whose peak is Mks
+    (:mod:`gaintune.verify.noise`; -C S for one loop)."""
     lin = lin if lin is not None else plant.linearize()
     full = np.asarray(full, dtype=float).reshape(1, -1)
     cas = build_cascade(spec, layout, full, lin)
@@ -184,9 +187,11 @@ def loop_frequency_responses(spec: TuningSpec, plant: Plant, layout: GainLayout,
     with np.errstate(all="ignore"):
         if vs.sampled:
             sp = sample_plant(lin, dt, vs.compute_delay, plant.kind == "nonlinear")
-            return cas.loop_responses(s, lin, sampled=sp)[:, 0, :]
-        T = lin.delay + sampling_delay(spec) + vs.compute_delay * dt
-        return cas.loop_responses(s, lin, DelayModel(T, vs.pade_order).factor(s))[:, 0, :]
+            out = cas.loop_responses(s, lin, sampled=sp, noise=noise)
+        else:
+            T = lin.delay + sampling_delay(spec) + vs.compute_delay * dt
+            out = cas.loop_responses(s, lin, DelayModel(T, vs.pade_order).factor(s), noise=noise)
+    return out[1][:, 0, :] if noise else out[:, 0, :]
 
 
 def analysis_dt(spec: TuningSpec) -> float:
@@ -282,6 +287,12 @@ def _requirement_lines(spec: TuningSpec, loops: list[LoopFigures], worst: list[W
     if mks is not None:
         lines.append(mks)
     return lines
+
+
+def _not_applicable(lines: list[RequirementLine], *, nominal_stable: bool, robust_stable: bool) -> list[RequirementLine]:
+    """Mark the lines read on an unstable closed loop as not applicable (never pass): the instability is the reason."""
+    stable = {"nominal": nominal_stable, "worst": robust_stable and nominal_stable}
+    return [q if stable[q.case] else q.model_copy(update={"applicable": False, "passed": False}) for q in lines]
 
 
 def _noise_line(loops: list[LoopFigures], worst: list[WorstCase] | None) -> RequirementLine | None:
@@ -421,12 +432,15 @@ def verify(
     if nonlinear:
         nl = nonlinear_check(spec, plant, layout, full, sim=ctx.simulator(spec) if ctx is not None else None,
                              compute_delay=vs.compute_delay)
-        if nl.ran and not nl.passed:
+        if nl.ran and not stab.stable:  # a bounded run of an unstable loop is no "ok": saturation only hides it
+            nl = nl.model_copy(update={"passed": None, "note": "not applicable: the linearised closed loop is unstable"})
+        elif nl.ran and not nl.passed:
             reasons.append(f"nonlinear check failed: {nl.note}")
         elif not nl.ran:
             notes.append(f"nonlinear check not run: {nl.note}")
-    req = _requirement_lines(spec, loops, worst)
-    failing = sorted((q for q in req if not q.passed), key=lambda q: q.margin / max(abs(q.limit), 1e-12))
+    req = _not_applicable(_requirement_lines(spec, loops, worst), nominal_stable=stab.stable,
+                          robust_stable=rob is None or rob.n_unstable == 0)
+    failing = sorted((q for q in req if q.applicable and not q.passed), key=lambda q: q.margin / max(abs(q.limit), 1e-12))
     for q in failing:
         reasons.append(
             f"{q.requirement}: {q.figure} = {q.value:.4g} vs limit {q.limit:.4g} (margin {q.margin:+.4g}) "

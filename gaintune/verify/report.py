@@ -167,6 +167,15 @@ class RequirementLine(_Out):
     loop: str | None = None
     break_point: str | None = None
     case: Literal["nominal", "worst"] = "nominal"
+    applicable: bool = Field(
+        True, description="False when the closed loop the figure is read on is unstable (nominal case: the nominal loop; "
+        "worst case: any sampled plant): margins and sensitivity peaks of an unstable loop mean nothing. Such a line "
+        "is neither pass nor fail: passed is false and the instability is the reason.")
+
+    @property
+    def status(self) -> Literal["pass", "fail", "n/a"]:
+        """``"n/a"`` (not applicable: closed loop unstable), ``"pass"`` or ``"fail"``."""
+        return "n/a" if not self.applicable else ("pass" if self.passed else "fail")
 
 
 class VerificationReport(_Out):
@@ -256,6 +265,10 @@ def _as_float(x) -> float:
         return math.nan
 
 
+#: How every view (CLI, API, report) shows a margin or peak of an unstable closed loop.
+NOT_APPLICABLE = "not applicable (closed loop unstable)"
+
+
 def _f(x: float | None, fmt: str = "{:.3g}") -> str:
     if x is None:
         return "-"
@@ -264,12 +277,29 @@ def _f(x: float | None, fmt: str = "{:.3g}") -> str:
     return fmt.format(x)
 
 
+def _other_form(gains: dict[str, float]) -> str:
+    """`` (ideal: Ti 2.5 s, Td 0.5 s)`` for a parallel PID's gains, `` (parallel: Ki ..)`` for an ideal one."""
+    from gaintune.controllers.forms import IDEAL, PARALLEL, equivalent
+
+    names = set(gains)
+    if names <= set(PARALLEL) and names & {"Ki", "Kd"}:
+        form, other = "parallel", "ideal"
+    elif names <= set(IDEAL) and names & {"Ti", "Td"}:
+        form, other = "ideal", "parallel"
+    else:
+        return ""
+    alt = {k: v for k, v in equivalent(form, gains).items() if k not in gains}
+    unit = {"Ti": " s", "Td": " s"}
+    return f" ({other}: " + ", ".join(f"{k} {_f(v, '{:.4g}')}{unit.get(k, '')}" for k, v in alt.items()) + ")"
+
+
 def format_table(report: VerificationReport) -> str:
     """Plain-text summary used by ``gaintune verify``."""
     lines = [f"verification of {report.spec_name!r}: {report.verdict.upper()}"]
     # the verdict belongs to these gains: print them, so that a table is never read without them
     lines.append("gains: " + "; ".join(
-        f"{loop} " + ", ".join(f"{g} {_f(v, '{:.6g}')}" for g, v in gains.items()) for loop, gains in report.gains.items()))
+        f"{loop} " + ", ".join(f"{g} {_f(v, '{:.6g}')}" for g, v in gains.items()) + _other_form(gains)
+        for loop, gains in report.gains.items()))
     st = report.stability
     cd = f", computation delay {report.compute_delay} sample(s)" if report.compute_delay else ""
     if report.sampled:
@@ -286,7 +316,9 @@ def format_table(report: VerificationReport) -> str:
     hdr = (f"{'loop':<12} {'break':<8} {'GM dB':>7} {'GMlo dB':>7} {'PM deg':>7} {'wc':>8} {'DM s':>8} {'DM smp':>7} "
            f"{'Ms':>6} {'Mt':>6} {'Mks':>8} {'disk a':>6}")
     lines += ["", hdr, "-" * len(hdr)]
-    for f in report.loops:
+    if not st.stable and report.loops:
+        lines.append(f"{'(all loops)':<12} {NOT_APPLICABLE}")
+    for f in report.loops if st.stable else []:
         brk = "ctrl" if f.break_point == "controller_output" else "u"
         gm_up, gm_lo = _f(f.gm_upper_db, '{:.2f}'), _f(f.gm_lower_db, '{:.2f}')
         if f.gm_binding == "increase":
@@ -312,12 +344,15 @@ def format_table(report: VerificationReport) -> str:
             )
     if report.nonlinear is not None:
         n = report.nonlinear
-        state = "not run" if not n.ran else ("ok" if n.passed else "FAILED")
+        state = "not run" if not n.ran else ("not applicable" if n.passed is None else ("ok" if n.passed else "FAILED"))
         lines += ["", f"nonlinear check: {state}" + (f" ({n.note})" if n.note else "")]
     if report.requirements:
         lines += ["", "requirements:"]
         for q in report.requirements:
             where = f"{q.loop}/{q.break_point}/{q.case}" if q.loop else q.case
+            if not q.applicable:
+                lines.append(f"  N/A  {q.requirement:<11} {NOT_APPLICABLE} at {where}")
+                continue
             lines.append(
                 f"  {'PASS' if q.passed else 'FAIL'} {q.requirement:<11} {q.figure}={_f(q.value, '{:.4g}')} limit {_f(q.limit, '{:.4g}')} "
                 f"margin {_f(q.margin, '{:+.4g}')} at {where}"

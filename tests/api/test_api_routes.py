@@ -143,7 +143,7 @@ def test_failed_verification_hides_gains_and_refuses_export(client):
     assert r.status_code == 409 and "allow_unverified" in r.json()["detail"]
 
 
-@pytest.mark.parametrize("fmt", ["json", "yaml", "c", "matlab"])
+@pytest.mark.parametrize("fmt", ["json", "yaml", "c", "matlab", "python"])
 def test_export_formats(client, fmt):
     pytest.importorskip("gaintune.export")
     job = submit(client)

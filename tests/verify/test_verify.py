@@ -446,7 +446,7 @@ def test_fixed_gain_set_by_the_gains_file_is_verified_and_said_not_silently_swap
     assert given.gains["loop0"]["Kd"] == 0.9
     assert any("loop0.Kd = 0.9 was verified, not the spec's fixed value 0.4" in n for n in given.notes), given.notes
     text = format_table(given)
-    assert text.splitlines()[1] == "gains: loop0 Kp 1.2, Ki 0.5, Kd 0.9"
+    assert text.splitlines()[1] == "gains: loop0 Kp 1.2, Ki 0.5, Kd 0.9 (ideal: Ti 2.4 s, Td 0.75 s)"
     assert "note: loop0.Kd = 0.9 was verified" in text
     # the figures are those of Kd = 0.9, not 0.4
     spec_value = verify(spec, {"loop0": {"Kp": 1.2, "Ki": 0.5}})
