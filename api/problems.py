@@ -160,10 +160,22 @@ def _loc(parts: tuple | list) -> str:
 
 
 def validation_errors(exc: RequestValidationError) -> list[dict[str, Any]]:
+    """``[{loc, msg}]``; errors in a spec (the body, or its ``spec`` member) name the fix (gaintune.spec.hints)."""
+    from gaintune.spec.hints import explain
+
+    groups: dict[tuple, list[dict[str, Any]]] = {}
     out = []
     for err in exc.errors():
-        msg = str(err.get("msg", "invalid"))
-        out.append({"loc": _loc(err.get("loc", ())), "msg": msg[:1000]})
+        loc = tuple(err.get("loc", ()))
+        if loc[:1] != ("body",):
+            out.append({"loc": _loc(loc), "msg": str(err.get("msg", "invalid"))[:1000]})
+            continue
+        prefix = ("spec",) if loc[1:2] == ("spec",) else ()
+        groups.setdefault(prefix, []).append({**err, "loc": loc[1 + len(prefix):]})
+    for prefix, errs in groups.items():
+        for e in explain(errs):
+            loc = ".".join([*prefix, e["loc"]] if e["loc"] else prefix)
+            out.append({"loc": loc, "msg": e["msg"][:1000]})
     return out
 
 

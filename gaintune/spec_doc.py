@@ -9,6 +9,7 @@ from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
 from gaintune import spec as S
+from gaintune.spec_design import DesignSpec
 
 __all__ = ["render_markdown"]
 
@@ -34,6 +35,7 @@ _SECTIONS: list[tuple[str, type[BaseModel]]] = [
     ("search", S.SearchSpec),
     ("search.robust", S.RobustSpec),
     ("verify", S.VerifySpec),
+    ("design (pidtune-style shortcut)", DesignSpec),
 ]
 
 
@@ -76,7 +78,9 @@ def render_markdown() -> str:
         f"Polynomials in `s` (`plant.tf.num`/`den` as text): every part can reach a degree of at most {S.MAX_ORDER}, "
         "bounded from the expression before it is expanded (products add degrees, powers multiply them). "
         "Names: an ODE state may not be named like the input, a parameter not like a state, the ODE input or, "
-        "in a `tf` plant, the Laplace variable `s`.",
+        "in a `tf` plant, the Laplace variable `s`. "
+        "Keys: every section takes only the keys listed below; an unknown key is refused, naming the keys that "
+        "section takes and the closest match (`requirements.ms`: did you mean ms_max?).",
         "",
     ]
     for title, model in _SECTIONS:

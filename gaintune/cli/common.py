@@ -91,7 +91,12 @@ def _problem_lines(exc: BaseException) -> list[str]:
     if isinstance(exc, OSError) and not isinstance(exc, (FileNotFoundError, IsADirectoryError)):
         # a file the command reads or writes: full disk, no permission, a file where a folder goes
         return [f"{exc.filename or 'file'}: {exc.strerror or exc}"]
-    return [f"{d['loc']}: {d['msg']}" if d["loc"] else d["msg"] for d in problem_details(exc)]
+    details = problem_details(exc)
+    if type(exc).__name__ == "ValidationError" and getattr(exc, "title", "") == "TuningSpec":
+        from gaintune.spec.hints import explain
+
+        details = explain(exc.errors(include_url=False))  # type: ignore[attr-defined]  # pydantic's ValidationError
+    return [f"{d['loc']}: {d['msg']}" if d["loc"] else d["msg"] for d in details]
 
 
 def _input_errors() -> tuple[type[BaseException], ...]:
