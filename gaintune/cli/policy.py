@@ -69,7 +69,7 @@ def _print_answers(answers) -> None:
         table.add_column(n, justify="right")
     for loop, g in gains:
         table.add_column(f"{loop}.{g}", justify="right")
-    for col in ("verdict", "Ms", "PM deg", "ms"):
+    for col in ("verdict", "Ms", "PM deg", "answer time ms"):
         table.add_column(col, justify="right")
     for a in answers:
         ok = a.verdict == "pass"
