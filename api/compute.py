@@ -211,7 +211,8 @@ class ComputePool:
         self._waiters: deque[asyncio.Future] = deque()
         self._loop: asyncio.AbstractEventLoop | None = None
         self.warm: list[Future] = []
-        self.restarts = 0
+        self.restarts = 0  # workers respawned
+        self.fallbacks = 0  # requests answered None (computed in a thread) by a running pool
 
     def start(self) -> None:
         """Spawn every worker now; ``warm[i]`` resolves (to the worker's pid) once it is warmed up."""
@@ -265,6 +266,12 @@ class ComputePool:
         """
         if self._loop is None:
             return None
+        out = await self._dispatch(fn, args, ref)
+        if out is None:
+            self.fallbacks += 1
+        return out
+
+    async def _dispatch(self, fn: Callable, args: tuple, ref: tuple[int, str] | None) -> Any:
         w = await self._acquire()
         fut = self._loop.create_future()
         w.pending = fut
