@@ -7,11 +7,16 @@ instead; each keeps the per-spec caches of :mod:`gaintune.verify.context` (plant
 layout, linearisation, simulator) between requests. ``compute_processes = 0``
 computes in the server process, in at most ``compute_threads`` threads.
 
-Each worker has its own pipe, watched by the server's event loop (``loop.add_reader``):
-no executor threads and no shared result queue on the request path. Workers die with the
-server (``PR_SET_PDEATHSIG`` plus a parent watch), and the pool is shut down (workers
-joined) when the app stops. A worker that dies is replaced at once; the request it was
-computing is computed in a thread instead.
+Each worker has its own pipe (a socket pair) carrying length-prefixed pickles. The server's
+end belongs to the event loop and is read and written only through an asyncio stream (one
+reader task per worker): no executor threads and no shared result queue on the request path,
+and messages of any size. (Blocking-style ``Connection.recv_bytes`` on a descriptor the loop
+watches failed under uvloop, whose ``add_reader`` makes the descriptor non-blocking: every
+answer larger than a socket buffer respawned its worker.) Workers die with the server
+(``PR_SET_PDEATHSIG`` plus a parent watch), and the pool is shut down (workers joined) when
+the app stops. A worker that dies is replaced at once; the request it was computing is
+computed in a thread instead. ``ComputePool.restarts`` and ``ComputePool.fallbacks`` count
+both, for ``/metrics``.
 """
 
 from __future__ import annotations
@@ -21,10 +26,12 @@ import logging
 import multiprocessing as mp
 import os
 import pickle
+import socket
+import struct
 import threading
 from collections import deque
 from concurrent.futures import Future
-from typing import Any, Callable
+from typing import Any, BinaryIO, Callable
 
 from gaintune.cache import LRU
 
@@ -118,6 +125,12 @@ def compute_simulate(spec, gains, chosen: list[int], max_points: int, plant=None
 
 # ------------------------------------------------------------------ worker loop
 
+#: A frame on a worker's pipe: this header (the pickle's length, 8 bytes big-endian), then the pickle.
+_HEADER = struct.Struct("!Q")
+#: Bytes the server's stream reader buffers before it pauses the transport (a 16-scenario simulate
+#: answer is about 1.5 MB; larger frames still arrive whole, in more reads).
+_STREAM_LIMIT = 1 << 21
+
 #: Objects (specs) each worker keeps by key, so that a known one is sent as a reference only.
 #: The server mirrors every worker's LRU exactly (same operations, in message order).
 KNOWN_SIZE = 32
@@ -154,22 +167,38 @@ def _resolve(args: tuple, known: LRU[str, Any]) -> tuple:
     return tuple(out)
 
 
-def _worker_main(conn, parent: int) -> None:
-    """A compute worker: warm up, report ``("warm", pid)``, then answer ``(fn, args)`` messages with
-    ``("ok", fn(*args))`` (or ``("exc", exception)``) until an empty message or EOF."""
-    _init_worker(parent)
+def _send(wfile: BinaryIO, msg: tuple) -> None:
+    """Write ``msg`` as one frame: its pickle's length (:data:`_HEADER`), then the pickle."""
     try:
-        conn.send_bytes(pickle.dumps(("warm", warm_up_compute()), pickle.HIGHEST_PROTOCOL))
+        data = pickle.dumps(msg, pickle.HIGHEST_PROTOCOL)
+    except Exception as exc:  # noqa: BLE001 - e.g. an unpicklable answer: the server computes it in a thread
+        data = pickle.dumps(("exc", RuntimeError(f"answer not picklable: {exc!r}"[:300])), pickle.HIGHEST_PROTOCOL)
+    wfile.write(_HEADER.pack(len(data)))
+    wfile.write(data)
+    wfile.flush()
+
+
+def _worker_main(sock: socket.socket, parent: int) -> None:
+    """A compute worker: warm up, report ``("warm", pid)``, then answer ``(fn, args)`` frames with
+    ``("ok", fn(*args))`` (or ``("exc", exception)``) until EOF (the server closed its end).
+
+    The worker's end of the pipe is blocking: buffered files read and write whole frames of any size.
+    """
+    _init_worker(parent)
+    rfile, wfile = sock.makefile("rb"), sock.makefile("wb")
+    try:
+        _send(wfile, ("warm", warm_up_compute()))
     except Exception as exc:  # noqa: BLE001 - warm-up is an optimisation only
         log.warning("compute worker warm-up failed", exc_info=True)
-        conn.send_bytes(pickle.dumps(("warm", exc), pickle.HIGHEST_PROTOCOL))
+        _send(wfile, ("warm", exc))
     known: LRU[str, Any] = LRU(KNOWN_SIZE)
     while True:
         try:
-            data = conn.recv_bytes()
-        except (EOFError, OSError):
+            head = rfile.read(_HEADER.size)
+            data = rfile.read(_HEADER.unpack(head)[0]) if len(head) == _HEADER.size else b""
+        except OSError:
             break
-        if not data:
+        if not data:  # EOF (a request frame is never empty)
             break
         try:
             fn, args = pickle.loads(data)
@@ -177,8 +206,8 @@ def _worker_main(conn, parent: int) -> None:
         except Exception as exc:  # noqa: BLE001 - reported to the server, which computes in a thread
             msg = ("exc", exc)
         try:
-            conn.send_bytes(pickle.dumps(msg, pickle.HIGHEST_PROTOCOL))
-        except (EOFError, OSError):
+            _send(wfile, msg)
+        except OSError:
             break
 
 
@@ -186,10 +215,12 @@ def _worker_main(conn, parent: int) -> None:
 
 
 class _Worker:
-    __slots__ = ("proc", "conn", "warm", "ready", "pending", "known", "pending_key")
+    __slots__ = ("proc", "sock", "writer", "task", "warm", "ready", "pending", "known", "pending_key")
 
-    def __init__(self, proc, conn, warm: Future) -> None:
-        self.proc, self.conn, self.warm = proc, conn, warm
+    def __init__(self, proc, sock: socket.socket, warm: Future) -> None:
+        self.proc, self.sock, self.warm = proc, sock, warm
+        self.writer: asyncio.StreamWriter | None = None  # set once the reader task has attached the socket
+        self.task: asyncio.Task | None = None  # the reader task (:meth:`ComputePool._serve`)
         self.ready = False  # warmed up and not computing
         self.pending: asyncio.Future | None = None
         self.known: LRU[str, None] = LRU(KNOWN_SIZE)  # mirror of the worker's LRU
@@ -197,12 +228,15 @@ class _Worker:
 
 
 class ComputePool:
-    """``n`` spawned worker processes, each on its own pipe watched by the event loop.
+    """``n`` spawned worker processes, each on its own pipe, read and written with asyncio streams.
 
-    No executor threads: a request is pickled onto an idle worker's pipe from the event
-    loop, and the loop's reader callback resolves the request's future when the answer
-    arrives. :meth:`start` and :meth:`shutdown` run on the event loop's thread, which is the
-    main thread under uvicorn (PDEATHSIG follows the spawning thread).
+    No executor threads: a request is pickled onto an idle worker's pipe from the event loop,
+    and each worker's reader task resolves the request's future when the answer arrives.
+    :meth:`start` and :meth:`shutdown` run on the event loop's thread, which is the main thread
+    under uvicorn (PDEATHSIG follows the spawning thread).
+
+    ``restarts`` counts workers respawned, ``fallbacks`` requests the running pool answered
+    with None (the caller computes them in a thread); ``/metrics`` exports both.
     """
 
     def __init__(self, n: int) -> None:
@@ -211,7 +245,8 @@ class ComputePool:
         self._waiters: deque[asyncio.Future] = deque()
         self._loop: asyncio.AbstractEventLoop | None = None
         self.warm: list[Future] = []
-        self.restarts = 0
+        self.restarts = 0  # workers respawned
+        self.fallbacks = 0  # requests answered None (computed in a thread) by a running pool
 
     def start(self) -> None:
         """Spawn every worker now; ``warm[i]`` resolves (to the worker's pid) once it is warmed up."""
@@ -221,13 +256,30 @@ class ComputePool:
 
     def _spawn(self) -> _Worker:
         ctx = mp.get_context("spawn")
-        here, there = ctx.Pipe(duplex=True)
+        here, there = socket.socketpair()
         proc = ctx.Process(target=_worker_main, args=(there, os.getpid()), name="gaintune-compute", daemon=True)
         proc.start()
         there.close()  # the worker's end: EOF here when the worker dies
         w = _Worker(proc, here, Future())
-        self._loop.add_reader(here.fileno(), self._on_message, w)
+        w.task = self._loop.create_task(self._serve(w))
         return w
+
+    async def _serve(self, w: _Worker) -> None:
+        """Read ``w``'s answer frames until its pipe closes or breaks, then replace the worker.
+
+        The event loop owns the server's end of the pipe (uvloop even makes it non-blocking), so it is
+        read and written only through an asyncio stream: a frame of any size arrives in as many reads
+        as it takes, and the transport buffers a request of any size without blocking the loop.
+        """
+        try:
+            reader, w.writer = await asyncio.open_connection(sock=w.sock, limit=_STREAM_LIMIT)
+            while True:
+                (n,) = _HEADER.unpack(await reader.readexactly(_HEADER.size))
+                self._on_message(w, await reader.readexactly(n))
+        except Exception as exc:  # noqa: BLE001 - whatever broke the pipe, the worker is replaced
+            if not isinstance(exc, (asyncio.IncompleteReadError, OSError)):
+                log.error("compute worker pipe failed", exc_info=True)
+            self._lost(w)
 
     @property
     def pids(self) -> list[int]:
@@ -258,7 +310,7 @@ class ComputePool:
             raise
 
     async def run(self, fn: Callable, *args, ref: tuple[int, str] | None = None) -> Any:
-        """``fn(*args)`` in a worker; None when that worker died (the caller computes in a thread).
+        """``fn(*args)`` in a worker; None when that worker died or failed (the caller computes in a thread).
 
         ``ref = (i, key)``: ``args[i]`` is fully determined by ``key`` (a spec and its content
         hash); a worker that has it already gets only the key.
@@ -266,68 +318,84 @@ class ComputePool:
         if self._loop is None:
             return None
         w = await self._acquire()
-        fut = self._loop.create_future()
-        w.pending = fut
-        w.pending_key = ref[1] if ref is not None else None
         if ref is not None:
             i, key = ref
-            args = list(args)
-            # the same LRU operations as the worker's _resolve, in the same order: the mirror stays exact
-            if key in w.known:
-                args[i] = _Ref(key)
-                w.known.get(key)  # a read: now the most recently used, as in the worker
-            else:
-                args[i] = _Store(key, args[i])
-                w.known.put(key, None)
-            args = tuple(args)
+            known = key in w.known
+            args = args[:i] + (_Ref(key) if known else _Store(key, args[i]),) + args[i + 1:]
         try:
-            w.conn.send_bytes(pickle.dumps((fn, args), pickle.HIGHEST_PROTOCOL))
-        except (OSError, ValueError):
-            self._lost(w)
+            data = pickle.dumps((fn, args), pickle.HIGHEST_PROTOCOL)
+        except Exception:  # noqa: BLE001 - not sent: the worker is free again, the caller computes in a thread
+            log.warning("compute request not picklable; computing in a thread", exc_info=True)
+            self._release(w)
+            self.fallbacks += 1
             return None
+        if w.writer is None or w.writer.is_closing():  # the pipe closed (the worker died) since it was handed out
+            self._lost(w)
+            self.fallbacks += 1
+            return None
+        if ref is not None and known:  # the same LRU operations as the worker's _resolve, in the same order:
+            w.known.get(key)  # a read makes it the most recently used
+        elif ref is not None:
+            w.known.put(key, None)
+        fut = self._loop.create_future()
+        w.pending, w.pending_key = fut, ref[1] if ref is not None else None
+        w.writer.writelines((_HEADER.pack(len(data)), data))  # buffered by the transport: never blocks
         # a cancelled request leaves the worker busy until its answer arrives (then discarded)
         return await fut
 
-    def _on_message(self, w: _Worker) -> None:
+    def _on_message(self, w: _Worker, data: bytes) -> None:
         try:
-            kind, value = pickle.loads(w.conn.recv_bytes())
-        except (EOFError, OSError, pickle.UnpicklingError):
-            self._lost(w)
-            return
-        if kind == "warm":
-            if not w.warm.done():
-                if isinstance(value, BaseException):
-                    w.warm.set_exception(value)
-                else:
-                    w.warm.set_result(value)
+            kind, value = pickle.loads(data)
+        except Exception as exc:  # noqa: BLE001 - the frame was read whole: only this answer is lost
+            kind, value = "exc", exc
+        if not w.warm.done():  # the first frame: ("warm", pid or the warm-up's exception)
+            if isinstance(value, BaseException):
+                w.warm.set_exception(value)
+            else:
+                w.warm.set_result(value)
             self._release(w)
             return
         fut = w.pending
-        if fut is not None and not fut.done():
-            if kind == "ok":
-                fut.set_result(value)
-            else:
-                log.warning("compute worker raised %r; computing in a thread", value)
-                fut.set_result(None)
+        if kind == "ok" and fut is not None and not fut.done():
+            fut.set_result(value)
+        elif kind != "ok":
+            log.warning("compute worker raised %r; computing in a thread", value)
+            self._fall_back(w)
         if kind != "ok" and w.pending_key is not None:
             w.known.pop(w.pending_key, None)  # resend it in full next time (heals a broken mirror)
         self._release(w)
 
-    @staticmethod
-    def _settle(w: _Worker, warm_error: str) -> None:
-        """A retired worker: its request gets None (computed in a thread), an unfinished warm-up fails."""
+    def _fall_back(self, w: _Worker) -> None:
+        """``w``'s request (unless cancelled) gets None: the caller computes it in a thread."""
         if w.pending is not None and not w.pending.done():
             w.pending.set_result(None)
+            self.fallbacks += 1
+
+    def _settle(self, w: _Worker, warm_error: str) -> None:
+        """A retired worker: its request gets None (computed in a thread), an unfinished warm-up fails."""
+        self._fall_back(w)
         if not w.warm.done():
             w.warm.set_exception(RuntimeError(warm_error))
+
+    @staticmethod
+    def _close(w: _Worker) -> None:
+        """Close the server's end of ``w``'s pipe now: the worker reads EOF and exits."""
+        try:
+            w.sock.shutdown(socket.SHUT_RDWR)  # at once, without waiting for the loop to close the transport
+        except OSError:
+            pass
+        if w.writer is not None:
+            w.writer.close()
+        else:
+            w.sock.close()
 
     def _lost(self, w: _Worker) -> None:
         """A worker died (or its pipe broke): answer its request with None and start a new one."""
         if w not in self._workers:
             return
         log.warning("compute worker %s died; starting a new one", w.proc.pid)
-        self._loop.remove_reader(w.conn.fileno())
-        w.conn.close()
+        self._close(w)
+        w.proc.kill()  # already dead, or abandoned with its pipe
         w.proc.join(timeout=0.1)
         self._settle(w, "compute worker died during warm-up")
         i = self._workers.index(w)
@@ -335,24 +403,18 @@ class ComputePool:
         self.restarts += 1
 
     def shutdown(self) -> None:
-        """Stop and join every worker; waiting requests get None (computed in a thread)."""
-        loop, self._loop = self._loop, None
+        """Stop and join every worker: a request in a worker gets None (computed in a thread), requests
+        waiting for a worker are cancelled."""
+        self._loop = None
         workers, self._workers = self._workers, []
         for w in workers:
-            try:
-                loop.remove_reader(w.conn.fileno())
-            except (ValueError, OSError):
-                pass
-            try:
-                w.conn.send_bytes(b"")
-            except (OSError, ValueError):
-                pass
+            w.task.cancel()
+            self._close(w)
         for w in workers:
             w.proc.join(timeout=5)
             if w.proc.is_alive():
                 w.proc.kill()
                 w.proc.join(timeout=5)
-            w.conn.close()
             self._settle(w, "compute pool shut down")
         while self._waiters:
             f = self._waiters.popleft()

@@ -86,6 +86,7 @@ async def lifespan(app: FastAPI):
         pool = ComputePool(settings.compute_processes)
         pool.start()  # spawned from this (main) thread: the workers die with it
     app.state.compute_pool = pool
+    app.state.metrics.compute = pool  # its respawns and thread fallbacks in /metrics
     if settings.warmup:
         threading.Thread(target=_warm_up, args=(app.state.warm, pool), name="warmup", daemon=True).start()
     else:

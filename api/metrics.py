@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import threading
 from collections import defaultdict
+from typing import Protocol
 
-__all__ = ["Metrics", "BUCKETS"]
+__all__ = ["Metrics", "BUCKETS", "ComputeCounters"]
 
 #: Latency histogram bucket upper bounds in seconds.
 BUCKETS = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0)
@@ -15,12 +16,23 @@ def _esc(v: str) -> str:
     return v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
 
 
+class ComputeCounters(Protocol):
+    """What :class:`Metrics` reads of the compute pool (``gaintune_api.compute.ComputePool``)."""
+
+    restarts: int
+    fallbacks: int
+
+
 class Metrics:
-    """Request-latency histograms keyed by (method, route, status)."""
+    """Request-latency histograms keyed by (method, route, status), and the compute pool's counters.
+
+    ``compute``: the running compute pool, set by the app at start-up (None: no pool, counters 0).
+    """
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._hist: dict[tuple[str, str, str], list[float]] = defaultdict(lambda: [0.0] * (len(BUCKETS) + 2))
+        self.compute: ComputeCounters | None = None
 
     def observe(self, method: str, route: str, status: int, seconds: float) -> None:
         key = (method, route, str(status))
@@ -55,6 +67,13 @@ class Metrics:
             out += ["# HELP gaintune_database_writable 1 when the supervisor's last write probe of the job database "
                     "committed.", "# TYPE gaintune_database_writable gauge",
                     f"gaintune_database_writable {int(database_writable)}"]
+        pool = self.compute
+        out += ["# HELP gaintune_compute_restarts_total Compute pool worker processes respawned (a worker died or "
+                "its pipe broke).", "# TYPE gaintune_compute_restarts_total counter",
+                f"gaintune_compute_restarts_total {pool.restarts if pool else 0}"]
+        out += ["# HELP gaintune_compute_fallbacks_total Synchronous requests computed in a server thread because "
+                "their compute worker died or failed.", "# TYPE gaintune_compute_fallbacks_total counter",
+                f"gaintune_compute_fallbacks_total {pool.fallbacks if pool else 0}"]
         name = "gaintune_http_request_duration_seconds"
         out += [f"# HELP {name} HTTP request latency.", f"# TYPE {name} histogram"]
         with self._lock:

@@ -5,6 +5,7 @@ Run::
     gaintune bench api             # or: python -m gaintune.bench.api [--requests 500] [--concurrency 8] [--json]
                                    #     [--compute-processes N]  (0: no process pool, the old mode)
                                    #     [--sweep 1,2,4,8,16]  (extra verify_distinct runs at these concurrencies)
+                                   #     [--phases verify,simulate,jobs] [--simulate-scenarios 1,16]
 
 Phases (each bounded by ``--requests`` requests or ``--seconds`` seconds):
 
@@ -14,19 +15,26 @@ Phases (each bounded by ``--requests`` requests or ``--seconds`` seconds):
    gains), so each one is a full verification (no cache hit).
 2. ``verify_repeat``: the same request over and over (served from the
    server's verification LRU cache after the first).
-3. ``get_job_idle``: ``GET /v1/jobs/{id}`` with no job running.
-4. ``get_job_2_jobs``: the same while 2 tuning jobs run in the 2 worker
+3. ``simulate``: ``POST /v1/simulate`` on 1/(s+1)^3 with ``--simulate-scenarios``
+   scenarios of 2,000 steps (about 100 KB of traces each), ``--simulate-requests``
+   requests at ``--simulate-concurrency`` (1), with the compute pool's respawns and
+   thread fallbacks during each phase (from ``/metrics``).
+4. ``get_job_idle``: ``GET /v1/jobs/{id}`` with no job running.
+5. ``get_job_2_jobs``: the same while 2 tuning jobs run in the 2 worker
    processes (both CPUs busy with the RL search); then both jobs are cancelled
    and the time until they report ``cancelled`` is printed.
 
-Targets (issue): verify p95 <= 50 ms and >= 200 requests/s; GET stays low while jobs run.
+Targets (issue): verify p95 <= 50 ms and >= 200 requests/s; GET stays low while jobs run;
+no compute pool respawns, and simulate p50 with 16 scenarios <= 2 x the p50 with 1.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import argparse
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -40,7 +48,7 @@ import numpy as np
 
 from gaintune.bench.arguments import BenchParser, int_list, int_range, non_negative_int, positive_float, positive_int
 
-__all__ = ["main", "CASCADE_SPEC", "NOMINAL_GAINS"]
+__all__ = ["main", "CASCADE_SPEC", "NOMINAL_GAINS", "simulate_spec"]
 
 R, Lm, J, b, Kt = 1.0, 0.01, 0.01, 0.001, 0.5
 
@@ -65,6 +73,21 @@ CASCADE_SPEC = {
 NOMINAL_GAINS = {"speed": {"Kp": 2.0, "Ki": 40.0}, "current": {"Kp": 10.0, "Ki": 1000.0}}
 #: Most requests in flight: each holds a socket (a file descriptor) and the server has 2 job workers.
 MAX_CONCURRENCY = 1000
+#: Gains of the ``/v1/simulate`` phases (on :func:`simulate_spec`).
+SIMULATE_GAINS = {"loop0": {"Kp": 1.14, "Ki": 0.454}}
+#: The server's default ``max_scenarios``.
+MAX_SIMULATE_SCENARIOS = 16
+#: The benchmark's phases, in the order they run.
+PHASES = ("verify", "simulate", "jobs")
+
+
+def _phase_list(text: str) -> list[str]:
+    """Type of ``--phases``: comma-separated names from :data:`PHASES`, at least one."""
+    names = [x.strip() for x in text.split(",") if x.strip()]
+    unknown = [x for x in names if x not in PHASES]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"comma-separated names from {','.join(PHASES)}; got {text!r}")
+    return names
 
 
 def _free_port() -> int:
@@ -247,6 +270,131 @@ def _in_process_verify_ms(n: int = 20) -> float:
     return round(float(np.median(ts)) * 1e3, 2)
 
 
+async def _wait_ready(c, proc: subprocess.Popen, tmp: Path) -> float:
+    """Seconds until ``/readyz`` says ready (SystemExit when the server exits or takes over 120 s)."""
+    import httpx
+
+    t0 = time.perf_counter()
+    while True:
+        if proc.poll() is not None:
+            raise SystemExit("server exited:\n" + (tmp / "server.log").read_text()[-3000:])
+        try:
+            if (await c.get("/readyz")).status_code == 200:
+                return round(time.perf_counter() - t0, 1)
+        except httpx.TransportError:
+            pass
+        if time.perf_counter() - t0 > 120:
+            raise SystemExit("server not ready after 120 s")
+        await asyncio.sleep(0.2)
+
+
+async def _verify_phases(c, lc, args, out: dict) -> None:
+    """``verify_distinct`` (every request a cache miss), ``verify_repeat`` (cached) and the ``--sweep``."""
+    rng = np.random.default_rng(0)
+    n_factors = args.requests + 64 + len(args.sweep) * args.sweep_requests
+    factors = np.exp(rng.uniform(np.log(0.8), np.log(1.25), size=(n_factors, 4)))
+
+    def distinct(i):
+        f = factors[i]
+        g = {"speed": {"Kp": 2.0 * f[0], "Ki": 40.0 * f[1]}, "current": {"Kp": 10.0 * f[2], "Ki": 1000.0 * f[3]}}
+        return "POST", "/v1/verify", {"spec": CASCADE_SPEC, "gains": g}
+
+    def repeat(i):
+        return "POST", "/v1/verify", {"spec": CASCADE_SPEC, "gains": NOMINAL_GAINS}
+
+    await _load(c, lambda i: distinct(args.requests + (i % 64)), 16, 30, args.concurrency)  # warm-up (httpx)
+    out["verify_distinct"] = await _load(lc, distinct, args.requests, args.seconds, args.concurrency)
+    out["verify_repeat"] = await _load(lc, repeat, args.requests, args.seconds, args.concurrency)
+    sweep = {}
+    for k, conc in enumerate(args.sweep):
+        # fresh gains for every sweep point: every request is still a cache miss
+        base = args.requests + 64 + k * args.sweep_requests
+        sweep[str(conc)] = await _load(lc, lambda i, b=base: distinct(b + i), args.sweep_requests, args.seconds, conc)
+    if sweep:
+        out["verify_distinct_sweep"] = sweep
+
+
+def simulate_spec(n_scenarios: int) -> dict:
+    """1/(s+1)^3 with a PI and ``n_scenarios`` scenarios of 2,000 steps (reference steps at different times):
+    each scenario adds about 100 KB of traces to the ``/v1/simulate`` answer."""
+    scenarios = [{"name": f"step{i}", "dt": 0.01, "horizon": 20.0, "reference": {"kind": "step", "time": 0.25 * i}}
+                 for i in range(n_scenarios)]
+    return {"name": f"simulate_{n_scenarios}", "plant": {"tf": {"num": [1], "den": "(s+1)^3"}},
+            "loops": [{"type": "pi"}], "scenarios": scenarios}
+
+
+async def _pool_counts(c, tmp: Path) -> dict[str, int | None]:
+    """The compute pool's respawns and thread fallbacks so far, from ``/metrics``. A server without those
+    series (older code): respawns from its log's "compute worker N died" warnings, fallbacks unknown (None)."""
+    text = (await c.get("/metrics")).text
+    counts: dict[str, int | None] = {}
+    for key, name in (("respawns", "gaintune_compute_restarts_total"), ("fallbacks", "gaintune_compute_fallbacks_total")):
+        m = re.search(rf"^{name} (\S+)$", text, re.M)
+        counts[key] = int(float(m.group(1))) if m else None
+    if counts["respawns"] is None:
+        counts["respawns"] = len(re.findall(r"compute worker \d+ died", (tmp / "server.log").read_text()))
+    return counts
+
+
+async def _simulate_phases(c, lc, args, tmp: Path, out: dict) -> None:
+    """``POST /v1/simulate`` with each ``--simulate-scenarios`` count, the same request over and over
+    (simulate has no cache), at ``--simulate-concurrency``; with the answer's size and the pool's
+    respawns and thread fallbacks during the phase."""
+    res = {}
+    for n in args.simulate_scenarios:
+        body = {"spec": simulate_spec(n), "gains": SIMULATE_GAINS}
+        before = await _pool_counts(c, tmp)
+        r = await lc.request("POST", "/v1/simulate", json=body)  # also warms the spec's caches in a worker
+        if r.status_code != 200:
+            raise SystemExit(f"/v1/simulate with {n} scenarios answered {r.status_code}: {r.content[:500]!r}")
+        phase = await _load(lc, lambda i, b=body: ("POST", "/v1/simulate", b), args.simulate_requests, args.seconds,
+                            args.simulate_concurrency)
+        after = await _pool_counts(c, tmp)
+        phase["answer_kb"] = round(len(r.content) / 1024, 1)
+        for k in ("respawns", "fallbacks"):
+            phase[k] = None if after[k] is None or before[k] is None else after[k] - before[k]
+        res[str(n)] = phase
+    out["simulate"] = res
+    out["simulate_concurrency"] = args.simulate_concurrency
+
+
+async def _job_phases(c, lc, args, out: dict) -> None:
+    """GET a job with none running, then while 2 tuning jobs run; then cancel both and time it."""
+    tune_spec = {**CASCADE_SPEC, "search": {"budget": 100_000, "n_envs": 32}}
+    idle = (await c.post("/v1/tune", json={**tune_spec, "name": "probe"})).json()["id"]
+    await c.delete(f"/v1/jobs/{idle}")
+    out["get_job_idle"] = await _load(lc, lambda i: ("GET", f"/v1/jobs/{idle}", None), args.requests,
+                                      args.seconds, args.concurrency)
+    jobs = [(await c.post("/v1/tune", json={**tune_spec, "name": f"load{k}"})).json()["id"] for k in range(2)]
+    t0 = time.perf_counter()
+    started = True
+    while True:
+        st = [(await c.get(f"/v1/jobs/{j}")).json() for j in jobs]
+        if all(s["status"] == "running" and s["progress"] for s in st):
+            break
+        if time.perf_counter() - t0 > args.job_start_timeout:
+            # e.g. a cold numba cache: report the other phases rather than nothing
+            out["jobs_error"] = f"jobs reported no progress within {args.job_start_timeout} s: {[s['status'] for s in st]}"
+            started = False
+            break
+        await asyncio.sleep(0.2)
+    out["jobs_start_s"] = round(time.perf_counter() - t0, 1)
+    if started:
+        out["get_job_2_jobs"] = await _load(lc, lambda i: ("GET", f"/v1/jobs/{jobs[i % 2]}", None), args.requests,
+                                            args.seconds, args.concurrency)
+        out["sims_while_measuring"] = [(await c.get(f"/v1/jobs/{j}")).json()["progress"]["sims"] for j in jobs]
+    t0 = time.perf_counter()
+    for j in jobs:
+        await c.delete(f"/v1/jobs/{j}")
+    while True:
+        states = [(await c.get(f"/v1/jobs/{j}")).json()["status"] for j in jobs]
+        if "running" not in states or time.perf_counter() - t0 > 60:
+            break
+        await asyncio.sleep(0.05)
+    out["cancelled_states"] = states
+    out["cancel_s"] = round(time.perf_counter() - t0, 2)
+
+
 async def _run(args) -> dict:
     import httpx
 
@@ -255,92 +403,68 @@ async def _run(args) -> dict:
     load0 = [round(x, 2) for x in os.getloadavg()]
     in_process = _in_process_verify_ms()
     out: dict = {"url": f"http://127.0.0.1:{port}", "cpus": os.cpu_count(), "concurrency": args.concurrency,
-                 "client": args.client,
+                 "client": args.client, "phases": args.phases,
                  "loadavg_start": load0, "verify_in_process_ms": in_process,
                  "compute_processes": "default" if args.compute_processes is None else args.compute_processes}
     proc = _start_server(tmp, port, workers=2, compute_processes=args.compute_processes)
     try:  # nothing between the start and this try may raise: the finally stops the server
         limits = httpx.Limits(max_connections=args.concurrency * 2)
         async with httpx.AsyncClient(base_url=out["url"], timeout=60, limits=limits) as c:
-            t0 = time.perf_counter()
-            while True:
-                if proc.poll() is not None:
-                    raise SystemExit("server exited:\n" + (tmp / "server.log").read_text()[-3000:])
-                try:
-                    if (await c.get("/readyz")).status_code == 200:
-                        break
-                except httpx.TransportError:
-                    pass
-                if time.perf_counter() - t0 > 120:
-                    raise SystemExit("server not ready after 120 s")
-                await asyncio.sleep(0.2)
-            out["startup_s"] = round(time.perf_counter() - t0, 1)
-
-            rng = np.random.default_rng(0)
-            n_factors = args.requests + 64 + len(args.sweep) * args.sweep_requests
-            factors = np.exp(rng.uniform(np.log(0.8), np.log(1.25), size=(n_factors, 4)))
-
-            def distinct(i):
-                f = factors[i]
-                g = {"speed": {"Kp": 2.0 * f[0], "Ki": 40.0 * f[1]}, "current": {"Kp": 10.0 * f[2], "Ki": 1000.0 * f[3]}}
-                return "POST", "/v1/verify", {"spec": CASCADE_SPEC, "gains": g}
-
-            def repeat(i):
-                return "POST", "/v1/verify", {"spec": CASCADE_SPEC, "gains": NOMINAL_GAINS}
-
+            out["startup_s"] = await _wait_ready(c, proc, tmp)
             r = await c.post("/v1/verify", json={"spec": CASCADE_SPEC, "gains": NOMINAL_GAINS})
             r.raise_for_status()
             out["verdict_nominal"] = r.json()["verdict"]
-            await _load(c, lambda i: distinct(args.requests + (i % 64)), 16, 30, args.concurrency)  # warm-up (httpx)
             lc = c if args.client == "httpx" else RawClient("127.0.0.1", port)  # the load phases' client
-            out["verify_distinct"] = await _load(lc, distinct, args.requests, args.seconds, args.concurrency)
-            out["verify_repeat"] = await _load(lc, repeat, args.requests, args.seconds, args.concurrency)
-            sweep = {}
-            for k, conc in enumerate(args.sweep):
-                # fresh gains for every sweep point: every request is still a cache miss
-                base = args.requests + 64 + k * args.sweep_requests
-                sweep[str(conc)] = await _load(lc, lambda i, b=base: distinct(b + i), args.sweep_requests, args.seconds, conc)
-            if sweep:
-                out["verify_distinct_sweep"] = sweep
-
-            tune_spec = {**CASCADE_SPEC, "search": {"budget": 100_000, "n_envs": 32}}
-            idle = (await c.post("/v1/tune", json={**tune_spec, "name": "probe"})).json()["id"]
-            await c.delete(f"/v1/jobs/{idle}")
-            out["get_job_idle"] = await _load(lc, lambda i: ("GET", f"/v1/jobs/{idle}", None), args.requests,
-                                              args.seconds, args.concurrency)
-            jobs = [(await c.post("/v1/tune", json={**tune_spec, "name": f"load{k}"})).json()["id"] for k in range(2)]
-            t0 = time.perf_counter()
-            started = True
-            while True:
-                st = [(await c.get(f"/v1/jobs/{j}")).json() for j in jobs]
-                if all(s["status"] == "running" and s["progress"] for s in st):
-                    break
-                if time.perf_counter() - t0 > args.job_start_timeout:
-                    # e.g. a cold numba cache: report the other phases rather than nothing
-                    out["jobs_error"] = f"jobs reported no progress within {args.job_start_timeout} s: {[s['status'] for s in st]}"
-                    started = False
-                    break
-                await asyncio.sleep(0.2)
-            out["jobs_start_s"] = round(time.perf_counter() - t0, 1)
-            if started:
-                out["get_job_2_jobs"] = await _load(lc, lambda i: ("GET", f"/v1/jobs/{jobs[i % 2]}", None), args.requests,
-                                                    args.seconds, args.concurrency)
-                out["sims_while_measuring"] = [(await c.get(f"/v1/jobs/{j}")).json()["progress"]["sims"] for j in jobs]
-            t0 = time.perf_counter()
-            for j in jobs:
-                await c.delete(f"/v1/jobs/{j}")
-            while True:
-                states = [(await c.get(f"/v1/jobs/{j}")).json()["status"] for j in jobs]
-                if "running" not in states or time.perf_counter() - t0 > 60:
-                    break
-                await asyncio.sleep(0.05)
-            out["cancelled_states"] = states
-            out["cancel_s"] = round(time.perf_counter() - t0, 2)
-            if lc is not c:
-                await lc.aclose()
+            try:
+                if "verify" in args.phases:
+                    await _verify_phases(c, lc, args, out)
+                if "simulate" in args.phases:
+                    await _simulate_phases(c, lc, args, tmp, out)
+                if "jobs" in args.phases:
+                    await _job_phases(c, lc, args, out)
+            finally:
+                if lc is not c:
+                    await lc.aclose()
     finally:
         _stop_server(proc)
     return out
+
+
+def _print_table(out: dict) -> None:
+    """The phases measured, as a Markdown table, and the targets they are held to."""
+    print("| phase | requests | req/s | p50 ms | p95 ms | p99 ms | errors | pool respawns / thread fallbacks |")
+    print("|---|---:|---:|---:|---:|---:|---|---|")
+    rows = [(k, out.get(k)) for k in ("verify_distinct", "verify_repeat")]
+    rows += [(f"verify_distinct, concurrency {c}", r) for c, r in out.get("verify_distinct_sweep", {}).items()]
+    rows += [(f"simulate, {n} scenario(s), {r['answer_kb']} KB answer, concurrency {out['simulate_concurrency']}", r)
+             for n, r in out.get("simulate", {}).items()]
+    rows += [(k, out.get(k)) for k in ("get_job_idle", "get_job_2_jobs")]
+    for name, r in rows:
+        if r is None:
+            print(f"| {name} | - | - | - | - | - | not measured | - |")
+            continue
+        pool = "-" if "respawns" not in r else f"{r['respawns']} / {'?' if r['fallbacks'] is None else r['fallbacks']}"
+        print(f"| {name} | {r['requests']} | {r['rps']} | {r['p50_ms']} | {r['p95_ms']} | {r['p99_ms']} | "
+              f"{r['errors'] or '-'} | {pool} |")
+    if "jobs_error" in out:
+        print(f"get_job_2_jobs not measured: {out['jobs_error']}")
+    elif "cancel_s" in out:
+        print(f"2 jobs ran {out.get('sims_while_measuring')} simulations by the end of the GET phase "
+              f"(first progress {out['jobs_start_s']} s after submission); both cancelled within {out['cancel_s']} s of DELETE")
+    vd = out.get("verify_distinct")
+    if vd is not None:
+        print(f"targets: verify p95 <= 50 ms: {'met' if vd['p95_ms'] <= 50 else 'MISSED'} ({vd['p95_ms']} ms, distinct "
+              f"gains); >= 200 req/s: {'met' if vd['rps'] >= 200 else 'MISSED'} ({vd['rps']} req/s, distinct gains)")
+    sim = out.get("simulate", {})
+    if sim:
+        respawns = sum(r["respawns"] for r in sim.values())
+        print(f"targets: no compute pool respawns in the simulate phases: {'met' if respawns == 0 else 'MISSED'} "
+              f"({respawns})", end="")
+        if "1" in sim and "16" in sim:
+            one, many = sim["1"]["p50_ms"], sim["16"]["p50_ms"]
+            print(f"; simulate p50 with 16 scenarios <= 2 x with 1: {'met' if many <= 2 * one else 'MISSED'} "
+                  f"({many} ms vs {one} ms, {many / one:.1f} x)", end="")
+        print()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -353,6 +477,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sweep", type=int_list(1, MAX_CONCURRENCY), default=[],
                     help="extra verify_distinct runs at these concurrencies, e.g. 1,2,4,8,16")
     ap.add_argument("--sweep-requests", type=positive_int, default=300, help="requests per sweep point (upper bound)")
+    ap.add_argument("--phases", type=_phase_list, default=list(PHASES),
+                    help=f"which phases run, comma-separated from {','.join(PHASES)} (default: all)")
+    ap.add_argument("--simulate-scenarios", type=int_list(1, MAX_SIMULATE_SCENARIOS), default=[1, 16],
+                    help=f"/v1/simulate phases with these scenario counts, 1 .. {MAX_SIMULATE_SCENARIOS} (default 1,16)")
+    ap.add_argument("--simulate-requests", type=positive_int, default=100,
+                    help="requests per simulate phase (upper bound)")
+    ap.add_argument("--simulate-concurrency", type=int_range(1, MAX_CONCURRENCY), default=1,
+                    help="requests in flight in the simulate phases (default 1: latency without queueing)")
     ap.add_argument("--job-start-timeout", type=positive_float, default=300.0,
                     help="seconds to wait for the 2 tuning jobs to report progress (cold numba caches compile first)")
     ap.add_argument("--compute-processes", type=non_negative_int, default=None,
@@ -372,25 +504,7 @@ def main(argv: list[str] | None = None) -> int:
           f"concurrency {out['concurrency']}, {out['client']} client; nominal verdict {out['verdict_nominal']}")
     print(f"load average at start {out['loadavg_start']}, at end {out['loadavg_end']}; one verify() in-process "
           f"(no HTTP, distinct gains): {out['verify_in_process_ms']} ms median")
-    print("| phase | requests | req/s | p50 ms | p95 ms | p99 ms | errors |")
-    print("|---|---:|---:|---:|---:|---:|---|")
-    for k in ("verify_distinct", "verify_repeat", "get_job_idle", "get_job_2_jobs"):
-        r = out.get(k)
-        if r is None:
-            print(f"| {k} | - | - | - | - | - | not measured |")
-            continue
-        print(f"| {k} | {r['requests']} | {r['rps']} | {r['p50_ms']} | {r['p95_ms']} | {r['p99_ms']} | {r['errors'] or '-'} |")
-    for conc, r in out.get("verify_distinct_sweep", {}).items():
-        print(f"| verify_distinct, concurrency {conc} | {r['requests']} | {r['rps']} | {r['p50_ms']} | {r['p95_ms']} | "
-              f"{r['p99_ms']} | {r['errors'] or '-'} |")
-    if "jobs_error" in out:
-        print(f"get_job_2_jobs not measured: {out['jobs_error']}")
-    else:
-        print(f"2 jobs ran {out['sims_while_measuring']} simulations by the end of the GET phase "
-              f"(first progress {out['jobs_start_s']} s after submission); both cancelled within {out['cancel_s']} s of DELETE")
-    vd = out["verify_distinct"]
-    print(f"targets: verify p95 <= 50 ms: {'met' if vd['p95_ms'] <= 50 else 'MISSED'} ({vd['p95_ms']} ms, distinct gains); "
-          f">= 200 req/s: {'met' if vd['rps'] >= 200 else 'MISSED'} ({vd['rps']} req/s, distinct gains)")
+    _print_table(out)
     return 0
 
 

@@ -11,6 +11,19 @@ import pytest
 
 from gaintune_api.compute import ComputePool
 
+try:
+    import uvloop
+except ImportError:  # pragma: no cover - uvloop comes with uvicorn[standard]
+    uvloop = None
+
+#: The event loops the pool must work on: asyncio's own, and uvloop (uvicorn's choice when installed),
+#: whose add_reader makes the descriptors it watches non-blocking.
+LOOPS = ["asyncio", pytest.param("uvloop", marks=pytest.mark.skipif(uvloop is None, reason="needs uvloop"))]
+
+
+def _run_on(loop: str, coro):
+    return uvloop.run(coro) if loop == "uvloop" else asyncio.run(coro)
+
 
 async def _warm(pool: ComputePool) -> list[int]:
     return list(await asyncio.wait_for(asyncio.gather(*(asyncio.wrap_future(f) for f in pool.warm)), 180))
@@ -24,7 +37,8 @@ def _gone(pid: int) -> bool:
     return False
 
 
-def test_pool_queues_recovers_and_shuts_down():
+@pytest.mark.parametrize("loop", LOOPS)
+def test_pool_queues_recovers_and_shuts_down(loop: str):
     async def main():
         pool = ComputePool(2)
         pool.start()
@@ -53,6 +67,7 @@ def test_pool_queues_recovers_and_shuts_down():
         os.kill(victim, signal.SIGKILL)
         assert await asyncio.wait_for(task, 10) is None
         assert pool.restarts == 1 and victim not in pool.pids and len(pool.pids) == 2
+        assert pool.fallbacks == 1
         await _warm(pool)
         # a worker killed while idle is replaced too
         idle = pool.pids[0]
@@ -69,7 +84,7 @@ def test_pool_queues_recovers_and_shuts_down():
         assert await pool.run(os.getpid) is None  # a shut-down pool computes nothing
         return final
 
-    final = asyncio.run(main())
+    final = _run_on(loop, main())
     assert all(_gone(p) for p in final)  # joined: not even a zombie
 
 
@@ -125,10 +140,54 @@ def test_known_objects_are_sent_once_and_the_mirror_heals():
             # break the mirror: the server believes the worker knows "ghost"
             w.known["ghost"] = None
             assert await pool.run(_identity, "v", ref=(0, "ghost")) is None  # KeyError in the worker -> None
-            assert "ghost" not in w.known
+            assert "ghost" not in w.known and pool.fallbacks == 1 and pool.restarts == 0
             assert await pool.run(_identity, "v", ref=(0, "ghost")) == "v"
             assert isinstance(_Ref("a"), _Ref)
         finally:
             pool.shutdown()
 
     asyncio.run(main())
+
+
+def _nested(x):
+    return lambda: x  # an answer pickle cannot carry
+
+
+@pytest.mark.parametrize("loop", LOOPS)
+def test_pool_carries_messages_of_any_size_without_respawn(loop: str):
+    """Under uvloop, an answer larger than a socket buffer used to raise BlockingIOError in the server,
+    which took it for a dead worker: respawn, and the request computed in a thread."""
+
+    async def main():
+        pool = ComputePool(1)
+        pool.start()
+        try:
+            await _warm(pool)
+            for size in (10, 100_000, 1_500_000, 8_000_000):
+                big = os.urandom(size)
+                assert await pool.run(_identity, big) == big  # as large a request as an answer
+            assert await pool.run(_identity, b"x" * 3_000_000, ref=(0, "big")) == b"x" * 3_000_000
+            assert await pool.run(_identity, None, ref=(0, "big")) == b"x" * 3_000_000  # sent once, by key now
+            return pool.restarts, pool.fallbacks
+        finally:
+            pool.shutdown()
+
+    assert _run_on(loop, main()) == (0, 0)
+
+
+def test_unpicklable_request_or_answer_falls_back_without_respawn():
+    """Neither leaks the worker (it serves the next request) nor respawns it; both are counted as fallbacks."""
+
+    async def main():
+        pool = ComputePool(1)
+        pool.start()
+        try:
+            await _warm(pool)
+            assert await pool.run(_identity, lambda: 0) is None  # not sent: the request cannot be pickled
+            assert await pool.run(_nested, 1) is None  # sent, but the worker cannot pickle the answer
+            assert await pool.run(_identity, 7) == 7
+            return pool.restarts, pool.fallbacks
+        finally:
+            pool.shutdown()
+
+    assert asyncio.run(main()) == (0, 2)
