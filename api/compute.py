@@ -110,12 +110,12 @@ def compute_policy(tuners: LRU[str, Any], key: str, agent: Any, spec: dict[str, 
 
 
 def compute_simulate(spec, gains, chosen: list[int], max_points: int, plant=None, layout=None) -> tuple[str, Any]:
-    """``("ok", SimulateResponse)`` | ``("gains", problem details)`` | ``("error", message)``."""
-    from gaintune_api.simulation import simulate_response
+    """``("ok", JSON bytes of a SimulateResponse)`` | ``("gains", problem details)`` | ``("error", message)``."""
+    from gaintune_api.simulation import simulate_payload
     from gaintune.errors import GaintuneError, problem_details
 
     try:
-        return "ok", simulate_response(spec, gains, chosen, max_points, plant, layout)
+        return "ok", simulate_payload(spec, gains, chosen, max_points, plant, layout)
     except GaintuneError as exc:
         return "gains", problem_details(exc)
     except Exception as exc:  # noqa: BLE001 - user input must never produce a 500
