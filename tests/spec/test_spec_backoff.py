@@ -61,3 +61,10 @@ def test_default_backoff_is_left_out_of_dumps_so_stored_hashes_hold():
     explicit = load_spec({**BASE, "requirements": {"backoff": {"peaks": 0.01, "pm_deg": 0.5}}})
     assert explicit.content_hash() == plain.content_hash()
     assert load_spec({**BASE, "requirements": {"backoff": 0}}).content_hash() != plain.content_hash()
+
+
+def test_design_shortcut_phase_margin_is_aimed_like_any_requirement():
+    """``design: {phase_margin: 60}`` fills requirements.pm_min_deg: the search aims at 60.5 deg, the verdict judges 60."""
+    spec = load_spec({**BASE, "design": {"phase_margin": 60}})
+    assert spec.requirements.pm_min_deg == 60
+    assert spec.requirements.aimed().pm_min_deg == 60.5
