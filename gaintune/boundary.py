@@ -16,6 +16,11 @@ the boundary of a well-posed design, so bisection on alpha finds the boundary.
   their plain cost is lower and they stay feasible. That is where a constrained
   optimum lies when the constraint is active (Ms = 1.400, not 1.36).
 
+"The boundary" is the search's **aim**: each limit moved inside by ``requirements.backoff``
+(:meth:`gaintune.spec.backoff.BackoffSpec.aim`; Ms 1.386 for a limit of 1.4 by default), the
+same aim the search estimate uses, so the answer keeps the back-off as its margin to the exact
+limits the verdict judges. With ``backoff: 0`` the aim is the limit itself.
+
 The result never claims anything itself: the caller still runs the full verification.
 """
 
@@ -27,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gaintune.objective import Evaluator
+from gaintune.spec.backoff import BackoffSpec
 from gaintune.verify import verify
 from gaintune.verify.report import VerificationReport
 
@@ -58,7 +64,8 @@ class Settled:
     action
         "unchanged", "pulled_inside", "pushed_to_boundary" or "not_settled" (no scale passes).
     margin
-        Normalised margin of the tightest requirement after settling (>= 0 passes).
+        Normalised margin of the tightest requirement after settling, to its aimed limit (>= 0: the
+        aim is met, so the exact limit is too).
     checks
         Exact verifications run.
     """
@@ -71,13 +78,22 @@ class Settled:
     checks: int
 
 
-def normalised_margin(report: VerificationReport) -> tuple[float, str | None]:
-    """(tightest requirement margin / |limit|, its loop) ; -inf when the loop is unstable anywhere checked."""
+def normalised_margin(report: VerificationReport, aim: BackoffSpec | None = None) -> tuple[float, str | None]:
+    """(tightest requirement margin / |limit|, its loop) ; -inf when the loop is unstable anywhere checked.
+
+    ``aim``: measure each margin to the search's aimed limit (:meth:`BackoffSpec.aim`) instead of the
+    report's exact one; the binding point of each requirement is the same (the aim shifts every
+    candidate's margin alike).
+    """
     if not report.stability.stable or (report.robust is not None and report.robust.n_unstable):
         return -math.inf, None
     worst, loop = math.inf, None
     for line in report.requirements:
-        m = line.margin / max(abs(line.limit), 1e-12)
+        margin, limit = line.margin, line.limit
+        if aim is not None and aim.active:  # the aim lies |limit - aimed| inside the limit
+            aimed = aim.aim(line.requirement, limit)
+            margin, limit = margin - abs(limit - aimed), aimed
+        m = margin / max(abs(limit), 1e-12)
         if m < worst:
             worst, loop = m, line.loop
     return worst, loop
@@ -151,12 +167,13 @@ def settle(ev: Evaluator, tuned: np.ndarray, cost: float | None = None) -> Settl
     """
     tuned = np.asarray(tuned, dtype=float)
     spec, layout = ev.spec, ev.layout
+    aim = spec.requirements.backoff  # settle onto the search's aim; the verdict judges the exact limits
     checks = 0
 
     def margin_of(t: np.ndarray) -> float:
         nonlocal checks
         checks += 1
-        return normalised_margin(verify(spec, layout.full(t), nonlinear=False, plant=ev.plant, layout=layout))[0]
+        return normalised_margin(verify(spec, layout.full(t), nonlinear=False, plant=ev.plant, layout=layout), aim)[0]
 
     def moved(d: np.ndarray, a: float) -> np.ndarray:
         return tuned * a**d
@@ -172,7 +189,7 @@ def settle(ev: Evaluator, tuned: np.ndarray, cost: float | None = None) -> Settl
         return ok, m_ok
 
     checks += 1
-    m0, binding = normalised_margin(verify(spec, layout.full(tuned), nonlinear=False, plant=ev.plant, layout=layout))
+    m0, binding = normalised_margin(verify(spec, layout.full(tuned), nonlinear=False, plant=ev.plant, layout=layout), aim)
     if m0 == -math.inf:
         return Settled(tuned, 1.0, None, "not_settled", m0, checks)
     loop, dirs = _directions(ev, binding)
@@ -221,7 +238,7 @@ def settle(ev: Evaluator, tuned: np.ndarray, cost: float | None = None) -> Settl
 def violation_after(settled: Settled | None, scores) -> float:
     """Violation of a settled answer: the exact check supersedes the estimate once settling moved it.
 
-    A pulled-in or pushed-out answer meets every requirement by the exact verification (margin
+    A pulled-in or pushed-out answer meets every aimed limit by the exact verification (margin
     >= 0) while the estimate, which aims :data:`~gaintune.verify.quick.FEASIBILITY_MARGIN`
     inside, may call it a hair short; its run must still neither diverge nor trip.
     """

@@ -15,7 +15,8 @@ The spec's requirements (and closed-loop stability) are **constraints**, not
 terms of the cost. :meth:`Evaluator.evaluate` returns both, as :class:`Scores`:
 the plain cost and a non-negative *violation* (0 when every requirement holds on
 the nominal plant and every corner of the randomisation box, graded otherwise,
-see :func:`gaintune.verify.quick.requirement_violation`). Every consumer ranks
+see :func:`gaintune.verify.quick.requirement_violation`). The limits it checks are the
+search's aim: ``requirements.backoff`` inside the limits the verdict judges. Every consumer ranks
 candidates the same way, **feasibility first** (:attr:`Scores.merit`):
 
 1. a feasible candidate always ranks above an infeasible one;
@@ -177,6 +178,8 @@ class Evaluator:
         self.n_sims = 0
         self._constraint_models: list[LinearModel] | None = None
         self._noise_limit: np.ndarray | None = None
+        #: the spec the requirement estimate judges: its limits moved to the search's aim (requirements.backoff)
+        self._aim_spec = spec.model_copy(update={"requirements": spec.requirements.aimed()})
 
     @property
     def dim(self) -> int:
@@ -210,14 +213,18 @@ class Evaluator:
         See :func:`gaintune.verify.quick.requirement_scores`: the shortfall is signed (<= 0 when
         every requirement holds) and is what :mod:`gaintune.repair` solves along a gain direction.
         ``stability=False`` skips the closed-loop stability check, for a caller that checks it afterwards.
+
+        The limits are the search's **aim**, ``requirements.backoff`` inside the verdict's limits
+        (:meth:`gaintune.spec.RequirementsSpec.aimed`), so the answer keeps that margin.
         """
         from gaintune.verify.quick import noise_limit_array, requirement_scores
 
-        if self._noise_limit is None:  # a property of the spec and the nominal plant: resolved once
-            self._noise_limit = noise_limit_array(self.spec, self.plant)
+        if self._noise_limit is None:  # a property of the spec and the nominal plant: resolved once, then aimed
+            aim = self.spec.requirements.backoff.aim
+            self._noise_limit = np.array([aim("mks_max", x) for x in noise_limit_array(self.spec, self.plant)])
         tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
         full = self.layout.full(tuned)
-        vs = [requirement_scores(self.spec, self.plant, self.layout, full, lin, self._noise_limit, stability)
+        vs = [requirement_scores(self._aim_spec, self.plant, self.layout, full, lin, self._noise_limit, stability)
               for lin in self.constraint_models]
         v = np.max([x[0] for x in vs], axis=0)
         short = np.max([x[1] for x in vs], axis=0)

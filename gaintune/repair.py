@@ -17,6 +17,10 @@ Kp, Ki and Kd of a parallel loop (on Kp of an ideal loop), which multiplies each
 controller by alpha. A coarse ladder of alphas below 1 finds, per candidate, the
 largest feasible scale, and a few bisection steps close the bracket. A candidate that
 no scale in the search box makes feasible is left as it is (and keeps its violation).
+
+The boundary is the estimate's: each limit moved inside by ``requirements.backoff``
+(:meth:`gaintune.objective.Evaluator.requirement_scores` aims there), so repaired gains keep
+the same margin to the exact limits as every other answer.
 """
 
 from __future__ import annotations

@@ -21,6 +21,9 @@ know before any search, ranked like every search ranks (feasibility first, then 
    optimum (one unlucky best sample had Kd 50x below the optimum's, outside the final box).
    LQ specs keep their Riccati-based defaults.
 
+Candidates are ranked on the search's aimed limits (``requirements.backoff`` inside the exact
+ones), as every search ranks them.
+
 The chosen design is the start point of every search (the RL policy's action 0, CMA-ES's
 mean, Nelder-Mead's first vertex), and the search never loses it: it is scored like any
 other candidate. A SIMC rule built on the half-sample delay of a delay-free plant (far too
@@ -43,6 +46,7 @@ from gaintune.plants.plant import Plant
 from gaintune.repair import repair
 from gaintune.sim import Simulator
 from gaintune.spec import TuningSpec
+from gaintune.spec.backoff import BackoffSpec
 
 __all__ = ["SearchBox", "SCALES", "GRID_POINTS", "ZOOM_STAGES", "ZOOM_POINTS", "ZOOM_STARTS", "search_box", "search_layout", "make_evaluator"]
 
@@ -183,7 +187,16 @@ def search_layout(spec: TuningSpec, plant: Plant) -> GainLayout:
     return search_box(spec, plant).layout
 
 
-def make_evaluator(spec: TuningSpec, plant: Plant | None = None) -> Evaluator:
-    """An :class:`~gaintune.objective.Evaluator` on the problem's default search box."""
+def make_evaluator(spec: TuningSpec, plant: Plant | None = None, exact: bool = False) -> Evaluator:
+    """An :class:`~gaintune.objective.Evaluator` on the problem's default search box.
+
+    ``exact``: its requirement estimate (and a :func:`gaintune.boundary.settle` on it) judges the
+    exact limits, without ``requirements.backoff``, in the same box: for the benchmark reference,
+    which is the exact-limit optimum.
+    """
     plant = plant if plant is not None else build_plant(spec.plant)
-    return Evaluator(spec, Simulator(spec, plant, search_layout(spec, plant)))
+    layout = search_layout(spec, plant)
+    if exact:
+        req = spec.requirements.model_copy(update={"backoff": BackoffSpec.model_validate(0)})
+        spec = spec.model_copy(update={"requirements": req})
+    return Evaluator(spec, Simulator(spec, plant, layout))

@@ -9,6 +9,7 @@ from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
 from gaintune import spec as S
+from gaintune.spec.backoff import BackoffSpec
 from gaintune.spec_design import DesignSpec
 
 __all__ = ["render_markdown"]
@@ -29,6 +30,7 @@ _SECTIONS: list[tuple[str, type[BaseModel]]] = [
     ("scenarios[i].disturbance", S.DisturbanceSpec),
     ("objective", S.ObjectiveSpec),
     ("requirements", S.RequirementsSpec),
+    ("requirements.backoff", BackoffSpec),
     ("randomize", S.RandomizeSpec),
     ("randomize.* distributions", S.DistSpec),
     ("safety", S.SafetySpec),
@@ -84,7 +86,7 @@ def render_markdown() -> str:
         "",
     ]
     for title, model in _SECTIONS:
-        doc = (model.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ")
+        doc = " ".join((model.__doc__ or "").strip().split("\n\n")[0].split())
         lines += [f"## `{title}`", "", doc, "", "| field | type | default | description |", "|---|---|---|---|"]
         hints = typing.get_type_hints(model)
         for name, field in model.model_fields.items():

@@ -62,11 +62,11 @@ def _boundary_point(ev) -> np.ndarray | None:
 def agreement(problem, n: int = 200, spread: float = 0.03, seed: int = 0) -> dict[str, Any]:
     """Agreement of the searched constraint with the verdict on ``n`` candidates near the boundary."""
     from gaintune.boundary import normalised_margin
-    from gaintune.envs.problem import GainProblem
+    from gaintune.search_box import make_evaluator
     from gaintune.verify import verify
 
-    gp = GainProblem(problem.tuning_spec())
-    ev = gp.evaluator
+    # the estimate on the exact limits (no requirements.backoff): its agreement with the verdict is measured
+    ev = make_evaluator(problem.tuning_spec(), exact=True)
     t0 = time.perf_counter()
     centre = _boundary_point(ev)
     if centre is None:

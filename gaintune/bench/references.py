@@ -214,14 +214,16 @@ def _passes(spec: TuningSpec, gains: dict[str, dict[str, float]] | None) -> bool
 
 
 def compute_reference(problem: Problem, *, evaluator=None, log=None) -> dict[str, Any]:
-    """Run the reference optimum (and the exact optimum when known) for ``problem``."""
+    """Run the reference optimum (and the exact optimum when known) for ``problem``, on the exact limits
+    (no ``requirements.backoff``: the searches aim inside them, the reference is the exact-limit optimum)."""
     import time
 
     from gaintune.baselines import run_baseline
-    from gaintune.envs.problem import GainProblem
+    from gaintune.search_box import make_evaluator
 
     spec = problem.tuning_spec()
-    ev = evaluator if evaluator is not None else GainProblem(spec).evaluator
+    # the exact-limit optimum: the searches aim requirements.backoff inside the limits, the reference does not
+    ev = evaluator if evaluator is not None else make_evaluator(spec, exact=True)
     if log:
         log(f"reference optimum of {problem.name} (cached afterwards) ...")
     t0 = time.perf_counter()

@@ -12,6 +12,7 @@ from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from gaintune.spec.backoff import BackoffSpec
 from gaintune.spec.base import MAX_STEPS, _finite, _Model
 
 __all__ = ["ProfileSpec", "DisturbanceSpec", "ScenarioSpec", "ObjectiveSpec", "RequirementsSpec"]
@@ -144,6 +145,27 @@ class RequirementsSpec(_Model):
         "the plant where nothing in it bounds the loop's speed (a delay-free, stable path of relative degree "
         "<= 1): Mks <= 10/|static gain|, so the design no longer follows the sample time; no limit elsewhere. "
         "null: no limit.")
+    # the default is left out of dumps, so specs and hashes written before the field existed stay as they were
+    backoff: BackoffSpec = Field(
+        default_factory=BackoffSpec, exclude_if=lambda b: b == BackoffSpec(),
+        description="How far inside each limit the search aims (the verdict judges the exact limits): "
+        "{peaks, pm_deg, gm_db, dm}; 0 for none (the answer lands on the limit itself). See docs/search.md.")
+
+    def aimed(self) -> "RequirementsSpec":
+        """These requirements with every limit moved to the search's aim (:meth:`BackoffSpec.aim`) and no
+        back-off left; themselves when the back-off is 0. ``mks_max: auto`` stays ``auto``: a caller that
+        resolves it aims the resolved limit with ``backoff.aim("mks_max", limit)``."""
+        b = self.backoff
+        if not b.active:
+            return self
+        new: dict[str, Any] = {k: b.aim(k, v) for k, v in self.model_dump(exclude={"mks_max", "backoff"}).items()
+                               if v is not None}
+        mks = self.mks_max
+        if isinstance(mks, dict):
+            new["mks_max"] = {k: None if v is None else b.aim("mks_max", v) for k, v in mks.items()}
+        elif isinstance(mks, (int, float)):
+            new["mks_max"] = b.aim("mks_max", float(mks))
+        return self.model_copy(update={**new, "backoff": BackoffSpec.model_validate(0)})
 
     @field_validator("mks_max", mode="before")
     @classmethod

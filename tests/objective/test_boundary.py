@@ -1,4 +1,8 @@
-"""The exact boundary step: search answers land on the active requirement (Ms = 1.400, not 1.36)."""
+"""The exact boundary step: search answers land on the active requirement (Ms = 1.400, not 1.36).
+
+These tests pin settling onto the exact limit, so their problems set ``requirements.backoff: 0``;
+settling onto the default aim inside the limit is tested in test_backoff.py.
+"""
 
 from __future__ import annotations
 
@@ -18,7 +22,7 @@ def _problem(den: str, loop: str, dt: float = 0.05, horizon: float = 40) -> Gain
     return GainProblem(load_spec({
         "plant": {"tf": {"num": [1], "den": den}}, "loops": [{"name": "main", "type": loop}],
         "scenarios": [{**LOAD, "dt": dt, "horizon": horizon}], "objective": {"measure": "iae", "effort_weight": 0},
-        "requirements": {"gm_min_db": None, "pm_min_deg": None, "ms_max": 1.4},
+        "requirements": {"gm_min_db": None, "pm_min_deg": None, "ms_max": 1.4, "backoff": 0},
     }))
 
 

@@ -21,14 +21,17 @@ from gaintune.verify import verify
 LOAD = {"name": "load", "reference": {"kind": "none"}, "disturbance": {"kind": "step", "amplitude": 1.0, "entry": "input"}}
 
 
-def _spec(loop="pid", budget=2000, repair_on=True, den="(s+1)^3", delay=None, ms=1.4):
+def _spec(loop="pid", budget=2000, repair_on=True, den="(s+1)^3", delay=None, ms=1.4, backoff=None):
     plant = {"tf": {"num": [1], "den": den}}
     if delay:
         plant["delay"] = delay
+    req = {"gm_min_db": None, "pm_min_deg": None, "ms_max": ms}
+    if backoff is not None:
+        req["backoff"] = backoff
     return load_spec({
         "plant": plant, "loops": [{"name": "main", "type": loop}],
         "scenarios": [{**LOAD, "dt": 0.05, "horizon": 40.0}], "objective": {"measure": "iae", "effort_weight": 0},
-        "requirements": {"gm_min_db": None, "pm_min_deg": None, "ms_max": ms},
+        "requirements": req,
         "search": {"budget": budget, "seed": 0, "n_envs": 16, "repair": repair_on},
     })
 
@@ -44,7 +47,7 @@ def test_loop_gain_exponents_scale_every_gain_of_a_parallel_pid():
 
 
 def test_repair_moves_stable_infeasible_gains_onto_the_ms_boundary_keeping_their_ratios():
-    spec = _spec()
+    spec = _spec(backoff=0)  # onto the exact limit (the default aim inside it: test_repair_lands_on_the_backoff_aim)
     gp = GainProblem(spec)
     base = gp.layout.initial_tuned()
     tuned = np.array([base * f for f in (1.6, 2.0, 2.4)])
@@ -69,6 +72,17 @@ def test_repair_leaves_feasible_and_unstable_rows_alone():
     assert not r.repaired.any()
     np.testing.assert_array_equal(r.tuned, tuned)
     np.testing.assert_array_equal(r.violation, v0)
+
+
+def test_repair_lands_on_the_backoff_aim_never_between_it_and_the_limit():
+    spec = _spec()  # the default back-off: the estimate aims at Ms 1.386
+    gp = GainProblem(spec)
+    aim = spec.requirements.backoff.aim("ms_max", 1.4)
+    tuned = np.array([gp.layout.initial_tuned() * f for f in (1.6, 2.0, 2.4)])
+    r = repair(gp.evaluator, tuned)
+    assert r.repaired.all() and np.all(r.violation == 0)
+    for row in r.tuned:
+        assert aim * (1 - 5 * TOL) <= _exact_ms(spec, gp, row) <= aim + 1e-4  # by the exact check
 
 
 def test_rl_policy_mean_kept_inside_an_active_ms_constraint_instead_of_on_it():
