@@ -46,7 +46,7 @@ def simulate_response(spec, gains, chosen: list[int], max_points: int, plant=Non
     out = []
     for i in chosen:
         res = sim.run(full[None, :], scenario=i, traces=True)
-        sc = spec.scenarios[i]
+        sc = sim.spec.scenarios[i]  # dt/horizon derived from the plant where the spec left them out
         idx, stride = decimate(len(res.t), max_points)
         traces = {k: [_num(v) for v in arr[0, idx]] for k, arr in res.traces.items()}
         metrics = {k: (bool(v[0]) if v.dtype == bool else _num(v[0])) for k, v in res.metrics.items()}

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from gaintune.classical.timescale import scenario_defaults
 from gaintune.controllers.layout import GainLayout
 from gaintune.errors import GainError
 from gaintune.plants.noise_limit import noise_limits
@@ -293,6 +294,14 @@ def _noise_line(loops: list[LoopFigures], worst: list[WorstCase] | None) -> Requ
                            margin=float(margin), passed=margin >= 0, loop=loop, break_point=brk, case=case)
 
 
+def settling_notes(spec: TuningSpec, sim, plant: Plant, layout: GainLayout, full: np.ndarray) -> list[str]:
+    """A note per scenario whose response has not settled by its end (:mod:`gaintune.sim.settling`)."""
+    from gaintune.sim import Simulator
+    from gaintune.sim.settling import unsettled_scenarios
+
+    return [u.message(i) for i, u in unsettled_scenarios(sim or Simulator(spec, plant, layout), full)]
+
+
 def verify(
     spec: TuningSpec | dict[str, Any] | str | Path,
     gains: Any,
@@ -344,6 +353,9 @@ def verify(
     t0 = time.perf_counter()
     if not isinstance(spec, TuningSpec):
         spec = load_spec(spec)
+    spec, derived = scenario_defaults(spec, plant)  # scenarios without dt/horizon: from the plant
+    if derived:
+        spec_hash = None  # the caller's hash was of the spec before its scenarios were filled in
     ctx = spec_context(spec, plant, layout, spec_hash=spec_hash) if cache else None
     if ctx is not None:
         plant, layout, lin = ctx.plant, ctx.layout, ctx.lin
@@ -414,6 +426,10 @@ def verify(
             reasons.append(f"nonlinear check failed: {nl.note}")
         elif not nl.ran:
             notes.append(f"nonlinear check not run: {nl.note}")
+        else:
+            notes.extend(settling_notes(spec, ctx.simulator(spec) if ctx is not None else None, plant, layout, full))
+    notes.extend(f"scenario {d.scenario!r}: dt {d.dt:.4g} s, horizon {d.horizon:.4g} s derived from the plant ({d.reason})"
+                 for d in derived)
     req = _requirement_lines(spec, loops, worst)
     failing = sorted((q for q in req if not q.passed), key=lambda q: q.margin / max(abs(q.limit), 1e-12))
     for q in failing:
