@@ -19,7 +19,6 @@ import math
 import numpy as np
 
 from gaintune.controllers.layout import GainLayout
-from gaintune.errors import GaintuneError
 from gaintune.plants.advice import plant_warnings
 from gaintune.plants.plant import Plant
 from gaintune.search.budget import min_budget_for_rl, rollout_sims
@@ -108,22 +107,10 @@ def scenario_hints(result: TuneResult) -> list[str]:
 
 def settling_hints(spec: TuningSpec, plant: Plant, layout: GainLayout, full: np.ndarray) -> list[str]:
     """A warning per scenario whose response to the gains ``full`` has not settled by its end."""
-    from gaintune.classical.timescale import plant_scale
     from gaintune.sim import Simulator
-    from gaintune.sim.settling import unsettled_scenarios
+    from gaintune.sim.settling import settling_messages
 
-    found = unsettled_scenarios(Simulator(spec, plant, layout), full)
-    if not found:
-        return []
-    try:
-        scale = plant_scale(spec, plant)
-    except GaintuneError:
-        scale = None
-    out = []
-    for i, u in found:
-        derived = scale.horizon + spec.scenarios[i].last_event() if scale is not None else None
-        out.append(u.message(i, derived))
-    return out
+    return settling_messages(Simulator(spec, plant, layout), full)
 
 
 def slow_integral_loops(spec: TuningSpec, gains: dict[str, dict[str, float]]) -> list[tuple[int, float]]:

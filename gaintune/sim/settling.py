@@ -6,13 +6,16 @@ simulates the gains once per scenario (nominal plant, measurement noise off) and
 outer loop's error ``e = setpoint - output`` after the scenario's last event:
 
 * **peak**: the largest ``|e|`` after the last event;
-* **left**: the largest ``|e|`` over the last :data:`TAIL` of the scenario.
+* **left**: ``|e|`` at the end.
 
-The response has not settled when ``left > SETTLE_BAND x peak``. If ``|e|`` still decays
-(its mean over the last :data:`TAIL` is below that of the window :data:`LOOKBACK` earlier), an
-exponential through both windows gives the time it reaches the band: the horizon that
-would do. If it does not decay, a longer horizon would not remove it (a steady offset: no
-integral action, a saturated actuator, or a ramp the loop cannot follow).
+The response has not settled when ``|e|`` over the last :data:`TAIL` of the scenario
+exceeds ``SETTLE_BAND x peak``. The horizon that would do is the larger of the horizon
+derived from the plant (:func:`gaintune.classical.timescale.plant_scale`: what a re-tune
+needs to see the whole response) and, if ``|e|`` still decays (its mean over the last
+:data:`TAIL` is below that of the window :data:`LOOKBACK` earlier), the time an exponential
+through both windows reaches the band (what these gains need). If it does not decay, a
+longer horizon would not remove it (a steady offset: no integral action, a saturated
+actuator, or a ramp the loop cannot follow).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Unsettled", "unsettled_scenarios", "SETTLE_BAND", "TAIL", "LOOKBACK"]
+__all__ = ["Unsettled", "unsettled_scenarios", "settling_messages", "SETTLE_BAND", "TAIL", "LOOKBACK"]
 
 #: Settled: the error left is within this fraction of its peak.
 SETTLE_BAND = 0.02
@@ -51,9 +54,9 @@ class Unsettled:
             return (head + "; it does not decay, so a longer horizon will not remove it (no integral action, a "
                     "saturated actuator, or a ramp the loop cannot follow)")
         want = max(self.need, derived or 0.0)
-        return (head + f"; a horizon of about {want:.3g} s would cover it: set scenarios[{index}].horizon: "
-                f"{want:.3g}" + ("" if derived is None else f" (the horizon derived from the plant is {derived:.3g} s)")
-                + ", or leave dt/horizon out and let gaintune derive them")
+        src = "derived from the plant" if want == derived else f"where the error's decay reaches {100 * SETTLE_BAND:g} %"
+        return (head + f"; a horizon of about {want:.3g} s ({src}) would cover it: set scenarios[{index}].horizon: "
+                f"{want:.3g}, or leave dt/horizon out and let gaintune derive them")
 
 
 def _window_mean(a: np.ndarray, stop: int, width: int) -> float:
@@ -67,16 +70,16 @@ def _read(name: str, t_end: float, k0: int, e: np.ndarray) -> Unsettled | None:
         return None  # too short to judge, or diverged (reported by the nonlinear check)
     peak = float(a.max())
     w = max(int(TAIL * a.size), 1)
-    left = float(a[-w:].max())
-    if not peak > 0 or left <= SETTLE_BAND * peak:
+    if not peak > 0 or a[-w:].max() <= SETTLE_BAND * peak:
         return None
+    left = float(a[-1])
     back = max(int(LOOKBACK * a.size), 1)
     m_end, m_before = _window_mean(a, a.size, w), _window_mean(a, a.size - back, w)
     need = None
     if 0 < m_end < m_before * (1 - 1e-3):
         dt = t_end / len(e)
         tau = back * dt / math.log(m_before / m_end)
-        need = t_end + tau * max(math.log(left / (SETTLE_BAND * peak)), 0.0)
+        need = t_end + tau * max(math.log(m_end / (SETTLE_BAND * peak)), 0.0)
     return Unsettled(name, t_end, left, peak, need)
 
 
@@ -102,3 +105,18 @@ def unsettled_scenarios(sim, full_gains: np.ndarray) -> list[tuple[int, Unsettle
         if found is not None:
             out.append((i, found))
     return out
+
+
+def settling_messages(sim, full_gains: np.ndarray) -> list[str]:
+    """One warning per unsettled scenario (:meth:`Unsettled.message`), with the horizon derived from the plant."""
+    from gaintune.classical.timescale import plant_scale
+    from gaintune.errors import GaintuneError
+
+    found = unsettled_scenarios(sim, full_gains)
+    if not found:
+        return []
+    try:
+        derived = plant_scale(sim.spec, sim.plant).horizon
+    except GaintuneError:
+        derived = None
+    return [u.message(i, None if derived is None else derived + sim.spec.scenarios[i].last_event()) for i, u in found]

@@ -297,9 +297,9 @@ def _noise_line(loops: list[LoopFigures], worst: list[WorstCase] | None) -> Requ
 def settling_notes(spec: TuningSpec, sim, plant: Plant, layout: GainLayout, full: np.ndarray) -> list[str]:
     """A note per scenario whose response has not settled by its end (:mod:`gaintune.sim.settling`)."""
     from gaintune.sim import Simulator
-    from gaintune.sim.settling import unsettled_scenarios
+    from gaintune.sim.settling import settling_messages
 
-    return [u.message(i) for i, u in unsettled_scenarios(sim or Simulator(spec, plant, layout), full)]
+    return settling_messages(sim or Simulator(spec, plant, layout), full)
 
 
 def verify(
