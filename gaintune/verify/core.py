@@ -353,7 +353,10 @@ def verify(
     t0 = time.perf_counter()
     if not isinstance(spec, TuningSpec):
         spec = load_spec(spec)
+    given = spec
     spec, derived = scenario_defaults(spec, plant)  # scenarios without dt/horizon: from the plant
+    # the report names the spec as given (its scenarios filled in the same way every time)
+    report_hash = (spec_hash or given.content_hash()) if derived else None
     if derived:
         spec_hash = None  # the caller's hash was of the spec before its scenarios were filled in
     ctx = spec_context(spec, plant, layout, spec_hash=spec_hash) if cache else None
@@ -445,7 +448,8 @@ def verify(
     op["u0"] = float(lin.u0)
     verdict = "pass" if not reasons else "fail"
     return VerificationReport(
-        spec_name=spec.name, spec_hash=ctx.spec_hash if ctx is not None else (spec_hash or spec.content_hash()),
+        spec_name=spec.name,
+        spec_hash=report_hash or (ctx.spec_hash if ctx is not None else (spec_hash or spec.content_hash())),
         gains=layout.to_dict(full), verdict=verdict,
         reasons=reasons, delay=float(lin.delay), sampling_delay=t_s, sampled=vs.sampled, dt=dt,
         compute_delay=vs.compute_delay,
