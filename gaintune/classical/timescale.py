@@ -7,7 +7,9 @@ cut a 60 s process short, and a slow integral action would look free). Each loop
 
 * the **settling scale** ``S``: ``T + L`` of the path's FOTD model (:func:`fit_fotd`),
   ``8 L`` for an integrating path (the SIMC integral time with ``tau_c = L``), or, where no
-  FOTD model applies, the slowest pole's time constant plus the delay;
+  FOTD model applies, the slowest pole's time constant (damped to at least :data:`DAMPING`)
+  plus the delay, and with integrators at least ``8 (delay + every lag)``; an outer loop's
+  ``S`` is at least that of the loop inside it;
 * the **fast scale**: the FOTD dead time ``L`` (plant delay plus the smaller lags), the
   part of the path that bounds the closed loop's speed.
 
@@ -30,7 +32,7 @@ Values a scenario gives are kept. The delay used is the largest the spec allows 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -97,14 +99,23 @@ def _path_scale(name: str, sys: StateSpace, delay: float) -> LoopScale:
         return LoopScale(name, 8.0 * m.L, m.L, f"integrating, FOTD dead time L {_g(m.L)} s, S = 8 L")
     if m is not None:
         return LoopScale(name, m.T + m.L, m.L, f"FOTD T {_g(m.T)} s, L {_g(m.L)} s, S = T + L")
-    p, _ = path_poles_zeros(siso_minreal(sys))
-    p = p[np.abs(p) > 1e-12 * max(1.0, float(np.max(np.abs(p), initial=0.0)))]  # integrators have no scale
+    try:
+        p, _ = path_poles_zeros(siso_minreal(sys))
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+        p = np.linalg.eigvals(np.asarray(sys.A, float)) if np.size(sys.A) else np.zeros(0)
+    moving = np.abs(p) > 1e-12 * max(1.0, float(np.max(np.abs(p), initial=0.0)))
+    p, n_int = p[moving], int(np.sum(~moving))
     # a pole's decay time once the loop damps it to at least DAMPING (a real pole: 1/|p|)
     zeta = np.maximum(np.abs(p.real) / np.abs(p), DAMPING) if p.size else p.real
-    slow = float(np.max(1.0 / (np.abs(p) * zeta))) if p.size else 0.0
-    return LoopScale(name, slow + delay, delay,
-                     f"no FOTD model; slowest pole {_g(slow)} s (damping >= {DAMPING:g}), delay {_g(delay)} s, "
-                     "S = slowest + delay")
+    taus = 1.0 / (np.abs(p) * zeta)
+    slow = float(np.max(taus, initial=0.0))
+    settle, basis = slow + delay, f"slowest pole {_g(slow)} s (damping >= {DAMPING:g}), delay {_g(delay)} s"
+    if n_int:  # integrators: as an integrating path, every lag counted as dead time (S = 8 L)
+        settle = max(settle, 8.0 * (delay + float(np.sum(taus))))
+        basis += f", {n_int} integrator(s): S = max(slowest + delay, 8 (delay + lags))"
+    else:
+        basis += ", S = slowest + delay"
+    return LoopScale(name, settle, delay, "no FOTD model; " + basis)
 
 
 def _round_down(x: float) -> float:
@@ -130,6 +141,10 @@ def plant_scale(spec: TuningSpec, plant: Plant) -> PlantScale:
     for j, m in enumerate(measured_indices(spec, list(lin.outputs))):
         sys = StateSpace(A, B, C[m:m + 1, :], D[m:m + 1, :])
         loops.append(_path_scale(spec.loops[j].name or f"loop{j}", sys, delay))
+    for j in range(len(loops) - 2, -1, -1):  # an outer loop is no faster than the loop inside it
+        if loops[j].settle < loops[j + 1].settle:
+            loops[j] = replace(loops[j], settle=loops[j + 1].settle,
+                               basis=loops[j].basis + f"; raised to S of the inner loop {loops[j + 1].loop}")
     dt_max = math.inf
     if plant.kind == "nonlinear" and A.size:
         fastest = float(np.max(np.abs(np.linalg.eigvals(A)), initial=0.0))
