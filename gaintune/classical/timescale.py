@@ -165,8 +165,8 @@ def plant_scale(spec: TuningSpec, plant: Plant) -> PlantScale:
     return PlantScale(_round_down(dt), horizon, tuple(loops), reason, dt_max)
 
 
-def _fill(sc: ScenarioSpec, ps: PlantScale, t_event: float) -> tuple[ScenarioSpec, ScenarioDefault]:
-    """``sc`` with its missing dt/horizon derived from ``ps``, and the record of the choice."""
+def _fill(i: int, sc: ScenarioSpec, ps: PlantScale, t_event: float) -> tuple[ScenarioSpec, ScenarioDefault]:
+    """Scenario ``i`` (``sc``) with its missing dt/horizon derived from ``ps``, and the record of the choice."""
     notes = []
     horizon = sc.horizon
     if horizon is None:
@@ -178,16 +178,17 @@ def _fill(sc: ScenarioSpec, ps: PlantScale, t_event: float) -> tuple[ScenarioSpe
         dt = min(ps.dt, _round_down(horizon / MIN_STEPS)) if sc.horizon is not None else ps.dt
         if horizon / dt > STEP_CAP:
             # exact for a linear plant (ZOH); a nonlinear one's RK4 step keeps its bound
-            dt = max(dt, min(_round_up(horizon / STEP_CAP), ps.dt_max))
+            cap = _round_up(horizon / STEP_CAP)
+            dt = max(dt, cap if ps.dt_max == math.inf else min(cap, _round_down(ps.dt_max)))
             notes.append(f"dt raised to keep horizon/dt <= {STEP_CAP} steps")
     if sc.horizon is None:
-        horizon = _round_up(horizon)
+        horizon = max(_round_up(horizon), 2 * dt)  # a given dt may be coarse: at least 2 samples
         if horizon / dt > MAX_STEPS:
             horizon = float(f"{MAX_STEPS * dt:.12g}")
             notes.append(f"horizon shortened to the limit of {MAX_STEPS} steps")
     elif horizon / dt < 2:
-        raise SpecError(f"scenario {sc.name!r}", f"its horizon {horizon:g} s is shorter than 2 samples of the dt "
-                        f"derived from the plant ({dt:g} s); give a longer horizon or a dt")
+        raise SpecError(f"scenarios[{i}].horizon", f"{horizon:g} s is shorter than 2 samples of the dt derived from "
+                        f"the plant ({dt:g} s); give a longer horizon, or a dt")
     filled = sc.model_copy(update={"dt": float(dt), "horizon": float(horizon)})
     reason = ps.reason + ("; " + "; ".join(notes) if notes else "")
     rec = ScenarioDefault(scenario=sc.name, dt=float(dt), horizon=float(horizon),
@@ -221,7 +222,7 @@ def scenario_defaults(spec: TuningSpec, plant: Plant | None = None) -> tuple[Tun
     scenarios = list(spec.scenarios)
     records = []
     for i in todo:
-        scenarios[i], rec = _fill(scenarios[i], ps, _event_time(spec, scenarios[i]))
+        scenarios[i], rec = _fill(i, scenarios[i], ps, _event_time(spec, scenarios[i]))
         records.append(rec)
     out = spec.model_copy(update={"scenarios": scenarios})
     return TuningSpec.model_validate(out.model_dump()), records
