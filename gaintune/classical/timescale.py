@@ -80,8 +80,10 @@ class PlantScale:
     dt: float
     horizon: float
     loops: tuple[LoopScale, ...]
-    reason: str
-    #: Smallest dt a nonlinear plant's RK4 step allows (inf for a linear plant).
+    #: Why this horizon, and why this dt.
+    why_horizon: str
+    why_dt: str
+    #: Largest dt a nonlinear plant's RK4 step allows (inf for a linear plant).
     dt_max: float = math.inf
 
 
@@ -151,8 +153,9 @@ def plant_scale(spec: TuningSpec, plant: Plant) -> PlantScale:
         dt_max = RK4_SPAN / fastest if fastest > 0 else math.inf
     slow = max(loops, key=lambda s: s.settle)
     if not slow.settle > 0:
-        return PlantScale(FALLBACK_DT, FALLBACK_HORIZON, tuple(loops), "the plant has no time scale (no lag, no "
-                          f"delay): the fixed defaults dt {FALLBACK_DT:g} s, horizon {FALLBACK_HORIZON:g} s", dt_max)
+        why = "the plant has no time scale (no lag, no delay)"
+        return PlantScale(FALLBACK_DT, FALLBACK_HORIZON, tuple(loops), f"{why}: the fixed default horizon",
+                          "the fixed default dt", dt_max)
     horizon = _round_up(HORIZON_FACTOR * slow.settle)
     cands = [(s.fast / DELAY_SAMPLES, f"{s.loop} L/{DELAY_SAMPLES}") for s in loops if s.fast > 0]
     cands += [(HORIZON_FACTOR * s.settle / MIN_STEPS, f"{s.loop} {HORIZON_FACTOR:g} S/{MIN_STEPS}")
@@ -160,9 +163,10 @@ def plant_scale(spec: TuningSpec, plant: Plant) -> PlantScale:
     if dt_max < math.inf:
         cands.append((dt_max, f"RK4 step {RK4_SPAN:g}/|fastest pole|"))
     dt, why = min(cands)
-    reason = (f"horizon {HORIZON_FACTOR:g} x S of {slow.loop} ({slow.basis}); "
-              f"dt {why}" + ("" if len(loops) == 1 else f"; loops: {', '.join(f'{s.loop} S {_g(s.settle)} s' for s in loops)}"))
-    return PlantScale(_round_down(dt), horizon, tuple(loops), reason, dt_max)
+    why_h = f"horizon {HORIZON_FACTOR:g} x S of {slow.loop} ({slow.basis})"
+    if len(loops) > 1:
+        why_h += f"; loops: {', '.join(f'{s.loop} S {_g(s.settle)} s' for s in loops)}"
+    return PlantScale(_round_down(dt), horizon, tuple(loops), why_h, f"dt {why}", dt_max)
 
 
 def _fill(i: int, sc: ScenarioSpec, ps: PlantScale, t_event: float) -> tuple[ScenarioSpec, ScenarioDefault]:
@@ -171,11 +175,17 @@ def _fill(i: int, sc: ScenarioSpec, ps: PlantScale, t_event: float) -> tuple[Sce
     horizon = sc.horizon
     if horizon is None:
         horizon = t_event + ps.horizon
+        notes.append(ps.why_horizon)
         if t_event > 0:
             notes.append(f"starts after the last event at {t_event:g} s")
     dt = sc.dt
     if dt is None:
-        dt = min(ps.dt, _round_down(horizon / MIN_STEPS)) if sc.horizon is not None else ps.dt
+        dt = ps.dt
+        if sc.horizon is not None and _round_down(horizon / MIN_STEPS) < dt:
+            dt = _round_down(horizon / MIN_STEPS)
+            notes.append(f"dt = the given horizon/{MIN_STEPS}")
+        else:
+            notes.append(ps.why_dt)
         if horizon / dt > STEP_CAP:
             # exact for a linear plant (ZOH); a nonlinear one's RK4 step keeps its bound
             cap = _round_up(horizon / STEP_CAP)
@@ -190,7 +200,7 @@ def _fill(i: int, sc: ScenarioSpec, ps: PlantScale, t_event: float) -> tuple[Sce
         raise SpecError(f"scenarios[{i}].horizon", f"{horizon:g} s is shorter than 2 samples of the dt derived from "
                         f"the plant ({dt:g} s); give a longer horizon, or a dt")
     filled = sc.model_copy(update={"dt": float(dt), "horizon": float(horizon)})
-    reason = ps.reason + ("; " + "; ".join(notes) if notes else "")
+    reason = "; ".join(notes)
     rec = ScenarioDefault(scenario=sc.name, dt=float(dt), horizon=float(horizon),
                           dt_from="spec" if sc.dt is not None else "plant",
                           horizon_from="spec" if sc.horizon is not None else "plant", reason=reason)
