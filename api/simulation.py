@@ -69,8 +69,9 @@ def simulate_payload(spec, gains, chosen: list[int], max_points: int, plant=None
     out = []
     for i in chosen:
         res = sim.run(full[None, :], scenario=i, traces=True)
+        sc = sim.spec.scenarios[i]  # dt/horizon derived from the plant where the spec left them out
         idx, stride = decimate(len(res.t), max_points)
-        out.append(_scenario(spec.scenarios[i], res, idx, stride, spec.actuator.limits))
+        out.append(_scenario(sc, res, idx, stride, spec.actuator.limits))
     body = {"gains": ctx.layout.to_dict(full), "max_points": max_points, "scenarios": out}
     return orjson.dumps(body, option=orjson.OPT_SERIALIZE_NUMPY)
 

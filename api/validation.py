@@ -73,7 +73,7 @@ def _limits(spec: TuningSpec, s: Settings, purpose: Purpose, prefix: str) -> lis
     if len(spec.scenarios) > s.max_scenarios:
         errs.append({"loc": f"{p}scenarios", "msg": f"{len(spec.scenarios)} scenarios exceed this server's limit of {s.max_scenarios}"})
     for i, sc in enumerate(spec.scenarios):
-        if sc.n_steps > s.max_steps:
+        if sc.resolved and sc.n_steps > s.max_steps:  # derived dt/horizon are checked once chosen (check_spec)
             errs.append({"loc": f"{p}scenarios.{i}.horizon",
                          "msg": f"horizon/dt = {sc.n_steps} steps exceeds this server's limit of {s.max_steps}; raise dt or shorten the horizon"})
     if purpose == "verify":
@@ -108,6 +108,12 @@ def check_spec(spec: TuningSpec, settings: Settings, purpose: Purpose, *, prefix
                 raise invalid([{"loc": f"{prefix + '.' if prefix else ''}plant",
                                 "msg": f"plant order {plant.order} exceeds this server's limit of {settings.max_order}"}])
             validate_against_plant(spec, plant)
+        from gaintune.classical.timescale import resolve_scenarios
+
+        spec = resolve_scenarios(spec, plant)  # scenarios without dt/horizon: derived from the plant
+        errs = _limits(spec, settings, purpose, prefix)
+        if errs:
+            raise invalid(errs)
         layout = GainLayout(spec, plant.states)
         if purpose == "tune":
             layout.require_tuned()

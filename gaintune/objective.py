@@ -157,7 +157,6 @@ class Evaluator:
     """
 
     def __init__(self, spec: TuningSpec, sim: Simulator | None = None, draws: Draws | None = None) -> None:
-        self.spec = spec
         if sim is None:  # scoring given gains: any box will do (searches use gaintune.search_box)
             from gaintune.controllers.layout import GainLayout
             from gaintune.plants import build_plant
@@ -165,6 +164,9 @@ class Evaluator:
             plant = build_plant(spec.plant)
             sim = Simulator(spec, plant, GainLayout(spec, plant.states, plant=plant))
         self.sim = sim
+        if not all(sc.resolved for sc in spec.scenarios):
+            spec = sim.spec  # the simulator's: scenario dt/horizon derived from the plant (gaintune.classical.timescale)
+        self.spec = spec
         self.plant: Plant = self.sim.plant
         self.layout = self.sim.layout
         rob = spec.search.robust

@@ -18,7 +18,8 @@ design field                becomes
 ``focus: reference_tracking``  one scenario: unit setpoint step; cost IAE + effort
 ``focus: disturbance_rejection``  one scenario: unit load step at the plant input; cost IAE
 ``focus: balanced`` (default)  both scenarios, weight 0.5 each
-``dt``, ``horizon``          the scenarios' sample time and length (default 0.01 s, 20 s)
+``dt``, ``horizon``          the scenarios' sample time and length; left out, both are derived
+                            from the plant like any scenario's (docs/simulation.md)
 ==========================  ==================================================================
 
 A spec that sets ``scenarios`` (or ``scenario``) itself keeps them and uses ``design`` for
@@ -50,8 +51,10 @@ class DesignSpec(BaseModel):
         None, gt=0, description="Target gain-crossover frequency wc (rad/s), as pidtune's second argument: "
         "the loop's crossover must lie within wc/(1+crossover_tolerance) .. wc (1+crossover_tolerance).")
     crossover_tolerance: float = Field(0.1, gt=0, le=1, description="Relative width of the crossover band.")
-    dt: float = Field(0.01, gt=0, description="Sample time of the generated scenarios (s).")
-    horizon: float = Field(20.0, gt=0, description="Length of the generated scenarios (s).")
+    dt: float | None = Field(
+        None, gt=0, description="Sample time of the generated scenarios (s); omitted: derived from the plant.")
+    horizon: float | None = Field(
+        None, gt=0, description="Length of the generated scenarios (s); omitted: derived from the plant.")
 
     @field_validator("phase_margin", "crossover", "crossover_tolerance", "dt", "horizon", mode="before")
     @classmethod
@@ -62,8 +65,11 @@ class DesignSpec(BaseModel):
 
 
 def _scenarios(d: DesignSpec) -> list[dict[str, Any]]:
-    track = {"name": "tracking", "dt": d.dt, "horizon": d.horizon, "reference": {"kind": "step", "amplitude": 1.0}}
-    load = {"name": "load", "dt": d.dt, "horizon": d.horizon, "reference": {"kind": "none"},
+    # dt/horizon left out stay None: the plant's time scale sets them (gaintune.classical.timescale);
+    # both steps start at t = 0, so a derived horizon needs no event offset
+    timing = {k: v for k, v in (("dt", d.dt), ("horizon", d.horizon)) if v is not None}
+    track = {"name": "tracking", **timing, "reference": {"kind": "step", "amplitude": 1.0}}
+    load = {"name": "load", **timing, "reference": {"kind": "none"},
             "disturbance": {"kind": "step", "amplitude": 1.0, "entry": "input"}}
     if d.focus == "reference_tracking":
         return [track]

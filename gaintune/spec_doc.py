@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import re
 import typing
 
@@ -86,7 +87,7 @@ def render_markdown() -> str:
         "",
     ]
     for title, model in _SECTIONS:
-        doc = " ".join((model.__doc__ or "").strip().split("\n\n")[0].split())
+        doc = " ".join(inspect.cleandoc(model.__doc__ or "").split("\n\n")[0].split())
         lines += [f"## `{title}`", "", doc, "", "| field | type | default | description |", "|---|---|---|---|"]
         hints = typing.get_type_hints(model)
         for name, field in model.model_fields.items():

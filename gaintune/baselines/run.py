@@ -11,6 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from gaintune.classical.tuning import CLASSICAL_METHODS, tune_classical
 from gaintune.classical.fotd import NoModelError
+from gaintune.classical.timescale import resolve_scenarios
 from gaintune.baselines.optimizers import optimize
 from gaintune.boundary import settle, violation_after
 from gaintune.objective import DIVERGED_COST
@@ -93,6 +94,7 @@ def run_baseline(
         raise ValueError(f"unknown baseline {method!r}; choose from {', '.join(METHODS)}")
     t0 = time.perf_counter()
     seed = spec.search.seed if seed is None else seed
+    spec = resolve_scenarios(spec, getattr(evaluator, "plant", None))  # dt/horizon left out: from the plant
     if method in CLASSICAL_METHODS:
         from gaintune.plants import build_plant
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gaintune.classical.fotd import Fotd, NoModelError, fit_fotd, siso_minreal
+from gaintune.classical.timescale import resolve_scenarios
 from gaintune.classical.rules import FOTD_RULES, IdealPid, to_loop_gains, ultimate_gain, with_direction, zn_ultimate
 from gaintune.controllers.direction import loop_directions
 from gaintune.statespace import StateSpace, with_input_delay
@@ -138,7 +139,7 @@ def tune_classical(spec: TuningSpec, plant, method: str, params: dict[str, float
         raise NoModelError(f"loops[{j}]", f"{lp.type} loop {lp.name!r}: no classical rule (LQ loops are tuned by Riccati)")
     directions = loop_directions(spec, plant)
     lin = plant.linearize(params)
-    h2 = 0.5 * sample_time(spec)
+    h2 = 0.5 * sample_time(resolve_scenarios(spec, plant))
     sys = StateSpace(lin.A, lin.B, lin.C, lin.D)
     delay = float(lin.delay)
     res = ClassicalResult(gains={})

@@ -142,8 +142,8 @@ def simulate(
     from gaintune.sim import Simulator
     from gaintune.sim.chatter import saturation_switches
 
-    spec = load_spec_file(spec_path)
-    sim = Simulator(spec)
+    sim = Simulator(load_spec_file(spec_path))
+    spec = sim.spec  # scenario dt/horizon derived from the plant where the spec left them out
     full = sim.layout.from_dict(load_gains(gains))
     results = [sim.run(full[None], scenario=i, traces=True) for i in range(len(spec.scenarios))]
     switches = [saturation_switches(r.traces["u"][0], spec.actuator.limits) for r in results]

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gaintune.classical.timescale import scenario_defaults
 from gaintune.controllers.layout import GainLayout
 from gaintune.search_box import search_box
 from gaintune.objective import DIVERGED_COST, Evaluator, Scores
@@ -58,15 +59,18 @@ class GainProblem:
     Parameters
     ----------
     spec
-        The tuning problem.
+        The tuning problem. :attr:`spec` is it with every scenario's ``dt``/``horizon`` a number
+        (derived from the plant where left out; :attr:`scenario_defaults` records the choice).
     use_auto_bounds
         Centre log-scale bounds on a classical rule where the spec gives none.
     """
 
     def __init__(self, spec: TuningSpec, use_auto_bounds: bool = True) -> None:
-        self.spec = spec
         plant = build_plant(spec.plant)
         validate_against_plant(spec, plant)
+        # scenarios without dt/horizon get them from the plant; the records say what was chosen and why
+        spec, self.scenario_defaults = scenario_defaults(spec, plant)
+        self.spec = spec
         if use_auto_bounds:
             box = search_box(spec, plant)
             self.layout, self.box_sims = box.layout, box.sims

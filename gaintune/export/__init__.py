@@ -143,6 +143,9 @@ def export_gains(
     """
     if fmt not in FORMATS:
         raise ExportError("format", f"unknown export format {fmt!r}; choose from {', '.join(FORMATS)}")
+    from gaintune.classical.timescale import resolve_scenarios
+
+    spec = resolve_scenarios(spec)  # a scenario without dt: the one derived from the plant, as tune and verify use
     vdt = None
     if verdict is not None:
         vdt = _check_dt(verified_dt) if verified_dt is not None else _spec_verified_dt(spec)

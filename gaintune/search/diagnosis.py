@@ -4,6 +4,12 @@ A result must always tell the engineer something useful. With a pass, that is th
 tightest requirement and any gain that sits on its search bound. With a fail, it is
 the requirement that decides, the figure the best gains reach, whether the search saw
 any candidate that met every requirement, and a concrete next step.
+
+Either way the hints also say how the scenarios were timed (the ``dt``/``horizon`` derived
+from the plant, :mod:`gaintune.classical.timescale`), warn about a response that has not
+settled by the end of its scenario (:mod:`gaintune.sim.settling`), and flag an integral time
+``Ti = Kp/Ki`` longer than the horizon: a horizon too short to see integral action leaves
+``Ki`` at whatever the search drew, often its lower bound.
 """
 
 from __future__ import annotations
@@ -20,7 +26,8 @@ from gaintune.search.result import Diagnosis, TuneResult
 from gaintune.spec import TuningSpec
 from gaintune.verify.report import RequirementLine, VerificationReport
 
-__all__ = ["diagnose", "budget_hints", "bound_hints", "direction_hints", "REQUIREMENT_TEXT"]
+__all__ = ["diagnose", "budget_hints", "bound_hints", "direction_hints", "scenario_hints", "settling_hints",
+           "integral_time_hints", "REQUIREMENT_TEXT"]
 
 #: requirement field -> (figure label, comparison) used in messages.
 REQUIREMENT_TEXT: dict[str, tuple[str, str]] = {
@@ -38,14 +45,14 @@ REQUIREMENT_TEXT: dict[str, tuple[str, str]] = {
 ON_BOUND = 0.01
 
 
-def bound_hints(layout: GainLayout, tuned: np.ndarray) -> list[str]:
-    """One hint per tuned gain that lies on (within 1 % of) its search bound."""
+def bound_hints(layout: GainLayout, tuned: np.ndarray, skip: frozenset[tuple[int, str, str]] = frozenset()) -> list[str]:
+    """One hint per tuned gain that lies on (within 1 % of) its search bound, except ``(loop index, gain, side)`` in ``skip``."""
     hints = []
     t = np.log(np.asarray(tuned, dtype=float))
     span = np.maximum(layout.log_hi - layout.log_lo, 1e-12)
     for slot, x, lo, hi, w in zip(layout.tuned_slots, t, layout.log_lo, layout.log_hi, span):
         for side, b in (("lower", lo), ("upper", hi)):
-            if abs(x - b) <= ON_BOUND * w:
+            if abs(x - b) <= ON_BOUND * w and (slot.loop, slot.name, side) not in skip:
                 hints.append(
                     f"{slot.loop_name}.{slot.name} = {math.exp(x):.4g} lies on its {side} search bound; "
                     f"widen loops[{slot.loop}].gains.{slot.name}.bounds and tune again"
@@ -88,14 +95,67 @@ def _finite(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def scenario_hints(result: TuneResult) -> list[str]:
+    """One line per scenario whose dt or horizon was derived from the plant: the values and why."""
+    out = []
+    for d in result.scenario_defaults:
+        which = " and ".join(k for k, src in (("dt", d.dt_from), ("horizon", d.horizon_from)) if src == "plant")
+        out.append(f"scenario {d.scenario!r}: dt {d.dt:.4g} s, horizon {d.horizon:.4g} s ({which} derived from the "
+                   f"plant: {d.reason}); set them in the spec to choose others")
+    return out
+
+
+def settling_hints(spec: TuningSpec, plant: Plant, layout: GainLayout, full: np.ndarray) -> list[str]:
+    """A warning per scenario whose response to the gains ``full`` has not settled by its end."""
+    from gaintune.sim import Simulator
+    from gaintune.sim.settling import settling_messages
+
+    return settling_messages(Simulator(spec, plant, layout), full)
+
+
+def slow_integral_loops(spec: TuningSpec, gains: dict[str, dict[str, float]]) -> list[tuple[int, float]]:
+    """``(loop index, Ti)`` of every loop whose integral time Ti = Kp/Ki is longer than the longest scenario horizon."""
+    from gaintune.controllers.pid import pid_params
+
+    horizon = max(sc.horizon for sc in spec.scenarios)
+    out = []
+    for i, loop in enumerate(spec.loops):
+        if loop.is_lq or "i" not in loop.type[1:] or loop.name not in gains:
+            continue
+        p = pid_params(loop, gains[loop.name])
+        kp, ki = float(p.Kp), float(p.Ki)
+        if ki != 0 and kp / ki > horizon:
+            out.append((i, kp / ki))
+    return out
+
+
+def integral_time_hints(spec: TuningSpec, gains: dict[str, dict[str, float]]) -> list[str]:
+    """A warning per loop whose integral time Ti = Kp/Ki is longer than the longest scenario horizon."""
+    horizon = max(sc.horizon for sc in spec.scenarios)
+    return [f"loops[{i}] ({spec.loops[i].name}): the integral time Ti = Kp/Ki = {ti:.4g} s is longer than the longest "
+            f"scenario horizon ({horizon:.4g} s), so the scenarios cannot see the integral action work: lengthen the "
+            "horizon (or leave dt/horizon out and let gaintune derive them from the plant) before widening the gain bounds"
+            for i, ti in slow_integral_loops(spec, gains)]
+
+
 def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray, plant: Plant | None = None) -> Diagnosis:
     """Build the :class:`Diagnosis` of a finished tune (its verification included, when run).
 
     With ``plant``, warnings about the plant itself (open-loop unstable, non-equilibrium
-    operating point, :func:`gaintune.plants.advice.plant_warnings`) come first among the hints.
+    operating point, :func:`gaintune.plants.advice.plant_warnings`) come first among the hints,
+    and every scenario is simulated once more to warn about a response that has not settled.
+    A lower-bound hint on a Ki whose integral time is longer than the horizon is left out: the
+    horizon, not the bound, is what to change.
     """
-    hints = (budget_hints(result) + (plant_warnings(plant) if plant is not None else [])
-             + bound_hints(layout, tuned))
+    spec = TuningSpec.model_validate(result.spec)
+    timing, skip = scenario_hints(result), frozenset()
+    if all(sc.resolved for sc in spec.scenarios):  # a tune stores the spec with its scenarios resolved
+        timing += integral_time_hints(spec, result.gains)
+        if plant is not None:
+            timing += settling_hints(spec, plant, layout, layout.full(tuned))
+        skip = frozenset((i, "Ki", "lower") for i, _ in slow_integral_loops(spec, result.gains))
+    hints = (budget_hints(result) + (plant_warnings(plant) if plant is not None else []) + timing
+             + bound_hints(layout, tuned, skip))
     ver = result.verification
     if ver is None:
         return Diagnosis(status="unverified", summary="the gains were not verified; they are not accepted", hints=hints)

@@ -7,6 +7,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field, computed_field, field_serializer, field_validator, model_validator
 
+from gaintune.spec import ScenarioDefault
 from gaintune.verify.report import VerificationReport, load_report
 
 __all__ = ["CurvePoint", "Progress", "Provenance", "SettleInfo", "Diagnosis", "TuneResult", "PolicyAnswer"]
@@ -84,7 +85,10 @@ class TuneResult(BaseModel):
     ``null``, fields added since).
     """
 
-    spec: dict[str, Any] = Field(description="The spec as validated (JSON form).")
+    spec: dict[str, Any] = Field(description="The spec as validated (JSON form), every scenario's dt and horizon filled in.")
+    scenario_defaults: list[ScenarioDefault] = Field(
+        default_factory=list, description="The scenarios whose dt or horizon the spec left out: the values derived "
+        "from the plant's time scale, and why (docs/simulation.md).")
     algo: str
     gains: Gains = Field(description="Frozen gains chosen as the answer (best of policy / best seen / refined).")
     gains_source: Literal["policy", "best_seen", "start", "refined"] = Field(

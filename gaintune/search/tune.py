@@ -220,6 +220,7 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     t0 = time.perf_counter()
     s = spec.search
     problem = GainProblem(spec)
+    spec = problem.spec  # scenario dt/horizon derived from the plant where the spec left them out
     per_candidate = problem.k * len(spec.scenarios)
     n_envs = s.n_envs
     batch = rollout_sims(n_envs, per_candidate, s.env)
@@ -311,6 +312,7 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
         agent_path = str(save_agent(agent, out / "agent.zip"))  # atomic: a symlink there is replaced, not followed
     result = TuneResult(
         spec=spec.model_dump(mode="json"),
+        scenario_defaults=problem.scenario_defaults,
         algo=s.algo,
         gains=gains,
         gains_source=source,

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from gaintune.classical.timescale import resolve_scenarios
 from gaintune.controllers.layout import GainLayout
 from gaintune.plants.plant import Plant, build_plant
 from gaintune.sim import draws as draws_mod
@@ -46,14 +47,15 @@ class Simulator:
     Parameters
     ----------
     spec
-        The tuning problem.
+        The tuning problem. Scenarios without ``dt``/``horizon`` get them from the plant
+        (:func:`gaintune.classical.timescale.resolve_scenarios`); :attr:`spec` is that resolved spec.
     plant, layout
         Reuse already-built objects (optional).
     """
 
     def __init__(self, spec: TuningSpec, plant: Plant | None = None, layout: GainLayout | None = None) -> None:
-        self.spec = spec
         self.plant = plant or build_plant(spec.plant)
+        self.spec = spec = resolve_scenarios(spec, self.plant)
         self.layout = layout or GainLayout(spec, self.plant.states)
         self.problem = Problem.build(spec, self.plant, self.layout)
         self._memo: dict = {}

@@ -59,7 +59,14 @@ from gaintune.spec.plant import (
     StateSpaceSpec,
     TransferFunctionSpec,
 )
-from gaintune.spec.scenarios import DisturbanceSpec, ObjectiveSpec, ProfileSpec, RequirementsSpec, ScenarioSpec
+from gaintune.spec.scenarios import (
+    DisturbanceSpec,
+    ObjectiveSpec,
+    ProfileSpec,
+    RequirementsSpec,
+    ScenarioDefault,
+    ScenarioSpec,
+)
 from gaintune.spec.settings import DistSpec, RandomizeSpec, RobustSpec, SafetySpec, SearchSpec, VerifySpec
 from gaintune.spec.yamlload import MAX_YAML_NODES, load_yaml
 from gaintune.spec_design import DesignSpec, expand_design
@@ -85,6 +92,7 @@ __all__ = [
     "ActuatorSpec",
     "ProfileSpec",
     "ScenarioSpec",
+    "ScenarioDefault",
     "ObjectiveSpec",
     "RequirementsSpec",
     "DistSpec",
@@ -194,7 +202,8 @@ class TuningSpec(_Model):
 
     def _check_delay_steps(self) -> None:
         """A delay is held in a buffer of delay/dt samples per simulated lane: bound it like the horizon."""
-        dt = min((sc.dt for sc in self.scenarios), default=None)
+        # a dt derived from the plant is checked where it is chosen (gaintune.classical.timescale)
+        dt = min((sc.dt for sc in self.scenarios if sc.dt is not None), default=None)
         if dt is None:
             return
         delays = []

@@ -15,7 +15,7 @@ from pydantic import Field, field_validator, model_validator
 from gaintune.spec.backoff import BackoffSpec
 from gaintune.spec.base import MAX_STEPS, _finite, _Model
 
-__all__ = ["ProfileSpec", "DisturbanceSpec", "ScenarioSpec", "ObjectiveSpec", "RequirementsSpec"]
+__all__ = ["ProfileSpec", "DisturbanceSpec", "ScenarioSpec", "ScenarioDefault", "ObjectiveSpec", "RequirementsSpec"]
 
 
 class ProfileSpec(_Model):
@@ -62,11 +62,22 @@ class DisturbanceSpec(ProfileSpec):
 
 
 class ScenarioSpec(_Model):
-    """One simulated experiment. Several scenarios are summed (by weight) into one cost."""
+    """One simulated experiment. Several scenarios are summed (by weight) into one cost.
+    ``dt`` and ``horizon`` left out (or null) are derived from the plant's time scale when
+    the spec is used, and the result says which values were chosen and why
+    (``scenario_defaults``; the rule is in docs/simulation.md).
+
+    Until then they are None and :attr:`resolved` is False
+    (:func:`gaintune.classical.timescale.resolve_scenarios` fills them in).
+    """
 
     name: str = "nominal"
-    dt: float = Field(0.01, description="Sample time in seconds.")
-    horizon: float = Field(20.0, description="Simulated time in seconds.")
+    dt: float | None = Field(
+        None, description="Sample time in seconds. Omitted: derived from the plant (delay/20, at least 2,000 "
+        "samples per horizon; docs/simulation.md).")
+    horizon: float | None = Field(
+        None, description="Simulated time in seconds. Omitted: derived from the plant (10 x its settling scale, "
+        "after the last reference or disturbance event; docs/simulation.md).")
     reference: ProfileSpec = Field(default_factory=ProfileSpec)
     disturbance: DisturbanceSpec = Field(default_factory=DisturbanceSpec)
     noise_std: float = Field(0.0, ge=0, description="Std of white measurement noise on every measured output.")
@@ -74,12 +85,15 @@ class ScenarioSpec(_Model):
 
     @model_validator(mode="after")
     def _check(self) -> "ScenarioSpec":
-        _finite(self.dt, "dt")
-        _finite(self.horizon, "horizon")
-        if self.dt <= 0:
-            raise ValueError(f"dt must be > 0 seconds, got {self.dt}")
-        if self.horizon <= 0:
-            raise ValueError(f"horizon must be > 0 seconds, got {self.horizon}")
+        for name in ("dt", "horizon"):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            _finite(v, name)
+            if v <= 0:
+                raise ValueError(f"{name} must be > 0 seconds, got {v}")
+        if not self.resolved:
+            return self
         steps = self.horizon / self.dt
         if steps > MAX_STEPS:
             raise ValueError(
@@ -90,8 +104,40 @@ class ScenarioSpec(_Model):
         return self
 
     @property
+    def resolved(self) -> bool:
+        """Whether both ``dt`` and ``horizon`` are numbers (given, or derived from the plant)."""
+        return self.dt is not None and self.horizon is not None
+
+    @property
     def n_steps(self) -> int:
+        if not self.resolved:
+            raise ValueError(f"scenario {self.name!r} has no dt/horizon yet: derive them from the plant first "
+                             "(gaintune.classical.timescale.resolve_scenarios)")
         return int(round(self.horizon / self.dt))
+
+    def last_event(self) -> float:
+        """Time (s) of the last reference or disturbance change: a derived horizon starts counting there."""
+        times = [0.0]
+        for p in (self.reference, self.disturbance):
+            if p.kind == "none":
+                continue
+            times.append(p.time)
+            if p.kind == "sequence":
+                times.append(p.points[-1][0])
+            elif p.kind == "impulse" and p.width is not None:
+                times.append(p.time + p.width)
+        return max(times)
+
+
+class ScenarioDefault(_Model):
+    """How a scenario's ``dt`` and ``horizon`` were chosen: given in the spec, or derived from the plant."""
+
+    scenario: str
+    dt: float
+    horizon: float
+    dt_from: Literal["spec", "plant"] = "plant"
+    horizon_from: Literal["spec", "plant"] = "plant"
+    reason: str = ""
 
 
 # ------------------------------------------------------- objective and reqs

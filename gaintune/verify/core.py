@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from gaintune.classical.timescale import scenario_defaults
 from gaintune.controllers.layout import GainLayout
 from gaintune.errors import GainError
 from gaintune.plants.noise_limit import noise_limits
@@ -315,6 +316,14 @@ def _noise_line(loops: list[LoopFigures], worst: list[WorstCase] | None) -> Requ
                            margin=float(margin), passed=margin >= 0, loop=loop, break_point=brk, case=case)
 
 
+def settling_notes(spec: TuningSpec, sim, plant: Plant, layout: GainLayout, full: np.ndarray) -> list[str]:
+    """A note per scenario whose response has not settled by its end (:mod:`gaintune.sim.settling`)."""
+    from gaintune.sim import Simulator
+    from gaintune.sim.settling import settling_messages
+
+    return settling_messages(sim or Simulator(spec, plant, layout), full)
+
+
 def verify(
     spec: TuningSpec | dict[str, Any] | str | Path,
     gains: Any,
@@ -366,6 +375,12 @@ def verify(
     t0 = time.perf_counter()
     if not isinstance(spec, TuningSpec):
         spec = load_spec(spec)
+    given = spec
+    spec, derived = scenario_defaults(spec, plant)  # scenarios without dt/horizon: from the plant
+    # the report names the spec as given (its scenarios filled in the same way every time)
+    report_hash = (spec_hash or given.content_hash()) if derived else None
+    if derived:
+        spec_hash = None  # the caller's hash was of the spec before its scenarios were filled in
     ctx = spec_context(spec, plant, layout, spec_hash=spec_hash) if cache else None
     if ctx is not None:
         plant, layout, lin = ctx.plant, ctx.layout, ctx.lin
@@ -438,6 +453,10 @@ def verify(
             reasons.append(f"nonlinear check failed: {nl.note}")
         elif not nl.ran:
             notes.append(f"nonlinear check not run: {nl.note}")
+        else:
+            notes.extend(settling_notes(spec, ctx.simulator(spec) if ctx is not None else None, plant, layout, full))
+    notes.extend(f"scenario {d.scenario!r}: dt {d.dt:.4g} s, horizon {d.horizon:.4g} s derived from the plant ({d.reason})"
+                 for d in derived)
     req = _not_applicable(_requirement_lines(spec, loops, worst), nominal_stable=stab.stable,
                           robust_stable=rob is None or rob.n_unstable == 0)
     failing = sorted((q for q in req if q.applicable and not q.passed), key=lambda q: q.margin / max(abs(q.limit), 1e-12))
@@ -454,7 +473,8 @@ def verify(
     op["u0"] = float(lin.u0)
     verdict = "pass" if not reasons else "fail"
     return VerificationReport(
-        spec_name=spec.name, spec_hash=ctx.spec_hash if ctx is not None else (spec_hash or spec.content_hash()),
+        spec_name=spec.name,
+        spec_hash=report_hash or (ctx.spec_hash if ctx is not None else (spec_hash or spec.content_hash())),
         gains=layout.to_dict(full), verdict=verdict,
         reasons=reasons, delay=float(lin.delay), sampling_delay=t_s, sampled=vs.sampled, dt=dt,
         compute_delay=vs.compute_delay,

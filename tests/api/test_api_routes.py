@@ -528,6 +528,19 @@ def test_simulate_traces_decimated(client):
     assert len(capped["scenarios"][0]["t"]) <= 2000 and capped["max_points"] == 2000
 
 
+def test_simulate_and_verify_a_spec_without_dt_use_the_plant_derived_scenario(client):
+    # issue 25: a scenario without dt/horizon gets them from the plant (2e^{-10s}/(60s+1): 0.35 s, 700 s)
+    spec = {"plant": {"tf": {"num": [2], "den": "60*s + 1"}, "delay": 10}, "loops": [{"type": "pi"}]}
+    gains = {"loop0": {"Kp": 1.37, "Ki": 0.027}}
+    r = client.post("/v1/simulate", json={"spec": spec, "gains": gains})
+    assert r.status_code == 200, r.text
+    sc = r.json()["scenarios"][0]
+    assert (sc["dt"], sc["n_steps"]) == (0.35, 2000) and sc["metrics"]["sse"] < 1e-3
+    r = client.post("/v1/verify", json={"spec": spec, "gains": gains})
+    assert r.status_code == 200, r.text
+    assert r.json()["dt"] == 0.35 and any("derived from the plant" in n for n in r.json()["notes"])
+
+
 def test_simulate_unknown_scenario_is_422(client):
     r = client.post("/v1/simulate", json={"spec": SPEC, "gains": GOOD, "scenarios": ["nope"]})
     assert r.status_code == 422 and r.json()["errors"][0]["loc"] == "scenarios"

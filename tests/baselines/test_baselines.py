@@ -21,13 +21,16 @@ from gaintune.spec import load_spec
 
 s = control.tf("s")
 
-PID3 = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pid"}]}
+#: The former fixed defaults, given explicitly: the figures below were worked out at dt 0.01 s over 20 s.
+TIMING = {"scenario": {"dt": 0.01, "horizon": 20.0}}
+PID3 = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pid"}], **TIMING}
 CASCADE = {
     "plant": {
         "ss": {"A": [[0, 1], [0, -10]], "B": [[0], [10]], "C": [[1, 0], [0, 1]], "outputs": ["pos", "vel"]},
         "delay": 0.02,
     },
     "loops": [{"name": "pos", "measure": "pos", "type": "p"}, {"name": "vel", "measure": "vel", "type": "pi"}],
+    **TIMING,
 }
 
 

@@ -36,12 +36,12 @@ def test_scenario_cost_weights_and_penalties() -> None:
 @pytest.mark.parametrize("measure, value", [("iae", 1.0), ("ise", 0.5), ("itae", 3.0)])
 def test_scenario_cost_measure(measure: str, value: float) -> None:
     obj = ObjectiveSpec(measure=measure, effort_weight=0.0)
-    assert scenario_cost(metrics(), obj, ScenarioSpec())[0] == pytest.approx(value)
+    assert scenario_cost(metrics(), obj, ScenarioSpec(dt=0.01, horizon=20.0))[0] == pytest.approx(value)
 
 
 def test_overshoot_below_the_limit_is_free_and_nan_overshoot_is_zero() -> None:
     obj = ObjectiveSpec(effort_weight=0.0, overshoot_limit=40.0, overshoot_weight=5.0)
-    c = scenario_cost(metrics(overshoot=[30.0, 45.0, np.nan]), obj, ScenarioSpec())
+    c = scenario_cost(metrics(overshoot=[30.0, 45.0, np.nan]), obj, ScenarioSpec(dt=0.01, horizon=20.0))
     np.testing.assert_allclose(c, [1.0, 1.0 + 5.0 * 5.0, 1.0])
 
 
@@ -53,7 +53,7 @@ def test_unsettled_run_is_charged_the_horizon() -> None:
 
 def test_diverged_and_non_finite_costs_are_capped() -> None:
     obj = ObjectiveSpec()
-    c = scenario_cost(metrics(iae=[1.0, np.inf, 1.0, 5e6], diverged=[True, False, False, False]), obj, ScenarioSpec())
+    c = scenario_cost(metrics(iae=[1.0, np.inf, 1.0, 5e6], diverged=[True, False, False, False]), obj, ScenarioSpec(dt=0.01, horizon=20.0))
     assert c[0] == DIVERGED_COST and c[1] == DIVERGED_COST and c[3] == DIVERGED_COST
     assert c[2] == pytest.approx(1.0 + 0.01 * 10.0)
 

@@ -268,8 +268,12 @@ def test_minimal_spec_gets_all_defaults() -> None:
     assert spec.actuator.limits is None and spec.actuator.rate_limit is None
     (sc,) = spec.scenarios
     assert (sc.dt, sc.horizon, sc.reference.kind, sc.reference.amplitude, sc.disturbance.kind) == (
-        0.01, 20.0, "step", 1.0, "none")  # fmt: skip
-    assert sc.n_steps == 2000
+        None, None, "step", 1.0, "none")  # fmt: skip
+    # dt and horizon left out are derived from the plant's time scale (FOTD T = L = 1.5 s)
+    from gaintune.classical.timescale import resolve_scenarios
+
+    (sc,) = resolve_scenarios(spec).scenarios
+    assert (sc.dt, sc.horizon, sc.n_steps) == (0.015, 30.0, 2000)
     assert spec.objective.measure == "iae" and spec.objective.effort_weight == 0.01
     assert (spec.requirements.gm_min_db, spec.requirements.pm_min_deg, spec.requirements.ms_max) == (6.0, 45.0, 2.0)
     assert not spec.randomize.active

@@ -56,3 +56,19 @@ def test_design_crossover_given_twice_or_for_a_cascade_is_rejected():
            "loops": [{"type": "pi", "measure": "b"}, {"type": "pi", "measure": "a"}]}
     with pytest.raises(ValidationError, match="single loop"):
         load_spec({**two, "design": {"crossover": 0.5}})
+
+
+def test_design_scenarios_default_horizon_scaled_to_slow_fotd_plant():
+    # issue 25 for the shortcut: design's scenarios were 0.01 s / 20 s whatever the plant
+    from gaintune.classical.timescale import scenario_defaults
+
+    fotd = {"plant": {"tf": {"num": [2], "den": "60*s + 1"}, "delay": 10}, "loops": [{"type": "pi"}], "design": {}}
+    spec = load_spec(fotd)
+    assert [(s.dt, s.horizon) for s in spec.scenarios] == [(None, None), (None, None)]
+    resolved, records = scenario_defaults(spec)
+    assert [(s.name, s.dt, s.horizon) for s in resolved.scenarios] == [("tracking", 0.35, 700.0), ("load", 0.35, 700.0)]
+    assert [r.scenario for r in records] == ["tracking", "load"]
+    assert load_spec(resolved.model_dump(mode="json")).content_hash() == resolved.content_hash()
+    # explicit design.dt/horizon are kept; horizon alone: dt from the plant (at least 2,000 samples)
+    given = scenario_defaults(load_spec({**fotd, "design": {"horizon": 100}}))[0]
+    assert [(s.dt, s.horizon) for s in given.scenarios] == [(0.05, 100.0), (0.05, 100.0)]
