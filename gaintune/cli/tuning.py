@@ -46,6 +46,11 @@ def _get_tune() -> Callable:
     return tune
 
 
+#: What the progress bar says in each phase of a tune (gaintune.search.result.Progress.phase).
+_PHASES = {"search": "searching", "settle": "settling onto the requirements", "refine": "refining",
+           "verify": "verifying the answer"}
+
+
 def _run_tune(tune: Callable, spec, *, out_dir: Path | None, json_out: bool, baselines: bool, command: str,
               warm_start: Path | None = None) -> Any:
     """Run ``tune`` (from :func:`_get_tune`) on ``spec``: quietly with ``json_out``, else with a progress bar on stderr."""
@@ -71,8 +76,8 @@ def _run_tune(tune: Callable, spec, *, out_dir: Path | None, json_out: bool, bas
         task = bar.add_task(f"tuning {spec.name} ({spec.search.algo})", total=spec.search.budget, best="-", eta="-")
 
         def progress(p) -> bool:
-            bar.update(task, completed=min(p.sims, p.budget), total=p.budget, description=f"{p.phase} ({spec.search.algo})",
-                       best=_f(p.best_cost), eta="-" if p.eta is None else f"{p.eta:.0f}s")
+            bar.update(task, completed=min(p.sims, p.budget), total=p.budget, description=f"{_PHASES.get(p.phase, p.phase)} ({spec.search.algo})",
+                       best=_f(p.best_cost), eta="-" if p.eta is None else f"{max(p.eta, 0.0):.0f}s")
             return True
 
         return tune(spec, progress=progress, **kwargs)

@@ -53,9 +53,11 @@ class SearchMonitor:
         progress: Callable[[Progress], bool | None] | None,
         cancel: Cancel | None,
         patience: int | None,
+        total_budget: int | None = None,
     ) -> None:
         self.problem = problem
         self.budget = budget
+        self.total_budget = total_budget if total_budget is not None else budget  # search.budget: what progress shows
         self.wall_time = wall_time
         self.progress = progress
         self.cancel = cancel
@@ -106,10 +108,13 @@ class SearchMonitor:
             return
         self._last_report = now
         rate = self.sims / now if now > 0 else 0.0
-        eta = (self.budget - self.sims) / rate if rate > 0 else None
+        # an ETA only while the search runs, never below 0: settle, refine and verify are not paced by the budget
+        eta = max(0.0, (self.budget - self.sims) / rate) if rate > 0 and phase == "search" else None
+        # every simulation of the run (set-up, search, settle, refine), as the result's ``sims`` counts them
+        total = self.problem.n_sims
         keep = self.progress(
-            Progress(sims=self.sims, budget=self.budget, best_cost=self.best_cost if self.best_feasible else None,
-                     elapsed=now, eta=eta, phase=phase)
+            Progress(sims=total, budget=max(self.total_budget, total), elapsed=now, eta=eta, phase=phase,
+                     best_cost=self.best_cost if self.best_feasible else None)
         )
         if keep is False:
             self.stopped = "cancelled"
@@ -228,7 +233,7 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     reserve = refine_reserve(s.budget, s.refine)
     setup_sims = problem.n_sims
     rl_budget = rl_budget_of(s.budget, setup_sims, per_candidate, s.refine)
-    monitor = SearchMonitor(problem, rl_budget, s.wall_time, progress, cancel, s.early_stop_patience)
+    monitor = SearchMonitor(problem, rl_budget, s.wall_time, progress, cancel, s.early_stop_patience, total_budget=s.budget)
     problem.on_score = monitor.on_batch
     horizon = 1
     if s.env == "iterative":
