@@ -28,6 +28,7 @@ import uuid
 from pathlib import Path
 from typing import Any, Callable
 
+from gaintune.files import write_atomic
 from gaintune_api.storage import FaultInjector, classify
 
 __all__ = ["JobFiles", "ArtifactMissing", "ArtifactMismatch"]
@@ -107,10 +108,7 @@ class JobFiles:
 
         def write() -> None:
             self.root.mkdir(parents=True, exist_ok=True)
-            with open(path, "wb") as f:
-                f.write(b"x")
-                f.flush()
-                os.fsync(f.fileno())
+            write_atomic(path, b"x")  # synced; a symlink planted at the probe's name is replaced, not followed
             path.unlink()
 
         try:

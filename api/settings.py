@@ -19,6 +19,8 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from gaintune.errors import SpecError
+from gaintune.files import read_text_bounded
 from gaintune.spec import MAX_ORDER, MAX_STEPS
 
 __all__ = ["Settings", "get_settings", "unknown_settings", "warn_unknown_settings", "LIBRARY_ENV"]
@@ -123,9 +125,9 @@ class Settings(BaseSettings):
 
 
 def _env_file_names(path: Path) -> list[str]:
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError):
+    try:  # a regular file up to 10 MB only: a FIFO .env is left to Settings, which reads it once
+        lines = read_text_bounded(path, "env_file").splitlines()
+    except SpecError:
         return []
     out = []
     for line in lines:

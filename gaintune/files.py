@@ -13,6 +13,7 @@ Two rules for every file a user or a foreign party can place:
 
 from __future__ import annotations
 
+import errno
 import os
 import stat
 import tempfile
@@ -31,7 +32,9 @@ def write_atomic(path: str | Path, data: bytes | str, *, encoding: str = "utf-8"
     """Write ``data`` to ``path`` through a temporary file in the same folder and a rename.
 
     A symlink at ``path`` is replaced by the new file, never followed; the file the link
-    pointed to is left untouched. The folder must exist.
+    pointed to is left untouched. The folder must exist. A device, pipe, socket or folder at
+    ``path`` (or a link to one, such as ``/dev/stdout``) is refused, never replaced: renaming
+    over ``/dev/null`` as root would remove the device.
 
     Parameters
     ----------
@@ -44,8 +47,15 @@ def write_atomic(path: str | Path, data: bytes | str, *, encoding: str = "utf-8"
     -------
     Path
         ``path``.
+
+    Raises
+    ------
+    OSError
+        ``EINVAL`` for a destination that is not a regular file, a link or absent; the
+        errors of the folder (no permission, full disk) as they come.
     """
     path = Path(path)
+    _check_destination(path)
     raw = data.encode(encoding) if isinstance(data, str) else data
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
@@ -59,6 +69,18 @@ def write_atomic(path: str | Path, data: bytes | str, *, encoding: str = "utf-8"
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def _check_destination(path: Path) -> None:
+    """Refuse a destination that exists and is neither a regular file nor a link to one (or a dangling link)."""
+    try:
+        mode = path.stat().st_mode  # follows a link: /dev/stdout is a link to a pipe or terminal
+    except FileNotFoundError:
+        return  # absent, or a dangling link: the rename puts a new file there
+    except OSError:
+        return  # e.g. a link loop, or no access: the rename replaces the link or reports the error
+    if not stat.S_ISREG(mode):
+        raise OSError(errno.EINVAL, "not a regular file (a device, pipe, socket or folder); give a file path", str(path))
 
 
 def read_bytes_bounded(path: str | Path, field: str, limit: int = MAX_INPUT_BYTES) -> bytes:
@@ -81,13 +103,19 @@ def read_bytes_bounded(path: str | Path, field: str, limit: int = MAX_INPUT_BYTE
     with os.fdopen(fd, "rb") as fh:
         info = os.fstat(fd)
         if not stat.S_ISREG(info.st_mode):
-            raise SpecError(field, f"{path} is not a regular file; give a file, not a device, pipe or folder")
+            raise SpecError(field, f"{path} is not a regular file; give a regular file of at most {_size(limit)}, "
+                            "not a device, pipe or folder")
         if info.st_size > limit:
-            raise SpecError(field, f"{path} is {info.st_size:,} bytes; the limit is {limit:,} bytes")
+            raise SpecError(field, f"{path} is {info.st_size:,} bytes; the limit is {_size(limit)}")
         data = fh.read(limit + 1)  # the file may have grown since fstat
     if len(data) > limit:
-        raise SpecError(field, f"{path} is larger than the limit of {limit:,} bytes")
+        raise SpecError(field, f"{path} is larger than the limit of {_size(limit)}")
     return data
+
+
+def _size(n: int) -> str:
+    """``10 MB`` for whole mebibytes, else ``1,234 bytes``."""
+    return f"{n >> 20} MB" if n and n % (1 << 20) == 0 else f"{n:,} bytes"
 
 
 def read_text_bounded(path: str | Path, field: str, limit: int = MAX_INPUT_BYTES) -> str:

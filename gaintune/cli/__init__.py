@@ -32,7 +32,7 @@ from gaintune.cli.bench import BENCH, bench_app  # noqa: F401 - BENCH: gaintune.
 from gaintune.cli.common import (
     EPILOG, EXIT_INPUT, EXIT_OK, EXIT_VERIFY, InputError, _command_line, apply_overrides, check_out_dir, err, handle_errors,
     load_gains, output_errors,
-    load_result, load_spec_file, out,
+    load_result, load_spec_file, out, reverify_result,
 )
 from gaintune.cli.entry import GaintuneTyper
 from gaintune.cli.exporting import _checked_at_dt
@@ -163,10 +163,11 @@ def report(
     output: Path = typer.Option(Path("report.html"), "--output", "-o", help="HTML file to write."),
     pdf: bool = typer.Option(False, "--pdf", help="Also print it to PDF (needs /usr/bin/chromium)."),
 ) -> None:
-    """Render the self-contained HTML report of a result (and a PDF with --pdf)."""
+    """Render the self-contained HTML report of a result (and a PDF with --pdf). The gains are verified again first."""
     from gaintune.report import ReportError, render_pdf, render_report
 
     result = load_result(result_path)
+    reverify_result(result, result_path)  # the page shows the verdict of the gains, never the file's claim
     with output_errors(output):
         path = render_report(result, output)
     out.print(f"wrote {path}")
@@ -204,7 +205,7 @@ def export(
     dt: Optional[float] = typer.Option(
         None, "--dt",
         help="Sample time (s) of the exported discrete controller. Default: the dt the result was verified at "
-             "(its largest scenario dt). At any other dt the gains are re-verified first, at that dt."),
+             "(its largest scenario dt). The gains are verified again at this dt before anything is written."),
     output: Optional[Path] = typer.Option(None, "--output", "-o", help="File to write (default: stdout)."),
     allow_unverified: bool = typer.Option(
         False, "--allow-unverified",
@@ -213,8 +214,8 @@ def export(
 ) -> None:
     """Export the gains of a result as JSON, YAML, a C header, a MATLAB/Octave snippet or a Python dict.
 
-    The file carries the verification verdict AT the exported sample time: at the dt the result was
-    verified at, the stored verdict; at any other --dt, the gains are re-verified at that dt first.
+    The file carries the verification verdict AT the exported sample time: the gains are verified
+    again at that dt first (a verdict stored in the result file is never trusted).
     Exit 3 (nothing written) when that verdict is not PASS, unless --allow-unverified.
     """
     from gaintune.export import FORMATS, export_result
@@ -228,9 +229,11 @@ def export(
     if output is None:
         sys.stdout.write(text)
     else:
+        from gaintune.files import write_atomic
+
         with output_errors(output):
             output.parent.mkdir(parents=True, exist_ok=True)
-            output.write_text(text)
+            write_atomic(output, text)  # a symlink at --output is replaced, never written through
         err.print(f"wrote {output}")
 
 

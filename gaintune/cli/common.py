@@ -5,8 +5,9 @@
 * the consoles: :data:`out` (stdout) and :data:`err` (stderr);
 * :class:`InputError` and :func:`handle_errors`, which turns bad input into
   ``error: <field>: <message>`` lines on stderr and exit 2, never a traceback;
-* the inputs: :func:`load_spec_file`, :func:`load_gains`, :func:`load_result` and
-  :func:`apply_overrides`;
+* the inputs: :func:`load_spec_file`, :func:`load_gains`, :func:`load_result`,
+  :func:`reverify_result` and :func:`apply_overrides`; files are read bounded
+  (:func:`gaintune.files.read_text_bounded`: regular files up to 10 MB);
 * formatting helpers: ``_f`` (the one number formatter, :func:`gaintune.fmt.fmt`),
   ``_json_num``, ``_close`` and ``_command_line``.
 
@@ -31,7 +32,7 @@ from gaintune.fmt import fmt
 
 __all__ = [
     "EXIT_OK", "EXIT_INPUT", "EXIT_VERIFY", "EPILOG", "out", "err", "InputError", "handle_errors",
-    "load_spec_file", "load_gains", "load_result", "apply_overrides",
+    "load_spec_file", "load_gains", "load_result", "reverify_result", "apply_overrides",
     "_f", "_json_num", "_close", "_command_line",
 ]
 
@@ -156,14 +157,18 @@ def check_out_dir(path: Path, field: str = "out") -> None:
 
 
 def _read_file(path: Path, field: str) -> str:
+    """The text of a regular file of at most :data:`gaintune.files.MAX_INPUT_BYTES` (``/dev/zero``, a FIFO: exit 2)."""
+    from gaintune.errors import SpecError
+    from gaintune.files import read_text_bounded
+
     if not path.exists():
         raise InputError(field, f"file not found: {path}")
     if path.is_dir():
         raise InputError(field, f"{path} is a directory, expected a file")
     try:
-        return path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(field, f"cannot read {path}: {exc}") from None
+        return read_text_bounded(path, field)
+    except SpecError as exc:
+        raise InputError(field, exc.message) from None
 
 
 def _parse_mapping(text: str, field: str) -> Any:
@@ -212,6 +217,30 @@ def load_result(path: Path):
     if result.verification_set_aside:
         err.print(f"note: {path}: {result.verification_set_aside}; the gains are verified again here", markup=False)
     return result
+
+
+def reverify_result(result, path: Path) -> None:
+    """Replace the verification ``result`` (read from ``path``) carries by a fresh one, in place.
+
+    A stored verdict is never the authority for a file that claims one: a file whose ``gains``
+    and ``verification.gains`` were both edited, verdict left at pass, passes every consistency
+    check (:attr:`~gaintune.search.result.TuneResult.verification_set_aside`); only verifying the
+    gains again tells (about half a second). The diagnosis, written from the stored verdict, is
+    dropped when it disagrees with the fresh one. ``verification_set_aside`` keeps why a stored
+    verification was set aside on reading, or says that the file's verdict was not taken.
+    """
+    from gaintune.spec import TuningSpec
+    from gaintune.verify import verify
+
+    claimed = result.verdict
+    result.verification = verify(TuningSpec.model_validate(result.spec), result.gains)
+    if result.verification_set_aside is None:
+        result.verification_set_aside = "a verdict stored in a result file is not taken as it is"
+    if result.diagnosis is not None and result.diagnosis.status != result.verdict:
+        result.diagnosis = None
+    if claimed is not None and claimed != result.verdict:
+        err.print(f"note: {path} claims verdict {claimed!r}, but its gains verified again here give "
+                  f"{result.verdict!r}; the stored verdict is not used", markup=False, highlight=False)
 
 
 def apply_overrides(spec, *, algo: str | None = None, budget: int | None = None, seed: int | None = None, workers: int | None = None):

@@ -1,9 +1,9 @@
 """The verdict gate of ``gaintune export``: the verdict at the exported sample time, and refusing failed gains.
 
-A file exported at the dt the result was verified at carries the stored verdict; at
-any other ``--dt`` the gains are re-verified at that dt first
-(:func:`gaintune.export.result_verdict_at_dt`). Gains whose verdict there is not PASS
-are not exported (exit 3) unless ``--allow-unverified``.
+The gains are always verified again at the exported sample time
+(:func:`gaintune.export.verdict_at_dt` with nothing stored): a verdict stored in a result
+file is never the authority, since a file can claim one consistently for gains that fail.
+Gains whose verdict there is not PASS are not exported (exit 3) unless ``--allow-unverified``.
 """
 
 from __future__ import annotations
@@ -33,19 +33,26 @@ def _checked_at_dt(result, dt: float | None, *, allow_unverified: bool) -> tuple
         ``(at, checked)``: the sample time and the ``(verdict, report)`` pair for
         :func:`gaintune.export.export_result`.
     """
-    from gaintune.export import first_reason, result_verdict_at_dt, verified_dt
+    from gaintune.export import first_reason, verdict_at_dt, verified_dt
     from gaintune.export.verdict import stored_verdict_holds
     from gaintune.spec import TuningSpec
 
     spec = TuningSpec.model_validate(result.spec)
     vdt = verified_dt(spec)
     at = vdt if dt is None else dt
-    checked = result_verdict_at_dt(result, at)  # ExportError("dt", ...) -> exit 2
+    # stored=None: verified here whatever the file claims (ExportError("dt", ...) -> exit 2)
+    checked = verdict_at_dt(spec, result.gains, at, stored=None)
     verdict, report = checked
-    if not stored_verdict_holds(spec, at, result.verification):  # re-verified at this dt
-        was = f"the result was verified at dt = {vdt:g} s" if result.verdict is not None else "the result was not verified"
-        err.print(f"re-verified at dt = {at:g} s ({was}): {'PASS' if verdict == 'pass' else 'FAILED'}",
-                  markup=False, highlight=False)
+    if result.verdict is None:
+        was = " (the result was not verified)"
+    elif not stored_verdict_holds(spec, at, result.verification):
+        was = f" (the result was verified at dt = {vdt:g} s)"
+    elif result.verdict != verdict:
+        was = f" (the result file claims {result.verdict.upper()}; a stored verdict is not used)"
+    else:
+        was = ""
+    err.print(f"re-verified at dt = {at:g} s{was}: {'PASS' if verdict == 'pass' else 'FAILED'}",
+              markup=False, highlight=False)
     if verdict != "pass" and not allow_unverified:
         reason = first_reason(report) or "no reason recorded in the verification report"
         label = "FAILED verification" if verdict == "fail" else f"are not verified (verdict: {verdict})"

@@ -13,11 +13,12 @@ Every name is internal to :mod:`gaintune.cli` (hence the leading underscore).
 
 from __future__ import annotations
 
+import io
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gaintune.cli.common import InputError, _f, _json_num, out
+from gaintune.cli.common import InputError, _f, _json_num, out, output_errors
 
 if TYPE_CHECKING:  # pragma: no cover
     from rich.console import Console
@@ -85,11 +86,17 @@ def _print_summary(result, console: Console = out) -> None:
 
 
 def _write_outputs(result, out_dir: Path, console: Console = out) -> None:
+    """result.json, report.html and the gain exports in ``out_dir``, each written atomically.
+
+    A file-level symlink planted in the folder is replaced, never written through
+    (:func:`gaintune.files.write_atomic`); the folder itself may be a link (the user's choice).
+    """
     from gaintune.export import write_exports
+    from gaintune.files import write_atomic
     from gaintune.report import render_report
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "result.json").write_text(result.model_dump_json(indent=2))
+    write_atomic(out_dir / "result.json", result.model_dump_json(indent=2))
     render_report(result, out_dir / "report.html")
     paths = write_exports(result, out_dir)
     console.print(f"wrote {out_dir / 'result.json'}, {out_dir / 'report.html'}, " + ", ".join(str(p) for p in paths))
@@ -172,12 +179,17 @@ def _plot_runs(spec, sim, results, path: Path) -> None:
         axes[0, j].set_title(r.scenario)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        fig.savefig(path)
+    buf = io.BytesIO()
+    try:  # rendered in memory, then put in place atomically: a symlink at the path is not written through
+        fig.savefig(buf, format=path.suffix[1:].lower() or "png")
     except ValueError as exc:  # unknown extension
         raise InputError("plot", str(exc)) from None
     finally:
         plt.close(fig)
+    from gaintune.files import write_atomic
+
+    with output_errors(path, "plot"):
+        write_atomic(path, buf.getvalue())
 
 
 # ------------------------------------------------------------------- plants

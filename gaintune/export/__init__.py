@@ -50,6 +50,7 @@ from gaintune.export.verdict import (
     verdict_at_dt,
     verified_dt,
 )
+from gaintune.files import write_atomic
 from gaintune.spec import TuningSpec
 
 __all__ = [
@@ -211,6 +212,9 @@ def write_exports(result: Any, out_dir, formats: tuple[str, ...] = ("json", "yam
     (:data:`FIRMWARE_FORMATS`: ``gains.h``, ``gains.m``, ``gains.py``) are withheld, and a
     stale copy of them from an earlier run in ``out_dir`` is deleted. Returns the paths
     written (an :class:`ExportFiles` list, which also names what was withheld and why).
+
+    Each file is written atomically (:func:`gaintune.files.write_atomic`): a symlink planted
+    in ``out_dir`` is replaced, never written through.
     """
     from pathlib import Path
 
@@ -229,11 +233,11 @@ def write_exports(result: Any, out_dir, formats: tuple[str, ...] = ("json", "yam
         p = out / SUFFIX[fmt]
         if not ok and fmt in FIRMWARE_FORMATS:
             withheld.append(SUFFIX[fmt])
-            if p.is_file():
+            if p.is_symlink() or p.is_file():  # unlink removes a link itself, never its target
                 p.unlink()
                 removed.append(p)
             continue
-        p.write_text(export_result(result, fmt, dt=dt, checked=checked))
+        write_atomic(p, export_result(result, fmt, dt=dt, checked=checked))
         paths.append(p)
     return ExportFiles(paths, verdict=verdict, dt=dt, reason=None if ok else (first_reason(report) or None),
                        withheld=tuple(withheld), removed=tuple(removed))

@@ -17,6 +17,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from gaintune.errors import SpecError
+from gaintune.files import read_text_bounded
 from gaintune.spec import PlantSpec
 
 __all__ = ["ParamDoc", "ModelDef", "models_dir", "list_models", "load_model"]
@@ -74,7 +75,7 @@ def load_model(name: str) -> ModelDef:
     path = models_dir() / f"{name}.yaml"
     if not path.is_file():
         raise SpecError("plant.model.name", f"unknown model {name!r}; built-in models: {', '.join(list_models())}")
-    data = yaml.safe_load(path.read_text())
+    data = yaml.safe_load(read_text_bounded(path, f"models/{name}.yaml"))
     data.setdefault("name", name)
     params = {k: (v["value"] if isinstance(v, dict) else v) for k, v in data.get("parameters", {}).items()}
     data.setdefault("plant", {})

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from gaintune.errors import GaintuneError
+from gaintune.files import write_atomic
 
 __all__ = ["SECTIONS", "ReportError", "load_verification", "render_html", "render_report", "render_pdf", "find_chromium", "result_from_gains"]
 
@@ -65,6 +66,8 @@ def render_html(result: Any, *, command: str | None = None) -> str:
     from gaintune.report.context import build_context
 
     ctx = build_context(result, command=command)
+    if result.verification is not None and getattr(result, "verification_set_aside", None):
+        ctx["verified_now"] = True  # verified again after the stored verdict was set aside (gaintune report)
     env = jinja2.Environment(
         loader=jinja2.FileSystemLoader(str(Path(__file__).parent / "templates")),
         autoescape=jinja2.select_autoescape(["html", "j2"]),
@@ -74,10 +77,15 @@ def render_html(result: Any, *, command: str | None = None) -> str:
 
 
 def render_report(result: Any, path: str | os.PathLike, *, pdf: bool = False, command: str | None = None) -> Path:
-    """Write the HTML report of ``result`` to ``path`` (and ``path`` with ``.pdf`` when ``pdf``). Returns the HTML path."""
+    """Write the HTML report of ``result`` to ``path`` (and ``path`` with ``.pdf`` when ``pdf``). Returns the HTML path.
+
+    The file is written atomically (:func:`gaintune.files.write_atomic`): a symlink at ``path``
+    is replaced, never written through. The report shows the verification ``result`` carries;
+    for a result read from a file, re-verify first (``gaintune report`` does).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(render_html(result, command=command), encoding="utf-8")
+    write_atomic(path, render_html(result, command=command))
     if pdf:
         render_pdf(path, path.with_suffix(".pdf"))
     return path
@@ -109,20 +117,22 @@ def render_pdf(html_path: str | os.PathLike, pdf_path: str | os.PathLike, *, tim
             f"PDF output needs headless Chromium; none found at {', '.join(CHROMIUM_PATHS)}. "
             "Install it (apt-get install chromium) or set GAINTUNE_CHROMIUM, or open the HTML report and print it.",
         )
-    html_path, pdf_path = Path(html_path).resolve(), Path(pdf_path).resolve()
+    html_path, pdf_path = Path(html_path).resolve(), Path(pdf_path).absolute()  # a link at pdf_path is not followed
     pdf_path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="gaintune-chromium-") as profile:
+        printed = Path(profile) / "print.pdf"  # Chromium writes here; the PDF is then put in place atomically
         cmd = [
             exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
             "--disable-component-update", "--disable-sync", "--no-first-run", "--no-pdf-header-footer",
-            f"--user-data-dir={profile}", f"--print-to-pdf={pdf_path}", html_path.as_uri(),
+            f"--user-data-dir={profile}", f"--print-to-pdf={printed}", html_path.as_uri(),
         ]
         try:
             proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
         except subprocess.TimeoutExpired:
             raise ReportError("pdf", f"Chromium did not finish printing within {timeout:.0f} s") from None
-    if proc.returncode != 0 or not pdf_path.exists() or pdf_path.stat().st_size == 0:
-        raise ReportError("pdf", f"Chromium failed to print the PDF (exit {proc.returncode}): {proc.stderr.strip()[-500:]}")
+        if proc.returncode != 0 or not printed.is_file() or printed.stat().st_size == 0:
+            raise ReportError("pdf", f"Chromium failed to print the PDF (exit {proc.returncode}): {proc.stderr.strip()[-500:]}")
+        write_atomic(pdf_path, printed.read_bytes())
     return pdf_path
 
 

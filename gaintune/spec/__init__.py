@@ -329,12 +329,12 @@ def load_spec(source: str | Path | dict[str, Any]) -> TuningSpec:
         text: str
         path = Path(source) if not (isinstance(source, str) and "\n" in source) else None
         if path is not None and path.suffix.lower() in (".yaml", ".yml", ".json") :
-            try:
-                text = path.read_text()
-            except OSError as exc:
-                raise SpecError("spec", f"cannot read {path}: {exc.strerror}") from None
-            except UnicodeDecodeError as exc:
-                raise SpecError("spec", f"cannot read {path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+            from gaintune.files import read_text_bounded
+
+            try:  # a regular file up to 10 MB only: /dev/zero or a FIFO is refused before anything is read
+                text = read_text_bounded(path, "spec")
+            except SpecError as exc:
+                raise SpecError("spec", f"cannot read the spec file: {exc.message}") from None
         else:
             text = str(source)
         try:

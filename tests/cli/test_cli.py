@@ -159,8 +159,9 @@ def test_export_formats(result_file: Path, tmp_path: Path, fmt: str) -> None:
     assert res.exit_code == 0 and out.exists()
 
 
-def test_export_refuses_failed_gains_unless_forced(good_result: TuneResult, tmp_path: Path) -> None:
-    bad = good_result.model_copy(update={"verification": good_result.verification.model_copy(update={"verdict": "fail"})})
+def test_export_refuses_failed_gains_unless_forced(tmp_path: Path) -> None:
+    bad = result_from_gains(load_spec(load_model("lag_n").example_spec()), TOO_HOT, algo="ppo")
+    assert bad.verdict == "fail"
     p = tmp_path / "bad.json"
     p.write_text(bad.model_dump_json())
     res = run("export", str(p), "--format", "c")

@@ -52,8 +52,10 @@ def test_unwritable_output_file_exits_2_naming_output(result_file: Path, tmp_pat
     blocker.write_text("")
     target = blocker / "x.out"  # a file where a folder should be
     _exit_2(runner.invoke(cli.app, [command, str(result_file), "-o", str(target)]), "output:", "cannot write")
-    if Path("/dev/full").exists():  # a full disk
-        _exit_2(runner.invoke(cli.app, [command, str(result_file), "-o", "/dev/full"]), "output:", "No space left")
+    if Path("/dev/full").exists():  # a device (through a link, so a regression cannot rename over /dev/full)
+        device = tmp_path / "full"
+        device.symlink_to("/dev/full")
+        _exit_2(runner.invoke(cli.app, [command, str(result_file), "-o", str(device)]), "output:", "not a regular file")
 
 
 def test_deeply_nested_gains_or_spec_file_exits_2_not_recursion_error(tmp_path: Path) -> None:

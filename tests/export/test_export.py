@@ -311,12 +311,13 @@ def test_export_allow_unverified_marks_failed_at_new_dt(flip_file, tmp_path) -> 
     assert "--allow-unverified" in helptext and "--force" not in helptext
 
 
-def test_export_at_the_verified_dt_keeps_the_stored_pass(flip_file) -> None:
+def test_export_at_the_verified_dt_verifies_again_and_passes(flip_file) -> None:
+    """The stored verdict is never the authority: the gains are verified again at the verified dt too."""
     res = _cli("export", str(flip_file), "--format", "c")
     assert res.exit_code == 0, res.output
     assert "#define GT_DT 0.001\n" in res.stdout and "#define GT_VERIFIED 1\n" in res.stdout
     assert "#define GT_VERIFIED_DT 0.001 " in res.stdout and "verification: PASS at dt = 0.001 s" in res.stdout
-    assert "re-verified" not in res.stderr
+    assert "re-verified at dt = 0.001 s: PASS" in res.stderr
 
 
 def test_export_at_finer_dt_reverifies_and_passes(flip_file) -> None:
