@@ -39,27 +39,18 @@ def _print_summary(result, console: Console = out) -> None:
     t.add_column("loop")
     t.add_column("gain")
     t.add_column("value", justify="right")
+    t.add_column("the loop in the other PID form")
+    forms = _pid_forms(result)
     for loop, g in result.gains.items():
-        for k, v in g.items():
-            t.add_row(loop, k, _f(v, 6))
+        other = _other_form(forms.get(loop), g)
+        for i, (k, v) in enumerate(g.items()):
+            t.add_row(loop, k, _f(v, 6), other if i == 0 else "")
     console.print(t)
     rep = result.verification
     if rep is not None:
-        m = Table(title="Margins per loop (nominal)")
-        for c in ("loop", "break", "GM dB", "PM deg", "wc rad/s", "DM s", "Ms", "Mt"):
-            m.add_column(c, justify="left" if c in ("loop", "break") else "right")
-        for f in rep.loops:
-            m.add_row(f.loop, "ctrl" if f.break_point == "controller_output" else "u", _f(f.gm_db, 3), _f(f.pm_deg, 3),
-                      _f(f.pm_freq, 3), _f(f.delay_margin, 3), _f(f.ms, 3), _f(f.mt, 3))
-        console.print(m)
-        if rep.requirements:
-            q = Table(title="Requirements")
-            for c in ("requirement", "value", "limit", "result", "at"):
-                q.add_column(c)
-            for r in rep.requirements:
-                q.add_row(r.requirement, _f(r.value), _f(r.limit), "[green]pass[/]" if r.passed else "[red]FAIL[/]",
-                          f"{r.loop}/{r.break_point}/{r.case}" if r.loop else r.case)
-            console.print(q)
+        _print_margins(rep, console)
+    if result.baselines:
+        _print_baselines(result, console)
     if result.metrics:
         keys = ("iae", "overshoot", "rise_time", "settling_time", "sse", "peak_u")
         mt = Table(title="Metrics (nominal plant)")
@@ -83,6 +74,73 @@ def _print_summary(result, console: Console = out) -> None:
         console.print(result.diagnosis.summary, markup=False)
         for h in result.diagnosis.hints:
             console.print(f"  hint: {h}", markup=False)
+
+
+def _pid_forms(result) -> dict[str, str]:
+    """Loop name -> PID form ("parallel" or "ideal") of the result's spec; LQ loops left out."""
+    loops = (result.spec or {}).get("loops") or []
+    return {lp.get("name") or f"loop{i}": lp.get("form", "parallel") for i, lp in enumerate(loops)
+            if lp.get("type", "pid") in ("p", "pi", "pd", "pid")}
+
+
+def _other_form(form: str | None, gains: dict[str, float]) -> str:
+    from gaintune.controllers.forms import equivalent
+
+    if form is None:
+        return ""
+    alt = {k: v for k, v in equivalent(form, gains).items() if k not in gains}
+    return ", ".join(f"{k} {_f(v, 4)}" + (" s" if k in ("Ti", "Td") else "") for k, v in alt.items())
+
+
+def _print_margins(rep, console: Console) -> None:
+    """Margins per loop and the requirement lines; an unstable loop's are 'not applicable', never pass."""
+    from rich.table import Table
+
+    from gaintune.verify.report import NOT_APPLICABLE
+
+    m = Table(title="Margins per loop (nominal)")
+    for c in ("loop", "break", "GM dB", "PM deg", "wc rad/s", "DM s", "Ms", "Mt"):
+        m.add_column(c, justify="left" if c in ("loop", "break") else "right")
+    if not rep.stability.stable:
+        m.add_row("(all)", "", NOT_APPLICABLE, "", "", "", "", "")
+    for f in rep.loops if rep.stability.stable else []:
+        m.add_row(f.loop, "ctrl" if f.break_point == "controller_output" else "u", _f(f.gm_db, 3), _f(f.pm_deg, 3),
+                  _f(f.pm_freq, 3), _f(f.delay_margin, 3), _f(f.ms, 3), _f(f.mt, 3))
+    console.print(m)
+    if rep.requirements:
+        q = Table(title="Requirements")
+        for c in ("requirement", "value", "limit", "result", "at"):
+            q.add_column(c)
+        for r in rep.requirements:
+            status = {"pass": "[green]pass[/]", "fail": "[red]FAIL[/]", "n/a": NOT_APPLICABLE}[r.status]
+            value = "-" if r.status == "n/a" else _f(r.value)
+            q.add_row(r.requirement, value, _f(r.limit), status, f"{r.loop}/{r.break_point}/{r.case}" if r.loop else r.case)
+        console.print(q)
+
+
+def _print_baselines(result, console: Console) -> None:
+    """The baselines of ``tune --baselines`` beside this result: gains, cost, simulations, feasibility."""
+    from rich.table import Table
+
+    b = Table(title="Baselines (same cost and requirements estimate as the search)")
+    for c in ("method", "gains", "cost", "vs this", "sims", "feasible", "note"):
+        b.add_column(c, justify="right" if c in ("cost", "vs this", "sims") else "left")
+    b.add_row(f"gaintune ({result.algo})", _gains_line(result.gains), _f(result.cost), "1", _f(result.sims),
+              "yes" if result.verdict == "pass" else "-", "this result")
+    for row in result.baselines:
+        cost = row.get("cost")
+        ratio = _f(cost / result.cost, 4) if cost is not None and result.cost and result.cost > 0 else "-"
+        feasible = {True: "yes", False: "no", None: "-"}[row.get("feasible")]
+        b.add_row(str(row.get("method", "?")), _gains_line(row.get("gains")), _f(cost), ratio, _f(row.get("n_sims")),
+                  feasible, row.get("reason") or "")
+    console.print(b)
+
+
+def _gains_line(gains: dict[str, dict[str, float]] | None) -> str:
+    if not gains:
+        return "-"
+    return "; ".join(", ".join(f"{k} {_f(v, 4)}" for k, v in g.items()) if len(gains) == 1 else
+                     f"{loop}: " + ", ".join(f"{k} {_f(v, 4)}" for k, v in g.items()) for loop, g in gains.items())
 
 
 def _write_outputs(result, out_dir: Path, console: Console = out) -> None:
@@ -202,10 +260,11 @@ def _print_plants() -> None:
     from gaintune.plants.library import list_models, load_model
 
     t = Table(title="Built-in plant models (use in a spec as plant: {model: NAME})")
-    t.add_column("name", style="bold")
-    t.add_column("title")
-    t.add_column("parameters")
-    t.add_column("outputs")
+    # the name is what a spec needs: never truncated or wrapped; the other columns wrap instead
+    t.add_column("name", style="bold", no_wrap=True, overflow="fold", min_width=max(len(n) for n in list_models()))
+    t.add_column("title", ratio=3, overflow="fold")
+    t.add_column("parameters", ratio=2, overflow="fold")
+    t.add_column("outputs", ratio=2, overflow="fold")
     for name in list_models():
         m = load_model(name)
         t.add_row(name, m.title, ", ".join(m.parameters), ", ".join(m.outputs))

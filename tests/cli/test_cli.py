@@ -335,3 +335,30 @@ def test_export_and_report_of_gains_edited_in_result_json_reverify_not_stamp_pas
     assert res.exit_code == 0, res.output
     html = (tmp_path / "r.html").read_text()
     assert 'class="verdict fail">FAILED<' in html and "verification was for other gains" in html
+
+
+def test_tune_baselines_prints_a_baselines_table(spec_file: Path, monkeypatch, good_result) -> None:
+    """--baselines ran the rules but printed no table in the terminal."""
+    with_baselines = good_result.model_copy(update={"baselines": [
+        {"method": "simc", "gains": {"main": {"Kp": 0.5, "Ki": 0.3, "Kd": 0.1}}, "cost": 2 * good_result.cost,
+         "feasible": True, "n_sims": 1, "reason": None},
+        {"method": "zn_step", "gains": None, "cost": None, "feasible": None, "n_sims": 0, "reason": "no rule"}]})
+    monkeypatch.setattr(cli, "_get_tune", lambda: (lambda spec, **kw: with_baselines))
+    res = run("tune", str(spec_file), "--baselines")
+    assert res.exit_code == 0, res.output
+    assert "Baselines" in res.output and "simc" in res.output and "zn_step" in res.output and "no rule" in res.output
+    assert " 2 " in res.output  # simc's cost is twice this result's
+
+
+def test_tune_summary_shows_the_ideal_form(spec_file: Path, fake_tune) -> None:
+    res = run("tune", str(spec_file))
+    assert res.exit_code == 0, res.output
+    assert "Ti " in res.output and "Td " in res.output
+
+
+def test_plants_listing_never_truncates_a_name(monkeypatch) -> None:
+    """`gaintune plants` cut 'mass_spring_damper' to 'mass_spring_damp…' at 80 columns."""
+    monkeypatch.setenv("COLUMNS", "80")
+    res = run("plants")
+    assert res.exit_code == 0
+    assert "mass_spring_damper" in res.output and "…" not in res.output
