@@ -19,7 +19,9 @@ __version__ = "0.1.0"
 _EXPORTS = {
     "load_spec": "gaintune.spec",
     "TuningSpec": "gaintune.spec",
-    "tune": "gaintune.search",  # the package resolves it to the function (gaintune.search.__getattr__)
+    # the module that defines the function: once anything imported gaintune.search.tune, the package
+    # attribute gaintune.search.tune is that module, so the package cannot be asked
+    "tune": "gaintune.search.tune",
     "TuneResult": "gaintune.search.result",
     "verify": "gaintune.verify",  # the package is callable: it calls gaintune.verify.core.verify
     "VerificationReport": "gaintune.verify.report",
