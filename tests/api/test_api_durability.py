@@ -252,11 +252,23 @@ def test_supervisor_kills_worker_only_if_it_still_holds_the_job(tmp_path):
 # ------------------------------------------------------------------ defect 9: a frozen writer holds the lock
 
 
+class CountPosts:
+    """The app, counting the POST requests it has received (to know that writes are queued, not to time them)."""
+
+    def __init__(self, app) -> None:
+        self.app, self.state, self.posts = app, app.state, 0
+
+    async def __call__(self, scope, receive, send) -> None:
+        if scope["type"] == "http" and scope["method"] == "POST":
+            self.posts += 1
+        await self.app(scope, receive, send)
+
+
 @pytest.fixture
 def locked_app(tmp_path):
-    """(client, holder): an in-process app whose database write lock is held by a frozen process."""
+    """(client, holder, job): an in-process app whose database write lock is held by a frozen process."""
     app = create_app(settings_for(tmp_path))
-    with TestClient(app, raise_server_exceptions=False) as c:
+    with TestClient(CountPosts(app), raise_server_exceptions=False) as c:
         job = c.post("/v1/tune", json=SPEC).json()["id"]
         holder = LockHolder(app.state.settings.db_path)
         try:
@@ -283,9 +295,10 @@ def test_reads_do_not_queue_behind_a_locked_writer(locked_app):
     a GET is asked: the GET is answered, with the lock still held and writes still being refused."""
     c, holder, job = locked_app
     n = 60
+    before = c.app.posts
     with ThreadPoolExecutor(n) as pool:
         writes = [pool.submit(c.post, "/v1/tune", json=SPEC) for _ in range(n)]
-        wait_until(lambda: any(w.done() for w in writes), what="the first write to be answered")
+        wait_until(lambda: c.app.posts - before == n, what="every write to reach the server")
         got: dict = {}
         reader = threading.Thread(target=lambda: got.setdefault("r", c.get(f"/v1/jobs/{job}")), daemon=True)
         reader.start()
