@@ -200,16 +200,20 @@ class JobStore:
     def _tx(self, point: str | None = None) -> "_Tx":
         return _Tx(self._conn(), self.faults if point else None, point)
 
-    @_db(write=True)
     def init(self) -> None:
-        """Create the file, schema and WAL mode; add columns newer than the file."""
+        """Create the folder, file, schema and WAL mode; add columns newer than the file."""
         try:
+            self.faults.check("database", self.path)
             self.path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
+        except (OSError, sqlite3.Error) as exc:
             fault = classify(exc, "database")
             if fault is None:
                 raise
             raise fault from exc
+        self._init_schema()
+
+    @_db(write=True)
+    def _init_schema(self) -> None:
         conn = self._conn()
         conn.execute("PRAGMA journal_mode=WAL")
         conn.executescript(_SCHEMA)

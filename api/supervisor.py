@@ -347,6 +347,7 @@ class Supervisor:
             if p is not None and not p.is_alive():
                 log.warning("worker %d (pid %s) exited with %s; restarting", i, p.pid, p.exitcode)
                 p.join(0)
+                self.holding.pop(p.pid, None)
                 self.restarts += 1
                 self._spawn(i)
 
