@@ -20,7 +20,7 @@ A running job whose cancel was accepted ends ``cancelled`` whatever its attempt
 writes: :meth:`JobStore.finish` reads the flag in the transaction that writes the
 final state.
 
-Writes are bounded: each takes at most ``write_timeout`` seconds (2 s), waiting
+Writes are bounded: each takes at most ``write_timeout`` seconds (1.5 s), waiting
 included, and while another process holds the write lock they are refused at once
 (:class:`gaintune_api.writegate.WriteGate`). Reads (WAL mode) never wait for a writer.
 Storage errors (read-only or full database, I/O errors, a lock held elsewhere) leave
@@ -178,7 +178,7 @@ class JobStore:
         write lock) before it is refused with StorageFault ``database-locked``.
     """
 
-    def __init__(self, path: str | Path, faults: FaultInjector | None = None, write_timeout: float = 2.0) -> None:
+    def __init__(self, path: str | Path, faults: FaultInjector | None = None, write_timeout: float = 1.5) -> None:
         self.path = Path(path)
         self.faults = faults or FaultInjector(None)
         self.gate = WriteGate(write_timeout)

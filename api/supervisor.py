@@ -277,11 +277,16 @@ class Supervisor:
             _until(lambda: not pid_alive(pid), 5.0)
         self._lock_seen = None
         if job is not None:
-            try:
-                self._recover([job.id], f"its lease expired while its worker (pid {pid}) held the database write "
-                                        "lock; the worker was killed")
-            except StorageFault:  # the lock is not free yet: the next pass finds the worker dead
-                pass
+            reason = f"its lease expired while its worker (pid {pid}) held the database write lock; the worker was killed"
+            end = time.monotonic() + self.store.gate.timeout
+            while True:  # other writes of this server may be trying the freed lock too: take a turn
+                try:
+                    self._recover([job.id], reason)
+                    break
+                except StorageFault:
+                    if time.monotonic() > end:  # the next pass finds the worker dead and recovers the job
+                        break
+                    time.sleep(0.05)
         return True
 
     def recover(self, reason: str) -> list[str]:

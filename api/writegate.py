@@ -44,7 +44,7 @@ class WriteGate:
         Most writes queued behind the one in progress; more are refused at once.
     """
 
-    def __init__(self, timeout: float = 2.0, stuck: float = 0.5, max_waiting: int = 16) -> None:
+    def __init__(self, timeout: float = 1.5, stuck: float = 0.5, max_waiting: int = 16) -> None:
         self.timeout = timeout
         self.stuck = stuck
         self.max_waiting = max_waiting

@@ -365,6 +365,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--phases", default=",".join(PHASES), help=f"comma-separated subset of {', '.join(PHASES)}")
     ap.add_argument("--writers", type=int_range(1, 1000), default=40,
                     help="lock phase: POSTs kept in flight while the write lock is held")
+    ap.add_argument("--write", choices=("delete", "post"), default="delete",
+                    help="lock phase: the queued writes (delete: cancel a queued job; post: submit a job, whose "
+                    "validation costs CPU)")
+    ap.add_argument("--write-pause", type=float_range(0.0, 60.0, lo_open=False), default=0.25,
+                    help="lock phase: seconds each writer waits after an answer (0: back to back)")
     ap.add_argument("--lease", type=float_range(1.0, 600.0), default=8.0,
                     help="lock and diskfull phases: heartbeat_timeout (s) of their servers")
     ap.add_argument("--json", action="store_true")
@@ -388,7 +393,7 @@ def main(argv: list[str] | None = None) -> int:
     if "storage" in phases:
         out["storage"], out["connections"] = storage_and_connections(root / "storage", args.budget, say)
     if "lock" in phases:
-        out["lock"] = lock(root / "lock", args.writers, args.lease, args.budget, say)
+        out["lock"] = lock(root / "lock", args.writers, args.write, args.write_pause, args.lease, args.budget, say)
     if "diskfull" in phases:
         out["diskfull"] = diskfull(root / "diskfull", max(1, args.rounds), args.lease, args.budget, say)
     out["seconds"] = round(time.monotonic() - t0, 1)

@@ -2,8 +2,9 @@
 job's finish. Used by :mod:`gaintune.bench.chaos` (``--phases lock,diskfull``); real servers over HTTP only.
 
 * lock: a process named like a worker claims a queued job, opens a write transaction (``BEGIN IMMEDIATE``) and
-  stops itself (SIGSTOP). While it holds the lock, writer threads keep POSTs queued and a reader times
-  ``GET /v1/jobs/{id}``. Measured: GET p50/p95/max, how long a write takes to be refused (and with what),
+  stops itself (SIGSTOP). While it holds the lock, ``--writers`` threads keep writes coming (each cancels a
+  queued job, or with ``--write post`` submits one; ``--write-pause`` s between a writer's answer and its next
+  write) and a reader times ``GET /v1/jobs/{id}``. Measured: GET p50/p95/max, how long a write takes to be refused (and with what),
   and when the supervisor kills the frozen holder, compared with the end of its lease. A job whose supervised
   worker was merely blocked must go on (attempt 1).
 * diskfull: two jobs end their search while every finishing COMMIT fails with SQLITE_FULL (the tests-only
@@ -62,17 +63,22 @@ def _pct(xs: list[float], q: float) -> float:
     return statistics.quantiles(xs, n=100, method="inclusive")[int(q) - 1]
 
 
-def _hammer(srv: Server, writers: int, stop: threading.Event, out: list) -> list[threading.Thread]:
-    """``writers`` threads, each keeping one POST /v1/tune in flight until ``stop``: (seconds, status, cause)."""
+def _hammer(srv: Server, writers: int, pause: float, queued: str | None, stop: threading.Event,
+            out: list) -> list[threading.Thread]:
+    """``writers`` threads, each keeping one write in flight until ``stop``: (seconds, status, cause, Retry-After,
+    end time). The write cancels job ``queued`` (a write transaction and little else), or with ``queued`` None
+    submits a job (``POST /v1/tune``: the spec is fully validated first, milliseconds of CPU per request).
+    Each writer waits ``pause`` seconds after an answer before its next write (0: back to back)."""
     import httpx
 
     def run(i: int) -> None:
         with httpx.Client(base_url=srv.url, timeout=120) as c:
             while not stop.is_set():
                 t0 = time.perf_counter()
-                r = c.post("/v1/tune", json=job_spec(500 + i, 50))
+                r = c.delete(f"/v1/jobs/{queued}") if queued else c.post("/v1/tune", json=job_spec(500 + i, 50))
                 cause = r.json().get("cause") if r.status_code >= 500 else None
                 out.append((time.perf_counter() - t0, r.status_code, cause, r.headers.get("retry-after"), time.time()))
+                stop.wait(pause)
 
     ths = [threading.Thread(target=run, args=(i,), daemon=True) for i in range(writers)]
     for t in ths:
@@ -80,7 +86,7 @@ def _hammer(srv: Server, writers: int, stop: threading.Event, out: list) -> list
     return ths
 
 
-def lock(root: Path, writers: int, lease: float, budget: int, log: Callable) -> dict:
+def lock(root: Path, writers: int, write: str, pause: float, lease: float, budget: int, log: Callable) -> dict:
     """Freeze a lock-holding 'worker'; time reads and refused writes; see when its lease is enforced."""
     import subprocess
 
@@ -94,16 +100,20 @@ def lock(root: Path, writers: int, lease: float, budget: int, log: Callable) -> 
         busy = srv.submit(job_spec(400, budget))  # the supervised worker's job: blocked by the lock, not frozen
         _wait(lambda: srv.job(busy)["progress"], 300, "the supervised worker's job to run")
         victim = srv.submit(job_spec(401, budget))
+        target = srv.submit(job_spec(499, 50)) if write == "delete" else None  # never cancelled while locked
         holder = subprocess.Popen([sys.executable, "-c", _HOLDER, str(srv.db), victim], stdout=subprocess.PIPE,
                                   text=True)
         claimed_at = float(holder.stdout.readline())
         _wait(lambda: _proc_state(holder.pid) in ("T", "t"), 30, "the lock holder to freeze", 0.01)
         lease_end = claimed_at + lease
         stop, writes, reads = threading.Event(), [], []
-        ths = _hammer(srv, writers, stop, writes)
+        ths = _hammer(srv, writers, pause, target, stop, writes)
         time.sleep(0.5)  # let the writers fill the queue before the first timed read
+        reads_from = time.time()
+        last_locked = time.time()
         with httpx.Client(base_url=srv.url, timeout=120) as c:
             while _proc_state(holder.pid) in ("T", "t"):
+                last_locked = time.time()
                 t0 = time.perf_counter()
                 r = c.get(f"/v1/jobs/{busy}")
                 dt = time.perf_counter() - t0
@@ -113,6 +123,7 @@ def lock(root: Path, writers: int, lease: float, budget: int, log: Callable) -> 
                 if time.time() > lease_end + 120:
                     break
         killed_at = time.time()
+        locked_for = last_locked - reads_from
         frozen_left = _proc_state(holder.pid) in ("T", "t")
         stop.set()
         for t in ths:
@@ -126,14 +137,15 @@ def lock(root: Path, writers: int, lease: float, budget: int, log: Callable) -> 
         done = _wait(lambda: (lambda j: j if j["status"] in TERMINAL else None)(srv.job(busy)), 300,
                      "the blocked job to finish")
         restarts = _restarts(srv)
-    writes = [w for w in writes if w[4] <= killed_at]  # answered while the lock was held
+    writes = [w for w in writes if w[4] <= last_locked]  # answered while the lock was surely held
     locked_writes = [w for w in writes if w[1] != 202]
     times = [w[0] for w in locked_writes]
     out = {
-        "writers": writers, "reads_while_locked": len(reads),
+        "writers": writers, "write": write, "write_pause_s": pause, "reads_while_locked": len(reads),
         "get_ms_p50": round(1000 * _pct(reads, 50), 1), "get_ms_p95": round(1000 * _pct(reads, 95), 1),
         "get_ms_max": round(1000 * max(reads or [float("nan")]), 1),
         "writes_refused": len(locked_writes), "writes_accepted_while_locked": len(writes) - len(locked_writes),
+        "writes_per_s": round(sum(reads_from <= w[4] for w in writes) / max(1e-9, locked_for), 1),
         "refusal_s_p50": round(_pct(times, 50), 3), "refusal_s_p95": round(_pct(times, 95), 3),
         "refusal_s_max": round(max(times or [float("nan")]), 3),
         "refusal_statuses": sorted({(w[1], w[2]) for w in locked_writes}, key=str),
