@@ -86,6 +86,40 @@ def _hammer(srv: Server, writers: int, pause: float, queued: str | None, stop: t
     return ths
 
 
+def _time_reads(srv: Server, job: str, holder: int, give_up: float, reads: list[float]) -> float:
+    """Time ``GET /v1/jobs/{job}`` while process ``holder`` is stopped; returns the last time it was seen stopped."""
+    import httpx
+
+    last_locked = time.time()
+    with httpx.Client(base_url=srv.url, timeout=120) as c:
+        while _proc_state(holder) in ("T", "t") and time.time() < give_up:
+            last_locked = time.time()
+            t0 = time.perf_counter()
+            r = c.get(f"/v1/jobs/{job}")
+            dt = time.perf_counter() - t0
+            if _proc_state(holder) in ("T", "t") and r.status_code == 200:  # answered while locked
+                reads.append(dt)
+            time.sleep(0.02)
+    return last_locked
+
+
+def _timings(reads: list[float], writes: list[tuple], since: float, until: float) -> dict:
+    """GET latencies and write refusals answered while the lock was held (reads timed from ``since``)."""
+    writes = [w for w in writes if w[4] <= until]
+    refused = [w for w in writes if w[1] >= 500]
+    times = [w[0] for w in refused]
+    return {
+        "reads_while_locked": len(reads), "get_ms_p50": round(1000 * _pct(reads, 50), 1),
+        "get_ms_p95": round(1000 * _pct(reads, 95), 1), "get_ms_max": round(1000 * max(reads or [float("nan")]), 1),
+        "writes_refused": len(refused), "writes_accepted_while_locked": len(writes) - len(refused),
+        "writes_per_s": round(sum(w[4] >= since for w in writes) / max(1e-9, until - since), 1),
+        "refusal_s_p50": round(_pct(times, 50), 3), "refusal_s_p95": round(_pct(times, 95), 3),
+        "refusal_s_max": round(max(times or [float("nan")]), 3),
+        "refusal_statuses": sorted({(w[1], w[2]) for w in refused}, key=str),
+        "refusals_without_retry_after": sum(1 for w in refused if not w[3]),
+    }
+
+
 def lock(root: Path, writers: int, write: str, pause: float, lease: float, budget: int, log: Callable) -> dict:
     """Freeze a lock-holding 'worker'; time reads and refused writes; see when its lease is enforced."""
     import subprocess
@@ -110,20 +144,8 @@ def lock(root: Path, writers: int, write: str, pause: float, lease: float, budge
         ths = _hammer(srv, writers, pause, target, stop, writes)
         time.sleep(0.5)  # let the writers fill the queue before the first timed read
         reads_from = time.time()
-        last_locked = time.time()
-        with httpx.Client(base_url=srv.url, timeout=120) as c:
-            while _proc_state(holder.pid) in ("T", "t"):
-                last_locked = time.time()
-                t0 = time.perf_counter()
-                r = c.get(f"/v1/jobs/{busy}")
-                dt = time.perf_counter() - t0
-                if _proc_state(holder.pid) in ("T", "t") and r.status_code == 200:  # answered while locked
-                    reads.append(dt)
-                time.sleep(0.02)
-                if time.time() > lease_end + 120:
-                    break
+        last_locked = _time_reads(srv, busy, holder.pid, lease_end + 120, reads)
         killed_at = time.time()
-        locked_for = last_locked - reads_from
         frozen_left = _proc_state(holder.pid) in ("T", "t")
         stop.set()
         for t in ths:
@@ -137,25 +159,13 @@ def lock(root: Path, writers: int, write: str, pause: float, lease: float, budge
         done = _wait(lambda: (lambda j: j if j["status"] in TERMINAL else None)(srv.job(busy)), 300,
                      "the blocked job to finish")
         restarts = _restarts(srv)
-    writes = [w for w in writes if w[4] <= last_locked]  # answered while the lock was surely held
-    locked_writes = [w for w in writes if w[1] != 202]
-    times = [w[0] for w in locked_writes]
-    out = {
-        "writers": writers, "write": write, "write_pause_s": pause, "reads_while_locked": len(reads),
-        "get_ms_p50": round(1000 * _pct(reads, 50), 1), "get_ms_p95": round(1000 * _pct(reads, 95), 1),
-        "get_ms_max": round(1000 * max(reads or [float("nan")]), 1),
-        "writes_refused": len(locked_writes), "writes_accepted_while_locked": len(writes) - len(locked_writes),
-        "writes_per_s": round(sum(reads_from <= w[4] for w in writes) / max(1e-9, locked_for), 1),
-        "refusal_s_p50": round(_pct(times, 50), 3), "refusal_s_p95": round(_pct(times, 95), 3),
-        "refusal_s_max": round(max(times or [float("nan")]), 3),
-        "refusal_statuses": sorted({(w[1], w[2]) for w in locked_writes}, key=str),
-        "refusals_without_retry_after": sum(1 for w in locked_writes if not w[3]),
-        "lease_s": lease, "holder_killed_s_after_lease_end": round(killed_at - lease_end, 2),
+    out = {"writers": writers, "write": write, "write_pause_s": pause,
+           **_timings(reads, writes, reads_from, last_locked),
+           "lease_s": lease, "holder_killed_s_after_lease_end": round(killed_at - lease_end, 2),
         "holder_never_killed": int(frozen_left), "holder_job_after": f"{recovered['status']}: {recovered['error']}",
         "blocked_job_status_during": still["status"], "blocked_job_attempts": done["attempts"],
-        "blocked_job_final": done["status"], "worker_restarts": restarts,
-    }
-    log(f"  lock: GET p95 {out['get_ms_p95']} ms over {len(reads)} reads; {len(locked_writes)} writes refused, "
+        "blocked_job_final": done["status"], "worker_restarts": restarts}
+    log(f"  lock: GET p95 {out['get_ms_p95']} ms over {len(reads)} reads; {out['writes_refused']} writes refused, "
         f"p95 {out['refusal_s_p95']} s; holder killed {out['holder_killed_s_after_lease_end']} s after its lease")
     return out
 
