@@ -383,3 +383,12 @@ def test_cancel_accepted_before_finish_ends_cancelled(tmp_path):
         assert "finished before it saw the request" in j["error"]
         assert j["result"]["accepted_gains"] == GOOD and j["result"]["agent_available"]
         assert c.delete(f"/v1/jobs/{job_id}").status_code == 409
+
+
+def test_chaos_bench_unknown_phase_exits_2_naming_the_option(capsys):
+    from gaintune.bench.chaos import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--phases", "lock,nope"])
+    assert exc.value.code == 2
+    assert "error: --phases: unknown phase 'nope'" in capsys.readouterr().err
