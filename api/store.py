@@ -12,8 +12,19 @@ whose files are ever renamed into place. A job recovered (re-queued or failed)
 after its worker was presumed dead can never be overwritten by that worker, in
 the database or on disk, whatever process or machine the worker runs on.
 
-Storage errors (read-only or full database, I/O errors) leave this module as
-:class:`gaintune_api.storage.StorageFault`, naming the cause.
+A failed COMMIT of that transaction (the disk filled up) leaves the renamed files
+in place and the row ``running``; the worker retries with the same promotion,
+which must then be idempotent (the worker caches its manifest).
+
+A running job whose cancel was accepted ends ``cancelled`` whatever its attempt
+writes: :meth:`JobStore.finish` reads the flag in the transaction that writes the
+final state.
+
+Writes are bounded: each takes at most ``write_timeout`` seconds (1.5 s), waiting
+included, and while another process holds the write lock they are refused at once
+(:class:`gaintune_api.writegate.WriteGate`). Reads (WAL mode) never wait for a writer.
+Storage errors (read-only or full database, I/O errors, a lock held elsewhere) leave
+this module as :class:`gaintune_api.storage.StorageFault`, naming the cause.
 """
 
 from __future__ import annotations
@@ -30,8 +41,10 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, TypeVar
 
 from gaintune_api.storage import FaultInjector, classify
+from gaintune_api.writegate import WriteGate
 
-__all__ = ["JobRow", "JobStore", "QueueFull", "IdempotencyConflict", "STATUSES", "TERMINAL", "dumps", "loads"]
+__all__ = ["JobRow", "JobStore", "QueueFull", "IdempotencyConflict", "STATUSES", "TERMINAL", "dumps", "loads",
+           "claim_tag"]
 
 STATUSES = ("queued", "running", "succeeded", "failed", "cancelled")
 TERMINAL = ("succeeded", "failed", "cancelled")
@@ -76,6 +89,12 @@ def loads(text: str | None) -> Any:
     return None if text is None else json.loads(text)
 
 
+def claim_tag(claim: str | None) -> int:
+    """A claim token as a positive 60-bit integer (0: none): what a worker publishes in shared memory
+    as the attempt it holds, so the supervisor can check it before killing the worker for a lease."""
+    return int(claim[:15], 16) if claim else 0
+
+
 class QueueFull(Exception):
     """The queue holds ``max_queue`` jobs already."""
 
@@ -118,15 +137,22 @@ _F = TypeVar("_F", bound=Callable[..., Any])
 
 
 def _db(write: bool) -> Callable[[_F], _F]:
-    """Run a store method with storage errors named (StorageFault); ``write``: apply injected write faults first."""
+    """Run a store method with storage errors named (StorageFault).
+
+    ``write``: through the write gate (bounded wait, SQLite busy timeout set to the time left),
+    injected write faults applied first.
+    """
 
     def deco(fn: _F) -> _F:
         @wraps(fn)
         def wrapper(self: "JobStore", *args: Any, **kw: Any) -> Any:
             try:
-                if write:
+                if not write:
+                    return fn(self, *args, **kw)
+                with self.gate.enter() as left:
                     self.faults.check("database", self.path)
-                return fn(self, *args, **kw)
+                    self._conn().execute(f"PRAGMA busy_timeout={max(1, int(left * 1000))}")
+                    return fn(self, *args, **kw)
             except sqlite3.Error as exc:
                 fault = classify(exc, "database")
                 if fault is None:
@@ -147,38 +173,47 @@ class JobStore:
         The SQLite file.
     faults
         Tests only: injected storage faults (see :class:`gaintune_api.storage.FaultInjector`).
+    write_timeout
+        Most seconds a write may wait (for this process's other writes and for the database's
+        write lock) before it is refused with StorageFault ``database-locked``.
     """
 
-    def __init__(self, path: str | Path, faults: FaultInjector | None = None) -> None:
+    def __init__(self, path: str | Path, faults: FaultInjector | None = None, write_timeout: float = 1.5) -> None:
         self.path = Path(path)
         self.faults = faults or FaultInjector(None)
+        self.gate = WriteGate(write_timeout)
         self._local = threading.local()
 
     # ------------------------------------------------------------ plumbing
     def _conn(self) -> sqlite3.Connection:
         conn = getattr(self._local, "conn", None)
         if conn is None or getattr(self._local, "pid", None) != os.getpid():
-            conn = sqlite3.connect(self.path, timeout=30.0, isolation_level=None, check_same_thread=False)
+            timeout = self.gate.timeout
+            conn = sqlite3.connect(self.path, timeout=timeout, isolation_level=None, check_same_thread=False)
             conn.row_factory = sqlite3.Row
-            conn.execute("PRAGMA busy_timeout=30000")
+            conn.execute(f"PRAGMA busy_timeout={int(timeout * 1000)}")
             conn.execute("PRAGMA synchronous=FULL")
             self._local.conn = conn
             self._local.pid = os.getpid()
         return conn
 
-    def _tx(self):
-        return _Tx(self._conn())
+    def _tx(self, point: str | None = None) -> "_Tx":
+        return _Tx(self._conn(), self.faults if point else None, point)
 
-    @_db(write=True)
     def init(self) -> None:
-        """Create the file, schema and WAL mode; add columns newer than the file."""
+        """Create the folder, file, schema and WAL mode; add columns newer than the file."""
         try:
+            self.faults.check("database", self.path)
             self.path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
+        except (OSError, sqlite3.Error) as exc:
             fault = classify(exc, "database")
             if fault is None:
                 raise
             raise fault from exc
+        self._init_schema()
+
+    @_db(write=True)
+    def _init_schema(self) -> None:
         conn = self._conn()
         conn.execute("PRAGMA journal_mode=WAL")
         conn.executescript(_SCHEMA)
@@ -192,15 +227,10 @@ class JobStore:
         self._conn().execute("SELECT 1").fetchone()
 
     @_db(write=True)
-    def probe_write(self, timeout: float = 2.0) -> None:
-        """Raise StorageFault unless a one-row write commits within ``timeout`` seconds (readiness check)."""
-        conn = self._conn()
-        conn.execute(f"PRAGMA busy_timeout={int(timeout * 1000)}")
-        try:
-            with _Tx(conn) as c:
-                c.execute("INSERT OR REPLACE INTO probe (id, at) VALUES (1, ?)", (time.time(),))
-        finally:
-            conn.execute("PRAGMA busy_timeout=30000")
+    def probe_write(self) -> None:
+        """Raise StorageFault unless a one-row write commits within the write timeout (readiness check)."""
+        with self._tx() as c:
+            c.execute("INSERT OR REPLACE INTO probe (id, at) VALUES (1, ?)", (time.time(),))
 
     # -------------------------------------------------------------- create
     @_db(write=True)
@@ -270,8 +300,15 @@ class JobStore:
 
     # -------------------------------------------------------------- cancel
     @_db(write=True)
-    def request_cancel(self, job_id: str, owner: str) -> JobRow | None:
-        """Queued -> cancelled at once; running -> flagged for its worker. Terminal jobs are left alone."""
+    def request_cancel(self, job_id: str, owner: str) -> tuple[JobRow | None, bool]:
+        """Queued -> cancelled at once; running -> flagged for its worker. Terminal jobs are left alone.
+
+        Returns
+        -------
+        (job, accepted)
+            The job after the request (None: no such job for ``owner``), and whether it is now
+            cancelled or bound to end ``cancelled`` (False for a job that had already finished).
+        """
         now = time.time()
         with self._tx() as c:
             c.execute(
@@ -285,7 +322,10 @@ class JobStore:
                 (now, now, job_id, owner),
             )
             row = c.execute(f"SELECT {_COLS} FROM jobs WHERE id=? AND owner=?", (job_id, owner)).fetchone()
-        return None if row is None else JobRow.from_row(row)
+        if row is None:
+            return None, False
+        job = JobRow.from_row(row)
+        return job, job.status == "running" or (job.status == "cancelled" and job.cancel_requested_at == now)
 
     # -------------------------------------------------------------- worker
     @_db(write=True)
@@ -345,8 +385,12 @@ class JobStore:
         error: str | None = None,
         progress: dict | None = None,
         promote: Callable[[], dict | None] | None = None,
-    ) -> bool:
+    ) -> str | None:
         """Write the final state of a running job, fenced by its claim token.
+
+        A job whose cancel was accepted (``cancel_requested_at`` set) ends ``cancelled`` whatever
+        ``status`` says: a search that finished before its worker saw the flag keeps its result and
+        files, and ``error`` says so.
 
         Parameters
         ----------
@@ -359,19 +403,24 @@ class JobStore:
         promote
             Called inside the write transaction once the claim is verified; it renames the attempt's
             artefacts into place and returns their manifest (stored in ``artifacts``). If it raises,
-            nothing is written.
+            nothing is written. If the COMMIT then fails (StorageFault, e.g. the disk is full), the
+            files stay renamed: a retry must pass a promotion that is idempotent.
 
         Returns
         -------
-        bool
-            True when this call wrote the final state; False when the job is not running under ``claim``
-            (recovered, cancelled or finished by someone else): then nothing was written or promoted.
+        str or None
+            The status written; None when the job is not running under ``claim`` (recovered,
+            cancelled or finished by someone else): then nothing was written or promoted.
         """
         assert status in TERMINAL
-        with self._tx() as c:
-            row = c.execute("SELECT status, claim FROM jobs WHERE id=?", (job_id,)).fetchone()
+        with self._tx("finish") as c:
+            row = c.execute("SELECT status, claim, cancel_requested_at FROM jobs WHERE id=?", (job_id,)).fetchone()
             if row is None or row["status"] != "running" or (claim is not None and row["claim"] != claim):
-                return False
+                return None
+            if row["cancel_requested_at"] is not None and status != "cancelled":
+                why = "the search had finished before it saw the request; its result is kept" \
+                    if status == "succeeded" else f"the job was ending {status}"
+                status, error = "cancelled", f"cancelled on request ({why})" + (f"; {error}" if error else "")
             manifest = promote() if promote is not None else None
             now = time.time()
             c.execute(
@@ -380,7 +429,7 @@ class JobStore:
                 (status, now, now, None if result is None else dumps(result), error,
                  None if progress is None else dumps(progress), None if manifest is None else dumps(manifest), job_id),
             )
-        return True
+        return status
 
     # ------------------------------------------------------------ recovery
     @_db(write=True)
@@ -424,10 +473,15 @@ class JobStore:
 
 
 class _Tx:
-    """BEGIN IMMEDIATE ... COMMIT (ROLLBACK on error)."""
+    """BEGIN IMMEDIATE ... COMMIT (ROLLBACK on error, also when the COMMIT itself fails).
 
-    def __init__(self, conn: sqlite3.Connection) -> None:
+    ``faults``/``point``: tests only, a fault injected at this COMMIT (``db:full@<point>``).
+    """
+
+    def __init__(self, conn: sqlite3.Connection, faults: FaultInjector | None = None, point: str | None = None) -> None:
         self.conn = conn
+        self.faults = faults
+        self.point = point
 
     def __enter__(self) -> sqlite3.Connection:
         self.conn.execute("BEGIN IMMEDIATE")
@@ -435,8 +489,17 @@ class _Tx:
 
     def __exit__(self, et, ev, tb) -> None:
         if et is None:
-            self.conn.execute("COMMIT")
-            return
+            try:
+                if self.faults is not None and self.point:
+                    self.faults.check_commit(self.point)
+                self.conn.execute("COMMIT")
+                return
+            except BaseException:
+                self._rollback()
+                raise
+        self._rollback()
+
+    def _rollback(self) -> None:
         try:
             self.conn.execute("ROLLBACK")
         except sqlite3.Error:  # SQLite may have rolled back already (e.g. SQLITE_FULL): keep the original error

@@ -18,11 +18,15 @@ then resumed after the job was recovered) learns it at its next heartbeat, stops
 the search and discards its files; if it reaches the end first, the fenced
 commit refuses it. Storage faults never crash the worker: a job whose folder
 cannot be written fails once with the named cause; a result that cannot be
-written because the database is read-only or full is kept and retried while the
-attempt still owns the job.
+written because the database is read-only, full or locked is kept and retried
+while the attempt still owns the job. The retry is safe after a COMMIT that
+failed once the files were renamed into place: the promotion runs at most once
+and later tries reuse its manifest, so finished work is written, not recomputed.
 
 A worker started by the supervisor also beats a shared-memory *pulse* from a
-thread, so the supervisor and ``/readyz`` can tell a frozen process from a live one.
+thread, so the supervisor and ``/readyz`` can tell a frozen process from a live one,
+and publishes the claim it holds (:func:`gaintune_api.store.claim_tag`, 0 when idle),
+so the supervisor kills it for an expired lease only while it still holds that attempt.
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ from typing import Any, Callable
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.settings import Settings, warn_unknown_settings
 from gaintune_api.storage import FaultInjector, StorageFault, classify
-from gaintune_api.store import JobRow, JobStore
+from gaintune_api.store import JobRow, JobStore, claim_tag
 
 __all__ = ["worker_main", "run_job", "process_next", "PROCESS_NAME"]
 
@@ -91,6 +95,24 @@ def _error_text(exc: BaseException) -> str:
 
 def _join(a: str | None, b: str) -> str:
     return b if not a else f"{a}; {b}"
+
+
+def _once(promote: Callable[[], dict | None]) -> Callable[[], dict | None]:
+    """``promote`` run at most once; later calls return its manifest.
+
+    The store renames the files inside the finishing transaction; when that transaction's
+    COMMIT fails (a full disk), the files are in place but the row is not written. The retry
+    must find them there and commit the same manifest, not rename again (the staged files
+    are gone: ENOENT).
+    """
+    done: list[dict | None] = []
+
+    def run() -> dict | None:
+        if not done:
+            done.append(promote())
+        return done[0]
+
+    return run
 
 
 def run_job(store: JobStore, job: JobRow, settings: Settings, tune: Callable[..., Any] | None = None,
@@ -238,7 +260,7 @@ def _commit(store: JobStore, files: JobFiles, job: JobRow, staging: Path | None,
     promote = None
     if staging is not None:
         try:
-            promote = files.promoter(job.id, staging, job.attempts, claim)
+            promote = _once(files.promoter(job.id, staging, job.attempts, claim))
         except StorageFault as fault:
             status, error = ("failed" if status == "succeeded" else status), _join(
                 error, f"storage fault: the job's files could not be read back: {fault.detail}")
@@ -247,7 +269,8 @@ def _commit(store: JobStore, files: JobFiles, job: JobRow, staging: Path | None,
     delay, warned = settings.poll_interval, False
     while True:
         try:
-            ok = store.finish(job.id, claim, status, result=result, error=error, progress=progress, promote=promote)
+            written = store.finish(job.id, claim, status, result=result, error=error, progress=progress,
+                                   promote=promote)
             break
         except StorageFault as fault:
             if fault.where == "data":  # the files could not be renamed into place: finish without them
@@ -264,7 +287,7 @@ def _commit(store: JobStore, files: JobFiles, job: JobRow, staging: Path | None,
                 warned = True
             try:
                 if not store.owns(job.id, claim):
-                    ok = False
+                    written = None
                     break
             except StorageFault:
                 pass
@@ -273,14 +296,14 @@ def _commit(store: JobStore, files: JobFiles, job: JobRow, staging: Path | None,
             delay = min(2 * delay, 2.0, settings.heartbeat_timeout / 4)
     if staging is not None:
         files.discard(staging)
-    if not ok:
+    if written is None:
         log.warning("job %s: attempt %d no longer owns the job (lease expired; recovered): "
                     "its result and files were discarded", job.id, job.attempts)
         return "lost"
     if warned:
         log.info("job %s: result written after the storage fault cleared", job.id)
-    log.info("job %s %s", job.id, status)
-    return status
+    log.info("job %s %s", job.id, written)
+    return written
 
 
 def _accepts(fn: Callable[..., Any], name: str) -> bool:
@@ -321,7 +344,8 @@ def process_next(store: JobStore, settings: Settings, tune: Callable[..., Any] |
     return run_job(store, job, settings, tune, hard_exit=False)
 
 
-def worker_main(settings_data: dict[str, Any], index: int = 0, parent: int | None = None, pulse: Any = None) -> None:
+def worker_main(settings_data: dict[str, Any], index: int = 0, parent: int | None = None, pulse: Any = None,
+                holding: Any = None) -> None:
     """Worker process entry point: claim jobs until the parent dies or SIGTERM.
 
     Parameters
@@ -334,6 +358,9 @@ def worker_main(settings_data: dict[str, Any], index: int = 0, parent: int | Non
         The server's pid: the worker dies with it (None: standalone).
     pulse
         A shared ``multiprocessing.Value('d')`` the worker beats every ``heartbeat_interval`` (None: standalone).
+    holding
+        A shared ``multiprocessing.Value('q')``: the :func:`gaintune_api.store.claim_tag` of the attempt
+        this worker runs, 0 when idle (None: standalone).
     """
     if parent is not None:
         _die_with_parent(parent)
@@ -375,6 +402,8 @@ def worker_main(settings_data: dict[str, Any], index: int = 0, parent: int | Non
             time.sleep(settings.poll_interval)
             continue
         log.info("worker %d runs job %s (attempt %d)", index, job.id, job.attempts)
+        if holding is not None:
+            holding.value = claim_tag(job.claim)
         try:
             run_job(store, job, settings, tune)
         except Exception:  # noqa: BLE001 - a bug around one job must not kill the worker
@@ -383,6 +412,9 @@ def worker_main(settings_data: dict[str, Any], index: int = 0, parent: int | Non
                 store.finish(job.id, job.claim, "failed", error="internal error in the job worker (logged)")
             except Exception:  # noqa: BLE001
                 log.exception("worker %d: job %s: final state not written", index, job.id)
+        finally:
+            if holding is not None:
+                holding.value = 0
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -168,19 +168,24 @@ def get_job(job_id: str, settings: SettingsDep, store: StoreDep, owner: OwnerDep
 @router.delete(
     "/jobs/{job_id}",
     response_model=JobPublic,
-    responses={**NOT_FOUND, 202: {"description": "Cancellation requested; the running search stops within seconds."},
-               409: {"description": "The job already finished.", **_PROBLEM}},
+    responses={**NOT_FOUND, 202: {"description": "Cancellation accepted; the running job ends `cancelled` (its "
+                                            "search stops within seconds)."},
+               409: {"description": "The job already finished.", **_PROBLEM}, **STORAGE},
     summary="Cancel a job",
 )
 def cancel_job(job_id: str, response: Response, settings: SettingsDep, store: StoreDep, owner: OwnerDep) -> JobPublic:
-    """Queued jobs are cancelled at once (200); running ones are signalled (202) and stop within
-    ``cancel_grace`` seconds."""
-    before = _get(store, job_id, owner)
+    """Queued jobs are cancelled at once (200). Running ones are signalled (202) and end `cancelled`:
+    their search stops within ``cancel_grace`` seconds, and one that finished before it saw the request
+    is still recorded as `cancelled` (its result kept). One transaction decides, so a job that finished
+    first gives 409."""
+    before = _get(store, job_id, owner)  # a read: a finished job gets its 409 even when the database is read-only
     if before.status in ("succeeded", "failed", "cancelled"):
         raise ApiError(409, f"Job {job_id} already finished ({before.status}).")
-    row = store.request_cancel(job_id, owner)
+    row, accepted = store.request_cancel(job_id, owner)
     if row is None:
         raise ApiError(404, f"No job {job_id!r}.")
+    if not accepted:
+        raise ApiError(409, f"Job {job_id} already finished ({row.status}).")
     if row.status == "running":
         response.status_code = 202
     return to_public(row, settings.jobs_dir)

@@ -15,6 +15,12 @@ imports ``api``. Workers are the server's child processes named ``gaintune-worke
 5. connections: after each error (a genuine 500 from a row corrupted with ``sqlite3``, 503, 507, 404, 409,
    422) the next request goes on the same keep-alive socket and must succeed (or the error carried
    ``Connection: close``).
+6. lock: a frozen worker holds the database write lock while writes queue: GET p95 (target 100 ms), how long a
+   write takes to be refused (target 2 s, 503 with Retry-After), and when the holder's lease is enforced
+   (:mod:`gaintune.bench.chaos_durable`).
+7. diskfull: the database fills as jobs finish: finished jobs lost or recomputed, unrelated jobs disturbed.
+
+``--phases`` runs a subset (e.g. ``--phases lock,diskfull``).
 
 Fault injection: SIGKILL/SIGSTOP, the tests-only hooks ``GAINTUNE_TEST_HOLD_FILE`` (pauses a job after its
 first progress report: freezes land mid-job) and ``GAINTUNE_TEST_STORAGE_FAULT_FILE``, and the corrupted row.
@@ -34,10 +40,16 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from gaintune.bench.arguments import BenchParser, budget_int, non_negative_int, positive_int
+from gaintune.bench.arguments import BenchParser, budget_int, fail, float_range, int_range, non_negative_int, positive_int
+from gaintune.bench.chaos_durable import diskfull, lock
 from gaintune.bench.chaos_procs import Server, _agent_ok, _proc_state, _serving, _wait, _Worker, job_spec
 
-__all__ = ["main", "job_spec"]
+__all__ = ["main", "job_spec", "PHASES"]
+
+PHASES = ("campaign", "frozen", "stale", "storage", "lock", "diskfull")
+#: Targets of the timed figures of the lock phase: (key in its output, most allowed, what).
+TIMED = (("get_ms_p95", 100.0, "GET p95 (ms) while a frozen worker holds the database write lock"),
+         ("refusal_s_max", 2.0, "longest wait (s) before a write is refused while the lock is held"))
 
 # ------------------------------------------------------------------------ 1. campaign
 
@@ -350,44 +362,93 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--budget", type=budget_int, default=1000,
                     help="simulations per job: small, but long enough (a few s) for kills to land mid-job")
     ap.add_argument("--rounds", type=non_negative_int, default=3, help="freeze rounds in the frozen and stale phases")
+    ap.add_argument("--phases", default=",".join(PHASES), help=f"comma-separated subset of {', '.join(PHASES)}")
+    ap.add_argument("--writers", type=int_range(1, 1000), default=40,
+                    help="lock phase: POSTs kept in flight while the write lock is held")
+    ap.add_argument("--write", choices=("delete", "post"), default="delete",
+                    help="lock phase: the queued writes (delete: cancel a queued job; post: submit a job, whose "
+                    "validation costs CPU)")
+    ap.add_argument("--write-pause", type=float_range(0.0, 60.0, lo_open=False), default=0.25,
+                    help="lock phase: seconds each writer waits after an answer (0: back to back)")
+    ap.add_argument("--lease", type=float_range(1.0, 600.0), default=8.0,
+                    help="lock and diskfull phases: heartbeat_timeout (s) of their servers")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--keep", action="store_true", help="keep the temporary folder (logs, databases)")
     args = ap.parse_args(argv)
+    phases = [p.strip() for p in args.phases.split(",") if p.strip()]
+    bad = [p for p in phases if p not in PHASES]
+    if bad or not phases:
+        fail("--phases", f"unknown phase {bad[0]!r}; choose from {', '.join(PHASES)}" if bad else "name a phase")
     root = Path(tempfile.mkdtemp(prefix="gaintune-bench-chaos-"))
     say = (lambda m: print(m, file=sys.stderr, flush=True)) if args.json else (lambda m: print(m, flush=True))
     t0 = time.monotonic()
     out: dict[str, Any] = {"folder": str(root), "cpus": os.cpu_count(), "loadavg_start": os.getloadavg()}
-    say(f"chaos campaign in {root}")
-    out["campaign"] = campaign(root / "campaign", args.jobs, args.worker_kills, args.server_kills, args.budget, say)
-    out["frozen"] = frozen(root / "frozen", args.rounds, say)
-    out["stale"] = stale(root / "stale", args.rounds, args.budget, say)
-    out["storage"], out["connections"] = storage_and_connections(root / "storage", args.budget, say)
+    say(f"chaos campaign in {root} (phases: {', '.join(phases)})")
+    if "campaign" in phases:
+        out["campaign"] = campaign(root / "campaign", args.jobs, args.worker_kills, args.server_kills, args.budget, say)
+    if "frozen" in phases:
+        out["frozen"] = frozen(root / "frozen", args.rounds, say)
+    if "stale" in phases:
+        out["stale"] = stale(root / "stale", args.rounds, args.budget, say)
+    if "storage" in phases:
+        out["storage"], out["connections"] = storage_and_connections(root / "storage", args.budget, say)
+    if "lock" in phases:
+        out["lock"] = lock(root / "lock", args.writers, args.write, args.write_pause, args.lease, args.budget, say)
+    if "diskfull" in phases:
+        out["diskfull"] = diskfull(root / "diskfull", max(1, args.rounds), args.lease, args.budget, say)
     out["seconds"] = round(time.monotonic() - t0, 1)
-    c, f, st, g, n = (out[k] for k in ("campaign", "frozen", "stale", "storage", "connections"))
-    figures = {
-        f"jobs lost, duplicated or corrupt under {c['worker_kills']} worker kills + {c['server_kills']} server "
-        f"kills, {c['jobs']} jobs": c["lost"] + c["duplicated"] + c["corrupt"] + c["stuck"],
-        "finished-job artefacts changed by a stale attempt": st["finished_jobs_changed"],
-        "storage-fault responses that are 5xx without a named cause": g["unnamed_5xx"],
-        "/readyz true while unable to write or with a frozen worker":
-            g["readyz_ready"] + f["readyz_ready_while_frozen"],
-        "requests failing on a reused connection after an error": n["next_request_failures"],
-    }
-    out["figures"] = figures
+    figures = _figures(out)
+    timed = {what: (out["lock"][key], most) for key, most, what in TIMED if "lock" in out}
+    out["figures"], out["timed"] = figures, {k: v for k, (v, _) in timed.items()}
     if args.json:
         print(json.dumps(out, indent=2, default=str))
     else:
         print("\n| figure | measured |\n|---|---:|")
         for name, v in figures.items():
             print(f"| {name} | {('never' if v == 0 else f'{v} times') if name.startswith('/readyz') else v} |")
-        for k in ("campaign", "frozen", "stale", "storage", "connections"):
-            print(f"{k}: {json.dumps(out[k], default=str)}")
+        for name, (v, most) in timed.items():
+            print(f"| {name} (target <= {most:g}) | {v} |")
+        for k in (*PHASES, "connections"):
+            if k in out:
+                print(f"{k}: {json.dumps(out[k], default=str)}")
         print(f"total {out['seconds']} s")
     if not args.keep:
         import shutil
 
         shutil.rmtree(root, ignore_errors=True)
-    return 0 if not any(figures.values()) else 1
+    off = any(figures.values()) or any(not v <= most for v, most in timed.values())
+    return 1 if off else 0
+
+
+def _figures(out: dict[str, Any]) -> dict[str, int]:
+    """The counted figures (target 0) of the phases that ran."""
+    figures: dict[str, int] = {}
+    if "campaign" in out:
+        c = out["campaign"]
+        figures[f"jobs lost, duplicated or corrupt under {c['worker_kills']} worker kills + {c['server_kills']} "
+                f"server kills, {c['jobs']} jobs"] = c["lost"] + c["duplicated"] + c["corrupt"] + c["stuck"]
+    if "stale" in out:
+        figures["finished-job artefacts changed by a stale attempt"] = out["stale"]["finished_jobs_changed"]
+    if "storage" in out:
+        figures["storage-fault responses that are 5xx without a named cause"] = out["storage"]["unnamed_5xx"]
+    if "storage" in out or "frozen" in out:
+        figures["/readyz true while unable to write or with a frozen worker"] = \
+            out.get("storage", {}).get("readyz_ready", 0) + out.get("frozen", {}).get("readyz_ready_while_frozen", 0)
+    if "connections" in out:
+        figures["requests failing on a reused connection after an error"] = out["connections"]["next_request_failures"]
+    if "lock" in out:
+        k = out["lock"]
+        figures["writes refused while locked without Retry-After, or accepted"] = \
+            k["refusals_without_retry_after"] + k["writes_accepted_while_locked"]
+        figures["frozen lock holder never killed, or blocked job re-run"] = \
+            k["holder_never_killed"] + (k["blocked_job_attempts"] != 1) + (k["blocked_job_final"] != "succeeded")
+    if "diskfull" in out:
+        d = out["diskfull"]
+        figures[f"jobs lost or recomputed when the database fills at their finish ({d['finished_jobs']} jobs)"] = \
+            d["lost"] + d["recomputed"]
+        figures["unrelated jobs disturbed (re-run) or workers killed meanwhile"] = \
+            d["unrelated_disturbed"] + max(0, d["worker_restarts"])
+    return figures
 
 
 if __name__ == "__main__":
