@@ -13,7 +13,7 @@ after its worker was presumed dead can never be overwritten by that worker, in
 the database or on disk, whatever process or machine the worker runs on.
 
 Storage errors (read-only or full database, I/O errors) leave this module as
-:class:`gaintune_api.storage.StorageFault`, naming the cause.
+:class:`gaintune_api.storage_faults.StorageFault`, naming the cause.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from functools import wraps
 from pathlib import Path
 from typing import Any, Callable, Iterable, TypeVar
 
-from gaintune_api.storage import FaultInjector, classify
+from gaintune_api.storage_faults import FaultInjector, classify
 
 __all__ = ["JobRow", "JobStore", "QueueFull", "IdempotencyConflict", "STATUSES", "TERMINAL", "dumps", "loads"]
 
@@ -146,7 +146,7 @@ class JobStore:
     path
         The SQLite file.
     faults
-        Tests only: injected storage faults (see :class:`gaintune_api.storage.FaultInjector`).
+        Tests only: injected storage faults (see :class:`gaintune_api.storage_faults.FaultInjector`).
     """
 
     def __init__(self, path: str | Path, faults: FaultInjector | None = None) -> None:

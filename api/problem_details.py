@@ -6,7 +6,7 @@ Every error body is ``application/problem+json``::
      "errors": [{"loc": "loops.0.type", "msg": "Input should be 'p', 'pi', ..."}]}
 
 No handler ever returns a stack trace. Storage faults (a read-only or full job
-database or data directory, see :mod:`gaintune_api.storage`) are answered with 503, or
+database or data directory, see :mod:`gaintune_api.storage_faults`) are answered with 503, or
 507 when full, with ``Retry-After`` and a ``cause`` member naming the fault
 (e.g. ``"database-read-only"``), and logged as a warning without a traceback.
 Unexpected exceptions are logged and answered with a generic 500 problem by
@@ -26,7 +26,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from gaintune_api.storage import StorageFault, classify
+from gaintune_api.storage_faults import StorageFault, classify
 from gaintune.errors import GaintuneError, problem_details
 
 __all__ = ["ApiError", "problem_response", "install_handlers", "SafeJSONResponse", "json_safe", "PROBLEM_TYPES",

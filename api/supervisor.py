@@ -28,8 +28,8 @@ import time
 from typing import Any
 
 from gaintune_api.settings import Settings
-from gaintune_api.storage import StorageFault
-from gaintune_api.store import JobStore
+from gaintune_api.storage_faults import StorageFault
+from gaintune_api.job_store import JobStore
 
 __all__ = ["Supervisor", "pid_alive", "pid_stopped"]
 

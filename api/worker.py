@@ -39,8 +39,8 @@ from typing import Any, Callable
 
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.settings import Settings, warn_unknown_settings
-from gaintune_api.storage import FaultInjector, StorageFault, classify
-from gaintune_api.store import JobRow, JobStore
+from gaintune_api.storage_faults import FaultInjector, StorageFault, classify
+from gaintune_api.job_store import JobRow, JobStore
 
 __all__ = ["worker_main", "run_job", "process_next", "PROCESS_NAME"]
 

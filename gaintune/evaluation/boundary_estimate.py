@@ -1,4 +1,4 @@
-"""Repair infeasible candidates onto the requirement boundary: the RL search's constraint projection.
+"""The move onto the requirement boundary on the search estimate: the RL search's constraint projection.
 
 A policy samples gain sets around its mean. With feasibility-first rewards, every
 sample that crosses a requirement boundary (Ms > 1.4, say) scores far below every
@@ -10,8 +10,8 @@ before it is simulated, and the policy is rewarded for the repaired gains. Sampl
 beyond the boundary then score like the boundary point they project to, and the
 policy is free to move along it.
 
-The move is the one :mod:`gaintune.boundary` makes exactly, here on the search's fast
-estimate (:meth:`gaintune.objective.Evaluator.requirement_violation`) and batched:
+The move (:mod:`gaintune.evaluation.boundary`) is the one :mod:`gaintune.evaluation.boundary_exact` makes exactly, here on the search's fast
+estimate (:meth:`gaintune.evaluation.evaluator.Evaluator.requirement_violation`) and batched:
 every tuned gain of every PID loop is multiplied by ``alpha**d`` with ``d = 1`` on
 Kp, Ki and Kd of a parallel loop (on Kp of an ideal loop), which multiplies each
 controller by alpha. A coarse ladder of alphas below 1 finds, per candidate, the
@@ -19,7 +19,7 @@ largest feasible scale, and a few bisection steps close the bracket. A candidate
 no scale in the search box makes feasible is left as it is (and keeps its violation).
 
 The boundary is the estimate's: each limit moved inside by ``requirements.backoff``
-(:meth:`gaintune.objective.Evaluator.requirement_scores` aims there), so repaired gains keep
+(:meth:`gaintune.evaluation.evaluator.Evaluator.requirement_scores` aims there), so repaired gains keep
 the same margin to the exact limits as every other answer.
 """
 
@@ -29,11 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gaintune.boundary import alpha_floor, loop_gain_exponents
-from gaintune.objective import Evaluator
-from gaintune.verify.quick import UNSTABLE_VIOLATION
+from gaintune.evaluation.boundary import alpha_floor, loop_gain_exponents
+from gaintune.evaluation.evaluator import Evaluator
+from gaintune.verification.quick import UNSTABLE_VIOLATION
 
-__all__ = ["Repaired", "repair", "LADDER", "SECANT_STEPS", "TOL"]
+__all__ = ["EstimateMove", "onto_boundary_estimate", "LADDER", "SECANT_STEPS", "TOL"]
 
 #: Relative gain reductions tried at once (alpha = 1 - step): they bracket the boundary.
 LADDER = (0.02, 0.1, 0.3, 0.6, 0.85)
@@ -43,8 +43,8 @@ SECANT_STEPS = 3
 TOL = 1e-3
 
 @dataclass
-class Repaired:
-    """Outcome of :func:`repair` for B candidates.
+class EstimateMove:
+    """Outcome of :func:`onto_boundary_estimate` for B candidates.
 
     Attributes
     ----------
@@ -64,7 +64,7 @@ class Repaired:
     repaired: np.ndarray
 
 
-def repair(ev: Evaluator, tuned: np.ndarray) -> Repaired:
+def onto_boundary_estimate(ev: Evaluator, tuned: np.ndarray) -> EstimateMove:
     """Move each stable but infeasible candidate onto the requirement boundary (see the module docstring).
 
     The search estimate's signed shortfall ``g`` (<= 0 when every requirement holds) is solved for
@@ -86,7 +86,7 @@ def repair(ev: Evaluator, tuned: np.ndarray) -> Repaired:
     d = loop_gain_exponents(ev)
     rows = np.nonzero((v > 0) & (v < UNSTABLE_VIOLATION))[0]
     if not rows.size or not d.any():
-        return Repaired(out, v_out, alpha, mask)
+        return EstimateMove(out, v_out, alpha, mask)
     t = tuned[rows]
     x_floor = np.log(alpha_floor(ev.layout, t, d))
     xs = np.maximum(np.log1p(-np.array(LADDER))[None, :], x_floor[:, None])  # (n, L)
@@ -130,4 +130,4 @@ def repair(ev: Evaluator, tuned: np.ndarray) -> Repaired:
     v_out[rows] = 0.0
     alpha[rows] = np.exp(xg[ok])
     mask[rows] = True
-    return Repaired(out, v_out, alpha, mask)
+    return EstimateMove(out, v_out, alpha, mask)

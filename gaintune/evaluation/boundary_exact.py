@@ -1,13 +1,15 @@
-"""Settle a search answer on the requirements with the exact verification: the last step of every search.
+"""The move onto the requirement boundary on the exact verification: the last step of every search.
 
 The search ranks candidates on the fast requirement estimate of
-:mod:`gaintune.verify.quick`; the verdict comes from :func:`gaintune.verify.verify`.
+:mod:`gaintune.verification.quick`; the verdict comes from :func:`gaintune.verification.verify`.
 Near an active constraint the two may disagree by a fraction of a percent. This
 module closes that gap exactly, along one direction: the **loop-gain scale** of the
-binding loop. Multiplying every tuned gain of a parallel PID loop (Kp, Ki, Kd) by
-alpha multiplies its controller, hence its loop transfer function, by alpha; with an
-ideal-form loop only Kp scales. Margins and peaks move monotonically with alpha near
-the boundary of a well-posed design, so bisection on alpha finds the boundary.
+binding loop (:mod:`gaintune.evaluation.boundary`; the same move on the estimate is
+:func:`gaintune.evaluation.boundary_estimate.onto_boundary_estimate`). Multiplying every
+tuned gain of a parallel PID loop (Kp, Ki, Kd) by alpha multiplies its controller, hence
+its loop transfer function, by alpha; with an ideal-form loop only Kp scales. Margins and
+peaks move monotonically with alpha near the boundary of a well-posed design, so
+bisection on alpha finds the boundary.
 
 * An answer that fails a requirement (but is stable) is pulled inside: alpha < 1 by
   bisection until the exact verification passes, to within ``ALPHA_TOL``.
@@ -31,13 +33,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gaintune.objective import Evaluator
+from gaintune.evaluation.boundary import alpha_floor, loop_gain_exponents
+from gaintune.evaluation.evaluator import Evaluator
 from gaintune.spec.backoff import BackoffSpec
-from gaintune.verify import verify
-from gaintune.verify.report import VerificationReport
+from gaintune.verification import verify
+from gaintune.verification.report import VerificationReport
 
-__all__ = ["Settled", "settle", "violation_after", "normalised_margin", "loop_gain_exponents", "alpha_floor", "ALPHA_TOL",
-           "PUSH_BAND"]
+__all__ = ["ExactMove", "onto_boundary_exact", "violation_after", "normalised_margin", "ALPHA_TOL", "PUSH_BAND"]
 
 #: Bisection stops when the alpha bracket is this narrow (relative): Ms then lands within ~1e-3 of a limit.
 ALPHA_TOL = 5e-4
@@ -50,8 +52,8 @@ MAX_PUSH = 1.5
 
 
 @dataclass
-class Settled:
-    """Outcome of :func:`settle`.
+class ExactMove:
+    """Outcome of :func:`onto_boundary_exact`.
 
     Attributes
     ----------
@@ -124,36 +126,12 @@ def _directions(ev: Evaluator, loop: str | None) -> tuple[str, list[np.ndarray]]
     return loop, out
 
 
-def loop_gain_exponents(ev: Evaluator, loop: str | None = None) -> np.ndarray:
-    """(d,) exponents of the loop-gain move ``tuned * alpha**d``: 1 on the gains that scale a PID
-    controller (Kp, Ki, Kd of a parallel loop; Kp of an ideal one), of ``loop``, or of every PID loop
-    when None (0 for LQ loops)."""
-    out = np.zeros(ev.layout.n_tuned)
-    forms = {lp.name: lp.form for lp in ev.spec.loops if not lp.is_lq and (loop is None or lp.name == loop)}
-    for k, slot in enumerate(ev.layout.tuned_slots):
-        form = forms.get(slot.loop_name)
-        if form is not None and (slot.name == "Kp" or (form == "parallel" and slot.name in ("Ki", "Kd"))):
-            out[k] = 1.0
-    return out
-
-
-def alpha_floor(layout, tuned: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """(B,) smallest alpha <= 1 that keeps each row of ``tuned * alpha**d`` (B, n) inside the search box;
-    0 where ``d`` moves nothing. ``d`` is (n,) or one row per gain set."""
-    lo, hi = np.exp(layout.log_lo), np.exp(layout.log_hi)
-    tuned = np.atleast_2d(tuned)
-    d = np.broadcast_to(d, tuned.shape)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lim = np.where(d > 0, lo / tuned, np.where(d < 0, tuned / hi, -np.inf)).max(axis=1)
-    return np.where(np.isfinite(lim), np.minimum(lim, 1.0), 0.0)
-
-
 def _alpha_min(layout, tuned: np.ndarray, d: np.ndarray) -> float:
     """Smallest alpha < 1 that keeps ``tuned * alpha**d`` inside the search box (0 when d moves nothing)."""
     return float(alpha_floor(layout, tuned, d)[0])
 
 
-def settle(ev: Evaluator, tuned: np.ndarray, cost: float | None = None) -> Settled:
+def onto_boundary_exact(ev: Evaluator, tuned: np.ndarray, cost: float | None = None) -> ExactMove:
     """Settle ``tuned`` on the spec's requirements by exact verification (see the module docstring).
 
     Parameters
@@ -191,10 +169,10 @@ def settle(ev: Evaluator, tuned: np.ndarray, cost: float | None = None) -> Settl
     checks += 1
     m0, binding = normalised_margin(verify(spec, layout.full(tuned), nonlinear=False, plant=ev.plant, layout=layout), aim)
     if m0 == -math.inf:
-        return Settled(tuned, 1.0, None, "not_settled", m0, checks)
+        return ExactMove(tuned, 1.0, None, "not_settled", m0, checks)
     loop, dirs = _directions(ev, binding)
     if not dirs:
-        return Settled(tuned, 1.0, None, "unchanged" if m0 >= 0 else "not_settled", m0, checks)
+        return ExactMove(tuned, 1.0, None, "unchanged" if m0 >= 0 else "not_settled", m0, checks)
     if m0 < 0:  # pull inside: small steps first, since a peak can be non-monotone far from alpha = 1
         for d in dirs:
             a_min = _alpha_min(layout, tuned, d)
@@ -209,12 +187,12 @@ def settle(ev: Evaluator, tuned: np.ndarray, cost: float | None = None) -> Settl
                 bad = a
             if m >= 0:
                 a, m = bisect(d, a, bad, m)
-                return Settled(moved(d, a), a, loop, "pulled_inside", m, checks)
-        return Settled(tuned, 1.0, loop, "not_settled", m0, checks)
+                return ExactMove(moved(d, a), a, loop, "pulled_inside", m, checks)
+        return ExactMove(tuned, 1.0, loop, "not_settled", m0, checks)
     d = dirs[0]
     a_max = 1.0 / _alpha_min(layout, tuned, -d) if _alpha_min(layout, tuned, -d) > 0 else MAX_PUSH
     if m0 > PUSH_BAND or a_max <= 1.0:
-        return Settled(tuned, 1.0, loop, "unchanged", m0, checks)
+        return ExactMove(tuned, 1.0, loop, "unchanged", m0, checks)
     # push out along the loop gain: find a failing scale, then bisect back onto the boundary
     a, m, ok, m_ok = 1.0, m0, 1.0, m0
     while m >= 0 and a < min(MAX_PUSH, a_max):
@@ -226,20 +204,20 @@ def settle(ev: Evaluator, tuned: np.ndarray, cost: float | None = None) -> Settl
     else:
         ok, m_ok = bisect(d, ok, a, m_ok)
     if ok == 1.0:
-        return Settled(tuned, 1.0, loop, "unchanged", m0, checks)
+        return ExactMove(tuned, 1.0, loop, "unchanged", m0, checks)
     base = cost if cost is not None else float(ev.evaluate(tuned[None]).cost[0])
     cand = ev.evaluate(moved(d, ok)[None])
     # the exact check decides the requirements here; the run itself must not diverge or trip
     if not (cand.diverged[0] or cand.tripped[0]) and float(cand.cost[0]) < base:
-        return Settled(moved(d, ok), ok, loop, "pushed_to_boundary", m_ok, checks)
-    return Settled(tuned, 1.0, loop, "unchanged", m0, checks)
+        return ExactMove(moved(d, ok), ok, loop, "pushed_to_boundary", m_ok, checks)
+    return ExactMove(tuned, 1.0, loop, "unchanged", m0, checks)
 
 
-def violation_after(settled: Settled | None, scores) -> float:
+def violation_after(settled: ExactMove | None, scores) -> float:
     """Violation of a settled answer: the exact check supersedes the estimate once settling moved it.
 
     A pulled-in or pushed-out answer meets every aimed limit by the exact verification (margin
-    >= 0) while the estimate, which aims :data:`~gaintune.verify.quick.FEASIBILITY_MARGIN`
+    >= 0) while the estimate, which aims :data:`~gaintune.verification.quick.FEASIBILITY_MARGIN`
     inside, may call it a hair short; its run must still neither diverge nor trip.
     """
     moved = settled is not None and settled.action in ("pulled_inside", "pushed_to_boundary")

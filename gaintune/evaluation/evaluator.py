@@ -15,7 +15,7 @@ The spec's requirements (and closed-loop stability) are **constraints**, not
 terms of the cost. :meth:`Evaluator.evaluate` returns both, as :class:`Scores`:
 the plain cost and a non-negative *violation* (0 when every requirement holds on
 the nominal plant and every corner of the randomisation box, graded otherwise,
-see :func:`gaintune.verify.quick.requirement_violation`). The limits it checks are the
+see :func:`gaintune.verification.quick.requirement_violation`). The limits it checks are the
 search's aim: ``requirements.backoff`` inside the limits the verdict judges. Every consumer ranks
 candidates the same way, **feasibility first** (:attr:`Scores.merit`):
 
@@ -148,7 +148,7 @@ class Evaluator:
     deterministic function of the gains: what the optimisers need. The RL
     environments pass their own episode draws. Without ``sim`` the layout has
     the fixed default bounds, which is enough to score given gains; searches
-    build theirs on the problem's search box (:func:`gaintune.search_box.make_evaluator`).
+    build theirs on the problem's search box (:func:`gaintune.evaluation.search_box.make_evaluator`).
 
     Attributes
     ----------
@@ -157,7 +157,7 @@ class Evaluator:
     """
 
     def __init__(self, spec: TuningSpec, sim: Simulator | None = None, draws: Draws | None = None) -> None:
-        if sim is None:  # scoring given gains: any box will do (searches use gaintune.search_box)
+        if sim is None:  # scoring given gains: any box will do (searches use gaintune.evaluation.search_box)
             from gaintune.controllers.layout import GainLayout
             from gaintune.plants import build_plant
 
@@ -212,14 +212,14 @@ class Evaluator:
     def requirement_scores(self, tuned: np.ndarray, stability: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """(violation, shortfall), each (B,), worst case over :attr:`constraint_models`.
 
-        See :func:`gaintune.verify.quick.requirement_scores`: the shortfall is signed (<= 0 when
-        every requirement holds) and is what :mod:`gaintune.repair` solves along a gain direction.
+        See :func:`gaintune.verification.quick.requirement_scores`: the shortfall is signed (<= 0 when
+        every requirement holds) and is what :mod:`gaintune.evaluation.boundary_estimate` solves along a gain direction.
         ``stability=False`` skips the closed-loop stability check, for a caller that checks it afterwards.
 
         The limits are the search's **aim**, ``requirements.backoff`` inside the verdict's limits
         (:meth:`gaintune.spec.RequirementsSpec.aimed`), so the answer keeps that margin.
         """
-        from gaintune.verify.quick import noise_limit_array, requirement_scores
+        from gaintune.verification.quick import noise_limit_array, requirement_scores
 
         if self._noise_limit is None:  # a property of the spec and the nominal plant: resolved once, then aimed
             aim = self.spec.requirements.backoff.aim

@@ -16,7 +16,7 @@ know before any search, ranked like every search ranks (feasibility first, then 
    integrator), a scrambled Sobol sample of :data:`GRID_POINTS` gain sets spread log-uniformly
    over the layout's default bounds (scipy's ``qmc.Sobol``, seeded by ``search.seed``): the
    best of them centres the box instead of the middle of 1e-3 .. 1e3. Sampled gain sets that
-   overshoot a requirement are first moved onto its boundary (:func:`gaintune.repair.repair`),
+   overshoot a requirement are first moved onto its boundary (:func:`gaintune.evaluation.boundary_estimate.onto_boundary_estimate`),
    and :data:`ZOOM_STAGES` smaller samples around the best so far walk the centre toward the
    optimum (one unlucky best sample had Kd 50x below the optimum's, outside the final box).
    LQ specs keep their Riccati-based defaults.
@@ -40,12 +40,12 @@ import numpy as np
 from gaintune.cache import LRU
 from gaintune.classical import BOUNDS_FACTOR, auto_bounds, rule_candidates
 from gaintune.controllers.layout import GainLayout
-from gaintune.objective import Evaluator
+from gaintune.evaluation.evaluator import Evaluator
 from gaintune.plants import build_plant
 from gaintune.plants.plant import Plant
-from gaintune.repair import repair
+from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.sim import Simulator
-from gaintune.spec import TuningSpec
+from gaintune.spec import Gains, TuningSpec
 from gaintune.spec.backoff import BackoffSpec
 
 __all__ = ["SearchBox", "SCALES", "GRID_POINTS", "ZOOM_STAGES", "ZOOM_POINTS", "ZOOM_STARTS", "search_box", "search_layout", "make_evaluator"]
@@ -87,14 +87,14 @@ class SearchBox:
     """
 
     layout: GainLayout
-    centre: dict[str, dict[str, float]] | None
+    centre: Gains | None
     source: str | None
     feasible: bool
     candidates: dict[str, tuple[bool, float, float]] = field(default_factory=dict)
     sims: int = 0
 
 
-def _scale(gains: dict[str, dict[str, float]], a: float, spec: TuningSpec) -> dict[str, dict[str, float]]:
+def _scale(gains: Gains, a: float, spec: TuningSpec) -> Gains:
     """Every loop's controller gains times ``a`` (ideal form: Kp only; Ti, Td are times)."""
     out = {}
     for loop in spec.loops:
@@ -106,7 +106,7 @@ def _scale(gains: dict[str, dict[str, float]], a: float, spec: TuningSpec) -> di
 
 def _sobol_candidates(
     layout: GainLayout, seed: int, n: int = GRID_POINTS, prefix: str = "grid"
-) -> dict[str, dict[str, dict[str, float]]]:
+) -> dict[str, Gains]:
     """``n`` gain sets, log-uniform over the layout's bounds (a scrambled Sobol sample)."""
     from scipy.stats import qmc
 
@@ -135,12 +135,12 @@ def _search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
         return SearchBox(plain, None, None, False)
     ev = Evaluator(spec, Simulator(spec, plant, plain))
 
-    def score(named: dict[str, dict[str, dict[str, float]]], project: bool) -> list[tuple[float, str, dict, bool, float, float]]:
+    def score(named: dict[str, Gains], project: bool) -> list[tuple[float, str, dict, bool, float, float]]:
         names = list(named)
         tuned = np.array([plain.from_dict(named[n])[plain.tuned_idx] for n in names])
         violation = None
-        if project:  # sampled gains that overshoot a requirement are scored on its boundary (gaintune.repair)
-            r = repair(ev, tuned)
+        if project:  # sampled gains that overshoot a requirement are scored on its boundary (gaintune.evaluation.boundary_estimate)
+            r = onto_boundary_estimate(ev, tuned)
             tuned, violation = r.tuned, r.violation
             named = {n: plain.to_dict(plain.full(t)) for n, t in zip(names, tuned)}
         s = ev.evaluate(tuned, violation=violation)
@@ -188,9 +188,9 @@ def search_layout(spec: TuningSpec, plant: Plant) -> GainLayout:
 
 
 def make_evaluator(spec: TuningSpec, plant: Plant | None = None, exact: bool = False) -> Evaluator:
-    """An :class:`~gaintune.objective.Evaluator` on the problem's default search box.
+    """An :class:`~gaintune.evaluation.evaluator.Evaluator` on the problem's default search box.
 
-    ``exact``: its requirement estimate (and a :func:`gaintune.boundary.settle` on it) judges the
+    ``exact``: its requirement estimate (and a :func:`gaintune.evaluation.boundary_exact.onto_boundary_exact` on it) judges the
     exact limits, without ``requirements.backoff``, in the same box: for the benchmark reference,
     which is the exact-limit optimum.
     """

@@ -4,7 +4,7 @@ python-control costs about a second to import (it loads scipy.signal and matplot
 much for every ``gaintune tune``, and the rules need only a few of its operations. Each one
 here repeats python-control 0.10's own operations without slycot, so the rules' gains are the
 same bit for bit (``tests/classical/test_control_free.py`` checks them against
-python-control). Layer 0: numpy, scipy.linalg (lazily) and :mod:`gaintune.lti`;
+python-control). Layer 0: numpy, scipy.linalg (lazily) and :mod:`gaintune.lti.pade`;
 python-control is imported only to convert a model without state matrices
 (:func:`as_state_space` given a python-control transfer function).
 
@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from gaintune.lti import canonical_form, pade_monic
+from gaintune.lti.pade import canonical_form, pade_monic
 
 __all__ = ["StateSpace", "as_state_space", "ss_to_tf", "tf_to_ss", "tf_minreal", "series", "with_input_delay",
            "step_response", "pade_state_space"]

@@ -38,7 +38,7 @@ __all__ = ["DesignSpec", "expand_design"]
 
 
 class DesignSpec(BaseModel):
-    """pidtune-style design goals, expanded into requirements and scenarios (see :mod:`gaintune.spec_design`)."""
+    """pidtune-style design goals, expanded into requirements and scenarios (see :mod:`gaintune.spec.design`)."""
 
     # as the spec's own models (gaintune.spec.base._Model): numbers are finite and not booleans
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)

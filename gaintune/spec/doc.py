@@ -11,7 +11,7 @@ from pydantic_core import PydanticUndefined
 
 from gaintune import spec as S
 from gaintune.spec.backoff import BackoffSpec
-from gaintune.spec_design import DesignSpec
+from gaintune.spec.design import DesignSpec
 
 __all__ = ["render_markdown"]
 
@@ -72,7 +72,7 @@ def render_markdown() -> str:
     lines = [
         "# Spec reference",
         "",
-        "Generated from `gaintune/spec.py` by `python -m gaintune.spec_doc > docs/spec.md` (a test checks it is current).",
+        "Generated from the schema in `gaintune/spec/` by `python -m gaintune.spec.doc > docs/spec.md` (a test checks it is current).",
         f"Limits: horizon/dt <= {S.MAX_STEPS} steps, delay/dt (plant.delay, the top of randomize.delay) <= {S.MAX_DELAY_STEPS} samples, plant order <= {S.MAX_ORDER}, cascade depth <= {S.MAX_LOOPS}.",
         "",
         "Numbers: every numeric field takes finite numbers only (NaN and infinity, YAML's `.nan`/`.inf` included, are refused), "

@@ -1,14 +1,16 @@
 """Verification of frozen gains: stability, loop-at-a-time margins, robustness, nonlinear check, verdict.
 
+:func:`verify` (``verify(spec, gains) -> VerificationReport``) is also the public ``gaintune.verify``.
+
 See ``docs/verification.md`` for the conventions (break points, the sampled loop
 (default) or the continuous one plus dt/2, computation delay, infinity handling,
 exact delay vs Padé, robust sampling).
 """
 
-from gaintune.verify.core import coerce_gains, verify
-from gaintune.verify.nonlinear import nonlinear_check
-from gaintune.verify.quick import QuickMargins, quick_margins, requirement_violation
-from gaintune.verify.report import VerificationReport, format_table
+from gaintune.verification.core import coerce_gains, verify
+from gaintune.verification.nonlinear import nonlinear_check
+from gaintune.verification.quick import QuickMargins, quick_margins, requirement_violation
+from gaintune.verification.report import VerificationReport, format_table
 
 __all__ = [
     "verify",
@@ -21,18 +23,3 @@ __all__ = [
     "QuickMargins",
 ]
 
-
-class _CallablePackage(__import__("types").ModuleType):
-    """Make ``from gaintune import verify; verify(spec, gains)`` work.
-
-    ``gaintune.verify`` is this package, so the top-level name cannot also be bound to the
-    function without breaking ``import gaintune.verify.x``. Calling the package calls
-    :func:`gaintune.verify.core.verify` instead (module ``__class__`` assignment, PEP 549's
-    documented fallback).
-    """
-
-    def __call__(self, *args, **kwargs):
-        return verify(*args, **kwargs)
-
-
-__import__("sys").modules[__name__].__class__ = _CallablePackage

@@ -3,11 +3,11 @@
 :func:`analyse` runs the whole exact analysis: the band's ends (every frequency where some
 |L| >= MAG_FLOOR, or up to the Nyquist frequency for the sampled loop), a log grid refined
 where the phase turns fast (delays), the margins of every break point on it
-(:mod:`gaintune.verify.margins`) and closed-loop stability (:mod:`gaintune.verify.stability`).
+(:mod:`gaintune.verification.margins`) and closed-loop stability (:mod:`gaintune.verification.stability`).
 
 The continuous analysis may stop the grid at a band (a multiple of the controller's
 Nyquist frequency) only when the frequencies above are proven unable to change any
-figure or the stability count (the tail, with the bounds of :mod:`gaintune.verify.tail`);
+figure or the stability count (the tail, with the bounds of :mod:`gaintune.verification.tail`);
 :func:`sampling_delay` is the dt/2 of extra delay that analysis adds for sample and hold.
 """
 
@@ -20,12 +20,12 @@ import numpy as np
 
 from gaintune.plants.plant import LinearModel
 from gaintune.spec import TuningSpec
-from gaintune.verify.cascade import Cascade
-from gaintune.verify.freqresp import DelayModel, Evaluator, char_freqs
-from gaintune.verify.margins import MAG_FLOOR, BreakFigures, all_margins
-from gaintune.verify.sampled import SampledPlant
-from gaintune.verify.stability import Stability, closed_loop_stability, closed_loop_stability_sampled, observable_part
-from gaintune.verify.tail import INNER_LEVEL, chain_ss, level_clear, series, tail_levels
+from gaintune.verification.cascade import Cascade
+from gaintune.verification.freqresp import DelayModel, Evaluator, char_freqs
+from gaintune.verification.margins import MAG_FLOOR, BreakFigures, all_margins
+from gaintune.verification.sampled import SampledPlant
+from gaintune.verification.stability import Stability, closed_loop_stability, closed_loop_stability_sampled, observable_part
+from gaintune.verification.tail import INNER_LEVEL, chain_ss, level_clear, series, tail_levels
 
 __all__ = ["Analysis", "analyse", "sampling_delay"]
 
@@ -165,7 +165,7 @@ _BAND_TRIES = 3
 
 
 def _tail_clear(cas: Cascade, lin: LinearModel, figs: list[BreakFigures], w_cap: float):
-    """Proven: above ``w_cap`` no break point's |L| can change its figures (see :mod:`gaintune.verify.tail`).
+    """Proven: above ``w_cap`` no break point's |L| can change its figures (see :mod:`gaintune.verification.tail`).
 
     Returns the plant-input realisation G_u (reused by the stability test) when proven, else None."""
     n = len(cas.loops)
@@ -190,11 +190,11 @@ def analyse(cas: Cascade, lin: LinearModel, delay: DelayModel | None, n_freq: in
     """Margins at every break point and closed-loop stability for a one-member cascade.
 
     ``sampled``: analyse the sampled loop (the plant as the simulator steps it, the controllers'
-    discrete laws; :mod:`gaintune.verify.sampled`) on [lo, pi/dt]; ``delay`` and ``band`` are then unused.
+    discrete laws; :mod:`gaintune.verification.sampled`) on [lo, pi/dt]; ``delay`` and ``band`` are then unused.
 
     ``band``: upper end (rad/s) of the analysis band, normally a multiple of the controller's
     Nyquist frequency. The grid stops there only when the frequencies above are proven unable
-    to change any figure or the stability count (:mod:`gaintune.verify.tail`); otherwise the
+    to change any figure or the stability count (:mod:`gaintune.verification.tail`); otherwise the
     band is widened x10 (a few times), and finally the grid runs to where |L| < MAG_FLOOR, as
     without ``band``. Crossings above the band are neither listed nor counted.
     """

@@ -28,7 +28,7 @@ at the plant input (needed by the argument-principle stability test).
 
 The algebra works on any response arrays: ``loop_responses(..., sampled=sp)`` feeds
 it the sampled plant and the controllers' discrete laws at z = e^{s dt}
-(:mod:`gaintune.verify.sampled`), and :meth:`Cascade.closed_loop_sampled` is the
+(:mod:`gaintune.verification.sampled`), and :meth:`Cascade.closed_loop_sampled` is the
 sampled closed loop's transition matrix (plant, input buffer, controller states).
 
 :func:`build_cascade` turns a spec's loops and a batch of gain vectors into a
@@ -44,10 +44,11 @@ import numpy as np
 from gaintune.controllers.layout import GainLayout
 from gaintune.controllers.pid import pid_params
 from gaintune.errors import GainError, SpecError
-from gaintune.lti import pade_poles, pade_ss, plant_eigvals, plant_state_response
+from gaintune.lti.modes import plant_eigvals, plant_state_response
+from gaintune.lti.pade import pade_poles, pade_ss
 from gaintune.plants.plant import LinearModel
 from gaintune.spec import TuningSpec
-from gaintune.verify.sampled import SampledPlant, discrete_ops
+from gaintune.verification.sampled import SampledPlant, discrete_ops
 
 __all__ = ["LoopCtl", "Cascade", "build_cascade", "controller_state_index", "pid_arrays"]
 
@@ -120,7 +121,7 @@ class Cascade:
         whose feedback is the whole state (no single measurement to put noise on).
 
         ``ops``: (integral operator, derivative operator Tf -> array) at the frequencies; default
-        the continuous 1/s and s/(Tf s + 1); :func:`gaintune.verify.sampled.discrete_ops` for the
+        the continuous 1/s and s/(Tf s + 1); :func:`gaintune.verification.sampled.discrete_ops` for the
         simulator's discrete laws.
         """
         out = []

@@ -15,13 +15,13 @@ from gaintune.errors import GainError
 from gaintune.plants.noise_limit import noise_limits
 from gaintune.plants.plant import Plant, build_plant
 from gaintune.spec import TuningSpec, load_spec
-from gaintune.verify.analysis import Analysis, analyse, sampling_delay
-from gaintune.verify.cascade import build_cascade
-from gaintune.verify.context import spec_context
-from gaintune.verify.freqresp import DelayModel
-from gaintune.verify.margins import BreakFigures
-from gaintune.verify.nonlinear import nonlinear_check
-from gaintune.verify.report import (
+from gaintune.verification.analysis import Analysis, analyse, sampling_delay
+from gaintune.verification.cascade import build_cascade
+from gaintune.verification.context import spec_context
+from gaintune.verification.freqresp import DelayModel
+from gaintune.verification.margins import BreakFigures
+from gaintune.verification.nonlinear import nonlinear_check
+from gaintune.verification.report import (
     CrossingModel,
     LoopFigures,
     PadeCheck,
@@ -31,9 +31,9 @@ from gaintune.verify.report import (
     VerificationReport,
     WorstCase,
 )
-from gaintune.verify.noise import noise_peaks
-from gaintune.verify.robust import DELAY_KEY, robust_samples
-from gaintune.verify.sampled import SampledPlant, sample_plant
+from gaintune.verification.noise import noise_peaks
+from gaintune.verification.robust import DELAY_KEY, robust_samples
+from gaintune.verification.sampled import SampledPlant, sample_plant
 
 __all__ = ["verify", "coerce_gains", "REQUIREMENTS", "loop_frequency_responses"]
 
@@ -179,7 +179,7 @@ def loop_frequency_responses(spec: TuningSpec, plant: Plant, layout: GainLayout,
     computation delay. For plots of the verified loop (Bode, Nyquist, sensitivity).
 
     ``noise``: return instead each loop's noise response N_i (n_loops, W), whose peak is Mks
-    (:mod:`gaintune.verify.noise`; -C S for one loop)."""
+    (:mod:`gaintune.verification.noise`; -C S for one loop)."""
     lin = lin if lin is not None else plant.linearize()
     full = np.asarray(full, dtype=float).reshape(1, -1)
     cas = build_cascade(spec, layout, full, lin)
@@ -340,7 +340,7 @@ def verify(
     The loop analysed is, by default (``verify.sampled``), the sampled loop the simulator runs:
     the plant discretised by ZOH with its delay at the largest scenario dt, the controllers'
     discrete laws, margins on z = e^{jw dt} up to pi/dt and stability from the discrete
-    closed-loop poles (:mod:`gaintune.verify.sampled`); ``verify.sampled: false`` analyses the
+    closed-loop poles (:mod:`gaintune.verification.sampled`); ``verify.sampled: false`` analyses the
     continuous loop with dt/2 of delay instead. ``verify.compute_delay`` samples of computation
     delay are included either way.
 
@@ -360,7 +360,7 @@ def verify(
         Pre-built objects to reuse (built from ``spec`` when omitted).
     cache
         Reuse the per-spec objects (plant, layout, linearisation, simulator) of earlier calls
-        on the same spec (keyed by ``spec.content_hash()``; see :mod:`gaintune.verify.context`).
+        on the same spec (keyed by ``spec.content_hash()``; see :mod:`gaintune.verification.context`).
         A cached entry takes precedence over ``plant``/``layout``.
     spec_hash
         ``spec.content_hash()`` when the caller has computed it already (saves hashing the spec again).

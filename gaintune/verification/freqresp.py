@@ -1,10 +1,10 @@
 """The frequency-response engine: the open-loop responses L at every break point, and root zooming.
 
 :class:`Evaluator` evaluates, for one gain set, L at arbitrary frequencies for every row of
-:meth:`gaintune.verify.cascade.Cascade.loop_responses` (each loop broken at its controller
+:meth:`gaintune.verification.cascade.Cascade.loop_responses` (each loop broken at its controller
 output, then the plant input): L(jw) of the continuous loop with its delay
 (:class:`DelayModel`: exact e^{-sT} or a Padé approximant), or L(e^{jw dt}) of the sampled
-loop (:mod:`gaintune.verify.sampled`). Everything is numpy (no python-control objects in
+loop (:mod:`gaintune.verification.sampled`). Everything is numpy (no python-control objects in
 the hot path). :func:`zoom_roots` refines sign changes of a function of L located on a
 grid, vectorised over all brackets at once; :func:`char_freqs` gives the loop's
 characteristic frequencies, from which the analysis grids are sized.
@@ -16,10 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gaintune.lti import complex_schur, pade_response, plant_eigvals
+from gaintune.lti.modes import complex_schur, plant_eigvals
+from gaintune.lti.pade import pade_response
 from gaintune.plants.plant import LinearModel
-from gaintune.verify.cascade import Cascade
-from gaintune.verify.sampled import SampledPlant
+from gaintune.verification.cascade import Cascade
+from gaintune.verification.sampled import SampledPlant
 
 __all__ = ["DelayModel", "Evaluator", "char_freqs", "zoom_roots"]
 
@@ -93,7 +94,7 @@ class Evaluator:
     Schur form and the output rows C Z precomputed, and only the measured outputs formed,
     so one call is a few dozen numpy operations over the frequency vector.
 
-    ``sampled``: evaluate the sampled loop (:mod:`gaintune.verify.sampled`) at z = e^{s dt}
+    ``sampled``: evaluate the sampled loop (:mod:`gaintune.verification.sampled`) at z = e^{s dt}
     instead of the continuous one (``delay`` is then unused).
     """
 

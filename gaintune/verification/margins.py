@@ -1,7 +1,7 @@
 """Loop-at-a-time margins of one gain set from its frequency responses.
 
 Definitions (L = open-loop response at a break point: L(jw) of the continuous loop, or
-L(e^{jw dt}) of the sampled loop, :mod:`gaintune.verify.sampled`, for 0 < w <= pi/dt):
+L(e^{jw dt}) of the sampled loop, :mod:`gaintune.verification.sampled`, for 0 < w <= pi/dt):
 
 * gain crossover: |L(jw)| = 1; phase margin there PM = 180 + arg L wrapped to
   (-180, 180]; the reported PM is the one of smallest magnitude (as
@@ -17,9 +17,9 @@ L(e^{jw dt}) of the sampled loop, :mod:`gaintune.verify.sampled`, for 0 < w <= p
 * Ms = max |1/(1+L)|, Mt = max |L/(1+L)|; disk margin alpha = 1/max|S - 1/2|
   (balanced, skew 0), with disk GM/PM as in ``control.disk_margins``.
 
-:func:`all_margins` takes L on a grid (:mod:`gaintune.verify.analysis` builds it): every
+:func:`all_margins` takes L on a grid (:mod:`gaintune.verification.analysis` builds it): every
 sign change is located on the grid and then zoomed in on
-(:func:`gaintune.verify.freqresp.zoom_roots`, vectorised over all brackets at once), and
+(:func:`gaintune.verification.freqresp.zoom_roots`, vectorised over all brackets at once), and
 the peaks are refined the same way.
 """
 
@@ -30,8 +30,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from gaintune.verify.cascade import Cascade
-from gaintune.verify.freqresp import Evaluator, zoom_roots
+from gaintune.verification.cascade import Cascade
+from gaintune.verification.freqresp import Evaluator, zoom_roots
 
 __all__ = ["Crossing", "BreakFigures", "all_margins", "disk_from_alpha", "MAG_FLOOR", "GM_INF_LIMIT",
            "MAX_PHASE_LISTED"]
@@ -324,7 +324,7 @@ def all_margins(ev: Evaluator, w, L, aL, cas: Cascade, L0, Lend=None) -> list[Br
     Parameters
     ----------
     ev
-        The loop's :class:`~gaintune.verify.freqresp.Evaluator` (zooms evaluate it).
+        The loop's :class:`~gaintune.verification.freqresp.Evaluator` (zooms evaluate it).
     w, L, aL
         The grid (W,), L on it (rows: break points, as ``cas.break_names``) and |L|.
     cas

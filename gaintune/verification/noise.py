@@ -1,7 +1,7 @@
 """Noise sensitivity Mks: the peak gain from each loop's measurement noise to the plant input.
 
 For loop ``i`` of a cascade (others closed) the noise response is
-``N_i = -C_i H_{i+1} / (1 + L_i)`` (:meth:`gaintune.verify.cascade.Cascade.loop_responses`
+``N_i = -C_i H_{i+1} / (1 + L_i)`` (:meth:`gaintune.verification.cascade.Cascade.loop_responses`
 with ``noise=True``); for one loop it is ``-C S``. Mks is ``max_w |N_i(jw)|``:
 
 * the sampled loop (the default analysis): on ``z = e^{jw dt}`` up to the Nyquist frequency,
@@ -11,7 +11,7 @@ with ``noise=True``); for one loop it is ``-C S``. Mks is ``max_w |N_i(jw)|``:
 
 The grid is log-spaced and refined twice around the largest value (the peak of a lightly
 damped loop is narrow). :func:`noise_peaks` serves the exact verification;
-:mod:`gaintune.verify.quick` takes its batched estimate on its own grid.
+:mod:`gaintune.verification.quick` takes its batched estimate on its own grid.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ import math
 import numpy as np
 
 from gaintune.plants.plant import LinearModel
-from gaintune.verify.cascade import Cascade
-from gaintune.verify.freqresp import DelayModel
-from gaintune.verify.sampled import SampledPlant
+from gaintune.verification.cascade import Cascade
+from gaintune.verification.freqresp import DelayModel
+from gaintune.verification.sampled import SampledPlant
 
 __all__ = ["noise_peaks", "NOISE_BAND_EXTENSION"]
 

@@ -17,7 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from gaintune.verify.report import NonlinearReport
+from gaintune.verification.report import NonlinearReport
 
 __all__ = ["nonlinear_check"]
 

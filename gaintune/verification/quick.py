@@ -1,6 +1,6 @@
 """Cheap, batched margin estimates and the requirement violation every search is constrained by.
 
-Same loop algebra and definitions as :func:`gaintune.verify.verify` (break
+Same loop algebra and definitions as :func:`gaintune.verification.verify` (break
 points, dt/2 sampling delay, upper/lower GM, binding PM) but on a coarse log
 grid (default 320 points), numpy-vectorised over the batch of gain sets:
 
@@ -10,7 +10,7 @@ grid (default 320 points), numpy-vectorised over the batch of gain sets:
   matrices (delay as a Padé approximant, order ``verify.pade_order`` or 6).
 
 The estimates agree with the exact verification to a few percent on smooth
-loops; use :func:`gaintune.verify.verify` for the verdict.
+loops; use :func:`gaintune.verification.verify` for the verdict.
 """
 
 from __future__ import annotations
@@ -20,14 +20,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from gaintune.controllers.layout import GainLayout
-from gaintune.lti import pade_response, plant_eigvals
+from gaintune.lti.modes import plant_eigvals
+from gaintune.lti.pade import pade_response
 from gaintune.plants.noise_limit import noise_limits
 from gaintune.plants.plant import LinearModel, Plant
 from gaintune.spec import TuningSpec
-from gaintune.verify.analysis import sampling_delay
-from gaintune.verify.cascade import build_cascade
-from gaintune.verify.sampled import SampledPlant, sample_plant
-from gaintune.verify.stability import observable_part, sampled_stability
+from gaintune.verification.analysis import sampling_delay
+from gaintune.verification.cascade import build_cascade
+from gaintune.verification.sampled import SampledPlant, sample_plant
+from gaintune.verification.stability import observable_part, sampled_stability
 
 __all__ = ["QuickMargins", "quick_margins", "requirement_violation", "requirement_scores", "noise_limit_array", "sampled_grid", "UNSTABLE_VIOLATION",
            "FEASIBILITY_MARGIN", "MAX_TERM"]
@@ -37,7 +38,7 @@ UNSTABLE_VIOLATION = 10.0
 #: The search counts a requirement as met only this far (relative) inside its limit. The
 #: estimate agrees with the exact verification to ~1e-5 in Ms and a few 1e-5 in PM on the
 #: standard suite, so answers the search calls feasible pass the exact check; the exact
-#: settle step (gaintune.boundary) then pushes them onto the boundary itself.
+#: settle step (gaintune.evaluation.boundary_exact) then pushes them onto the boundary itself.
 FEASIBILITY_MARGIN = 5e-5
 #: Cap of one requirement's relative violation.
 MAX_TERM = 5.0
@@ -119,7 +120,7 @@ def quick_margins(
 ) -> QuickMargins:
     """Batched margin estimates for full gain vectors ``full_gains`` (B, n_gains).
 
-    The loop is the one :func:`gaintune.verify.verify` analyses: with ``verify.sampled`` the
+    The loop is the one :func:`gaintune.verification.verify` analyses: with ``verify.sampled`` the
     sampled loop on a grid ending at the Nyquist frequency (an end point of the Nyquist curve,
     like w = 0), else the continuous loop with dt/2 (and the computation delay) of extra delay.
 
@@ -205,7 +206,7 @@ def quick_margins(
             gm_b = np.minimum(gm_b, np.where(ny_cross, np.abs(20.0 * np.log10(np.abs(Ln))), np.inf))
     tr = lambda x: np.moveaxis(np.concatenate([x, x[-1:]]), 0, -1)  # (R, B) -> (B, R + 1): the plant input last
     tr_loops = lambda x: np.moveaxis(x, 0, -1)  # (R, B) -> (B, R), per loop (mks)
-    if not stability:  # the caller checks stability elsewhere (gaintune.repair's final check)
+    if not stability:  # the caller checks stability elsewhere (gaintune.evaluation.boundary_estimate's final check)
         return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), tr_loops(mks), tr(wc_b), np.ones(B, dtype=bool),
                             np.full(B, -np.inf), w, cas.break_names)
     if sp is not None:  # closed-loop stability of the sampled loop: |z| < 1
@@ -274,7 +275,7 @@ def requirement_scores(
     """(violation, shortfall), each (B,): the violation of :func:`requirement_violation`, and the signed
     tightest relative shortfall (the largest term, FEASIBILITY_MARGIN included; <= 0 exactly when the
     violation is 0; the unstable grade for an unstable loop). The shortfall is what a root finder
-    along a gain direction needs (:mod:`gaintune.repair`). ``stability=False`` skips the closed-loop
+    along a gain direction needs (:mod:`gaintune.evaluation.boundary_estimate`). ``stability=False`` skips the closed-loop
     stability check (every loop counts as stable): only for a caller that checks it afterwards."""
     if noise_limit is None:
         noise_limit = noise_limit_array(spec, plant)

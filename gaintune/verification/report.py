@@ -14,6 +14,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from gaintune.spec import Gains
+
 __all__ = [
     "CrossingModel",
     "LoopFigures",
@@ -179,11 +181,11 @@ class RequirementLine(_Out):
 
 
 class VerificationReport(_Out):
-    """Result of :func:`gaintune.verify.verify`."""
+    """Result of :func:`gaintune.verification.verify`."""
 
     spec_name: str
     spec_hash: str
-    gains: dict[str, dict[str, float]]
+    gains: Gains
     verdict: Literal["pass", "fail"]
     reasons: list[str] = Field(default_factory=list, description="Why the verdict is fail (binding requirement first).")
     delay: float = Field(description="Nominal plant input delay (s).")
@@ -214,7 +216,7 @@ class VerificationReport(_Out):
         return self.verdict == "pass"
 
     @property
-    def accepted_gains(self) -> dict[str, dict[str, float]] | None:
+    def accepted_gains(self) -> Gains | None:
         """The gains, only when the verdict is ``pass``; else None."""
         return self.gains if self.verdict == "pass" else None
 

@@ -61,7 +61,7 @@ def zoh_delay(A: np.ndarray, B: np.ndarray, dt: float, delay: float) -> tuple[np
         M = np.zeros((n + 1, n + 1))
         M[:n, :n] = A * h
         M[:n, n:] = B * h
-        import scipy.linalg  # deferred: ~0.2 s at import; `import gaintune.verify` stays light
+        import scipy.linalg  # deferred: ~0.2 s at import; `import gaintune.verification` stays light
 
         E = scipy.linalg.expm(M)
         return E[:n, :n], E[:n, n]

@@ -23,12 +23,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gaintune.lti import observable_split, plant_eigvals
+from gaintune.lti.modes import observable_split, plant_eigvals
 from gaintune.plants.plant import LinearModel
-from gaintune.verify.cascade import Cascade
-from gaintune.verify.freqresp import DelayModel, Evaluator, char_freqs
-from gaintune.verify.sampled import SampledPlant
-from gaintune.verify.tail import chain_ss, level_clear
+from gaintune.verification.cascade import Cascade
+from gaintune.verification.freqresp import DelayModel, Evaluator, char_freqs
+from gaintune.verification.sampled import SampledPlant
+from gaintune.verification.tail import chain_ss, level_clear
 
 __all__ = ["Stability", "closed_loop_stability", "closed_loop_stability_sampled", "sampled_stability",
            "nyquist_count_sampled", "observable_part", "EIG_MAX", "QUICK_EIG_MAX"]
@@ -80,7 +80,7 @@ def observable_part(lin: LinearModel, measured: tuple[int, ...], tol: float = 1e
     Modes no loop measures are not moved by feedback: they are open-loop poles of
     the closed loop too. Returns (reduced model, eigenvalues of the unobservable part).
     Only valid for PID cascades (LQ state feedback sees every state). The split is
-    :func:`gaintune.lti.observable_split`; the result is remembered per model object.
+    :func:`gaintune.lti.modes.observable_split`; the result is remembered per model object.
     """
     key = (id(lin), measured)
     hit = _OBS_CACHE.get(key)
@@ -149,7 +149,7 @@ def _argument_principle(ev: Evaluator, ol_poles: np.ndarray, w_hi: float, eps: f
 
     The contour runs on the grid up to ``w_hi``; above it |L| < 1 keeps 1 + L in the right
     half-plane, so the rest of the contour adds the principal angle from 1 + L(w_hi) to
-    1 + L(inf). ``tail_proven``: that bound is proven (:mod:`gaintune.verify.tail`) rather
+    1 + L(inf). ``tail_proven``: that bound is proven (:mod:`gaintune.verification.tail`) rather
     than checked at one far point.
     """
     w, phi = _contour(ev, ol_poles, w_hi, eps, n_freq)

@@ -4,7 +4,7 @@ This concerns the continuous analysis (``verify.sampled: false``; the sampled lo
 simply ends at pi/dt, where its Nyquist curve ends). The loop is analysed in continuous time
 with the sample-and-hold as dt/2 of delay, a model that only holds below the Nyquist frequency pi/dt. Resolving the delay's phase spin far
 above it (up to where |L| < 1e-4, often 1e7 rad/s) costs most of the grid and describes
-nothing physical. :func:`gaintune.verify.analysis.analyse` therefore stops the band at a
+nothing physical. :func:`gaintune.verification.analysis.analyse` therefore stops the band at a
 multiple of the Nyquist frequency, *provided* this module proves that the frequencies above
 the band cannot change any figure or the stability count:
 
@@ -22,7 +22,7 @@ eigenvalue on the axis above w_cap, |G(j w_cap)| < gamma and |D| < gamma imply
 |G(jw)| < gamma for every w >= w_cap.
 
 Outer loops of a cascade are not rational (the inner loops close around the delay):
-with the notation of :mod:`gaintune.verify.cascade`, L_i = -g_i H_{i+1} and
+with the notation of :mod:`gaintune.verification.cascade`, L_i = -g_i H_{i+1} and
 H_{i+1} = Phi_{i+1} / (1 - g^{(i+1)}), where g_i = e^{-sT} G_i, g^{(i+1)} = e^{-sT} Gin_{i+1}
 (the plant-input loop of loops i+1.. alone) and Phi_{i+1} the product of the inner setpoint
 paths, all rational. Hence |L_i| <= |G_i Phi_{i+1}| / (1 - |Gin_{i+1}|), bounded by two
@@ -37,7 +37,7 @@ import math
 import numpy as np
 
 from gaintune.plants.plant import LinearModel
-from gaintune.verify.cascade import controller_state_index
+from gaintune.verification.cascade import controller_state_index
 
 __all__ = ["chain_ss", "series", "level_clear", "tail_levels"]
 
@@ -196,7 +196,7 @@ def level_clear(g: SS, gamma: float, w_lo: float, shift: float = 0.0) -> bool:
 def tail_levels(fig, floor: float) -> float:
     """Largest tau such that |L| < tau above the band cannot change this row's figures.
 
-    ``fig``: the band's :class:`~gaintune.verify.margins.BreakFigures`; ``floor``: the |L|
+    ``fig``: the band's :class:`~gaintune.verification.margins.BreakFigures`; ``floor``: the |L|
     below which a phase crossing counts as none (MAG_FLOOR).
     """
     t = 1.0  # no gain crossing, no lower gain margin

@@ -13,15 +13,15 @@ import numpy as np
 import pytest
 
 from gaintune.baselines import run_baseline
-from gaintune.boundary import settle
+from gaintune.evaluation.boundary_exact import onto_boundary_exact
 from gaintune.envs.problem import GainProblem
 from gaintune.export.verdict import result_verdict_at_dt, verdict_at_dt
 from gaintune.plants.library import load_model
-from gaintune.repair import repair
+from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.search import tune
-from gaintune.search_box import make_evaluator
+from gaintune.evaluation.search_box import make_evaluator
 from gaintune.spec import load_spec
-from gaintune.verify import verify
+from gaintune.verification import verify
 
 LOAD = {"name": "load", "dt": 0.05, "horizon": 40, "reference": {"kind": "none"},
         "disturbance": {"kind": "step", "amplitude": 1.0, "entry": "input"}}
@@ -52,7 +52,7 @@ def test_backoff_aims_inside_the_limit_while_verdict_judges_exact_limit():
     aim = spec.requirements.backoff.aim("ms_max", 1.4)
     assert aim == pytest.approx(1.4 * (1 - 0.01))
     gp = GainProblem(spec)
-    st = settle(gp.evaluator, np.array([0.9, 0.45]))  # Ms about 1.6
+    st = onto_boundary_exact(gp.evaluator, np.array([0.9, 0.45]))  # Ms about 1.6
     assert st.action == "pulled_inside"
     _, line = _ms_line(spec, st.tuned)
     assert aim - 0.005 <= line.value <= aim + 1e-9  # on the aim, inside the limit by the back-off
@@ -71,13 +71,13 @@ def test_backoff_zero_restores_exact_boundary():
     settled Nelder-Mead baseline)."""
     spec = _spec(backoff=0)
     gp = GainProblem(spec)
-    pushed = settle(gp.evaluator, np.array([0.6166, 0.3170]) * 0.98).tuned
-    pulled = settle(gp.evaluator, np.array([0.9, 0.45])).tuned
+    pushed = onto_boundary_exact(gp.evaluator, np.array([0.6166, 0.3170]) * 0.98).tuned
+    pulled = onto_boundary_exact(gp.evaluator, np.array([0.9, 0.45])).tuned
     assert pushed.tolist() == [0.6164290489195331, 0.3169121124026792]
     assert pulled.tolist() == [0.6331410631698658, 0.3165705315849329]
     gp2 = GainProblem(_spec("pid", backoff=0))
     base = gp2.layout.initial_tuned()
-    r = repair(gp2.evaluator, np.array([base * f for f in (1.6, 2.0, 2.4)]))
+    r = onto_boundary_estimate(gp2.evaluator, np.array([base * f for f in (1.6, 2.0, 2.4)]))
     assert r.tuned.tolist() == [[1.9181034170991824, 0.7672413668396725, 1.1508620502595102],
                                 [1.9182875521569118, 0.7673150208627643, 1.150972531294148],
                                 [1.92045117295098, 0.7681804691803916, 1.1522707037705888]]
@@ -86,7 +86,7 @@ def test_backoff_zero_restores_exact_boundary():
     b = run_baseline(spec, "nelder_mead", budget=150, seed=0)
     assert b.gains == {"main": {"Kp": 0.6082111626894211, "Ki": 0.3169653655966487}}
     # and the default back-off does move them (the test can fail)
-    assert settle(GainProblem(_spec()).evaluator, np.array([0.9, 0.45])).tuned.tolist() != pulled.tolist()
+    assert onto_boundary_exact(GainProblem(_spec()).evaluator, np.array([0.9, 0.45])).tuned.tolist() != pulled.tolist()
 
 
 def _tank(backoff=None):
@@ -107,7 +107,7 @@ def test_water_tank_answer_settled_with_default_backoff_passes_at_twice_design_d
     for backoff in (None, 0):
         spec = _tank(backoff)
         ev = make_evaluator(spec)
-        st = settle(ev, TANK_ON_THE_LIMIT)
+        st = onto_boundary_exact(ev, TANK_ON_THE_LIMIT)
         gains = ev.layout.to_dict(ev.layout.full(st.tuned))
         v_design, rep_design = verdict_at_dt(spec, gains)
         v_double, rep_double = verdict_at_dt(spec, gains, 0.2)

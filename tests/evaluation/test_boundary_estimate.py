@@ -1,4 +1,4 @@
-"""The RL search's constraint projection (gaintune.repair), and the bug it fixes.
+"""The RL search's constraint projection (gaintune.evaluation.boundary_estimate), and the bug it fixes.
 
 Bug (issue 12): with feasibility-first rewards, every policy sample across an active
 requirement boundary scored far below every feasible one, so the PPO policy mean kept well
@@ -13,10 +13,11 @@ import numpy as np
 import pytest
 
 from gaintune.envs.problem import GainProblem
-from gaintune.repair import TOL, loop_gain_exponents, repair
+from gaintune.evaluation.boundary import loop_gain_exponents
+from gaintune.evaluation.boundary_estimate import TOL, onto_boundary_estimate
 from gaintune.search import tune
 from gaintune.spec import load_spec
-from gaintune.verify import verify
+from gaintune.verification import verify
 
 LOAD = {"name": "load", "reference": {"kind": "none"}, "disturbance": {"kind": "step", "amplitude": 1.0, "entry": "input"}}
 
@@ -53,7 +54,7 @@ def test_repair_moves_stable_infeasible_gains_onto_the_ms_boundary_keeping_their
     tuned = np.array([base * f for f in (1.6, 2.0, 2.4)])
     v0 = gp.evaluator.requirement_violation(tuned)
     assert np.all((v0 > 0) & (v0 < 10))  # infeasible but stable: what repair handles
-    r = repair(gp.evaluator, tuned)
+    r = onto_boundary_estimate(gp.evaluator, tuned)
     assert r.repaired.all() and np.all(r.violation == 0) and np.all(r.alpha < 1)
     for row, orig in zip(r.tuned, tuned):
         ratio = row / orig
@@ -68,7 +69,7 @@ def test_repair_leaves_feasible_and_unstable_rows_alone():
     tuned = np.array([base * 0.5, base * 40.0])
     v0 = gp.evaluator.requirement_violation(tuned)
     assert v0[0] == 0 and v0[1] >= 10
-    r = repair(gp.evaluator, tuned)
+    r = onto_boundary_estimate(gp.evaluator, tuned)
     assert not r.repaired.any()
     np.testing.assert_array_equal(r.tuned, tuned)
     np.testing.assert_array_equal(r.violation, v0)
@@ -79,7 +80,7 @@ def test_repair_lands_on_the_backoff_aim_never_between_it_and_the_limit():
     gp = GainProblem(spec)
     aim = spec.requirements.backoff.aim("ms_max", 1.4)
     tuned = np.array([gp.layout.initial_tuned() * f for f in (1.6, 2.0, 2.4)])
-    r = repair(gp.evaluator, tuned)
+    r = onto_boundary_estimate(gp.evaluator, tuned)
     assert r.repaired.all() and np.all(r.violation == 0)
     for row in r.tuned:
         assert aim * (1 - 5 * TOL) <= _exact_ms(spec, gp, row) <= aim + 1e-4  # by the exact check

@@ -1,11 +1,11 @@
-"""Cost arithmetic of gaintune.objective against hand-computed values."""
+"""Cost arithmetic of gaintune.evaluation.evaluator against hand-computed values."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from gaintune.objective import (
+from gaintune.evaluation.evaluator import (
     DIVERGED_COST,
     DIVERGED_VIOLATION,
     INFEASIBLE_MERIT,

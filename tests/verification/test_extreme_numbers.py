@@ -16,9 +16,9 @@ import pytest
 
 from gaintune.errors import GainError, SpecError
 from gaintune.spec import load_spec
-from gaintune.verify import verify
-from gaintune.verify.margins import disk_from_alpha
-from gaintune.verify.report import VerificationReport
+from gaintune.verification import verify
+from gaintune.verification.margins import disk_from_alpha
+from gaintune.verification.report import VerificationReport
 
 BASE: dict[str, Any] = {"plant": {"tf": {"num": [1], "den": "(s+1)^2"}}, "loops": [{"type": "pi"}],
                         "scenario": {"dt": 0.05, "horizon": 5}}

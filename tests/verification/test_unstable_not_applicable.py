@@ -6,8 +6,8 @@ import pytest
 
 from gaintune.plants.library import load_model
 from gaintune.spec import load_spec
-from gaintune.verify import verify
-from gaintune.verify.report import NOT_APPLICABLE, format_table
+from gaintune.verification import verify
+from gaintune.verification.report import NOT_APPLICABLE, format_table
 
 #: On the demo plant 1/(s+1)^3: both are unstable; the first printed PASS gm_min_db and PASS ms_max,
 #: the second "nonlinear check: ok".

@@ -1,4 +1,4 @@
-"""Correctness of gaintune.verify: against python-control, hand derivations, published values and known traps."""
+"""Correctness of gaintune.verification: against python-control, hand derivations, published values and known traps."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import pytest
 
 from gaintune.errors import GainError
 from gaintune.spec import load_spec
-from gaintune.verify import format_table, verify
-from gaintune.verify.report import VerificationReport
+from gaintune.verification import format_table, verify
+from gaintune.verification.report import VerificationReport
 from plant_fixtures import MOTOR
 
 # dt = 1 us: the dt/2 sampling delay is negligible when comparing with delay-free python-control loops

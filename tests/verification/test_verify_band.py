@@ -1,4 +1,4 @@
-"""The analysis band (10 x Nyquist) and the proven tail above it (gaintune.verify.tail).
+"""The analysis band (10 x Nyquist) and the proven tail above it (gaintune.verification.tail).
 
 The band may only stop short of where |L| is negligible when nothing above it can change a
 figure or the stability count. These tests check the pieces (Hamiltonian level test, the
@@ -17,12 +17,12 @@ import pytest
 from gaintune.controllers.layout import GainLayout
 from gaintune.plants.plant import build_plant
 from gaintune.spec import load_spec as _load_spec
-from gaintune.verify import verify
-from gaintune.verify.analysis import analyse, sampling_delay
-from gaintune.verify.cascade import build_cascade
-from gaintune.verify.core import _to_model, analysis_band
-from gaintune.verify.freqresp import DelayModel
-from gaintune.verify.tail import chain_ss, level_clear, series
+from gaintune.verification import verify
+from gaintune.verification.analysis import analyse, sampling_delay
+from gaintune.verification.cascade import build_cascade
+from gaintune.verification.core import _to_model, analysis_band
+from gaintune.verification.freqresp import DelayModel
+from gaintune.verification.tail import chain_ss, level_clear, series
 from plant_fixtures import MOTOR
 
 def load_spec(d: dict):
@@ -305,7 +305,7 @@ def test_pade_mode_keeps_the_adequacy_check():
 
 def test_robust_worst_case_same_with_and_without_band(monkeypatch):
     """Every robust sample is analysed on the band too; the worst case is the uncapped one."""
-    import gaintune.verify.core as core
+    import gaintune.verification.core as core
 
     spec = load_spec({"plant": {"tf": {"num": ["K"], "den": "T*s+1"}, "params": {"K": 1.0, "T": 1.0}, "delay": 0.1},
                       "loops": [{"type": "pi"}], "scenario": {"dt": 0.01, "horizon": 20},
@@ -327,7 +327,7 @@ def test_robust_worst_case_same_with_and_without_band(monkeypatch):
 
 
 def test_report_band_round_trips_through_json():
-    from gaintune.verify.report import VerificationReport
+    from gaintune.verification.report import VerificationReport
 
     rep = verify(load_spec(API_CASCADE), {"speed": {"Kp": 2.0, "Ki": 40.0}, "current": {"Kp": 10.0, "Ki": 1000.0}},
                  nonlinear=False)

@@ -14,12 +14,12 @@ import pytest
 from gaintune.controllers.layout import GainLayout
 from gaintune.plants.plant import build_plant
 from gaintune.spec import load_spec
-from gaintune.verify import quick_margins, verify
-from gaintune.verify.analysis import analyse
-from gaintune.verify.cascade import build_cascade
-from gaintune.verify.report import VerificationReport
-from gaintune.verify.sampled import sample_plant, zoh_delay
-from gaintune.verify.stability import observable_part
+from gaintune.verification import quick_margins, verify
+from gaintune.verification.analysis import analyse
+from gaintune.verification.cascade import build_cascade
+from gaintune.verification.report import VerificationReport
+from gaintune.verification.sampled import sample_plant, zoh_delay
+from gaintune.verification.stability import observable_part
 from plant_fixtures import MOTOR
 
 #: The API benchmark's DC-motor cascade (speed PI outside, current PI inside) at dt = 1 ms.
@@ -361,7 +361,7 @@ def test_nonlinear_plant_is_stepped_as_the_simulator_does():
 def test_long_delay_nyquist_count_agrees_with_the_poles():
     """Closed loops beyond EIG_MAX states (a long input buffer) are decided by the discrete Nyquist
     count alone: it agrees with the eigenvalues, stable and unstable, also in the quick estimate."""
-    import gaintune.verify.stability as stability_mod
+    import gaintune.verification.stability as stability_mod
 
     for gains, stable in (({"Kp": 0.3, "Ki": 0.3}, True), ({"Kp": 2.0, "Ki": 2.0}, False)):
         spec = spec_of({"tf": {"num": [1], "den": [1, 1]}, "delay": 0.8}, [{"type": "pi"}], 0.01, 20)
@@ -417,7 +417,7 @@ def test_reverse_acting_loop_mirrors_the_direct_one():
 
 def test_loop_frequency_responses_are_the_verified_loop():
     """The helper for plots gives the L that verify analysed: e.g. the GM at the Nyquist frequency."""
-    from gaintune.verify.core import loop_frequency_responses
+    from gaintune.verification.core import loop_frequency_responses
 
     for sampled in (True, False):
         spec = with_verify(MOTOR2, sampled=sampled)
@@ -446,7 +446,7 @@ def test_report_fields_and_json_round_trip():
         old["stability"].pop(k)
     again = VerificationReport.model_validate(old)
     assert not again.sampled and [f.gm_binding for f in again.loops] == [f.gm_binding for f in rep.loops]
-    from gaintune.verify import format_table
+    from gaintune.verification import format_table
 
     text = format_table(rep)
     assert "DM smp" in text and "sampled loop at dt 0.001 s" in text

@@ -13,7 +13,7 @@ from gaintune.controllers.layout import GainLayout
 from gaintune.plants.noise_limit import AUTO_SPEEDUP, noise_limits, path_relative_degree
 from gaintune.plants.plant import build_plant
 from gaintune.spec import load_spec
-from gaintune.verify import quick_margins, verify
+from gaintune.verification import quick_margins, verify
 
 FIRST_ORDER = {"tf": {"num": [2.0], "den": [5.0, 1.0]}}
 

@@ -11,9 +11,9 @@ from gaintune.controllers.layout import GainLayout
 from gaintune.controllers.pid import pid_params
 from gaintune.plants.plant import build_plant
 from gaintune.spec import load_spec
-from gaintune.verify import quick_margins, requirement_violation, verify
-from gaintune.verify.cascade import pid_arrays
-from gaintune.verify.quick import UNSTABLE_VIOLATION
+from gaintune.verification import quick_margins, requirement_violation, verify
+from gaintune.verification.cascade import pid_arrays
+from gaintune.verification.quick import UNSTABLE_VIOLATION
 from plant_fixtures import MOTOR
 
 MOTOR_LOOPS = [
