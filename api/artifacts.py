@@ -9,7 +9,7 @@ import importlib
 from pathlib import Path
 from typing import Any
 
-from gaintune_api.problems import ApiError
+from gaintune_api.problem_details import ApiError
 
 __all__ = ["render_report", "render_report_html", "export_gains", "export_verdict", "EXPORT_MEDIA"]
 

@@ -3,7 +3,7 @@
 Verification is Python + NumPy on small arrays and holds the GIL, so threads add
 contention rather than throughput. ``compute_processes`` warm worker processes
 (spawned once, at start-up, from the server's main thread) run the computations
-instead; each keeps the per-spec caches of :mod:`gaintune.verify.context` (plant,
+instead; each keeps the per-spec caches of :mod:`gaintune.verification.context` (plant,
 layout, linearisation, simulator) between requests. ``compute_processes = 0``
 computes in the server process, in at most ``compute_threads`` threads.
 
@@ -63,7 +63,7 @@ def _init_worker(parent: int) -> None:
 def warm_up_compute() -> int:
     """Run one tiny verification (imports, compiled simulator). Returns the worker's pid."""
     from gaintune.spec import load_spec
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^2"}}, "loops": [{"type": "pi"}],
                       "scenario": {"dt": 0.05, "horizon": 5.0}})
@@ -78,7 +78,7 @@ def compute_verify(spec, gains, robust, nonlinear, plant=None, layout=None, spec
     ``spec.content_hash()``, already computed by the server.
     """
     from gaintune.errors import GaintuneError, problem_details
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     try:
         report = verify(spec, gains, robust=robust, nonlinear=nonlinear, plant=plant, layout=layout, spec_hash=spec_hash)

@@ -7,14 +7,14 @@ Layout under ``data_dir/jobs/<id>/``::
     report.html              rendered on first request and cached
 
 An attempt writes only into its own staging folder. :meth:`JobFiles.promoter`
-gives :meth:`gaintune_api.store.JobStore.finish` the function that renames the staged
+gives :meth:`gaintune_api.job_store.JobStore.finish` the function that renames the staged
 files into the job folder; the store calls it inside its write transaction,
 after checking the attempt's claim token, so a stale attempt (a frozen worker
 that resumes after its job was recovered and finished elsewhere) can never
 replace a finished job's files. The manifest it returns (SHA-256 and size per
 file) is stored with the result and checked whenever a file is served.
 
-Every write here goes through the storage-fault layer (:mod:`gaintune_api.storage`):
+Every write here goes through the storage-fault layer (:mod:`gaintune_api.storage_faults`):
 an ``OSError`` of a full or read-only disk leaves as a named ``StorageFault``.
 """
 
@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from gaintune.files import write_atomic
-from gaintune_api.storage import FaultInjector, classify
+from gaintune_api.storage_faults import FaultInjector, classify
 
 __all__ = ["JobFiles", "ArtifactMissing", "ArtifactMismatch"]
 
@@ -75,7 +75,7 @@ class JobFiles:
     jobs_dir
         ``Settings.jobs_dir``.
     faults
-        Tests only: injected storage faults (see :class:`gaintune_api.storage.FaultInjector`).
+        Tests only: injected storage faults (see :class:`gaintune_api.storage_faults.FaultInjector`).
     """
 
     def __init__(self, jobs_dir: Path, faults: FaultInjector | None = None) -> None:
@@ -142,7 +142,7 @@ class JobFiles:
         return str(self.job_dir(job_id) / p.name)
 
     def promoter(self, job_id: str, staging: Path, attempt: int, claim: str) -> Callable[[], dict[str, Any]]:
-        """The function :meth:`gaintune_api.store.JobStore.finish` calls, under its write lock, once the claim is verified.
+        """The function :meth:`gaintune_api.job_store.JobStore.finish` calls, under its write lock, once the claim is verified.
 
         Digests are computed now, outside the lock; the returned function only renames
         (``os.replace``, atomic per file) the staged files into the job folder and returns

@@ -15,7 +15,7 @@ from typing import Any, Callable
 from fastapi import Request, Response
 from fastapi.routing import APIRoute
 
-from gaintune_api.problems import ApiError
+from gaintune_api.problem_details import ApiError
 
 __all__ = ["StrictJSONRoute", "parse_strict", "parse_yaml", "body_kind", "check_shape"]
 

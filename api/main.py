@@ -18,13 +18,13 @@ from gaintune_api.compute import ComputePool
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.metrics import Metrics
 from gaintune_api.middleware import BodySizeLimit, CatchAll, DocsAuth, LatencyMetrics
-from gaintune_api.problems import SafeJSONResponse, install_handlers
+from gaintune_api.problem_details import SafeJSONResponse, install_handlers
 from gaintune_api.routes import jobs, ops, plants, simulate, verify
 from gaintune_api.routes.docs import install_docs
 from gaintune_api.schemas import install_client_openapi
 from gaintune_api.settings import Settings, warn_unknown_settings
-from gaintune_api.storage import FaultInjector, StorageFault
-from gaintune_api.store import JobStore
+from gaintune_api.storage_faults import FaultInjector, StorageFault
+from gaintune_api.job_store import JobStore
 from gaintune_api.supervisor import Supervisor
 
 __all__ = ["create_app", "app", "serve"]
@@ -50,7 +50,7 @@ def _warm_up(done: threading.Event, pool: ComputePool | None = None) -> None:
             for f in pool.warm:
                 f.result(timeout=300)
         from gaintune.spec import load_spec
-        from gaintune.verify import verify
+        from gaintune.verification import verify
 
         spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^2"}}, "loops": [{"type": "pi"}],
                           "scenario": {"dt": 0.05, "horizon": 5.0}})

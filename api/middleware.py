@@ -10,7 +10,7 @@ from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from gaintune_api.metrics import Metrics
-from gaintune_api.problems import error_response, problem_response
+from gaintune_api.problem_details import error_response, problem_response
 
 __all__ = ["BodySizeLimit", "LatencyMetrics", "CatchAll", "DocsAuth"]
 

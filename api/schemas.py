@@ -13,13 +13,13 @@ from typing import TYPE_CHECKING, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from gaintune.search.result import PolicyAnswer
-from gaintune.spec import FiniteNumber, TuningSpec
+from gaintune.spec import FiniteNumber, Gains, TuningSpec
 
 if TYPE_CHECKING:
     from fastapi import FastAPI
 
 __all__ = [
-    "Gains", "JobStatus", "ProgressPublic", "JobResultPublic", "JobPublic", "JobSummary", "JobList",
+    "GainsBody", "JobStatus", "ProgressPublic", "JobResultPublic", "JobPublic", "JobSummary", "JobList",
     "VerifyRequest", "SimulateRequest", "ScenarioTrace", "SimulateResponse",
     "ParamPublic", "SignalPublic", "PlantPublic", "PlantList", "Health", "Ready", "ExportFormat",
     "request_schema_names", "request_defaults_optional", "install_client_openapi",
@@ -27,8 +27,8 @@ __all__ = [
 
 #: A finite number; true/false are refused, not read as 1/0.
 FiniteFloat = FiniteNumber
-#: ``{loop_name: {gain_name: value}}``
-Gains = dict[str, dict[str, FiniteFloat]]
+#: Request gains, :data:`gaintune.spec.Gains` with every value finite and not a boolean
+GainsBody = dict[str, dict[str, FiniteFloat]]
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 ExportFormat = Literal["json", "yaml", "c", "matlab", "python"]
 #: A number, or "Infinity"/"-Infinity"/"NaN" for non-finite figures (JSON has no such numbers).
@@ -56,7 +56,7 @@ class JobResultPublic(BaseModel):
     """The outcome of a finished search. ``accepted_gains`` is set only when verification passed."""
 
     verdict: Literal["pass", "fail"] | None = Field(description="Verification verdict (null: not verified).")
-    accepted_gains: dict[str, dict[str, float]] | None = Field(
+    accepted_gains: Gains | None = Field(
         description="The tuned gains, present ONLY when the verification verdict is pass."
     )
     algo: str
@@ -109,7 +109,7 @@ class JobList(BaseModel):
 
 class VerifyRequest(_In):
     spec: TuningSpec
-    gains: Gains = Field(description="{loop_name: {gain_name: value}}; fixed gains may be omitted.")
+    gains: GainsBody = Field(description="{loop_name: {gain_name: value}}; fixed gains may be omitted.")
     robust: bool | None = Field(None, description="Check the randomisation set; default: when the spec randomises.")
     nonlinear: bool = Field(True, description="Run the nonlinear simulation check.")
 
@@ -127,7 +127,7 @@ class PolicyAnswers(BaseModel):
 
 class SimulateRequest(_In):
     spec: TuningSpec
-    gains: Gains
+    gains: GainsBody
     max_points: int = Field(2000, ge=2, le=1_000_000, description="Most points per trace (capped by the server).")
     scenarios: list[str] | None = Field(None, max_length=64, description="Scenario names to run; default all.")
 
@@ -143,7 +143,7 @@ class ScenarioTrace(BaseModel):
 
 
 class SimulateResponse(BaseModel):
-    gains: dict[str, dict[str, float]]
+    gains: Gains
     max_points: int
     scenarios: list[ScenarioTrace]
 

@@ -104,7 +104,7 @@ class Settings(BaseSettings):
     test_storage_fault_file: Path | None = Field(
         None, description="FOR TESTS ONLY (unset in production: no effect). While this file exists, the words in it "
         "(db:readonly, db:full, data:readonly, data:full) make the job store and the artefact layer fail writes as a "
-        "read-only or full disk would (see gaintune_api.storage.FaultInjector): deterministic storage-fault tests, even as root.",
+        "read-only or full disk would (see gaintune_api.storage_faults.FaultInjector): deterministic storage-fault tests, even as root.",
     )
 
     @field_validator("api_keys", "cors_origins", mode="before")

@@ -59,7 +59,7 @@ def simulate_payload(spec, gains, chosen: list[int], max_points: int, plant=None
     """
     import orjson
 
-    from gaintune.verify.context import spec_context
+    from gaintune.verification.context import spec_context
 
     ctx = spec_context(spec, plant, layout)
     full = ctx.layout.from_dict(gains)

@@ -16,7 +16,7 @@ from typing import Any, Literal
 from pydantic import ValidationError
 
 from gaintune_api.deps import run_compute
-from gaintune_api.problems import ApiError
+from gaintune_api.problem_details import ApiError
 from gaintune_api.settings import Settings
 from gaintune.cache import LRU
 from gaintune.errors import GaintuneError, problem_details
@@ -32,7 +32,7 @@ Purpose = Literal["tune", "verify", "simulate"]
 #: limit (:func:`gaintune.plants.expr.cpu_budget`), checked at every expression node evaluated: a
 #: thread cannot be stopped from outside, and the work between two checks is bounded (degree <=
 #: MAX_ORDER, expressions <= 2000 characters). Thread CPU time, so load from other requests does not
-#: count. The simulator set-up (Problem.build) runs outside it: a cold server compiles kernels there.
+#: count. The simulator set-up (SimSetup.build) runs outside it: a cold server compiles kernels there.
 SPEC_CPU_SECONDS = 5.0
 _CHECK_LOCK = threading.Lock()
 
@@ -118,9 +118,9 @@ def check_spec(spec: TuningSpec, settings: Settings, purpose: Purpose, *, prefix
         if purpose == "tune":
             layout.require_tuned()
         if purpose in ("tune", "simulate"):
-            from gaintune.sim.build import Problem
+            from gaintune.sim.build import SimSetup
 
-            Problem.build(spec, plant, layout)
+            SimSetup.build(spec, plant, layout)
     except ApiError:
         raise
     except (GaintuneError, ValidationError) as exc:

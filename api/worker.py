@@ -25,7 +25,7 @@ and later tries reuse its manifest, so finished work is written, not recomputed.
 
 A worker started by the supervisor also beats a shared-memory *pulse* from a
 thread, so the supervisor and ``/readyz`` can tell a frozen process from a live one,
-and publishes the claim it holds (:func:`gaintune_api.store.claim_tag`, 0 when idle),
+and publishes the claim it holds (:func:`gaintune_api.job_store.claim_tag`, 0 when idle),
 so the supervisor kills it for an expired lease only while it still holds that attempt.
 """
 
@@ -43,8 +43,8 @@ from typing import Any, Callable
 
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.settings import Settings, warn_unknown_settings
-from gaintune_api.storage import FaultInjector, StorageFault, classify
-from gaintune_api.store import JobRow, JobStore, claim_tag
+from gaintune_api.storage_faults import FaultInjector, StorageFault, classify
+from gaintune_api.job_store import JobRow, JobStore, claim_tag
 
 __all__ = ["worker_main", "run_job", "process_next", "PROCESS_NAME"]
 
@@ -359,7 +359,7 @@ def worker_main(settings_data: dict[str, Any], index: int = 0, parent: int | Non
     pulse
         A shared ``multiprocessing.Value('d')`` the worker beats every ``heartbeat_interval`` (None: standalone).
     holding
-        A shared ``multiprocessing.Value('q')``: the :func:`gaintune_api.store.claim_tag` of the attempt
+        A shared ``multiprocessing.Value('q')``: the :func:`gaintune_api.job_store.claim_tag` of the attempt
         this worker runs, 0 when idle (None: standalone).
     """
     if parent is not None:

@@ -13,7 +13,7 @@ behind them. :class:`WriteGate` keeps that from happening:
   refused at once instead of queueing, so at most one thread waits on the lock;
 * at most ``max_waiting`` writes queue behind the one in progress.
 
-A refused write raises :class:`gaintune_api.storage.StorageFault` ``database-locked``
+A refused write raises :class:`gaintune_api.storage_faults.StorageFault` ``database-locked``
 (503 with ``Retry-After``). Reads never pass through the gate: in WAL mode they do
 not wait for a writer.
 """
@@ -25,7 +25,7 @@ import time
 from contextlib import contextmanager
 from typing import Iterator
 
-from gaintune_api.storage import StorageFault, classify
+from gaintune_api.storage_faults import StorageFault, classify
 
 __all__ = ["WriteGate"]
 

@@ -23,8 +23,8 @@ _EXPORTS = {
     # attribute gaintune.search.tune is that module, so the package cannot be asked
     "tune": "gaintune.search.tune",
     "TuneResult": "gaintune.search.result",
-    "verify": "gaintune.verify",  # the package is callable: it calls gaintune.verify.core.verify
-    "VerificationReport": "gaintune.verify.report",
+    "verify": "gaintune.verification",
+    "VerificationReport": "gaintune.verification.report",
     "versions": "gaintune.provenance",
 }
 
@@ -34,8 +34,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from gaintune.search.result import TuneResult
     from gaintune.search.tune import tune
     from gaintune.spec import TuningSpec, load_spec
-    from gaintune.verify import verify
-    from gaintune.verify.report import VerificationReport
+    from gaintune.verification import verify
+    from gaintune.verification.report import VerificationReport
     from gaintune.provenance import versions
 
 
@@ -44,7 +44,7 @@ def __getattr__(name: str) -> Any:
     if module is None:
         raise AttributeError(f"module 'gaintune' has no attribute {name!r}")
     mod = importlib.import_module(module)
-    value = mod if module == "gaintune.verify" else getattr(mod, name)
+    value = getattr(mod, name)
     globals()[name] = value  # later lookups skip this function
     return value
 

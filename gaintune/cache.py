@@ -1,7 +1,7 @@
 """The one in-memory cache helper: a small thread-safe LRU on :class:`cachetools.LRUCache`.
 
 Layer 0: imports only the standard library and :mod:`cachetools`. Used for the per-spec
-sessions of :mod:`gaintune.verify.context` and the API's caches of checked specs,
+sessions of :mod:`gaintune.verification.context` and the API's caches of checked specs,
 serialized reports and the compute workers' known objects.
 """
 

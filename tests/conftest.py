@@ -1,7 +1,7 @@
 """Shared test set-up. The tree mirrors the package: tests/<package>/test_<module>.py.
 
 Test files are plain modules (no ``__init__.py``) with unique names; pytest puts each file's
-folder on ``sys.path``, so a folder's helpers (``tests/verify/plant_fixtures.py``) import by name.
+folder on ``sys.path``, so a folder's helpers (``tests/verification/plant_fixtures.py``) import by name.
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """The package layering holds: no import cycles, and no module imports from a layer above it.
 
 Function-level (deferred) imports count too: a deferred upward import is still an upward
-dependency. The layers are the ones README.md states (Architecture).
+dependency. The layers are the ones README.md and docs/architecture.md state. The package root
+holds only the base utilities, and every import names a module that exists.
 """
 
 from __future__ import annotations
@@ -13,21 +14,24 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: Layer of every top-level module or package of gaintune (and api), lowest first.
 LAYERS: dict[str, int] = {
-    "gaintune.cache": 0, "gaintune.cma": 0, "gaintune.errors": 0, "gaintune.files": 0, "gaintune.fmt": 0, "gaintune.lti": 0, "gaintune.statespace": 0, "gaintune.provenance": 0, "gaintune.spec_design": 0,
-    "gaintune.spec": 1, "gaintune.spec_doc": 2,
+    "gaintune.cache": 0, "gaintune.errors": 0, "gaintune.files": 0, "gaintune.fmt": 0, "gaintune.provenance": 0,
+    "gaintune.lti": 0,
+    "gaintune.spec": 1,
     "gaintune.plants": 2,
     "gaintune.controllers": 3,
     "gaintune.classical": 4,
     "gaintune.sim": 5,
-    "gaintune.verify": 6,
-    "gaintune.objective": 7,
-    "gaintune.boundary": 8, "gaintune.search_box": 8, "gaintune.repair": 8,
-    "gaintune.envs": 9, "gaintune.baselines": 9,
-    "gaintune.search": 10,
-    "gaintune.export": 11, "gaintune.report": 11, "gaintune.bench": 11,
-    "gaintune.cli": 12, "gaintune_api": 12,
-    "gaintune": 13, "gaintune.__main__": 13,
+    "gaintune.verification": 6,
+    "gaintune.evaluation": 7,
+    "gaintune.envs": 8, "gaintune.baselines": 8,
+    "gaintune.search": 9,
+    "gaintune.export": 10, "gaintune.report": 10, "gaintune.bench": 10,
+    "gaintune.cli": 11, "gaintune_api": 11,
+    "gaintune": 12, "gaintune.__main__": 12,
 }
+
+#: The only modules at the gaintune/ root besides __init__ and __main__: base utilities every layer may use.
+ROOT_MODULES = {"gaintune.cache", "gaintune.errors", "gaintune.files", "gaintune.fmt", "gaintune.provenance"}
 
 
 def _unit(module: str) -> str:
@@ -129,3 +133,44 @@ def test_every_package_folder_is_installed():
 def test_nothing_imports_the_api_folder_by_its_folder_name():
     bad = sorted(n for n, p in _modules().items() if any(m.split(".")[0] == "api" for m in _imports(n, p)))
     assert not bad, f"import gaintune_api, not api: {bad}"
+
+
+def test_the_package_root_holds_only_base_utilities():
+    """Everything else lives in a package (docs/architecture.md says which)."""
+    root = {n for n, p in _modules().items() if p.parent == ROOT / "gaintune" and p.name not in ("__init__.py", "__main__.py")}
+    assert root == ROOT_MODULES, f"move these into a package, or into ROOT_MODULES if a base utility: {sorted(root ^ ROOT_MODULES)}"
+
+
+def _import_module_strings(path: Path) -> set[str]:
+    """Module names given as text to ``importlib.import_module`` (deferred imports)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if (isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", None)) == "import_module"
+                and node.args and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str)):
+            found.add(node.args[0].value)
+    return found
+
+
+def test_every_import_of_gaintune_names_a_module_that_exists():
+    """A module renamed or moved leaves no import of its old name behind (tests included), e.g. after a merge."""
+    mods = _modules()
+    public = {f"gaintune.{n}" for n in ast.literal_eval(_assigned(ROOT / "gaintune" / "__init__.py", "_EXPORTS"))}
+    files = dict(mods)
+    files |= {f"tests.{'.'.join(p.relative_to(ROOT / 'tests').with_suffix('').parts)}": p for p in (ROOT / "tests").rglob("*.py")}
+    missing = []
+    for name, path in files.items():
+        for dep in _imports(name, path) | _import_module_strings(path):
+            if dep.split(".")[0] in ("gaintune", "gaintune_api") and dep not in mods and dep not in public:
+                missing.append(f"{path.relative_to(ROOT)} -> {dep}")
+    assert not missing, "imports of modules that do not exist:\n" + "\n".join(sorted(missing))
+
+
+def _assigned(path: Path, target: str) -> str:
+    """The source text of the value assigned to ``target`` at the top level of ``path``."""
+    text = path.read_text()
+    for node in ast.parse(text).body:
+        if isinstance(node, (ast.Assign, ast.AnnAssign)):
+            names = [t.id for t in (node.targets if isinstance(node, ast.Assign) else [node.target]) if isinstance(t, ast.Name)]
+            if target in names:
+                return ast.get_source_segment(text, node.value)
+    raise AssertionError(f"{target} is not assigned in {path}")

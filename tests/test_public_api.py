@@ -15,6 +15,17 @@ def test_public_names_import_from_the_top_level():
 
 def test_verify_and_results_do_not_import_torch(fresh_python):
     code = ("import sys, json; from gaintune import load_spec, verify, TuneResult, VerificationReport; "
-            "import gaintune.verify.cascade, gaintune.verify.analysis; "
+            "import gaintune.verification.cascade, gaintune.verification.analysis; "
             "print(json.dumps(['torch' in sys.modules, 'stable_baselines3' in sys.modules]))")
     assert fresh_python(code) == [False, False]
+
+
+def test_verify_is_the_function_and_verification_the_package():
+    """``gaintune.verify`` is the function itself (no callable module); its package is ``gaintune.verification``."""
+    import inspect
+
+    import gaintune
+    import gaintune.verification
+
+    assert inspect.isfunction(gaintune.verify) and gaintune.verify is gaintune.verification.verify
+    assert inspect.ismodule(gaintune.verification) and not callable(gaintune.verification)

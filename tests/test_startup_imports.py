@@ -28,13 +28,13 @@ def loaded(fresh_python):
 
 
 def test_import_verify_loads_no_simulator_search_or_report(loaded) -> None:
-    assert loaded("import gaintune.verify", SEARCH_AND_REPORT + ("numba",)) == []
+    assert loaded("import gaintune.verification", SEARCH_AND_REPORT + ("numba",)) == []
 
 
 def test_cli_help_loads_no_science_stack(loaded) -> None:
     code = ("from typer.testing import CliRunner\nfrom gaintune.cli import app\n"
             "assert CliRunner().invoke(app, ['--help']).exit_code == 0")
-    heavy = SEARCH_AND_REPORT + ("numba", "scipy", "pydantic", "gaintune.spec", "gaintune.verify", "rich.console")
+    heavy = SEARCH_AND_REPORT + ("numba", "scipy", "pydantic", "gaintune.spec", "gaintune.verification", "rich.console")
     assert loaded(code, heavy) == []
 
 
@@ -57,7 +57,7 @@ PI = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}]
 
 @pytest.mark.parametrize("spec", [PI, CASCADE], ids=["pi", "delayed_cascade"])
 def test_classical_rules_load_neither_python_control_nor_scipy_signal(loaded, spec: dict) -> None:
-    """Rule candidates (FOTD fits, ultimate gain, closed inner loops) use gaintune.statespace, not python-control (~1 s).
+    """Rule candidates (FOTD fits, ultimate gain, closed inner loops) use gaintune.lti.statespace, not python-control (~1 s).
 
     A PI loop on a lag plant needs no scipy.optimize either (0.14 s with scipy.sparse): its model is
     analytic and the ultimate gain's crossing is refined on grids. The cascade's path is fitted by

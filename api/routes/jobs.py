@@ -14,9 +14,9 @@ from gaintune_api.compute import compute_policy
 from gaintune_api.deps import FilesDep, OwnerDep, SettingsDep, StoreDep, run_compute
 from gaintune_api.jobfiles import ArtifactMismatch, ArtifactMissing
 from gaintune_api.jsonbody import StrictJSONRoute
-from gaintune_api.problems import ApiError, log
+from gaintune_api.problem_details import ApiError, log
 from gaintune_api.schemas import ExportFormat, JobList, PolicyAnswers, PolicyRequest, JobPublic, JobResultPublic, JobStatus, JobSummary, ProgressPublic
-from gaintune_api.store import IdempotencyConflict, JobRow, QueueFull, loads
+from gaintune_api.job_store import IdempotencyConflict, JobRow, QueueFull, loads
 from gaintune_api.validation import check_spec
 from gaintune.cache import LRU
 from gaintune.spec import TuningSpec
@@ -210,7 +210,7 @@ def _tune_result(r: dict[str, Any]):
 def job_report(job_id: str, store: StoreDep, files: FilesDep, owner: OwnerDep) -> Response:
     """Rendered on first request and cached in the job's folder. If the data directory cannot be written
     (read-only or full), the report is rendered in memory and served uncached (``X-Report-Cache: off``)."""
-    from gaintune_api.storage import StorageFault
+    from gaintune_api.storage_faults import StorageFault
 
     row = _get(store, job_id, owner)
     r = _finished_result(row)

@@ -11,7 +11,7 @@ from pydantic import Field
 
 from gaintune_api.deps import SettingsDep, api_key_header, check_key
 from gaintune_api.schemas import Health, Ready
-from gaintune_api.storage import StorageFault
+from gaintune_api.storage_faults import StorageFault
 
 router = APIRouter(tags=["ops"])
 

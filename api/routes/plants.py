@@ -7,7 +7,7 @@ import logging
 from fastapi import APIRouter
 
 from gaintune_api.deps import require_key
-from gaintune_api.problems import ApiError
+from gaintune_api.problem_details import ApiError
 from gaintune_api.schemas import ParamPublic, PlantList, PlantPublic, SignalPublic
 
 router = APIRouter(prefix="/v1", tags=["plants"], dependencies=[require_key])

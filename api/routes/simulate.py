@@ -9,7 +9,7 @@ from fastapi import APIRouter, Request, Response
 from gaintune_api.compute import compute_simulate
 from gaintune_api.deps import SettingsDep, require_key, run_compute, run_pooled
 from gaintune_api.jsonbody import StrictJSONRoute
-from gaintune_api.problems import ApiError
+from gaintune_api.problem_details import ApiError
 from gaintune_api.schemas import SimulateRequest, SimulateResponse
 from gaintune_api.validation import checked_spec
 

@@ -5,7 +5,7 @@ onto the layout's bounds, ``gain = exp(log_lo + z (log_hi - log_lo))``, and
 stop at a simulation budget counted by the evaluator's ``n_sims`` (falling
 back to the number of gain sets evaluated).
 
-The evaluator interface (see :mod:`gaintune.objective`)::
+The evaluator interface (see :mod:`gaintune.evaluation.evaluator`)::
 
     ev.layout          GainLayout (log_lo, log_hi, n_tuned, initial_tuned())
     ev.n_sims          simulations done so far
@@ -39,7 +39,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from gaintune.cma import load_cma
+from gaintune.baselines.cma import load_cma
 
 __all__ = ["OptResult", "BudgetExhausted", "Budgeted", "random_search", "cmaes_search", "de_search", "nelder_mead_search", "optimize", "OPTIMIZERS"]
 

@@ -13,7 +13,7 @@ RL search sees); the best one is the reference:
    with casadi + IPOPT (L-BFGS Hessian) over the log-gains, from the CMA-ES
    best, through a casadi model of the SAME discrete closed loop the simulator
    runs (matrices, delay buffer, signals and metric sums are taken from
-   :class:`gaintune.sim.build.Problem`): exact ZOH with fractional delay
+   :class:`gaintune.sim.build.SimSetup`): exact ZOH with fractional delay
    ``x[k+1] = Ad x[k] + G0 u[k-d] + G1 u[k-d-1]``, backward-Euler PID
    ``I[k] = I[k-1] + Ki dt e[k]``,
    ``D[k] = (Tf D[k-1] + Kd (ed[k] - ed[k-1]))/(Tf + dt)``, ``u = Kp (b r - y) + I + D``.
@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from gaintune.baselines.optimizers import BAD_COST, OptResult, cmaes_search
-from gaintune.objective import merit
+from gaintune.evaluation.evaluator import merit
 from gaintune.spec import TuningSpec
 
 __all__ = ["reference_optimum", "differentiable_reason", "casadi_closed_loop", "casadi_polish", "riccati_candidate"]
@@ -92,11 +92,11 @@ def casadi_closed_loop(
     import casadi as ca
 
     from gaintune.sim import draws as draws_mod
-    from gaintune.sim.build import Problem
+    from gaintune.sim.build import SimSetup
 
     sc = spec.scenarios[scenario]
     loop = spec.loops[0]
-    pb = Problem.build(spec, plant, layout)
+    pb = SimSetup.build(spec, plant, layout)
     d0 = draws_mod.nominal(spec, plant, 1, seed=spec.search.seed)
     pa = pb.plant_arrays(d0, sc)
     sg = pb.signal_arrays(d0, sc)
@@ -260,20 +260,20 @@ def reference_optimum(
 ) -> OptResult:
     """Best cost found by multistart CMA-ES, a casadi/IPOPT polish and (LQ) the Riccati candidate.
 
-    ``evaluator`` defaults to ``gaintune.search_box.make_evaluator(spec)``. The result's
+    ``evaluator`` defaults to ``gaintune.evaluation.search_box.make_evaluator(spec)``. The result's
     ``details`` list every part's cost and which one won.
     """
     t0 = time.perf_counter()
     ev = evaluator
     if ev is None:
-        from gaintune.search_box import make_evaluator
+        from gaintune.evaluation.search_box import make_evaluator
 
         ev = make_evaluator(spec)
     start = int(getattr(ev, "n_sims", 0))
     rng = np.random.default_rng(seed)
     layout = ev.layout
     parts: dict[str, Any] = {}
-    # ranked feasibility first, like every search (gaintune.objective.merit)
+    # ranked feasibility first, like every search (gaintune.evaluation.evaluator.merit)
     best_t, best_m, best_c, best_v, best_src = None, math.inf, math.inf, math.inf, None
     history: list[tuple[int, float]] = []
 

@@ -13,9 +13,9 @@ from gaintune.classical.tuning import CLASSICAL_METHODS, tune_classical
 from gaintune.classical.fotd import NoModelError
 from gaintune.classical.timescale import resolve_scenarios
 from gaintune.baselines.optimizers import optimize
-from gaintune.boundary import settle, violation_after
-from gaintune.objective import DIVERGED_COST
-from gaintune.spec import TuningSpec
+from gaintune.evaluation.boundary_exact import onto_boundary_exact, violation_after
+from gaintune.evaluation.evaluator import DIVERGED_COST
+from gaintune.spec import Gains, TuningSpec
 
 __all__ = ["METHODS", "BaselineResult", "run_baseline", "make_evaluator"]
 
@@ -29,7 +29,7 @@ class BaselineResult(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     method: str
-    gains: dict[str, dict[str, float]] | None = Field(None, description="{loop: {gain: value}}; None when the method does not apply.")
+    gains: Gains | None = Field(None, description="{loop: {gain: value}}; None when the method does not apply.")
     reason: str | None = Field(None, description="Why gains is None.")
     fotd: dict[str, dict[str, Any]] = Field(default_factory=dict, description="FOTD model per loop (rule methods).")
     ultimate: dict[str, dict[str, float]] = Field(default_factory=dict, description="Ku, Pu per loop (zn_ultimate).")
@@ -44,13 +44,13 @@ class BaselineResult(BaseModel):
 
 
 def make_evaluator(spec: TuningSpec):
-    """The evaluator every baseline searches with: the problem's default search box (:mod:`gaintune.search_box`)."""
-    from gaintune.search_box import make_evaluator as on_search_box
+    """The evaluator every baseline searches with: the problem's default search box (:mod:`gaintune.evaluation.search_box`)."""
+    from gaintune.evaluation.search_box import make_evaluator as on_search_box
 
     return on_search_box(spec)
 
 
-def _tuned_from_gains(layout, gains: dict[str, dict[str, float]]) -> np.ndarray:
+def _tuned_from_gains(layout, gains: Gains) -> np.ndarray:
     full = layout.from_dict(gains)
     return np.asarray(full)[layout.tuned_idx]
 
@@ -79,11 +79,11 @@ def run_baseline(
     seed
         Default ``spec.search.seed``.
     evaluator
-        Cost function (default ``gaintune.objective.Evaluator(spec)``). Rules are
+        Cost function (default ``gaintune.evaluation.evaluator.Evaluator(spec)``). Rules are
         scored with it when available; optimisers need it.
     settle_answer
         Settle an optimiser's answer on the requirements by exact verification
-        (:func:`gaintune.boundary.settle`), as the RL search does.
+        (:func:`gaintune.evaluation.boundary_exact.onto_boundary_exact`), as the RL search does.
     options
         Passed to the optimiser (e.g. ``popsize``) or :func:`reference_optimum`.
 
@@ -133,8 +133,8 @@ def run_baseline(
     layout = ev.layout
     tuned, cost, violation, settled = r.tuned, r.cost, r.violation, None
     if settle_answer:
-        # the same exact last step as the RL search (gaintune.boundary), so methods compare alike
-        st = settle(ev, r.tuned, cost=r.cost if r.feasible else None)
+        # the same exact last step as the RL search (gaintune.evaluation.boundary_exact), so methods compare alike
+        st = onto_boundary_exact(ev, r.tuned, cost=r.cost if r.feasible else None)
         settled = {"action": st.action, "alpha": st.alpha, "loop": st.loop, "margin": st.margin, "checks": st.checks}
         if st.action in ("pulled_inside", "pushed_to_boundary"):
             sc = ev.evaluate(st.tuned[None, :])

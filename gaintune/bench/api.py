@@ -255,7 +255,7 @@ def _stop_server(proc: subprocess.Popen) -> None:
 def _in_process_verify_ms(n: int = 20) -> float:
     """Median time of one direct verify() call with distinct gains: the compute floor of a verify request."""
     from gaintune.spec import load_spec
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     spec = load_spec(CASCADE_SPEC)
     verify(spec, NOMINAL_GAINS)

@@ -1,7 +1,7 @@
 """``gaintune bench compare``: every baseline and the RL search on every problem of a suite.
 
 For each problem and method: cost, IAE, effort, overshoot, GM, PM, Ms (from
-:func:`gaintune.verify.verify`), the verdict, simulations, wall time and the
+:func:`gaintune.verification.verify`), the verdict, simulations, wall time and the
 ratio to the reference optimum. Methods that do not apply (rules on LQ loops,
 unstable or oscillatory plants) are listed as ``n/a`` with the reason. Ends
 with a summary per method: median and worst ratio and the pass rate.
@@ -34,14 +34,15 @@ from gaintune.bench.arguments import (
 )
 from gaintune.bench.references import reference_for, reference_summary
 from gaintune.bench.suite import (
-    Problem,
+    BenchCase,
     describe_problems,
     timed_row,
     suite_names,
 )
 
 if TYPE_CHECKING:  # pragma: no cover
-    from gaintune.verify.report import VerificationReport
+    from gaintune.spec import Gains
+    from gaintune.verification.report import VerificationReport
 
 __all__ = [
     "DEFAULT_METHODS",
@@ -63,7 +64,7 @@ DEFAULT_METHODS: tuple[str, ...] = (
     "zn_step", "zn_ultimate", "simc", "amigo", "imc", "random", "cmaes", "de", "nelder_mead", "rl", "reference",
 )
 
-#: Costs at or above this are divergence (see :data:`gaintune.objective.DIVERGED_COST`).
+#: Costs at or above this are divergence (see :data:`gaintune.evaluation.evaluator.DIVERGED_COST`).
 DIVERGED = 1e6
 
 
@@ -132,14 +133,14 @@ def _verification_figures(report: VerificationReport) -> dict[str, Any]:
             "reasons": list(report.reasons)}
 
 
-def gain_figures(problem_obj, gains: dict[str, dict[str, float]], report: VerificationReport | None = None) -> dict[str, Any]:
+def gain_figures(problem_obj, gains: Gains, report: VerificationReport | None = None) -> dict[str, Any]:
     """Cost and time-domain metrics of ``gains`` on the nominal problem, plus verification figures.
 
     ``problem_obj`` is a :class:`gaintune.envs.problem.GainProblem`. IAE and effort are
     summed over scenarios by weight; overshoot (%) is the largest over the scenarios.
     ``report`` is the verification report of ``gains`` (run here when omitted).
     """
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     ev, layout = problem_obj.evaluator, problem_obj.layout
     spec = problem_obj.spec
@@ -187,7 +188,7 @@ def gain_figures(problem_obj, gains: dict[str, dict[str, float]], report: Verifi
 # ------------------------------------------------------------------ running
 
 
-def run_method(problem: Problem, method: str, *, seed: int = 0, budget: int | None = None,
+def run_method(problem: BenchCase, method: str, *, seed: int = 0, budget: int | None = None,
                reference: dict[str, Any] | None = None, agent_overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """One (problem, method) row: applicability, gains, cost, metrics, verification, sims, wall time."""
     from gaintune.baselines import run_baseline
@@ -221,7 +222,7 @@ def run_method(problem: Problem, method: str, *, seed: int = 0, budget: int | No
 
 
 def run_compare(
-    problems: Sequence[Problem],
+    problems: Sequence[BenchCase],
     suite: str,
     methods: Sequence[str] = DEFAULT_METHODS,
     *,

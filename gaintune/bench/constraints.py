@@ -1,9 +1,9 @@
 """``gaintune bench constraints``: does the searched constraint agree with the verdict near the boundary?
 
 Every search ranks candidates on the fast requirement estimate
-(:func:`gaintune.verify.quick.requirement_violation`, through
-:meth:`gaintune.objective.Evaluator.requirement_violation`); the verdict comes from the
-exact :func:`gaintune.verify.verify`. They must agree where it matters: close to the
+(:func:`gaintune.verification.quick.requirement_violation`, through
+:meth:`gaintune.evaluation.evaluator.Evaluator.requirement_violation`); the verdict comes from the
+exact :func:`gaintune.verification.verify`. They must agree where it matters: close to the
 constraint boundary, where a constrained optimum lies.
 
 For each problem the benchmark finds a point on the boundary (the layout's start gains,
@@ -34,8 +34,8 @@ __all__ = ["agreement", "main"]
 
 def _boundary_point(ev) -> np.ndarray | None:
     """The start gains scaled (every tuned gain by one factor) onto the exact requirement boundary, or None."""
-    from gaintune.boundary import normalised_margin
-    from gaintune.verify import verify
+    from gaintune.evaluation.boundary_exact import normalised_margin
+    from gaintune.verification import verify
 
     t0 = ev.layout.initial_tuned()
 
@@ -61,9 +61,9 @@ def _boundary_point(ev) -> np.ndarray | None:
 
 def agreement(problem, n: int = 200, spread: float = 0.03, seed: int = 0) -> dict[str, Any]:
     """Agreement of the searched constraint with the verdict on ``n`` candidates near the boundary."""
-    from gaintune.boundary import normalised_margin
-    from gaintune.search_box import make_evaluator
-    from gaintune.verify import verify
+    from gaintune.evaluation.boundary_exact import normalised_margin
+    from gaintune.evaluation.search_box import make_evaluator
+    from gaintune.verification import verify
 
     # the estimate on the exact limits (no requirements.backoff): its agreement with the verdict is measured
     ev = make_evaluator(problem.tuning_spec(), exact=True)

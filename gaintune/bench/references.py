@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from gaintune.bench.suite import Problem
-from gaintune.spec import TuningSpec
+from gaintune.bench.suite import BenchCase
+from gaintune.spec import Gains, TuningSpec
 
 __all__ = [
     "RESCORE_RTOL",
@@ -35,7 +35,7 @@ __all__ = [
 ]
 
 
-def reference_key(problem: Problem) -> str:
+def reference_key(problem: BenchCase) -> str:
     """Hash of everything the reference optimum depends on.
 
     The spec's non-default fields (so that schema additions and default-preserving
@@ -60,7 +60,7 @@ def _search_box(spec: TuningSpec) -> list[list[float]]:
     """Log-scale bounds of the tuned gains as the searches see them (rounded for a stable hash)."""
     import warnings
 
-    from gaintune.search_box import search_layout
+    from gaintune.evaluation.search_box import search_layout
     from gaintune.plants import build_plant
 
     with warnings.catch_warnings():
@@ -69,7 +69,7 @@ def _search_box(spec: TuningSpec) -> list[list[float]]:
     return [[float(f"{lo:.9g}"), float(f"{hi:.9g}")] for lo, hi in (s.bounds for s in layout.tuned_slots)]
 
 
-def exact_optimum(problem: Problem, evaluator) -> dict[str, Any] | None:
+def exact_optimum(problem: BenchCase, evaluator) -> dict[str, Any] | None:
     """Known exact optimum of ``problem`` as ``{"gains", "cost", "method"}``, or None.
 
     ``dlqr``: the discrete Riccati gain for Q = C'C dt, R = effort_weight dt on
@@ -134,7 +134,7 @@ def _read_cache(path) -> dict[str, Any]:
 
 
 def reference_for(
-    problem: Problem, suite: str, out_dir=None, *, refresh: bool = False, evaluator=None, log=None
+    problem: BenchCase, suite: str, out_dir=None, *, refresh: bool = False, evaluator=None, log=None
 ) -> dict[str, Any]:
     """Reference optimum of ``problem``, from ``reference_<suite>.json`` in ``out_dir`` or computed and cached.
 
@@ -169,7 +169,7 @@ def reference_for(
 RESCORE_RTOL = 1e-6
 
 
-def _still_valid(problem: Problem, entry: dict[str, Any], evaluator=None) -> bool:
+def _still_valid(problem: BenchCase, entry: dict[str, Any], evaluator=None) -> bool:
     """Re-score the cached reference gains (one simulation): the cost function may have changed."""
     gains, cost = entry.get("gains"), entry.get("cost")
     if gains is None or cost is None:
@@ -201,11 +201,11 @@ def _write_entry(path, key: str, entry: dict[str, Any]) -> None:
     tmp.replace(path)
 
 
-def _passes(spec: TuningSpec, gains: dict[str, dict[str, float]] | None) -> bool:
+def _passes(spec: TuningSpec, gains: Gains | None) -> bool:
     """The reference is judged by the verdict itself, not by the search's estimate."""
     if gains is None:
         return False
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     try:
         return verify(spec, gains).verdict == "pass"
@@ -213,13 +213,13 @@ def _passes(spec: TuningSpec, gains: dict[str, dict[str, float]] | None) -> bool
         return False
 
 
-def compute_reference(problem: Problem, *, evaluator=None, log=None) -> dict[str, Any]:
+def compute_reference(problem: BenchCase, *, evaluator=None, log=None) -> dict[str, Any]:
     """Run the reference optimum (and the exact optimum when known) for ``problem``, on the exact limits
     (no ``requirements.backoff``: the searches aim inside them, the reference is the exact-limit optimum)."""
     import time
 
     from gaintune.baselines import run_baseline
-    from gaintune.search_box import make_evaluator
+    from gaintune.evaluation.search_box import make_evaluator
 
     spec = problem.tuning_spec()
     # the exact-limit optimum: the searches aim requirements.backoff inside the limits, the reference does not

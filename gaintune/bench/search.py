@@ -37,7 +37,7 @@ from gaintune.bench.arguments import (
 from gaintune.bench.compare import fmt, fmt_ratio, md_table, ratio, set_threads, stats, write_outputs
 from gaintune.bench.references import reference_for, reference_summary
 from gaintune.bench.suite import (
-    Problem,
+    BenchCase,
     describe_problems,
     timed_row,
     suite_names,
@@ -46,7 +46,7 @@ from gaintune.bench.suite import (
 __all__ = ["run_one", "run_search", "summarize", "per_problem", "render_markdown", "main"]
 
 
-def run_one(problem: Problem, seed: int, *, algo: str = "ppo", budget: int | None = None,
+def run_one(problem: BenchCase, seed: int, *, algo: str = "ppo", budget: int | None = None,
             reference: dict[str, Any] | None = None, repair: bool = True) -> dict[str, Any]:
     """One RL run on ``problem`` and CMA-ES at the same simulation count; the raw figures (no ratios).
 
@@ -93,7 +93,7 @@ def _add_ratios(row: dict[str, Any], ref_cost: float | None) -> dict[str, Any]:
 
 
 def run_search(
-    problems: Sequence[Problem],
+    problems: Sequence[BenchCase],
     suite: str,
     seeds: Sequence[int] = (0, 1, 2),
     *,
@@ -241,7 +241,7 @@ def render_markdown(result: dict[str, Any], command: str = "") -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from gaintune.search.agents import ALGOS
+    from gaintune.search.algos import ALGO_NAMES
 
     ap = BenchParser(
         prog="gaintune bench search",
@@ -249,7 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ap.add_argument("--suite", default="default", choices=suite_names(), help="benchmark suite (default: default)")
     ap.add_argument("--problems", nargs="+", metavar="NAME", help="only these problems of the suite")
-    ap.add_argument("--algo", default="ppo", choices=sorted(ALGOS), help="RL algorithm (default ppo)")
+    ap.add_argument("--algo", default="ppo", choices=sorted(ALGO_NAMES), help="RL algorithm (default ppo)")
     ap.add_argument("--budget", type=budget_int, help="simulation budget of every problem (default: each problem's own)")
     ap.add_argument("--seeds", nargs="+", type=seed_int, default=[0, 1, 2], help="seeds (default 0 1 2)")
     add_out_argument(ap)

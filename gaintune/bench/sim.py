@@ -47,11 +47,14 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from gaintune.bench.arguments import MAX_BATCH, BenchParser, fail, int_range, positive_float, positive_int
+
+if TYPE_CHECKING:  # pragma: no cover
+    from gaintune.spec import Gains
 
 __all__ = ["CASES", "main", "numpy_rollout", "make_case", "run_benchmark"]
 
@@ -64,7 +67,7 @@ LAG3_SPEC: dict[str, Any] = {
 }
 
 #: Nominal gains of each case (``{loop: {gain: value}}``).
-NOMINAL_GAINS: dict[str, dict[str, dict[str, float]]] = {
+NOMINAL_GAINS: dict[str, Gains] = {
     "lag3_pid": {"main": {"Kp": 2.0, "Ki": 1.0, "Kd": 1.0}},
     "dc_motor": {"position": {"Kp": 20.0}, "speed": {"Kp": 0.5, "Ki": 0.5}, "current": {"Kp": 5.0, "Ki": 2000.0}},
     "water_tank": {"level": {"Kp": 1.0, "Ki": 0.05}},
@@ -279,7 +282,7 @@ def prepare_numpy(sim: Any, full: np.ndarray, scenario: int = 0) -> dict[str, An
     tf = a.tf
     out: dict[str, Any] = dict(
         T=T, dt=dt, L=L, B=B, kp=a.kp, ki=a.ki, al=tf / (tf + dt), be=a.kd / (tf + dt),
-        bw=a.bw, cw=a.cw, kb=a.kb, lo=clo, hi=chi, aw=a.aw, meas=np.array(sim.problem.meas),
+        bw=a.bw, cw=a.cw, kb=a.kb, lo=clo, hi=chi, aw=a.aw, meas=np.array(sim.setup.meas),
         r=r, rate=a.rate, u_lo=lo, u_hi=hi, u_op=float(a.u_op[0]),
         target=float(a.target[0]), k_step=int(a.k_step[0]),
         x0=np.repeat(a.x_op[:, :1], B, axis=1), I0=I0, bound=a.div_bound,

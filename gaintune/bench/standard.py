@@ -145,9 +145,9 @@ def migo_reference(problem, evaluator) -> dict[str, Any] | None:
     with an Ms limit.
     """
     from gaintune.classical.migo import boundary_optimum
-    from gaintune.lti import plant_state_response
-    from gaintune.verify.analysis import sampling_delay
-    from gaintune.verify.sampled import sample_plant
+    from gaintune.lti.modes import plant_state_response
+    from gaintune.verification.analysis import sampling_delay
+    from gaintune.verification.sampled import sample_plant
 
     spec = evaluator.spec
     loop = spec.loops[0]

@@ -3,7 +3,7 @@
 Every problem is a complete spec dict (inline plant or ``plant: {model: ...}``
 with the model's example loops), with
 
-* stated **requirements** (checked by :func:`gaintune.verify.verify`, reported
+* stated **requirements** (checked by :func:`gaintune.verification.verify`, reported
   as the verdict; they are not part of the cost),
 * the **objective** IAE + 0.01 int u^2 unless the problem calls for another,
 * a fixed **search budget** (at most 5,000 simulations) and ``search.n_envs`` 32,
@@ -34,7 +34,7 @@ from typing import Any
 from gaintune.spec import TuningSpec, load_spec
 
 __all__ = [
-    "Problem",
+    "BenchCase",
     "SUITES",
     "MAX_BUDGET",
     "get_suite",
@@ -62,7 +62,7 @@ def _ms(ms: float) -> dict[str, Any]:
 
 
 @dataclass(frozen=True)
-class Problem:
+class BenchCase:
     """One benchmark problem.
 
     Attributes
@@ -205,24 +205,24 @@ _LQ_NOTE = (
 _REF_QUICK = {"restarts": 1, "sims_per_restart": 400, "polish": False}
 
 
-def _default() -> list[Problem]:
+def _default() -> list[BenchCase]:
     return [
-        Problem("lag3_pid", "1/(s+1)^3, PID", _spec(_tf([1], "(s+1)^3"), _pid(), _step(0.01, 20.0), _ms(2.0)), "lag"),
-        Problem(
+        BenchCase("lag3_pid", "1/(s+1)^3, PID", _spec(_tf([1], "(s+1)^3"), _pid(), _step(0.01, 20.0), _ms(2.0)), "lag"),
+        BenchCase(
             "lags4_pid", "1/((1+s)(1+0.2s)(1+0.04s)(1+0.008s)), PID",
             _spec(_tf([1], "(s+1)*(0.2*s+1)*(0.04*s+1)*(0.008*s+1)"), _pid(), _step(0.005, 10.0), _ms(2.0)), "lag",
         ),
-        Problem("nmp_pid", "(1-2s)/(s+1)^3, PID", _spec(_tf([-2, 1], "(s+1)^3"), _pid(), _step(0.02, 40.0), GM_PM), "nmp"),
-        Problem(
+        BenchCase("nmp_pid", "(1-2s)/(s+1)^3, PID", _spec(_tf([-2, 1], "(s+1)^3"), _pid(), _step(0.02, 40.0), GM_PM), "nmp"),
+        BenchCase(
             "delay_pi", "e^{-s}/(1+0.1s), PI",
             _spec(_tf([1], [0.1, 1], delay=1.0), _pid("pi"), _step(0.01, 20.0), _ms(1.6)), "delay",
         ),
-        Problem(
+        BenchCase(
             "osc_pid", "4/((s+1)(s^2+0.4s+4)), PID (w0 = 2, zeta = 0.1)",
             _spec(_tf([4], "(s+1)*(s^2+0.4*s+4)"), _pid(), _step(0.01, 30.0), _ms(2.0)), "oscillatory",
             note="Oscillatory path: the FOTD rules do not apply, so the search box is the layout's default.",
         ),
-        Problem(
+        BenchCase(
             "integ_pid", "e^{-s}/(s(1+0.5s)), PID, setpoint step then load step",
             _spec(
                 _tf([1], "s*(0.5*s+1)", delay=1.0), _pid(), _step(
@@ -230,88 +230,88 @@ def _default() -> list[Problem]:
                 ), _ms(2.0),
             ), "integrating",
         ),
-        Problem(
+        BenchCase(
             "unstable_pid", "1/(s^2-1), PID",
             _spec(_tf([1], [1, 0, -1]), _pid(Kp=(1.2, 200.0), Ki=(0.01, 200.0), Kd=(0.05, 50.0)), _step(0.01, 10.0), GM_PM),
             "unstable", note="Unstable plant: no rule applies; explicit bounds keep Kp > 1.",
         ),
-        Problem(
+        BenchCase(
             "quadrotor_cascade", "quadrotor_axis example: angle P -> rate PID (2 loops), saturated",
             _model("quadrotor_axis", 4000, GM_PM), "cascade",
         ),
-        Problem(
+        BenchCase(
             "water_tank", "water_tank example (nonlinear, sqrt outflow), PI, pump 0..10 V",
             _model("water_tank", 3000, GM_PM), "nonlinear",
         ),
-        Problem(
+        BenchCase(
             "lq_msd", "mass_spring_damper, LQR state feedback k_x, k_v (gains mode), input-impulse regulation",
             _lq_msd(0.01, 10.0, 2000), "lq", exact="dlqr", note=_LQ_NOTE,
         ),
     ]
 
 
-def _extra() -> list[Problem]:
+def _extra() -> list[BenchCase]:
     """More Astrom & Hagglund processes and the 3-loop cascade (``full`` suite only)."""
     return [
-        Problem("lag4_pid", "1/(s+1)^4, PID", _spec(_tf([1], "(s+1)^4"), _pid(), _step(0.01, 30.0), _ms(2.0)), "lag"),
-        Problem("lag8_pid", "1/(s+1)^8, PID", _spec(_tf([1], "(s+1)^8"), _pid(), _step(0.02, 60.0), _ms(2.0)), "lag"),
-        Problem(
+        BenchCase("lag4_pid", "1/(s+1)^4, PID", _spec(_tf([1], "(s+1)^4"), _pid(), _step(0.01, 30.0), _ms(2.0)), "lag"),
+        BenchCase("lag8_pid", "1/(s+1)^8, PID", _spec(_tf([1], "(s+1)^8"), _pid(), _step(0.02, 60.0), _ms(2.0)), "lag"),
+        BenchCase(
             "lags_a05_pid", "1/((1+s)(1+0.5s)(1+0.25s)(1+0.125s)), PID",
             _spec(_tf([1], "(s+1)*(0.5*s+1)*(0.25*s+1)*(0.125*s+1)"), _pid(), _step(0.01, 20.0), _ms(2.0)), "lag",
         ),
-        Problem("nmp05_pid", "(1-0.5s)/(s+1)^3, PID", _spec(_tf([-0.5, 1], "(s+1)^3"), _pid(), _step(0.01, 30.0), GM_PM), "nmp"),
-        Problem("nmp2_pi", "(1-2s)/(s+1)^3, PI", _spec(_tf([-2, 1], "(s+1)^3"), _pid("pi"), _step(0.02, 60.0), GM_PM), "nmp"),
-        Problem(
+        BenchCase("nmp05_pid", "(1-0.5s)/(s+1)^3, PID", _spec(_tf([-0.5, 1], "(s+1)^3"), _pid(), _step(0.01, 30.0), GM_PM), "nmp"),
+        BenchCase("nmp2_pi", "(1-2s)/(s+1)^3, PI", _spec(_tf([-2, 1], "(s+1)^3"), _pid("pi"), _step(0.02, 60.0), GM_PM), "nmp"),
+        BenchCase(
             "delay_fotd5_pi", "e^{-5s}/(s+1), PI",
             _spec(_tf([1], [1, 1], delay=5.0), _pid("pi"), _step(0.05, 100.0), _ms(1.6)), "delay",
         ),
-        Problem(
+        BenchCase(
             "delay_sotd_pid", "e^{-s}/(1+s)^2, PID",
             _spec(_tf([1], "(s+1)^2", delay=1.0), _pid(), _step(0.01, 30.0), _ms(2.0)), "delay",
         ),
-        Problem(
+        BenchCase(
             "osc_w1_pid", "1/((s+1)(s^2+0.2s+1)), PID (w0 = 1)",
             _spec(_tf([1], "(s+1)*(s^2+0.2*s+1)"), _pid(), _step(0.02, 60.0), _ms(2.0)), "oscillatory",
         ),
-        Problem(
+        BenchCase(
             "unstable_delay_pid", "e^{-0.2s}/(s-1), PID",
             _spec(_tf([1], [1, -1], delay=0.2), _pid(Kp=(1.05, 50.0), Ki=(0.01, 50.0), Kd=(0.001, 5.0)), _step(0.01, 15.0), GM_PM),
             "unstable",
         ),
-        Problem(
+        BenchCase(
             "thermal_fotd", "thermal_fotd example: 2e^{-10s}/(60s+1), PI, setpoint and load scenarios",
             _model("thermal_fotd", 3000, _ms(1.6)), "delay",
         ),
-        Problem(
+        BenchCase(
             "dc_motor_cascade", "dc_motor example: position P -> speed PI -> current PI (3 loops)",
             _model("dc_motor", 5000, GM_PM), "cascade",
         ),
     ]
 
 
-def _quick() -> list[Problem]:
+def _quick() -> list[BenchCase]:
     """Three small problems with tiny budgets (tests and smoke runs)."""
     lag = _spec(_tf([1], "(s+1)^2"), _pid("pi"), _step(0.05, 10.0), _ms(2.0), budget=160)
     dly = _spec(_tf([1], [1, 1], delay=0.5), _pid("pi"), _step(0.05, 10.0), GM_PM, budget=160)
     lq = _lq_msd(0.02, 8.0, 160)
     return [
-        Problem("q_lag2_pi", "1/(s+1)^2, PI (quick)", lag, "lag", reference=dict(_REF_QUICK)),
-        Problem("q_delay_pi", "e^{-0.5s}/(s+1), PI (quick)", dly, "delay", reference=dict(_REF_QUICK)),
-        Problem("q_lq_msd", "mass_spring_damper LQR gains (quick)", lq, "lq", reference=dict(_REF_QUICK),
+        BenchCase("q_lag2_pi", "1/(s+1)^2, PI (quick)", lag, "lag", reference=dict(_REF_QUICK)),
+        BenchCase("q_delay_pi", "e^{-0.5s}/(s+1), PI (quick)", dly, "delay", reference=dict(_REF_QUICK)),
+        BenchCase("q_lq_msd", "mass_spring_damper LQR gains (quick)", lq, "lq", reference=dict(_REF_QUICK),
                 exact="dlqr", note=_LQ_NOTE),
     ]
 
 
-def _standard() -> list[Problem]:
+def _standard() -> list[BenchCase]:
     from gaintune.bench.standard import standard_problems
 
-    return standard_problems(Problem)
+    return standard_problems(BenchCase)
 
 
-def _cascades() -> list[Problem]:
+def _cascades() -> list[BenchCase]:
     from gaintune.bench.standard import cascade_problems
 
-    return cascade_problems(Problem, _model)
+    return cascade_problems(BenchCase, _model)
 
 
 SUITES: dict[str, Any] = {
@@ -327,14 +327,14 @@ def suite_names() -> list[str]:
     return list(SUITES)
 
 
-def get_suite(name: str = "default") -> list[Problem]:
+def get_suite(name: str = "default") -> list[BenchCase]:
     """The problems of suite ``name``; unknown names raise ValueError listing the known ones."""
     if name not in SUITES:
         raise ValueError(f"unknown suite {name!r}; choose from {', '.join(SUITES)}")
     return SUITES[name]()
 
 
-def select(problems: list[Problem], names: list[str] | None) -> list[Problem]:
+def select(problems: list[BenchCase], names: list[str] | None) -> list[BenchCase]:
     """Keep the named problems (in the order given); unknown names raise ValueError."""
     if not names:
         return problems
@@ -345,7 +345,7 @@ def select(problems: list[Problem], names: list[str] | None) -> list[Problem]:
     return [by[n] for n in names]
 
 
-def suite_markdown(problems: list[Problem]) -> str:
+def suite_markdown(problems: list[BenchCase]) -> str:
     """Markdown table of a suite: problem, plant/controller, objective, requirements, budget, steps."""
     lines = ["| problem | plant, controller | objective | requirements | budget | dt, horizon (steps) |",
              "|---|---|---|---|---|---|"]

@@ -67,7 +67,7 @@ def measure(repeat: int) -> list[list]:
     from gaintune.controllers.layout import GainLayout
     from gaintune.plants import build_plant
     from gaintune.spec import load_spec
-    from gaintune.verify import requirement_violation, verify
+    from gaintune.verification import requirement_violation, verify
 
     rows = []
     for name, (spec_d, gains) in CASES.items():

@@ -8,7 +8,7 @@
 * :mod:`~gaintune.classical.migo` - the constrained PI optimum under an Ms limit.
 
 Below the simulator and the evaluation in the layering: this package imports only spec,
-plants, controllers and numeric libraries. The rules run on :mod:`gaintune.statespace`'s state
+plants, controllers and numeric libraries. The rules run on :mod:`gaintune.lti.statespace`'s state
 space, not python-control (whose import would cost ``gaintune tune`` about a second);
 python-control objects are still accepted. See ``docs/baselines.md``.
 """

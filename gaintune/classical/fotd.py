@@ -2,7 +2,7 @@
 
 Classical tuning rules need a model ``K e^{-Ls}/(Ts + 1)`` (self-regulating) or
 ``Kv e^{-Ls}/s`` (integrating). :func:`fit_fotd` obtains one from a SISO
-linear path (state space of the delay-free part, :class:`gaintune.statespace.StateSpace`
+linear path (state space of the delay-free part, :class:`gaintune.lti.statespace.StateSpace`
 or python-control's, plus a delay in seconds):
 
 * **Half rule** (Skogestad 2003) when every pole is real (and stable),
@@ -30,7 +30,7 @@ or python-control's, plus a delay in seconds):
 ``K`` (or ``Kv``) is negative for a reverse-acting path; every step above works
 on the signed gain (the step response is normalised by ``K``).
 
-The path is handled with :mod:`gaintune.statespace` (the operations python-control performs,
+The path is handled with :mod:`gaintune.lti.statespace` (the operations python-control performs,
 without importing it: that import costs about a second of ``gaintune tune``).
 
 No FOTD model applies (and :class:`NoModelError` is raised, naming why) to
@@ -56,8 +56,8 @@ from typing import Literal
 import numpy as np
 
 from gaintune.errors import GaintuneError
-from gaintune.lti import pade_tf
-from gaintune.statespace import StateSpace, as_state_space, ss_to_tf, step_response, tf_minreal, tf_to_ss
+from gaintune.lti.pade import pade_tf
+from gaintune.lti.statespace import StateSpace, as_state_space, ss_to_tf, step_response, tf_minreal, tf_to_ss
 
 __all__ = ["Fotd", "NoModelError", "fit_fotd", "path_poles_zeros", "siso_minreal", "OSCILLATION_LIMIT"]
 
@@ -128,7 +128,7 @@ def siso_minreal(sys, tol: float = 1e-6) -> StateSpace:
     Parameters
     ----------
     sys
-        SISO state space (:class:`gaintune.statespace.StateSpace`, python-control's, or a
+        SISO state space (:class:`gaintune.lti.statespace.StateSpace`, python-control's, or a
         python-control transfer function).
     tol
         Largest distance between a cancelled zero and pole.
@@ -160,7 +160,7 @@ def path_poles_zeros(sys) -> tuple[np.ndarray, np.ndarray]:
     Parameters
     ----------
     sys
-        SISO state space (:class:`gaintune.statespace.StateSpace` or python-control's).
+        SISO state space (:class:`gaintune.lti.statespace.StateSpace` or python-control's).
 
     Returns
     -------
@@ -348,7 +348,7 @@ def fit_fotd(sys, delay: float = 0.0, method: FitMethod = "auto") -> Fotd:
     Parameters
     ----------
     sys
-        SISO path: a :class:`gaintune.statespace.StateSpace`, anything with ``A``, ``B``, ``C``,
+        SISO path: a :class:`gaintune.lti.statespace.StateSpace`, anything with ``A``, ``B``, ``C``,
         ``D`` (python-control's StateSpace), or anything else ``control.ss`` accepts
         (TransferFunction; only then is python-control imported).
     delay

@@ -31,7 +31,7 @@ from typing import Callable
 import numpy as np
 
 from gaintune.classical.fotd import Fotd, NoModelError
-from gaintune.statespace import as_state_space
+from gaintune.lti.statespace import as_state_space
 from gaintune.spec import GAIN_NAMES, LoopSpec
 
 __all__ = [
@@ -268,7 +268,7 @@ def ultimate_gain(sys, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, f
     ~30,000-fold, and the phase is smooth across it). No root finder is imported: scipy.optimize
     (with scipy.sparse) cost 0.14 s of every tune's start for this one crossing.
 
-    ``sys`` is a SISO state space (:class:`gaintune.statespace.StateSpace`, python-control's, or
+    ``sys`` is a SISO state space (:class:`gaintune.lti.statespace.StateSpace`, python-control's, or
     a python-control transfer function), ``delay`` the path's dead time in seconds.
 
     A path with a negative gain (static gain, or velocity gain of an integrating path) is

@@ -28,8 +28,8 @@ from gaintune.classical.fotd import Fotd, NoModelError, fit_fotd, siso_minreal
 from gaintune.classical.timescale import resolve_scenarios
 from gaintune.classical.rules import FOTD_RULES, IdealPid, to_loop_gains, ultimate_gain, with_direction, zn_ultimate
 from gaintune.controllers.direction import loop_directions
-from gaintune.statespace import StateSpace, with_input_delay
-from gaintune.spec import TuningSpec
+from gaintune.lti.statespace import StateSpace, with_input_delay
+from gaintune.spec import Gains, TuningSpec
 
 __all__ = ["ClassicalResult", "tune_classical", "rule_candidates", "auto_bounds", "PADE_ORDER", "BOUNDS_FACTOR",
            "CLASSICAL_METHODS"]
@@ -45,7 +45,7 @@ CLASSICAL_METHODS = ("zn_step", "zn_ultimate", "simc", "amigo", "imc")
 class ClassicalResult:
     """Gains per loop plus the models the rule used."""
 
-    gains: dict[str, dict[str, float]]
+    gains: Gains
     fotd: dict[str, Fotd] = field(default_factory=dict)
     ultimate: dict[str, tuple[float, float]] = field(default_factory=dict)
     pid: dict[str, IdealPid] = field(default_factory=dict)
@@ -175,7 +175,7 @@ def tune_classical(spec: TuningSpec, plant, method: str, params: dict[str, float
     return res
 
 
-def rule_candidates(spec: TuningSpec, plant) -> dict[str, dict[str, dict[str, float]]]:
+def rule_candidates(spec: TuningSpec, plant) -> dict[str, Gains]:
     """Every classical rule that applies to this spec, as ``{method: {loop: {gain: value}}}``.
 
     Each is applied inner loop first (:func:`tune_classical`). Rules that do not apply
@@ -190,7 +190,7 @@ def rule_candidates(spec: TuningSpec, plant) -> dict[str, dict[str, dict[str, fl
     return out
 
 
-def auto_bounds(spec: TuningSpec, centre: dict[str, dict[str, float]], factor: float = BOUNDS_FACTOR
+def auto_bounds(spec: TuningSpec, centre: Gains, factor: float = BOUNDS_FACTOR
                 ) -> dict[tuple[str, str], tuple[float, float]]:
     """Log-scale search bounds ``{(loop, gain): (|g|/factor, |g|*factor)}`` around the gain set ``centre``.
 
@@ -198,7 +198,7 @@ def auto_bounds(spec: TuningSpec, centre: dict[str, dict[str, float]], factor: f
     cost-optimal gains of every benchmark process we checked. Fixed gains are skipped.
     The bounds are magnitudes (a reverse-acting loop's gains are negative; the layout
     searches their magnitudes). Which gain set to centre on is decided above this
-    layer, by the requirements (:mod:`gaintune.search_box`).
+    layer, by the requirements (:mod:`gaintune.evaluation.search_box`).
     """
     out: dict[tuple[str, str], tuple[float, float]] = {}
     for loop in spec.loops:

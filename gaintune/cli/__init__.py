@@ -41,6 +41,7 @@ from gaintune.cli.policy import run_policy
 from gaintune.cli.output import _write_outputs  # noqa: F401 - gaintune.cli._write_outputs, used by tests
 # the commands call _get_tune through this module, so gaintune.cli._get_tune can be replaced (tests do)
 from gaintune.cli.tuning import _finish, _get_tune, _run_tune, demo_spec
+from gaintune.search.algos import ALGO_NAMES
 
 __all__ = ["app", "EXIT_OK", "EXIT_INPUT", "EXIT_VERIFY"]
 
@@ -60,16 +61,13 @@ app.add_typer(bench_app, name="bench")
 
 # --------------------------------------------------------------- commands
 
-ALGOS = ("ppo", "sac", "td3", "a2c", "ddpg")
-
-
 @app.command()
 @handle_errors
 def tune(
     spec_path: Path = typer.Argument(..., metavar="SPEC", help="Tuning spec (YAML or JSON)."),
     out_dir: Optional[Path] = typer.Option(None, "--out", "-o", help="Write result.json, report.html, gains.{json,yaml,h,m} and the agent here."),
     json_out: bool = typer.Option(False, "--json", help="Print the result JSON on stdout (no progress bar)."),
-    algo: Optional[str] = typer.Option(None, "--algo", help=f"Override search.algo ({', '.join(ALGOS)})."),
+    algo: Optional[str] = typer.Option(None, "--algo", help=f"Override search.algo ({', '.join(ALGO_NAMES)})."),
     budget: Optional[int] = typer.Option(None, "--budget", help="Override search.budget (simulations)."),
     seed: Optional[int] = typer.Option(None, "--seed", help="Override search.seed."),
     workers: Optional[int] = typer.Option(None, "--workers", help="Override search.n_envs (parallel environments)."),
@@ -116,8 +114,8 @@ def verify(
     robust: Optional[bool] = typer.Option(None, "--robust/--no-robust", help="Force the robust check on/off (default: when the spec randomises the plant)."),
 ) -> None:
     """Verify GAINS against SPEC's requirements and print the table. Exit 3 if they fail."""
-    from gaintune.verify import format_table
-    from gaintune.verify import verify as run_verify
+    from gaintune.verification import format_table
+    from gaintune.verification import verify as run_verify
 
     spec = load_spec_file(spec_path)
     rep = run_verify(spec, load_gains(gains), robust=robust)

@@ -24,11 +24,14 @@ import math
 import os
 import shlex
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 import typer
 
 from gaintune.fmt import fmt
+
+if TYPE_CHECKING:  # pragma: no cover
+    from gaintune.spec import Gains
 
 __all__ = [
     "EXIT_OK", "EXIT_INPUT", "EXIT_VERIFY", "EPILOG", "out", "err", "InputError", "handle_errors",
@@ -189,7 +192,7 @@ def load_spec_file(path: Path):
     return load_spec(data)
 
 
-def load_gains(value: str) -> dict[str, dict[str, float]]:
+def load_gains(value: str) -> Gains:
     """``--gains``: a JSON/YAML file (a result.json's ``gains`` is taken) or inline JSON."""
     text = value
     if not value.lstrip().startswith("{"):
@@ -230,7 +233,7 @@ def reverify_result(result, path: Path) -> None:
     verification was set aside on reading, or says that the file's verdict was not taken.
     """
     from gaintune.spec import TuningSpec
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     claimed = result.verdict
     result.verification = verify(TuningSpec.model_validate(result.spec), result.gains)

@@ -96,7 +96,7 @@ def _print_margins(rep, console: Console) -> None:
     """Margins per loop and the requirement lines; an unstable loop's are 'not applicable', never pass."""
     from rich.table import Table
 
-    from gaintune.verify.report import NOT_APPLICABLE
+    from gaintune.verification.report import NOT_APPLICABLE
 
     m = Table(title="Margins per loop (nominal)")
     for c in ("loop", "break", "GM dB", "PM deg", "wc rad/s", "DM s", "Ms", "Mt"):

@@ -48,7 +48,7 @@ import numpy as np
 
 from gaintune.errors import SpecError
 from gaintune.spec import TuningSpec
-from gaintune.statespace import StateSpace
+from gaintune.lti.statespace import StateSpace
 
 __all__ = ["LoopDirection", "PathGain", "path_gain", "resolve_directions", "loop_directions", "MAX_CORNER_PARAMS"]
 

@@ -26,7 +26,7 @@ import numpy as np
 from gaintune.controllers.direction import LoopDirection, loop_directions, resolve_directions
 from gaintune.errors import GainError, SpecError
 from gaintune.controllers.forms import to_form
-from gaintune.spec import GAIN_NAMES, LoopSpec, TuningSpec
+from gaintune.spec import GAIN_NAMES, Gains, LoopSpec, TuningSpec
 
 __all__ = [
     "GainSlot", "GainLayout", "loop_gain_names", "DEFAULT_BOUNDS", "loop_directions",
@@ -48,7 +48,6 @@ DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {
     "k": (1e-3, 1e3),
 }
 
-Gains = dict[str, dict[str, float]]
 
 
 def loop_gain_names(loop: LoopSpec, states: list[str]) -> tuple[str, ...]:

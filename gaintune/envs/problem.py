@@ -2,7 +2,7 @@
 
 :class:`GainProblem` builds the plant, the gain layout (bounds from a classical
 rule when the spec gives none), the simulator and the evaluator once, and
-scores a batch of gain sets with :meth:`gaintune.objective.Evaluator.evaluate`
+scores a batch of gain sets with :meth:`gaintune.evaluation.evaluator.Evaluator.evaluate`
 (ONE simulator call per scenario). Every env in :mod:`gaintune.envs` and the
 search share it, so reward arithmetic lives here only.
 
@@ -11,7 +11,7 @@ Reward of one gain set, feasibility first like every other ranking here::
     feasible:    reward = -min(cost / cost_scale, COST_CAP)
     infeasible:  reward = -(COST_CAP + min(violation, VIOLATION_CAP))
 
-``cost`` is the plain objective of :mod:`gaintune.objective` (aggregated over
+``cost`` is the plain objective of :mod:`gaintune.evaluation.evaluator` (aggregated over
 the robust draws), ``cost_scale`` the cost of the start gains on the nominal
 plant, and ``violation`` the graded requirement violation (0 when every
 requirement holds; >= 10 for an unstable loop or a diverged run). Every
@@ -28,11 +28,11 @@ import numpy as np
 
 from gaintune.classical.timescale import scenario_defaults
 from gaintune.controllers.layout import GainLayout
-from gaintune.search_box import search_box
-from gaintune.objective import DIVERGED_COST, Evaluator, Scores
+from gaintune.evaluation.search_box import search_box
+from gaintune.evaluation.evaluator import DIVERGED_COST, Evaluator, Scores
 from gaintune.plants import build_plant
 from gaintune.plants.checks import validate_against_plant
-from gaintune.repair import repair
+from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.sim import Simulator
 from gaintune.sim import draws as draws_mod
 from gaintune.sim.draws import Draws
@@ -48,7 +48,7 @@ VIOLATION_CAP = 20.0
 
 @dataclass
 class Scored(Scores):
-    """:class:`~gaintune.objective.Scores` of B gain sets plus their RL reward (B,)."""
+    """:class:`~gaintune.evaluation.evaluator.Scores` of B gain sets plus their RL reward (B,)."""
 
     reward: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
 
@@ -85,7 +85,7 @@ class GainProblem:
         self.randomized = spec.randomize.active
         self.obs_size = draws_mod.context_size(spec)
         self.cost_scale = self._cost_scale()
-        #: Project stable, infeasible samples onto the requirement boundary before scoring (gaintune.repair).
+        #: Project stable, infeasible samples onto the requirement boundary before scoring (gaintune.evaluation.boundary_estimate).
         self.repair = spec.search.repair
         #: Optional hook called as ``on_score(tuned, scored)`` after every env scoring (search monitor).
         self.on_score = None
@@ -137,7 +137,7 @@ class GainProblem:
         tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
         if not self.repair:
             return tuned, None
-        r = repair(self.evaluator, tuned)
+        r = onto_boundary_estimate(self.evaluator, tuned)
         return r.tuned, r.violation
 
     def score(self, tuned: np.ndarray, draws: Draws) -> Scored:

@@ -10,12 +10,12 @@ import math
 from typing import Any
 
 from gaintune.errors import GaintuneError
+from gaintune.spec import Gains
 from gaintune.spec.names import ident as _ident
 from gaintune.spec.names import unsafe_char
 
 __all__ = ["ExportError", "Gains"]
 
-Gains = dict[str, dict[str, float]]
 
 
 class ExportError(GaintuneError):

@@ -3,7 +3,7 @@
 Verdicts are per sample time
 ----------------------------
 Verification depends on ``dt``: it analyses the sampled loop at the largest scenario
-``dt`` (:mod:`gaintune.verify.sampled`; frequencies up to ``pi/dt``) and the nonlinear
+``dt`` (:mod:`gaintune.verification.sampled`; frequencies up to ``pi/dt``) and the nonlinear
 check simulates at the scenarios' ``dt``. A file therefore only
 claims the verdict obtained *at the dt it is exported for*:
 :func:`verdict_at_dt` returns the stored verdict when ``dt`` is the one the result
@@ -20,7 +20,7 @@ from typing import Any
 
 from gaintune.export.common import ExportError, Gains, _check_dt, _fmt_dt, _same_dt
 from gaintune.spec import MAX_STEPS, TuningSpec
-from gaintune.verify.report import VerificationReport
+from gaintune.verification.report import VerificationReport
 
 __all__ = ["verified_dt", "spec_at_dt", "stored_verdict_holds", "verdict_at_dt", "result_verdict_at_dt", "first_reason"]
 
@@ -28,7 +28,7 @@ __all__ = ["verified_dt", "spec_at_dt", "stored_verdict_holds", "verdict_at_dt",
 def verified_dt(spec: TuningSpec) -> float:
     """The sample time a verification of ``spec`` holds for: the largest scenario ``dt``.
 
-    The sampled-loop analysis (:mod:`gaintune.verify.sampled`) and the analysis band use it.
+    The sampled-loop analysis (:mod:`gaintune.verification.sampled`) and the analysis band use it.
     """
     return max(sc.dt for sc in spec.scenarios)
 
@@ -71,7 +71,7 @@ def spec_at_dt(spec: TuningSpec, dt: float, *, max_steps: int | None = None) -> 
 
 
 def first_reason(report: Any) -> str | None:
-    """The first reason of a verification report (dict or :class:`~gaintune.verify.VerificationReport`)."""
+    """The first reason of a verification report (dict or :class:`~gaintune.verification.VerificationReport`)."""
     if report is None:
         return None
     reasons = report.get("reasons") if isinstance(report, dict) else getattr(report, "reasons", None)
@@ -114,7 +114,7 @@ def verdict_at_dt(
     it holds at ``dt`` (:func:`stored_verdict_holds`: ``dt`` is the sample time it was
     obtained at, :func:`verified_dt`, with every scenario at that ``dt``). Otherwise
     (another ``dt``, scenarios of mixed ``dt``, or nothing stored) the gains are verified
-    with :func:`gaintune.verify.verify` on :func:`spec_at_dt` ``(spec, dt)``; ``robust``
+    with :func:`gaintune.verification.verify` on :func:`spec_at_dt` ``(spec, dt)``; ``robust``
     defaults to what the stored report did (else the spec's default).
 
     The JSON form is the report's own (``json.loads(report.model_dump_json())``: infinite
@@ -130,7 +130,7 @@ def verdict_at_dt(
     target = spec_at_dt(spec, dt, max_steps=max_steps)
     if robust is None and stored is not None and "robust" in stored:
         robust = stored["robust"] is not None  # as the stored verification did
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     report = verify(target, gains, robust=robust)
     return report.verdict, json.loads(report.model_dump_json())

@@ -26,7 +26,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gaintune.lti import observable_split
+from gaintune.lti.modes import observable_split
 from gaintune.plants.plant import LinearModel
 from gaintune.spec import TuningSpec
 

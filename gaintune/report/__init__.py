@@ -20,10 +20,13 @@ import tempfile
 import time
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from gaintune.errors import GaintuneError
 from gaintune.files import write_atomic
+
+if TYPE_CHECKING:  # pragma: no cover
+    from gaintune.spec import Gains
 
 __all__ = ["SECTIONS", "ReportError", "load_verification", "render_html", "render_report", "render_pdf", "find_chromium", "result_from_gains"]
 
@@ -52,9 +55,9 @@ def load_verification(data: Any):
 
     Kept for callers holding a raw report dict: :attr:`TuneResult.verification
     <gaintune.search.result.TuneResult.verification>` is already a report. Delegates to
-    :func:`gaintune.verify.report.load_report` (tolerant of infinities stored as JSON ``null``).
+    :func:`gaintune.verification.report.load_report` (tolerant of infinities stored as JSON ``null``).
     """
-    from gaintune.verify.report import load_report
+    from gaintune.verification.report import load_report
 
     return load_report(data)
 
@@ -136,13 +139,13 @@ def render_pdf(html_path: str | os.PathLike, pdf_path: str | os.PathLike, *, tim
     return pdf_path
 
 
-def result_from_gains(spec: Any, gains: dict[str, dict[str, float]], *, algo: str = "manual", verify: bool = True,
+def result_from_gains(spec: Any, gains: Gains, *, algo: str = "manual", verify: bool = True,
                       baselines: list[dict[str, Any]] | None = None, command: str = "") -> Any:
     """Wrap hand-picked (or baseline) gains in a :class:`TuneResult`, verified and scored, so they can be reported and exported."""
-    from gaintune.objective import Evaluator
+    from gaintune.evaluation.evaluator import Evaluator
     from gaintune.provenance import versions
     from gaintune.search.result import Provenance, TuneResult
-    from gaintune.verify import verify as run_verify
+    from gaintune.verification import verify as run_verify
 
     t0 = time.perf_counter()
     ev = Evaluator(spec)

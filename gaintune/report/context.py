@@ -11,7 +11,7 @@ import yaml
 
 from gaintune.fmt import fmt
 from gaintune.report import plots
-from gaintune.spec import DisturbanceSpec, ProfileSpec, ScenarioSpec, TuningSpec
+from gaintune.spec import DisturbanceSpec, Gains, ProfileSpec, ScenarioSpec, TuningSpec
 from gaintune.provenance import versions as all_versions
 
 __all__ = ["build_context"]
@@ -21,7 +21,6 @@ ENVELOPE_DRAWS = 32
 #: Classical baselines computed by the report when the result carries none.
 QUICK_BASELINES = ("simc", "amigo")
 
-Gains = dict[str, dict[str, float]]
 
 
 _fmt = fmt  # one formatter for every table (gaintune.fmt)
@@ -219,9 +218,9 @@ def _time_section(spec, plant, sim, full, ps) -> tuple[list[dict], dict]:
 
 
 def _freq_section(spec, plant, layout, full, rep) -> dict[str, Any]:
-    from gaintune.verify.analysis import sampling_delay
-    from gaintune.verify.cascade import build_cascade
-    from gaintune.verify.core import analysis_dt, loop_frequency_responses
+    from gaintune.verification.analysis import sampling_delay
+    from gaintune.verification.cascade import build_cascade
+    from gaintune.verification.core import analysis_dt, loop_frequency_responses
 
     lin = plant.linearize()
     delay_T = lin.delay + (0.0 if spec.verify.sampled else sampling_delay(spec))
@@ -278,7 +277,7 @@ def _freq_section(spec, plant, layout, full, rep) -> dict[str, Any]:
 
 def _noise_plot(spec, plant, layout, full, w, lin, rep) -> str | None:
     """The |C S| plot with the Mks limits, when Mks is a requirement of some loop (else None)."""
-    from gaintune.verify.core import loop_frequency_responses
+    from gaintune.verification.core import loop_frequency_responses
 
     limits = {f.loop: f.mks_max for f in rep.loops if f.break_point == "controller_output" and f.mks_max}
     if not limits:
@@ -352,7 +351,7 @@ def _search_section(result, spec: TuningSpec) -> dict[str, Any]:
             "svg": plots.curve_figure(series) if series else None}
 
 
-def _gains_text(gains: dict[str, dict[str, float]] | None) -> str:
+def _gains_text(gains: Gains | None) -> str:
     """Gains as one short line per table cell, e.g. ``loop0: Kp 1.14, Ki 0.454``."""
     if not gains:
         return "-"
@@ -360,7 +359,7 @@ def _gains_text(gains: dict[str, dict[str, float]] | None) -> str:
 
 
 def _baselines_section(result, rep0, spec, plant, sim, full, nominal_res, units) -> dict[str, Any]:
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     computed = False
     entries = [dict(b) for b in (result.baselines or [])]
@@ -412,7 +411,7 @@ def build_context(result, *, command: str | None = None) -> dict[str, Any]:
     """All data of the report for one TuneResult (re-simulates with traces, computes frequency responses)."""
     from gaintune.plants.plant import build_plant
     from gaintune.sim import Simulator
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     spec = TuningSpec.model_validate(result.spec)
     plant = build_plant(spec.plant)

@@ -23,8 +23,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import stable_baselines3
 import torch
-from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import NormalActionNoise
@@ -33,6 +33,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from gaintune.errors import SpecError
 from gaintune.search.agent_file import load_module_state, load_optimizer_state, load_variables, read_agent_file
+from gaintune.search.algos import ALGO_NAMES
 from gaintune.search.eager_optim import install as _install_eager_optim
 from gaintune.search.eager_optim import optimizer_class as _eager_optimizer_class
 from gaintune.spec import TuningSpec
@@ -48,7 +49,8 @@ torch.set_num_threads(int(os.environ.get("GAINTUNE_TORCH_THREADS", "1")))
 #: of the search up to this, the oldest are overwritten beyond it.
 REPLAY_MAX = 1_000_000
 
-ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3, "a2c": A2C, "ddpg": DDPG}
+#: The stable-baselines3 class of every algorithm name (:data:`gaintune.search.algos.ALGO_NAMES`).
+ALGOS: dict[str, type[BaseAlgorithm]] = {name: getattr(stable_baselines3, name.upper()) for name in ALGO_NAMES}
 
 
 def agent_defaults(algo: str, n_envs: int, dim: int, budget_steps: int) -> dict[str, Any]:

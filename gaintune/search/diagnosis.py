@@ -23,8 +23,8 @@ from gaintune.plants.advice import plant_warnings
 from gaintune.plants.plant import Plant
 from gaintune.search.budget import min_budget_for_rl, rollout_sims
 from gaintune.search.result import Diagnosis, TuneResult
-from gaintune.spec import TuningSpec
-from gaintune.verify.report import RequirementLine, VerificationReport
+from gaintune.spec import Gains, TuningSpec
+from gaintune.verification.report import RequirementLine, VerificationReport
 
 __all__ = ["diagnose", "budget_hints", "bound_hints", "direction_hints", "scenario_hints", "settling_hints",
            "integral_time_hints", "REQUIREMENT_TEXT"]
@@ -113,7 +113,7 @@ def settling_hints(spec: TuningSpec, plant: Plant, layout: GainLayout, full: np.
     return settling_messages(Simulator(spec, plant, layout), full)
 
 
-def slow_integral_loops(spec: TuningSpec, gains: dict[str, dict[str, float]]) -> list[tuple[int, float]]:
+def slow_integral_loops(spec: TuningSpec, gains: Gains) -> list[tuple[int, float]]:
     """``(loop index, Ti)`` of every loop whose integral time Ti = Kp/Ki is longer than the longest scenario horizon."""
     from gaintune.controllers.pid import pid_params
 
@@ -129,7 +129,7 @@ def slow_integral_loops(spec: TuningSpec, gains: dict[str, dict[str, float]]) ->
     return out
 
 
-def integral_time_hints(spec: TuningSpec, gains: dict[str, dict[str, float]]) -> list[str]:
+def integral_time_hints(spec: TuningSpec, gains: Gains) -> list[str]:
     """A warning per loop whose integral time Ti = Kp/Ki is longer than the longest scenario horizon."""
     horizon = max(sc.horizon for sc in spec.scenarios)
     return [f"loops[{i}] ({spec.loops[i].name}): the integral time Ti = Kp/Ki = {ti:.4g} s is longer than the longest "

@@ -6,7 +6,7 @@ with the spec it was trained on, that policy gives gains for another plant of th
 without a new search: instant gains for a new plant, and, over a grid of parameters, a gain
 schedule. :class:`PolicyTuner` loads the agent and the training problem once; each
 :meth:`PolicyTuner.answer` then maps the parameters to the policy's gains, moves them onto the
-requirement boundary as the search did (:mod:`gaintune.repair`), and verifies them on the plant
+requirement boundary as the search did (:mod:`gaintune.evaluation.boundary_estimate`), and verifies them on the plant
 at those parameters. As everywhere in gaintune, only a ``pass`` releases the gains
 (:attr:`PolicyAnswer.accepted_gains`).
 
@@ -27,15 +27,15 @@ import numpy as np
 from gaintune.envs.problem import GainProblem
 from gaintune.envs.vec import BatchedGainVecEnv
 from gaintune.errors import SpecError
-from gaintune.objective import Evaluator
+from gaintune.evaluation.evaluator import Evaluator
 from gaintune.plants import build_plant
-from gaintune.repair import repair
+from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.search.agents import load_agent
 from gaintune.search.result import PolicyAnswer
 from gaintune.sim import Simulator
 from gaintune.sim import draws as draws_mod
 from gaintune.spec import RandomizeSpec, TuningSpec, load_spec
-from gaintune.verify import verify
+from gaintune.verification import verify
 
 __all__ = ["PolicyAnswer", "PolicyTuner"]
 
@@ -109,7 +109,7 @@ class PolicyTuner:
         spec = spec.model_copy(update={"randomize": RandomizeSpec()})
         tuned = layout.action_to_tuned(action)[None, :]
         if spec.search.repair:  # scored as the search scored its samples: on the boundary of this plant
-            tuned = repair(Evaluator(spec, Simulator(spec, plant, layout)), tuned).tuned
+            tuned = onto_boundary_estimate(Evaluator(spec, Simulator(spec, plant, layout)), tuned).tuned
         gains = layout.to_dict(layout.full(tuned[0]))
         report = verify(spec, gains, plant=plant, layout=layout, cache=False)
         values = dict(zip(plant.param_names, map(float, plant.param_vector())))

@@ -7,12 +7,11 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field, computed_field, field_serializer, field_validator, model_validator
 
-from gaintune.spec import ScenarioDefault
-from gaintune.verify.report import VerificationReport, load_report
+from gaintune.spec import Gains, ScenarioDefault
+from gaintune.verification.report import VerificationReport, load_report
 
 __all__ = ["CurvePoint", "Progress", "Provenance", "SettleInfo", "Diagnosis", "TuneResult", "PolicyAnswer"]
 
-Gains = dict[str, dict[str, float]]
 
 
 def report_json(v: VerificationReport | None) -> dict[str, Any] | None:
@@ -31,7 +30,7 @@ class CurvePoint(BaseModel):
 
 
 class SettleInfo(BaseModel):
-    """What the exact boundary step (:func:`gaintune.boundary.settle`) did to the search's answer."""
+    """What the exact boundary step (:func:`gaintune.evaluation.boundary_exact.onto_boundary_exact`) did to the search's answer."""
 
     action: Literal["unchanged", "pulled_inside", "pushed_to_boundary", "not_settled"]
     alpha: float = Field(description="Loop-gain scale applied to the binding loop (1 = unchanged).")
@@ -77,11 +76,11 @@ class TuneResult(BaseModel):
     ``gains`` are the answer *before* verification; the accepted gains exist only
     when ``verification.verdict == "pass"`` (see :attr:`accepted_gains`).
 
-    ``verification`` is a :class:`~gaintune.verify.VerificationReport`. It is dumped
+    ``verification`` is a :class:`~gaintune.verification.VerificationReport`. It is dumped
     (``model_dump`` in either mode, ``model_dump_json``) in the report's own JSON form,
     infinite figures as the strings ``"Infinity"``/``"-Infinity"``, so stored results
     read as plain dicts keep their form. A dict is read back into a report, tolerant of
-    older files (:func:`gaintune.verify.report.load_report`: infinities stored as
+    older files (:func:`gaintune.verification.report.load_report`: infinities stored as
     ``null``, fields added since).
     """
 
@@ -157,7 +156,7 @@ class PolicyAnswer(BaseModel):
     """The trained policy's gains for one plant, and their verification on that plant."""
 
     params: dict[str, float] = Field(description="Plant parameters the gains are for (the training spec's nominal values where not given).")
-    gains: dict[str, dict[str, float]] = Field(description="The policy's gains, moved onto the requirement boundary as the search does.")
+    gains: Gains = Field(description="The policy's gains, moved onto the requirement boundary as the search does.")
     verification: VerificationReport = Field(description="Verification of the gains on the plant at these parameters (nominal, no robust set).")
     outside: list[str] = Field(default_factory=list, description="Parameters outside their training range: the policy extrapolates there.")
     elapsed_ms: float = Field(description="Wall time of this answer (policy, repair and verification), milliseconds.")
@@ -173,7 +172,7 @@ class PolicyAnswer(BaseModel):
 
     @computed_field(description="The gains when the verdict is pass, else null.")
     @property
-    def accepted_gains(self) -> dict[str, dict[str, float]] | None:
+    def accepted_gains(self) -> Gains | None:
         """The gains, only when their verification passed; otherwise None."""
         return self.gains if self.verdict == "pass" else None
 

@@ -19,20 +19,20 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from gaintune.envs.problem import GainProblem, Scored
 from gaintune.envs.vec import BatchedGainVecEnv
-from gaintune.objective import DIVERGED_COST, merit
+from gaintune.evaluation.evaluator import DIVERGED_COST, merit
 from gaintune.search.agent_file import save_agent
 from gaintune.search.agents import load_agent, load_weights, make_agent
 from gaintune.search.budget import refine_reserve, rollout_sims
 from gaintune.search.budget import rl_budget as rl_budget_of
-from gaintune.boundary import settle, violation_after
-from gaintune.cma import load_cma
+from gaintune.evaluation.boundary_exact import onto_boundary_exact, violation_after
+from gaintune.baselines.cma import load_cma
 from gaintune.search.diagnosis import diagnose
 from gaintune.search.result import CurvePoint, Progress, Provenance, SettleInfo, TuneResult
-from gaintune.spec import TuningSpec
+from gaintune.spec import Gains, TuningSpec
 from gaintune.provenance import versions
 
 # The polish's optimiser, imported with this module: a CLI process still runs one thread here,
-# so gaintune.cma can skip scipy.stats (~0.3 s of every tune).
+# so gaintune.baselines.cma can skip scipy.stats (~0.3 s of every tune).
 CMA = load_cma()
 
 __all__ = ["tune", "policy_gains", "SearchMonitor"]
@@ -84,7 +84,7 @@ class SearchMonitor:
         return time.perf_counter() - self.t0
 
     def on_batch(self, tuned: np.ndarray, s: Scored) -> None:
-        """Record the batch's best candidate, feasibility first (see :func:`gaintune.objective.merit`)."""
+        """Record the batch's best candidate, feasibility first (see :func:`gaintune.evaluation.evaluator.merit`)."""
         self.n_diverged += int(s.diverged.sum())
         self.n_tripped += int(s.tripped.sum())
         m = s.merit
@@ -206,7 +206,7 @@ def tune(
     out_dir
         When given, the agent is saved there as ``agent.zip``.
     verify
-        Run :func:`gaintune.verify.verify` on the frozen gains (the gate).
+        Run :func:`gaintune.verification.verify` on the frozen gains (the gate).
     baselines
         Also score the classical rules for the report's comparison table.
     cancel
@@ -268,10 +268,10 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     cand = {"policy": policy_action}
     if monitor.best_tuned is not None:
         cand["best_seen"] = layout.tuned_to_action(monitor.best_tuned)
-    # the search never loses the start point (the best classical design, gaintune.search_box)
+    # the search never loses the start point (the best classical design, gaintune.evaluation.search_box)
     cand["start"] = layout.tuned_to_action(layout.initial_tuned())
     names = list(cand)
-    # the policy's answer is scored as its samples were: repaired onto the boundary (gaintune.repair)
+    # the policy's answer is scored as its samples were: repaired onto the boundary (gaintune.evaluation.boundary_estimate)
     cand_tuned = problem.repaired(layout.action_to_tuned(np.array([cand[k] for k in names])))
     first = ev.evaluate(cand_tuned)
     k = int(np.argmin(first.merit))  # feasibility first, then the plain cost
@@ -281,10 +281,10 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     tuned = cand_tuned[k]
     settled = None
     if verify:
-        # Close the gap between the fast requirement estimate and the exact verdict (gaintune.boundary).
+        # Close the gap between the fast requirement estimate and the exact verdict (gaintune.evaluation.boundary_exact).
         # Every method gets this exact step, so the RL-only figure includes it (but no local polish).
         monitor.report(force=True, phase="settle")
-        settled = settle(ev, tuned, cost=float(first.cost[k]) if first.feasible[k] else None)
+        settled = onto_boundary_exact(ev, tuned, cost=float(first.cost[k]) if first.feasible[k] else None)
         if settled.action in ("pulled_inside", "pushed_to_boundary"):
             tuned = settled.tuned
             rl = ev.evaluate(tuned[None])
@@ -301,7 +301,7 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
         if rm < best_merit:
             tuned, source = layout.action_to_tuned(ra), "refined"
             if verify:
-                settled = settle(ev, tuned)
+                settled = onto_boundary_exact(ev, tuned)
                 if settled.action in ("pulled_inside", "pushed_to_boundary"):
                     tuned = settled.tuned
     final = ev.evaluate(tuned[None])
@@ -345,7 +345,7 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     )
     if verify:
         monitor.report(force=True, phase="verify")
-        from gaintune.verify import verify as verify_gains
+        from gaintune.verification import verify as verify_gains
 
         result.verification = verify_gains(spec, gains, plant=problem.plant, layout=layout)
     if baselines:
@@ -359,11 +359,11 @@ def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_
     return result
 
 
-def policy_gains(agent_path: str | Path, spec: TuningSpec, context: np.ndarray | None = None) -> dict[str, dict[str, float]]:
+def policy_gains(agent_path: str | Path, spec: TuningSpec, context: np.ndarray | None = None) -> Gains:
     """"Learning off": the saved agent's deterministic gains for ``spec`` (nominal context by default).
 
     The spec must have the same loop structure (gain layout) as the one the agent was trained on.
-    The gains are **not verified** and carry no verdict: pass them to :func:`gaintune.verify.verify`
+    The gains are **not verified** and carry no verdict: pass them to :func:`gaintune.verification.verify`
     before handing them out, or run ``tune(spec, warm_start=agent_path)``, whose result is verified.
     """
     problem = GainProblem(spec)

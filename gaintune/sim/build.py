@@ -19,7 +19,7 @@ from gaintune.sim.draws import REF_KINDS, Draws
 from gaintune.sim.tape import Tape, make_tape
 from gaintune.spec import ProfileSpec, ScenarioSpec, TuningSpec, check_delay_samples
 
-__all__ = ["Problem", "discretize", "profile_pieces"]
+__all__ = ["SimSetup", "discretize", "profile_pieces"]
 
 AW_CODES = {"none": 0, "clamping": 1, "back_calculation": 2}
 
@@ -82,7 +82,7 @@ def profile_pieces(p: ProfileSpec, dt: float, n_steps: int, kind: str | None = N
 
 
 @dataclass
-class Problem:
+class SimSetup:
     """Everything about a spec that does not depend on the gains: built once, reused per batch."""
 
     spec: TuningSpec
@@ -95,7 +95,7 @@ class Problem:
     loop_columns: list[list[tuple[int, str]]]
 
     @classmethod
-    def build(cls, spec: TuningSpec, plant: Plant, layout: GainLayout) -> "Problem":
+    def build(cls, spec: TuningSpec, plant: Plant, layout: GainLayout) -> "SimSetup":
         meas = measured_indices(spec, plant.outputs)
         f_tape = h_tape = None
         if plant.kind == "nonlinear":

@@ -22,7 +22,7 @@ from gaintune.classical.timescale import resolve_scenarios
 from gaintune.controllers.layout import GainLayout
 from gaintune.plants.plant import Plant, build_plant
 from gaintune.sim import draws as draws_mod
-from gaintune.sim.build import Problem
+from gaintune.sim.build import SimSetup
 from gaintune.sim.draws import Draws
 from gaintune.sim.kernel import METRICS, run_kernel
 from gaintune.sim.kernel_args import KernelArgs
@@ -57,7 +57,7 @@ class Simulator:
         self.plant = plant or build_plant(spec.plant)
         self.spec = spec = resolve_scenarios(spec, self.plant)
         self.layout = layout or GainLayout(spec, self.plant.states)
-        self.problem = Problem.build(spec, self.plant, self.layout)
+        self.setup = SimSetup.build(spec, self.plant, self.layout)
         self._memo: dict = {}
 
     def nominal_draws(self, n: int = 1) -> Draws:
@@ -89,7 +89,7 @@ class Simulator:
         ``fields`` holds them by :class:`KernelArgs` field name; ``pa`` keeps the
         plant arrays the controller arrays are built from (the linear models).
         """
-        pb, spec = self.problem, self.spec
+        pb, spec = self.setup, self.spec
         pa, sg = pb.plant_arrays(d, sc), pb.signal_arrays(d, sc)
         act = spec.actuator
         lo, hi = act.limits if act.limits is not None else (-np.inf, np.inf)
@@ -162,7 +162,7 @@ class Simulator:
             if len(d) != B:
                 raise ValueError(f"draws has {len(d)} rows for {B} gain sets")
             prep = self._prepared(d, sc)
-        pb = self.problem
+        pb = self.setup
         ca = pb.controller_arrays(full, prep["pa"])
         args = KernelArgs.from_fields(prep["fields"], ca, pb.fallback_arrays(B, ca, prep["pa"]))
         return args.with_traces() if traces else args

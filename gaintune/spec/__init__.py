@@ -24,7 +24,9 @@ is the one import path:
 * :mod:`gaintune.spec.scenarios`: ``scenarios``, ``objective`` and ``requirements``;
 * :mod:`gaintune.spec.settings`: ``randomize``, ``safety``, ``search`` and ``verify``;
 * :mod:`gaintune.spec.names`: what a spec or loop name may hold, and the identifier the exporters derive from it;
-* :mod:`gaintune.spec.yamlload`: YAML loading with a bound on alias expansion (:data:`MAX_YAML_NODES`).
+* :mod:`gaintune.spec.yamlload`: YAML loading with a bound on alias expansion (:data:`MAX_YAML_NODES`);
+* :mod:`gaintune.spec.design`: the pidtune-style ``design`` shortcut, expanded into requirements and scenarios;
+* :mod:`gaintune.spec.doc`: renders ``docs/spec.md`` from this schema (``python -m gaintune.spec.doc``).
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from gaintune.spec.base import (
     _Model,
     check_delay_samples,
 )
-from gaintune.spec.loops import GAIN_NAMES, ActuatorSpec, DerivativeFilterSpec, GainSpec, LoopSpec
+from gaintune.spec.loops import GAIN_NAMES, ActuatorSpec, DerivativeFilterSpec, Gains, GainSpec, LoopSpec
 from gaintune.spec.names import ident_key, name_problem
 from gaintune.spec.plant import (
     Coef,
@@ -69,7 +71,7 @@ from gaintune.spec.scenarios import (
 )
 from gaintune.spec.settings import DistSpec, RandomizeSpec, RobustSpec, SafetySpec, SearchSpec, VerifySpec
 from gaintune.spec.yamlload import MAX_YAML_NODES, load_yaml
-from gaintune.spec_design import DesignSpec, expand_design
+from gaintune.spec.design import DesignSpec, expand_design
 
 __all__ = [
     "parse_json_or_yaml",
@@ -104,6 +106,7 @@ __all__ = [
     "TuningSpec",
     "load_spec",
     "GAIN_NAMES",
+    "Gains",
     "DisturbanceSpec",
     "FiniteParams",
     "FiniteNumber",

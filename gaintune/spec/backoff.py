@@ -8,8 +8,8 @@ the search inside every limit by a small amount; the **verdict** still judges th
 limit, so an answer passes with the back-off as its margin.
 
 :meth:`BackoffSpec.aim` is the one place the aimed limits are computed: the search's
-requirement estimate (:mod:`gaintune.objective`, hence :mod:`gaintune.repair` and the
-search box) and the exact settle step (:mod:`gaintune.boundary`) all call it, through
+requirement estimate (:mod:`gaintune.evaluation.evaluator`, hence :mod:`gaintune.evaluation.boundary_estimate` and the
+search box) and the exact settle step (:mod:`gaintune.evaluation.boundary_exact`) all call it, through
 :meth:`gaintune.spec.RequirementsSpec.aimed` or directly.
 """
 

@@ -15,7 +15,11 @@ from pydantic_core import PydanticCustomError
 from gaintune.spec.base import _finite, _Model
 from gaintune.spec.names import name_problem
 
-__all__ = ["GAIN_NAMES", "GainSpec", "DerivativeFilterSpec", "LoopSpec", "ActuatorSpec"]
+__all__ = ["GAIN_NAMES", "Gains", "GainSpec", "DerivativeFilterSpec", "LoopSpec", "ActuatorSpec"]
+
+#: Gains of a spec's loops, ``{loop name: {gain name: value}}``: what every search answers, verification
+#: checks and the exports write (the one definition; ``gaintune.spec`` re-exports it).
+Gains = dict[str, dict[str, float]]
 
 #: Gain names per controller type and form. Order defines the action layout.
 GAIN_NAMES: dict[tuple[str, str], tuple[str, ...]] = {

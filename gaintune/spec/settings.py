@@ -14,6 +14,7 @@ from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import core_schema as cs
 
 from gaintune.spec.base import MAX_BUDGET, _finite, _Model
+from gaintune.spec.loops import Gains
 
 __all__ = ["DistSpec", "RandomizeSpec", "SafetySpec", "RobustSpec", "SearchSpec", "VerifySpec"]
 
@@ -122,7 +123,7 @@ class SafetySpec(_Model):
     action: Literal["hold", "fallback"] = Field(
         "hold", description="hold: actuator to actuator.safe_value; fallback: switch to fallback_gains."
     )
-    fallback_gains: dict[str, dict[str, float]] | None = Field(
+    fallback_gains: Gains | None = Field(
         None, description="Loop name -> gain dict used after a trip when action is fallback."
     )
     divergence_bound: float = Field(1e6, gt=0, description="|state| beyond this, or NaN/inf, marks divergence.")

@@ -91,7 +91,7 @@ def test_pool_queues_recovers_and_shuts_down(loop: str):
 def test_pool_verify_matches_in_process():
     from gaintune_api.compute import compute_verify
     from gaintune.spec import load_spec
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}], "scenario": {"dt": 0.01}})
     gains = {"loop0": {"Kp": 1.14, "Ki": 0.454}}
@@ -107,7 +107,7 @@ def test_pool_verify_matches_in_process():
 
     tag, data = asyncio.run(main())
     assert tag == "ok"
-    from gaintune.verify.report import VerificationReport
+    from gaintune.verification.report import VerificationReport
 
     a = VerificationReport.model_validate_json(data)
     b = verify(spec, gains)

@@ -29,8 +29,8 @@ from test_api_routes import GOOD, SPEC, make_fake_tune, settings_for
 
 from gaintune_api import supervisor as supervisor_mod
 from gaintune_api.main import create_app
-from gaintune_api.storage import FaultInjector, StorageFault, wal_write_lock_holder
-from gaintune_api.store import JobStore, claim_tag, loads
+from gaintune_api.storage_faults import FaultInjector, StorageFault, wal_write_lock_holder
+from gaintune_api.job_store import JobStore, claim_tag, loads
 from gaintune_api.supervisor import Supervisor, pid_alive, pid_stopped
 from gaintune_api.worker import run_job
 
@@ -69,7 +69,7 @@ _HOLDER = textwrap.dedent("""
     ctypes.CDLL("libc.so.6").prctl(15, b"gaintune-worker", 0, 0, 0)  # named like a job worker
     db, claim = sys.argv[1], sys.argv[2] == "claim"
     if claim:
-        from gaintune_api.store import JobStore
+        from gaintune_api.job_store import JobStore
         job = JobStore(db).claim(os.getpid())
         print(job.id, flush=True)
     c = sqlite3.connect(db, isolation_level=None)

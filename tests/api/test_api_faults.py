@@ -1,7 +1,7 @@
 """Issue 14 in-process: fencing of stale attempts, named storage faults, leases across a database outage,
 settings warnings, docs auth and honest recovery logs. Real-server chaos tests: test_api_chaos.py.
 
-Storage faults are injected with the tests-only ``test_storage_fault_file`` (gaintune_api.storage.FaultInjector):
+Storage faults are injected with the tests-only ``test_storage_fault_file`` (gaintune_api.storage_faults.FaultInjector):
 deterministic, and effective as root, where ``chmod`` does not make anything read-only.
 """
 
@@ -23,8 +23,8 @@ from test_api_routes import GOOD, SPEC, make_fake_tune, settings_for
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.main import create_app
 from gaintune_api.settings import unknown_settings
-from gaintune_api.storage import FaultInjector, StorageFault, classify
-from gaintune_api.store import JobStore, loads
+from gaintune_api.storage_faults import FaultInjector, StorageFault, classify
+from gaintune_api.job_store import JobStore, loads
 from gaintune_api.supervisor import Supervisor
 from gaintune_api.worker import process_next, run_job
 

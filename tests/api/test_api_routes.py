@@ -12,7 +12,7 @@ from fastapi.testclient import TestClient
 
 from gaintune_api.main import create_app
 from gaintune_api.settings import Settings
-from gaintune_api.store import JobStore
+from gaintune_api.job_store import JobStore
 from gaintune_api.supervisor import Supervisor
 from gaintune_api.worker import process_next
 from gaintune.search.result import CurvePoint, Progress, Provenance, TuneResult
@@ -32,7 +32,7 @@ def make_fake_tune(gains=GOOD, *, steps: int = 3, sleep: float = 0.0, honour_can
     """A stand-in for gaintune.search.tune: reports progress, verifies fixed gains, saves a dummy agent."""
 
     def fake_tune(spec, *, progress=None, out_dir=None, verify=True, cancel=None, **kw):
-        from gaintune.verify import verify as do_verify
+        from gaintune.verification import verify as do_verify
 
         budget = spec.search.budget
         stopped = "budget"

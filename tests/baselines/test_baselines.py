@@ -11,7 +11,7 @@ import pytest
 
 from gaintune.baselines import METHODS, run_baseline
 from gaintune.classical import NoModelError, auto_bounds, fit_fotd, rule_candidates, tune_classical
-from gaintune.search_box import search_box, search_layout
+from gaintune.evaluation.search_box import search_box, search_layout
 from gaintune.classical import rules as R
 from gaintune.classical.fotd import Fotd
 from gaintune.baselines.optimizers import optimize
@@ -42,7 +42,7 @@ def _quiet():
 
 
 class SimEvaluator:
-    """Stand-in for gaintune.objective.Evaluator: weighted IAE-type cost from the real simulator."""
+    """Stand-in for gaintune.evaluation.evaluator.Evaluator: weighted IAE-type cost from the real simulator."""
 
     def __init__(self, spec):
         from gaintune.sim import Simulator
@@ -67,7 +67,7 @@ class SimEvaluator:
 
     def evaluate(self, tuned):
         """Scores with no requirements: only a diverged run is infeasible."""
-        from gaintune.objective import DIVERGED_COST, DIVERGED_VIOLATION, Scores
+        from gaintune.evaluation.evaluator import DIVERGED_COST, DIVERGED_VIOLATION, Scores
 
         c = self(tuned)
         bad = ~np.isfinite(c)
@@ -463,10 +463,10 @@ def test_methods_listed():
 
 
 @pytest.mark.skipif(
-    __import__("importlib").util.find_spec("gaintune.objective") is None, reason="gaintune.objective not written yet"
+    __import__("importlib").util.find_spec("gaintune.evaluation.evaluator") is None, reason="gaintune.evaluation.evaluator not written yet"
 )
 def test_integration_with_objective_evaluator():
-    from gaintune.objective import Evaluator
+    from gaintune.evaluation.evaluator import Evaluator
 
     spec = load_spec(PID3)
     ev = Evaluator(spec)

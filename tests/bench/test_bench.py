@@ -87,12 +87,12 @@ def test_reference_key_ignores_budget_and_seed_but_not_requirements():
     """Regression: requirements are constraints now, so a changed limit changes the constrained optimum."""
     p = U.get_suite("quick")[0]
     spec = dict(p.spec, search={"budget": 999, "seed": 5})
-    q = U.Problem(p.name, p.title, spec, p.family, reference=p.reference)
+    q = U.BenchCase(p.name, p.title, spec, p.family, reference=p.reference)
     assert R.reference_key(q) == R.reference_key(p)
     tight = dict(p.spec, requirements={"ms_max": 1.3})
-    assert R.reference_key(U.Problem(p.name, p.title, tight, p.family, reference=p.reference)) != R.reference_key(p)
+    assert R.reference_key(U.BenchCase(p.name, p.title, tight, p.family, reference=p.reference)) != R.reference_key(p)
     other = dict(p.spec, objective={"measure": "iae", "effort_weight": 0.02})
-    assert R.reference_key(U.Problem(p.name, p.title, other, p.family, reference=p.reference)) != R.reference_key(p)
+    assert R.reference_key(U.BenchCase(p.name, p.title, other, p.family, reference=p.reference)) != R.reference_key(p)
 
 
 def test_exact_lq_optimum_is_the_riccati_cost_and_a_minimum():

@@ -58,3 +58,15 @@ def test_before_and_after_rows_side_by_side(tmp_path: Path, monkeypatch) -> None
     assert data["header"][-1] == "after / before"
     assert [r[0] for r in data["rows"]] == ["python -c pass", "import gaintune"]
     assert all(r[1] > 0 and r[2] > 0 and r[4] > 0 for r in data["rows"])
+
+
+def test_the_verification_row_imports_the_verify_package_of_a_checkout_older_than_the_rename(tmp_path: Path) -> None:
+    """``--before`` may name a tree where the package was still ``gaintune.verify``: the row imports that."""
+    (tmp_path / "gaintune" / "verify").mkdir(parents=True)
+    (tmp_path / "gaintune" / "__init__.py").write_text("")
+    (tmp_path / "gaintune" / "verify" / "__init__.py").write_text("print('old verify imported')\n")
+    (tmp_path / "files").mkdir()
+    cmd = startup.commands(tmp_path / "files")["import gaintune.verification"]
+    out = subprocess.run(cmd, capture_output=True, text=True, env=startup._tree_env(tmp_path), check=True,
+                         cwd=tmp_path / "files").stdout
+    assert out.strip() == "old verify imported"

@@ -1,4 +1,4 @@
-"""The classical rules without python-control: gaintune.statespace's helpers against python-control.
+"""The classical rules without python-control: gaintune.lti.statespace's helpers against python-control.
 
 python-control stays the reference here: every helper the rule path uses (ss -> tf, tf -> ss,
 minreal, transmission zeros, step response, frequency response, series with a Padé delay) is
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from gaintune import lti, statespace
+from gaintune.lti import pade, statespace
 from gaintune.bench.suite import get_suite
 from gaintune.classical import fit_fotd, rule_candidates, tune_classical
 from gaintune.classical import fotd as F
@@ -84,10 +84,10 @@ def assert_same_ss(a: statespace.StateSpace, b) -> None:
 @pytest.mark.parametrize("order", [1, 2, 3, 6, 10])
 @pytest.mark.parametrize("T", [0.02, 0.3, 1.0, 13.0])
 def test_pade_matches_python_control(T, order):
-    assert lti.pade_monic(T, order) == tuple(control.pade(T, order))
+    assert pade.pade_monic(T, order) == tuple(control.pade(T, order))
     assert_same_ss(statespace.pade_state_space(T, order), control.ss(control.tf(*control.pade(T, order))))
     ref = control.tf(*control.pade(T, order))
-    np.testing.assert_array_equal(tf_coeffs(lti.pade_tf(T, order))[0], tf_coeffs(ref)[0])
+    np.testing.assert_array_equal(tf_coeffs(pade.pade_tf(T, order))[0], tf_coeffs(ref)[0])
 
 
 @pytest.mark.parametrize("order", [1, 4, 6, 10])
@@ -95,13 +95,13 @@ def test_unit_pade_realisation_is_unchanged(order):
     """pade_ss / pade_coeffs (the verification's normalisation) as before: scipy.signal.tf2ss of control.pade(1, n)."""
     num, den = control.pade(1.0, order)
     Ad, Bd, Cd, Dd = scipy.signal.tf2ss(num, den)
-    A, B, C, D = lti.pade_ss(2.0, order)
+    A, B, C, D = pade.pade_ss(2.0, order)
     np.testing.assert_array_equal(A, Ad / 2.0)
     np.testing.assert_array_equal(B, Bd / 2.0)
     np.testing.assert_array_equal(C, Cd)
     assert D == float(Dd[0, 0])
     k = np.arange(order, -1, -1)
-    np.testing.assert_array_equal(lti.pade_coeffs(2.0, order)[1], np.asarray(den) * 2.0**k)
+    np.testing.assert_array_equal(pade.pade_coeffs(2.0, order)[1], np.asarray(den) * 2.0**k)
 
 
 # ------------------------------------------------------------------ the StateSpace record

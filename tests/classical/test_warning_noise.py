@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 
 from gaintune.classical import rule_candidates
-from gaintune.objective import DIVERGED_COST, scenario_cost
+from gaintune.evaluation.evaluator import DIVERGED_COST, scenario_cost
 from gaintune.plants import build_plant
 from gaintune.spec import load_spec
 

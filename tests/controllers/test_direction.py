@@ -9,7 +9,7 @@ from pydantic import ValidationError
 from gaintune.classical import auto_bounds, tune_classical
 from gaintune.controllers.direction import loop_directions, resolve_directions
 from gaintune.controllers.layout import GainLayout
-from gaintune.search_box import search_box, search_layout
+from gaintune.evaluation.search_box import search_box, search_layout
 from gaintune.controllers.pid import pid_params
 from gaintune.errors import GainError, SpecError
 from gaintune.plants import build_plant
@@ -316,7 +316,7 @@ def reverse_tuned():
 
 
 def test_reverse_acting_fotd_is_tuned_and_passes(reverse_tuned):
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     r = reverse_tuned
     g = r.gains["main"]
@@ -333,7 +333,7 @@ def test_reverse_acting_fotd_is_tuned_and_passes(reverse_tuned):
 
 
 def test_direction_override_direct_on_negative_plant_fails_verification_with_reason():
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     spec = _spec(REVERSE_FOTD, loops=[{"name": "main", "type": "pi", "direction": "direct"}])
     plant = build_plant(spec.plant)

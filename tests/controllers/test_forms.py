@@ -10,8 +10,8 @@ from typer.testing import CliRunner
 from gaintune.cli import app
 from gaintune.errors import GainError
 from gaintune.spec import load_spec
-from gaintune.verify import verify
-from gaintune.verify.report import format_table
+from gaintune.verification import verify
+from gaintune.verification.report import format_table
 
 SPEC = {"name": "lag3", "plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pid"}],
         "scenario": {"dt": 0.05, "horizon": 20.0}}

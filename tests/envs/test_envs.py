@@ -10,7 +10,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 from gaintune.envs import ENV_IDS, BatchedGainVecEnv, GainProblem, GainTuningEnv, IterativeGainTuningEnv
 from gaintune.envs.problem import COST_CAP, VIOLATION_CAP
-from gaintune.objective import DIVERGED_VIOLATION, TRIP_VIOLATION, scenario_cost
+from gaintune.evaluation.evaluator import DIVERGED_VIOLATION, TRIP_VIOLATION, scenario_cost
 from gaintune.spec import load_spec
 
 LAG3 = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pid"}], "scenario": {"horizon": 15}}

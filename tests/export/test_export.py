@@ -200,7 +200,7 @@ FLIP_GAINS = {"position": {"Kp": 10.0}, "speed": {"Kp": 1.2, "Ki": 14.4}, "curre
 def _verified_result(spec, gains, verdict: str | None = None):
     """A TuneResult holding ``gains`` and their verification (``verdict`` overrides the stored verdict)."""
     from gaintune.search.result import Provenance, TuneResult
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     rep = verify(spec, gains)
     if verdict is not None:
@@ -239,7 +239,7 @@ def _cli(*args: str):
 def test_flip_case_verdict_really_depends_on_dt(motor_spec) -> None:
     """The premise of the tests below: the same gains pass at 1 ms and are unstable at 10 ms and 50 ms."""
     from gaintune.export import spec_at_dt, verified_dt
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     assert verified_dt(motor_spec) == 0.001
     assert verify(motor_spec, FLIP_GAINS).verdict == "pass"
@@ -251,7 +251,7 @@ def test_flip_case_verdict_really_depends_on_dt(motor_spec) -> None:
 
 
 def test_verdict_at_dt_reuses_the_stored_verdict_only_at_the_verified_dt(motor_spec, flip_result, monkeypatch) -> None:
-    import gaintune.verify as gv
+    import gaintune.verification as gv
     from gaintune.export import verdict_at_dt
 
     stored = flip_result.verification.model_copy(update={"verdict": "fail", "reasons": ["stored sentinel"]})
@@ -361,7 +361,7 @@ def test_export_dt_out_of_range_raises_input_error_naming_dt(motor_spec, flip_fi
 
 def test_mixed_dt_spec_is_reverified_at_the_largest_dt(motor_spec, monkeypatch) -> None:
     """Scenarios at 1 ms and 2 ms: the stored verdict's nonlinear check ran partly at 1 ms, so a 2 ms export re-verifies."""
-    import gaintune.verify as gv
+    import gaintune.verification as gv
     from gaintune.export import verdict_at_dt
 
     d = motor_spec.model_dump()

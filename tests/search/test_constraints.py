@@ -75,7 +75,7 @@ def test_unreachable_requirement_returns_least_violating_gains_and_says_why():
 
 @pytest.mark.parametrize("method", ["cmaes", "de", "nelder_mead", "random"])
 def test_every_optimiser_returns_feasible_gains_that_pass(method):
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     spec = _spec([1], "(s+1)^3", budget=800)
     res = run_baseline(spec, method, budget=800, seed=0)
@@ -85,7 +85,7 @@ def test_every_optimiser_returns_feasible_gains_that_pass(method):
 
 def test_feasible_candidate_always_outranks_an_infeasible_cheaper_one_in_the_reward():
     spec = _spec([1], "(s+1)^3")
-    # without the projection onto the boundary (gaintune.repair), which would make the second one feasible
+    # without the projection onto the boundary (gaintune.evaluation.boundary_estimate), which would make the second one feasible
     gp = GainProblem(spec.model_copy(update={"search": spec.search.model_copy(update={"repair": False})}))
     tuned = np.array([[0.3, 0.1], [3.0, 2.0]])  # loose and feasible; aggressive (cheaper IAE) and infeasible
     s = gp.score(tuned, gp.draw(np.random.default_rng(0), 2))

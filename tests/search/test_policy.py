@@ -42,8 +42,8 @@ def test_answer_is_verified_on_the_plant_at_those_parameters(tuner: PolicyTuner)
     assert a.verification.spec_hash != tuner.spec.content_hash()  # verified on the K = 1.7 plant, not the nominal one
     assert a.accepted_gains == (a.gains if a.verdict == "pass" else None)
     assert a.elapsed_ms > 0 and set(a.gains["loop0"]) == {"Kp", "Ki"}
-    # the verdict is the one gaintune.verify gives those gains on that plant
-    from gaintune.verify import verify
+    # the verdict is the one gaintune.verification gives those gains on that plant
+    from gaintune.verification import verify
 
     plant_spec = load_spec({**FAMILY, "plant": {**FAMILY["plant"], "params": {"K": 1.7, "T": 1.0}}, "randomize": {}})
     assert verify(plant_spec, a.gains).verdict == a.verdict

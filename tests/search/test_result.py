@@ -10,8 +10,8 @@ from pydantic import ValidationError
 
 from gaintune.search.result import Provenance, TuneResult
 from gaintune.spec import load_spec
-from gaintune.verify import VerificationReport, verify
-from gaintune.verify.report import load_report
+from gaintune.verification import VerificationReport, verify
+from gaintune.verification.report import load_report
 
 GAINS = {"loop0": {"Kp": 1.14, "Ki": 0.454}}
 

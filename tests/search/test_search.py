@@ -7,11 +7,11 @@ import threading
 import numpy as np
 import pytest
 
-from gaintune.objective import Evaluator
+from gaintune.evaluation.evaluator import Evaluator
 from gaintune.search import Progress, policy_gains, tune
 from gaintune.search.agents import load_agent
 from gaintune.spec import load_spec
-from gaintune.verify import VerificationReport
+from gaintune.verification import VerificationReport
 
 EASY = {
     "plant": {"tf": {"num": ["K"], "den": "(s+1)^2"}, "params": {"K": 1.0}},

@@ -10,7 +10,7 @@ from gaintune.controllers.layout import GainLayout
 from gaintune.plants.plant import build_plant
 from gaintune.search.tune import tune
 from gaintune.spec import load_spec
-from gaintune.verify import quick_margins, verify
+from gaintune.verification import quick_margins, verify
 
 BASE = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"name": "main", "type": "pi"}]}
 

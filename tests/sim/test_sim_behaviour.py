@@ -13,7 +13,7 @@ import pytest
 from gaintune.bench.sim import numpy_rollout
 from gaintune.sim import Simulator
 from gaintune.sim import draws as draws_mod
-from gaintune.spec import load_spec
+from gaintune.spec import Gains, load_spec
 
 LAG3 = {"tf": {"num": [1], "den": "(s+1)^3"}}
 INTEGRATOR = {"tf": {"num": [1], "den": [1, 0]}}
@@ -24,7 +24,7 @@ def make(spec: dict[str, Any]) -> Simulator:
     return Simulator(load_spec(spec))
 
 
-def run1(spec: dict[str, Any], gains: dict[str, dict[str, float]], **kw):
+def run1(spec: dict[str, Any], gains: Gains, **kw):
     sim = make(spec)
     return sim.run(sim.layout.from_dict(gains)[None, :], traces=True, **kw)
 

@@ -22,7 +22,7 @@ import scipy.integrate
 import scipy.linalg
 
 from gaintune.sim import Simulator
-from gaintune.spec import load_spec
+from gaintune.spec import Gains, load_spec
 
 RTOL = 1e-9
 
@@ -30,7 +30,7 @@ RTOL = 1e-9
 # ------------------------------------------------------------------ helpers
 
 
-def run(spec: dict[str, Any], gains: dict[str, dict[str, float]]):
+def run(spec: dict[str, Any], gains: Gains):
     """One simulation of ``spec`` at ``gains`` with traces."""
     sim = Simulator(load_spec(spec))
     full = sim.layout.from_dict(gains)

@@ -31,7 +31,7 @@ def test_aimed_requirements_move_numbers_and_per_loop_mks_but_keep_auto():
     assert (aimed.ms_max, aimed.mt_max, aimed.pm_min_deg) == (pytest.approx(1.386), pytest.approx(1.287), 45.5)
     assert aimed.mks_max == {"a": pytest.approx(1.98), "b": None}
     assert not aimed.backoff.active  # no second back-off
-    assert RequirementsSpec().aimed().mks_max == "auto"  # resolved per plant, then aimed (gaintune.objective)
+    assert RequirementsSpec().aimed().mks_max == "auto"  # resolved per plant, then aimed (gaintune.evaluation.evaluator)
     assert RequirementsSpec(mks_max=2).aimed().mks_max == pytest.approx(1.98)
 
 

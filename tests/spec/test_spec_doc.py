@@ -2,9 +2,9 @@
 
 from pathlib import Path
 
-from gaintune.spec_doc import render_markdown
+from gaintune.spec.doc import render_markdown
 
 
 def test_spec_reference_is_current(repo_root: Path):
     path = repo_root / "docs" / "spec.md"
-    assert path.read_text().strip() == render_markdown().strip(), "run: python -m gaintune.spec_doc > docs/spec.md"
+    assert path.read_text().strip() == render_markdown().strip(), "run: python -m gaintune.spec.doc > docs/spec.md"

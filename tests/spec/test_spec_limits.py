@@ -148,7 +148,7 @@ def test_boolean_settings_are_still_booleans() -> None:
 
 
 def test_verify_refuses_boolean_gain_vector() -> None:
-    from gaintune.verify import verify
+    from gaintune.verification import verify
 
     spec = load_spec(BASE)
     for gains in ([True, 0.5], np.array([True, True])):

@@ -1,0 +1,133 @@
+"""The move onto the requirement boundary on the search estimate: the RL search's constraint projection.
+
+A policy samples gain sets around its mean. With feasibility-first rewards, every
+sample that crosses a requirement boundary (Ms > 1.4, say) scores far below every
+feasible one, so the policy mean learns to stay well inside the boundary, while a
+constrained optimum usually lies on it. This module removes that cliff the way a
+safety layer does in constrained RL: a sampled gain set that violates a requirement
+(but not by instability) is moved onto the boundary along its **loop-gain scale**
+before it is simulated, and the policy is rewarded for the repaired gains. Samples
+beyond the boundary then score like the boundary point they project to, and the
+policy is free to move along it.
+
+The move (:mod:`gaintune.evaluation.boundary`) is the one :mod:`gaintune.evaluation.boundary_exact` makes exactly, here on the search's fast
+estimate (:meth:`gaintune.evaluation.evaluator.Evaluator.requirement_violation`) and batched:
+every tuned gain of every PID loop is multiplied by ``alpha**d`` with ``d = 1`` on
+Kp, Ki and Kd of a parallel loop (on Kp of an ideal loop), which multiplies each
+controller by alpha. A coarse ladder of alphas below 1 finds, per candidate, the
+largest feasible scale, and a few bisection steps close the bracket. A candidate that
+no scale in the search box makes feasible is left as it is (and keeps its violation).
+
+The boundary is the estimate's: each limit moved inside by ``requirements.backoff``
+(:meth:`gaintune.evaluation.evaluator.Evaluator.requirement_scores` aims there), so repaired gains keep
+the same margin to the exact limits as every other answer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gaintune.evaluation.boundary import alpha_floor, loop_gain_exponents
+from gaintune.evaluation.evaluator import Evaluator
+from gaintune.verification.quick import UNSTABLE_VIOLATION
+
+__all__ = ["EstimateMove", "onto_boundary_estimate", "LADDER", "SECANT_STEPS", "TOL"]
+
+#: Relative gain reductions tried at once (alpha = 1 - step): they bracket the boundary.
+LADDER = (0.02, 0.1, 0.3, 0.6, 0.85)
+#: Safeguarded regula-falsi steps in log alpha after the ladder.
+SECANT_STEPS = 3
+#: A repaired row is done once its shortfall is within this of zero (relative to the limit, inside).
+TOL = 1e-3
+
+@dataclass
+class EstimateMove:
+    """Outcome of :func:`onto_boundary_estimate` for B candidates.
+
+    Attributes
+    ----------
+    tuned
+        (B, d) gains: repaired rows moved onto the boundary, the others unchanged.
+    violation
+        (B,) estimated violation of the returned gains.
+    alpha
+        (B,) loop-gain scale applied (1 where unchanged).
+    repaired
+        (B,) rows that were moved.
+    """
+
+    tuned: np.ndarray
+    violation: np.ndarray
+    alpha: np.ndarray
+    repaired: np.ndarray
+
+
+def onto_boundary_estimate(ev: Evaluator, tuned: np.ndarray) -> EstimateMove:
+    """Move each stable but infeasible candidate onto the requirement boundary (see the module docstring).
+
+    The search estimate's signed shortfall ``g`` (<= 0 when every requirement holds) is solved for
+    ``g = -TOL/2`` in x = log alpha: a ladder of scales brackets the root, then a few regula-falsi
+    steps (bisection where the bracket's end is unstable) close it to within ``TOL``.
+
+    Parameters
+    ----------
+    ev
+        The search's evaluator (spec, layout and the requirement estimate).
+    tuned
+        (B, d) tuned gains.
+    """
+    tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
+    v, g0 = ev.requirement_scores(tuned)
+    B = len(tuned)
+    out, v_out, alpha = tuned.copy(), v.copy(), np.ones(B)
+    mask = np.zeros(B, dtype=bool)
+    d = loop_gain_exponents(ev)
+    rows = np.nonzero((v > 0) & (v < UNSTABLE_VIOLATION))[0]
+    if not rows.size or not d.any():
+        return EstimateMove(out, v_out, alpha, mask)
+    t = tuned[rows]
+    x_floor = np.log(alpha_floor(ev.layout, t, d))
+    xs = np.maximum(np.log1p(-np.array(LADDER))[None, :], x_floor[:, None])  # (n, L)
+    n, L = xs.shape
+    # the root find checks margins only (stability is 2/3 of the estimate's cost); the answer is checked in full
+    lv, lg = ev.requirement_scores((t[:, None, :] * np.exp(xs)[..., None] ** d).reshape(n * L, -1), stability=False)
+    lv, lg = lv.reshape(n, L), lg.reshape(n, L)
+    ok = lv <= 0
+    found = ok.any(axis=1)
+    first = np.argmax(ok, axis=1)  # the largest feasible scale on the ladder
+    i = np.arange(n)
+    xg, gg = xs[i, first], lg[i, first]
+    prev = np.maximum(first - 1, 0)
+    xb = np.where(first > 0, xs[i, prev], 0.0)
+    gb = np.where(first > 0, lg[i, prev], g0[rows])
+    keep = found
+    rows, t, xg, gg, xb, gb = rows[keep], t[keep], xg[keep], gg[keep], xb[keep], gb[keep]
+    for _ in range(SECANT_STEPS):
+        act = gg < -TOL  # rows whose feasible end is still too far inside
+        if not act.any():
+            break
+        target = -0.5 * TOL
+        with np.errstate(all="ignore"):
+            xs_ = xg + (target - gg) * (xb - xg) / (gb - gg)
+        bisect = ~np.isfinite(xs_) | (gb >= UNSTABLE_VIOLATION)
+        xm = np.where(bisect, 0.5 * (xg + xb), xs_)
+        w = xb - xg  # keep the trial strictly inside the bracket
+        xm = np.clip(xm, xg + 0.02 * w, xb - 0.02 * w)
+        a = np.nonzero(act)[0]
+        tv, tg = ev.requirement_scores(t[a] * np.exp(xm[a])[:, None] ** d, stability=False)
+        good = tv <= 0
+        xg[a] = np.where(good, xm[a], xg[a])
+        gg[a] = np.where(good, tg, gg[a])
+        xb[a] = np.where(good, xb[a], xm[a])
+        gb[a] = np.where(good, gb[a], tg)
+    moved = t * np.exp(xg)[:, None] ** d
+    fv = ev.requirement_scores(moved)[0]  # the full estimate, stability included, decides
+    ok = fv <= 0
+    rows = rows[ok]
+    out[rows] = moved[ok]
+    v_out[rows] = 0.0
+    alpha[rows] = np.exp(xg[ok])
+    mask[rows] = True
+    return EstimateMove(out, v_out, alpha, mask)

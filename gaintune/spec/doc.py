@@ -1,0 +1,101 @@
+"""Render the spec reference (docs/spec.md) from the pydantic schema itself, so docs never drift."""
+
+from __future__ import annotations
+
+import inspect
+import re
+import typing
+
+from pydantic import BaseModel
+from pydantic_core import PydanticUndefined
+
+from gaintune import spec as S
+from gaintune.spec.backoff import BackoffSpec
+from gaintune.spec.design import DesignSpec
+
+__all__ = ["render_markdown"]
+
+_SECTIONS: list[tuple[str, type[BaseModel]]] = [
+    ("spec (top level)", S.TuningSpec),
+    ("plant", S.PlantSpec),
+    ("plant.tf", S.TransferFunctionSpec),
+    ("plant.ss", S.StateSpaceSpec),
+    ("plant.ode", S.OdeSpec),
+    ("plant.model", S.ModelRefSpec),
+    ("loops[i]", S.LoopSpec),
+    ("loops[i].gains.<name>", S.GainSpec),
+    ("loops[i].filter", S.DerivativeFilterSpec),
+    ("actuator", S.ActuatorSpec),
+    ("scenarios[i]", S.ScenarioSpec),
+    ("scenarios[i].reference", S.ProfileSpec),
+    ("scenarios[i].disturbance", S.DisturbanceSpec),
+    ("objective", S.ObjectiveSpec),
+    ("requirements", S.RequirementsSpec),
+    ("requirements.backoff", BackoffSpec),
+    ("randomize", S.RandomizeSpec),
+    ("randomize.* distributions", S.DistSpec),
+    ("safety", S.SafetySpec),
+    ("search", S.SearchSpec),
+    ("search.robust", S.RobustSpec),
+    ("verify", S.VerifySpec),
+    ("design (pidtune-style shortcut)", DesignSpec),
+]
+
+
+def _type(t: object) -> str:
+    text = str(t).replace("typing.", "").replace("NoneType", "None")
+    # spec models print as gaintune.spec.<section>.<Class>; the reference names them by class only
+    text = re.sub(r"gaintune\.spec\.(?:[a-z_]+\.)?", "", text)
+    for cls in ("<class '", "'>"):
+        text = text.replace(cls, "")
+    return text.replace("|", "\\|")
+
+
+def _default(field) -> str:
+    if field.default is not PydanticUndefined:
+        return f"`{field.default!r}`"
+    if field.default_factory is not None:
+        try:
+            value = field.default_factory()
+        except TypeError:
+            return "(see type)"
+        if isinstance(value, BaseModel):
+            return "defaults"
+        if isinstance(value, list) and value and isinstance(value[0], BaseModel):
+            return "one item with defaults"
+        return f"`{value!r}`"
+    return "**required**"
+
+
+def render_markdown() -> str:
+    """The spec reference as Markdown."""
+    lines = [
+        "# Spec reference",
+        "",
+        "Generated from the schema in `gaintune/spec/` by `python -m gaintune.spec.doc > docs/spec.md` (a test checks it is current).",
+        f"Limits: horizon/dt <= {S.MAX_STEPS} steps, delay/dt (plant.delay, the top of randomize.delay) <= {S.MAX_DELAY_STEPS} samples, plant order <= {S.MAX_ORDER}, cascade depth <= {S.MAX_LOOPS}.",
+        "",
+        "Numbers: every numeric field takes finite numbers only (NaN and infinity, YAML's `.nan`/`.inf` included, are refused), "
+        "and `true`/`false` are refused where a number belongs rather than read as 1/0. "
+        f"YAML: aliases (`*name`) may expand a document to at most {S.MAX_YAML_NODES:,} nodes. "
+        f"Polynomials in `s` (`plant.tf.num`/`den` as text): every part can reach a degree of at most {S.MAX_ORDER}, "
+        "bounded from the expression before it is expanded (products add degrees, powers multiply them). "
+        "Names: an ODE state may not be named like the input, a parameter not like a state, the ODE input or, "
+        "in a `tf` plant, the Laplace variable `s`. "
+        "Keys: every section takes only the keys listed below; an unknown key is refused, naming the keys that "
+        "section takes and the closest match (`requirements.ms`: did you mean ms_max?).",
+        "",
+    ]
+    for title, model in _SECTIONS:
+        doc = " ".join(inspect.cleandoc(model.__doc__ or "").split("\n\n")[0].split())
+        lines += [f"## `{title}`", "", doc, "", "| field | type | default | description |", "|---|---|---|---|"]
+        hints = typing.get_type_hints(model)
+        for name, field in model.model_fields.items():
+            desc = (field.description or "").replace("|", "\\|")
+            lines.append(f"| `{name}` | {_type(hints.get(name, field.annotation))} | {_default(field)} | {desc} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(render_markdown())

@@ -1,0 +1,473 @@
+"""Cascade loop algebra, vectorised over a leading batch axis of gain sets.
+
+Structure (loops listed outer first; loop ``k`` has reference ``r_k`` and output ``v_k``)::
+
+    r_0 = 0 (external reference),  r_k = v_{k-1},  u = v_{n-1}
+    PID loop:  v_k = F_k(s) r_k - C_k(s) y_k
+               C_k = Kp + Ki/s + Kd s/(Tf s + 1)          (feedback path)
+               F_k = b Kp + Ki/s + c Kd s/(Tf s + 1)      (setpoint path)
+    LQ loop:   v = -K x + Kint/s (r - y_m) + Nr r       (innermost only)
+    plant:     y = (C (sI - A)^-1 B + D) e^{-sT} u,    T = plant delay + sampling delay
+
+Every loop's feedback signal is linear in ``u``: ``v_k = F_k r_k + m_k u`` with
+``m_k = -C_k p_k`` (``p_k`` = u -> y_k) or ``m = -(K X + Kint/s p_m)`` for LQ
+(``X`` = u -> x). From that, per frequency:
+
+* ``g_k`` (v_k per unit u with the loops 0..k closed around it):
+  ``g_{-1} = 0``, ``g_k = F_k g_{k-1} + m_k``;
+* ``H_k`` (r_k -> u with loops k..n-1 closed): ``H_n = 1``,
+  ``H_k = H_{k+1} F_k / (1 - H_{k+1} m_k)``;
+* loop ``i`` broken at its controller output (others closed): ``L_i = -g_i H_{i+1}``;
+* loop broken at the plant input (every loop passes through u): ``L_u = -g_{n-1}``;
+* noise at loop ``i``'s measurement to the plant input ``u`` (others closed):
+  ``N_i = -C_i H_{i+1} / (1 + L_i)``; its peak is the noise sensitivity Mks (SISO: ``|C S|``).
+
+The same structure gives the delay-free (or Padé) closed-loop state matrix whose
+eigenvalues are the closed-loop poles, and the open-loop poles of the system cut
+at the plant input (needed by the argument-principle stability test).
+
+The algebra works on any response arrays: ``loop_responses(..., sampled=sp)`` feeds
+it the sampled plant and the controllers' discrete laws at z = e^{s dt}
+(:mod:`gaintune.verification.sampled`), and :meth:`Cascade.closed_loop_sampled` is the
+sampled closed loop's transition matrix (plant, input buffer, controller states).
+
+:func:`build_cascade` turns a spec's loops and a batch of gain vectors into a
+:class:`Cascade`. The plant's responses and Padé delays come from :mod:`gaintune.lti`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gaintune.controllers.layout import GainLayout
+from gaintune.controllers.pid import pid_params
+from gaintune.errors import GainError, SpecError
+from gaintune.lti.modes import plant_eigvals, plant_state_response
+from gaintune.lti.pade import pade_poles, pade_ss
+from gaintune.plants.plant import LinearModel
+from gaintune.spec import TuningSpec
+from gaintune.verification.sampled import SampledPlant, discrete_ops
+
+__all__ = ["LoopCtl", "Cascade", "build_cascade", "controller_state_index", "pid_arrays"]
+
+
+def controller_state_index(loops, start: int) -> tuple[list[tuple[int | None, int | None]], int]:
+    """State indices of each loop's integrator and derivative filter, numbered from ``start``.
+
+    Returns ``[(integrator index or None, filter index or None) per loop]`` and the total count.
+    """
+    idx = start
+    out = []
+    for lp in loops:
+        ii = idx if lp.has_i else None
+        idx += int(lp.has_i)
+        di = idx if (lp.kind == "pid" and lp.has_d) else None
+        idx += int(lp.kind == "pid" and lp.has_d)
+        out.append((ii, di))
+    return out, idx
+
+
+@dataclass
+class LoopCtl:
+    """One loop's controller, batched: every array has a leading axis B."""
+
+    name: str
+    kind: str  # "pid" | "lq"
+    out_idx: int
+    has_i: bool = False
+    has_d: bool = False
+    Kp: np.ndarray | None = None
+    Ki: np.ndarray | None = None
+    Kd: np.ndarray | None = None
+    Tf: np.ndarray | None = None
+    b: float = 1.0
+    c: float = 0.0
+    K: np.ndarray | None = None  # (B, n)
+    Kint: np.ndarray | None = None
+    Nr: np.ndarray | None = None
+
+    def n_states(self) -> int:
+        """Number of controller states: integrator and derivative filter."""
+        return int(self.has_i) + int(self.has_d)
+
+
+@dataclass
+class Cascade:
+    """Controllers of a spec for a batch of gain sets, plus the loop names."""
+
+    loops: list[LoopCtl]
+    batch: int
+    names: list[str] = field(default_factory=list)
+
+    @property
+    def measured(self) -> tuple[int, ...] | None:
+        """Measured output indices, or None when an LQ loop feeds back the full state."""
+        if any(lp.kind == "lq" for lp in self.loops):
+            return None
+        return tuple(sorted({lp.out_idx for lp in self.loops}))
+
+    @property
+    def break_names(self) -> list[tuple[str, str]]:
+        """(loop, break point) per row of :meth:`loop_responses`."""
+        return [(lp.name, "controller_output") for lp in self.loops] + [("plant", "plant_input")]
+
+    # ------------------------------------------------------------ frequency
+    def controller_responses(self, s: np.ndarray, lin: LinearModel, X: np.ndarray, P: np.ndarray, ops=None):
+        """Per loop (F_k, m_k, C_k), each (B, W), given X = u->x (W, n) and P = u->y (W, q) incl. delay.
+
+        ``C_k`` is the feedback controller (measurement -> loop output); NaN for an LQ loop,
+        whose feedback is the whole state (no single measurement to put noise on).
+
+        ``ops``: (integral operator, derivative operator Tf -> array) at the frequencies; default
+        the continuous 1/s and s/(Tf s + 1); :func:`gaintune.verification.sampled.discrete_ops` for the
+        simulator's discrete laws.
+        """
+        out = []
+        if ops is None:
+            inv_s = 1.0 / s
+
+            def deriv(tf):
+                return s / (tf * s + 1.0)
+        else:
+            inv_s, deriv = ops
+        for lp in self.loops:
+            if lp.kind == "pid":
+                Kp, Ki, Kd, Tf = (a[:, None] for a in (lp.Kp, lp.Ki, lp.Kd, lp.Tf))
+                C, F = Kp, lp.b * Kp  # absent terms are skipped, not added as zeros: each is a (B, W) op
+                if lp.has_i:
+                    I = Ki * inv_s
+                    C, F = C + I, F + I
+                if lp.has_d:
+                    Dd = Kd * deriv(Tf)
+                    C, F = C + Dd, F + lp.c * Dd
+                m = C * -P[None, :, lp.out_idx]  # = -C * P, negating the (W,) factor
+            else:
+                KX = lp.K @ X.T  # (B, W)
+                I = lp.Kint[:, None] * inv_s if lp.has_i else 0.0
+                m = -(KX + I * P[None, :, lp.out_idx])
+                F = lp.Nr[:, None] + I
+                C = np.nan
+            shape = (self.batch, s.size)
+            out.append((np.broadcast_to(F, shape), m, np.broadcast_to(C, shape)))
+        return out
+
+    def loop_responses(self, s: np.ndarray, lin: LinearModel, delay: np.ndarray | complex = 1.0,
+                       sampled: SampledPlant | None = None, noise: bool = False):
+        """Open-loop responses at complex frequencies ``s``: (n_loops + 1, B, W).
+
+        ``delay`` is the delay factor at ``s`` (e^{-sT} or its Padé approximant), shape (W,).
+        ``sampled``: evaluate the sampled loop instead (plant as the simulator steps it, the
+        controllers' discrete laws) at z = e^{s dt}; ``delay`` is then unused (the sampled
+        plant holds its delays). Rows: each loop broken at its controller output, then the plant input.
+
+        ``noise``: also return the noise responses ``N`` (n_loops, B, W): measurement noise of each
+        loop to the plant input ``u`` (see the module docstring); the result is then ``(L, N)``.
+        """
+        s = np.asarray(s)
+        if sampled is not None:
+            with np.errstate(all="ignore"):
+                z = np.exp(s * sampled.dt)
+                X, P = sampled.responses(z)
+                _, integ, deriv = discrete_ops(z, sampled.dt)
+            resp = self.controller_responses(s, lin, X, P, (integ, deriv))
+        else:
+            X = plant_state_response(lin, s) * np.asarray(delay)[:, None]  # (W, n)
+            P = X @ lin.C.T + (lin.D[:, 0][None, :] * np.asarray(delay)[:, None])  # (W, q)
+            resp = self.controller_responses(s, lin, X, P)
+        if not noise:
+            return self.cascade(resp, s.size)
+        L, H = self.cascade(resp, s.size, inner=True)
+        with np.errstate(all="ignore"):
+            N = np.stack([-resp[i][2] * H[i + 1] / (1.0 + L[i]) for i in range(len(self.loops))])
+        return L, N
+
+    def cascade(self, resp, W: int, inner: bool = False):
+        """The break-point loops (n_loops + 1, B, W) from the per-loop (F_k, m_k, C_k).
+
+        ``inner``: return ``(L, H)`` with ``H[k]`` (r_k -> u, loops k..n-1 closed; ``H[n] = 1``) for
+        k >= 1 (``H[0]`` is None)."""
+        n = len(self.loops)
+        g = []
+        for k, (F, m, _) in enumerate(resp):
+            if k:  # in place where it saves a (B, W) temporary
+                prev = F * prev
+                prev += m
+            else:  # nothing is outside the outermost loop: its setpoint path F would multiply zero
+                # (skipped: an F that overflowed, e.g. a huge setpoint weight, made inf * 0 = NaN)
+                prev = m
+            g.append(prev)
+        H = [None] * (n + 1)  # H[0] (all loops closed, r_0 -> u) is no break point's: not computed
+        H[n] = np.ones((self.batch, W), dtype=complex)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for k in range(n - 1, 0, -1):
+                F, m, _ = resp[k]
+                H[k] = H[k + 1] * F / (1.0 - H[k + 1] * m)
+            L = np.empty((n + 1, self.batch, W), dtype=complex)
+            for i in range(n):
+                np.negative(g[i], out=L[i])
+                L[i] *= H[i + 1]
+        np.negative(g[n - 1], out=L[n])
+        return (L, H) if inner else L
+
+    # -------------------------------------------------------- state space
+    def open_loop_poles(self, lin: LinearModel, pade: tuple[float, int] | None) -> np.ndarray:
+        """Poles of the system cut at the plant input (same for every batch member): plant,
+        Padé, controller integrators (0) and derivative filters (-1/Tf, per batch)."""
+        base = list(plant_eigvals(lin))
+        if pade is not None:
+            base += list(pade_poles(*pade))
+        poles = np.tile(np.array(base, dtype=complex), (self.batch, 1))
+        extra = []
+        for lp in self.loops:
+            if lp.has_i:
+                extra.append(np.zeros(self.batch, dtype=complex))
+            if lp.kind == "pid" and lp.has_d:
+                extra.append(-1.0 / lp.Tf + 0j)
+        if extra:
+            poles = np.concatenate([poles, np.stack(extra, axis=1)], axis=1)
+        return poles
+
+    def closed_loop_A(self, lin: LinearModel, pade: tuple[float, int] | None) -> np.ndarray:
+        """Closed-loop state matrices (B, N, N): plant, Padé delay states, controller states.
+
+        Signals are rows over [states, u]; the algebraic loop through u is solved at the end.
+        """
+        Bsz = self.batch
+        n = lin.A.shape[0]
+        if pade is not None and pade[0] > 0:
+            Ad, Bd, Cd, Dd = pade_ss(*pade)
+        else:
+            Ad = np.zeros((0, 0))
+            Bd = np.zeros((0, 1))
+            Cd = np.zeros((1, 0))
+            Dd = 1.0
+        npd = Ad.shape[0]
+        ctl_idx, N = controller_state_index(self.loops, n + npd)
+
+        def zero():
+            return np.zeros((Bsz, N)), np.zeros(Bsz)
+
+        def unit(j):
+            r = np.zeros((Bsz, N))
+            r[:, j] = 1.0
+            return r, np.zeros(Bsz)
+
+        # Delayed plant input u_p = Cd x_pade + Dd u
+        up_x = np.zeros((Bsz, N))
+        up_x[:, n : n + npd] = Cd[0]
+        up = (up_x, np.full(Bsz, Dd))
+
+        def output(j):
+            rx = np.zeros((Bsz, N))
+            rx[:, :n] = lin.C[j]
+            d = lin.D[j, 0]
+            return rx + d * up[0], d * up[1]
+
+        def lin_comb(*terms):
+            rx, ru = zero()
+            for coef, (tx, tu) in terms:
+                coef = np.asarray(coef, dtype=float)
+                cx = coef[:, None] if coef.ndim else coef
+                rx = rx + cx * tx
+                ru = ru + coef * tu
+            return rx, ru
+
+        derivs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        r = zero()
+        for lp, (ii, di) in zip(self.loops, ctl_idx):
+            if lp.kind == "pid":
+                y = output(lp.out_idx)
+                e = lin_comb((1.0, r), (-1.0, y))
+                terms = [(lp.Kp * lp.b, r), (-lp.Kp, y)]
+                if ii is not None:
+                    derivs[ii] = e
+                    terms.append((lp.Ki, unit(ii)))
+                if di is not None:
+                    ed = lin_comb((lp.c, r), (-1.0, y), (-1.0, unit(di)))  # c r - y - xd
+                    derivs[di] = lin_comb((1.0 / lp.Tf, ed))
+                    terms.append((lp.Kd / lp.Tf, ed))
+                v = lin_comb(*terms)
+            else:
+                y = output(lp.out_idx)
+                fx = np.zeros((Bsz, N))
+                fx[:, :n] = -lp.K
+                terms = [(1.0, (fx, np.zeros(Bsz))), (lp.Nr, r)]
+                if ii is not None:
+                    derivs[ii] = lin_comb((1.0, r), (-1.0, y))
+                    terms.append((lp.Kint, unit(ii)))
+                v = lin_comb(*terms)
+            r = v
+        ux, uu = r
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u_row = ux / (1.0 - uu)[:, None]  # u = u_row @ X
+
+        def resolve(sig):
+            sx, su = sig
+            return sx + su[:, None] * u_row
+
+        Acl = np.zeros((Bsz, N, N))
+        upr = resolve(up)
+        Acl[:, :n, :n] += lin.A
+        Acl[:, :n, :] += lin.B[:, 0][None, :, None] * upr[:, None, :]
+        if npd:
+            Acl[:, n : n + npd, n : n + npd] += Ad
+            Acl[:, n : n + npd, :] += Bd[:, 0][None, :, None] * u_row[:, None, :]
+        for j, sig in derivs.items():
+            Acl[:, j, :] = resolve(sig)
+        return Acl
+
+    # ------------------------------------------------------- sampled loop
+    def open_loop_poles_sampled(self, sp: SampledPlant) -> np.ndarray:
+        """z-plane poles of the sampled system cut at the plant input (B, P): plant (Ad), the
+        input buffer (z = 0), integrators (z = 1) and derivative filters (z = Tf/(Tf + dt))."""
+        base = list(sp.eigvals()) + [0.0] * sp.buffer_len
+        poles = np.tile(np.array(base, dtype=complex), (self.batch, 1))
+        extra = []
+        for lp in self.loops:
+            if lp.has_i:
+                extra.append(np.ones(self.batch, dtype=complex))
+            if lp.kind == "pid" and lp.has_d:
+                extra.append(lp.Tf / (lp.Tf + sp.dt) + 0j)
+        if extra:
+            poles = np.concatenate([poles, np.stack(extra, axis=1)], axis=1)
+        return poles
+
+    def closed_loop_sampled(self, sp: SampledPlant) -> np.ndarray:
+        """Closed-loop transition matrices (B, N, N) of the sampled loop, as the simulator steps it.
+
+        States: plant x[k], past inputs u[k-1] .. u[k-m], integrator sums and derivative-filter
+        states. Signals are rows over the states plus a coefficient of u[k] (only feedthrough
+        without delay gives one), solved for at the end as in :meth:`closed_loop_A`.
+        """
+        Bsz, dt = self.batch, sp.dt
+        n, m = sp.n, sp.buffer_len
+        ctl_idx, N = controller_state_index(self.loops, n + m)
+        z0 = np.zeros((Bsz, N))
+
+        def unit(j):
+            r = np.zeros((Bsz, N))
+            r[:, j] = 1.0
+            return r, np.zeros(Bsz)
+
+        def past(j):  # u[k-j]
+            return (z0, np.ones(Bsz)) if j == 0 else unit(n + j - 1)
+
+        def comb(*terms):
+            rx, ru = np.zeros((Bsz, N)), np.zeros(Bsz)
+            for coef, (tx, tu) in terms:
+                coef = np.asarray(coef, dtype=float)
+                rx = rx + (coef[:, None] if coef.ndim else coef) * tx
+                ru = ru + coef * tu
+            return rx, ru
+
+        def output(j):
+            rx = np.zeros((Bsz, N))
+            rx[:, :n] = sp.C[j]
+            if sp.D[j] != 0.0:
+                return comb((1.0, (rx, np.zeros(Bsz))), (sp.D[j], past(sp.dD)))
+            return rx, np.zeros(Bsz)
+
+        nxt: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        r = (z0, np.zeros(Bsz))
+        for lp, (ii, di) in zip(self.loops, ctl_idx):
+            y = output(lp.out_idx)
+            e = comb((1.0, r), (-1.0, y))
+            if lp.kind == "pid":
+                terms = [(lp.Kp * lp.b, r), (-lp.Kp, y)]
+                if ii is not None:
+                    nxt[ii] = comb((1.0, unit(ii)), (1.0, e))  # sum of e up to k
+                    terms.append((lp.Ki * dt, nxt[ii]))
+                if di is not None:
+                    al = lp.Tf / (lp.Tf + dt)
+                    be = lp.Kd / (lp.Tf + dt)
+                    ed = comb((lp.c, r), (-1.0, y))
+                    nxt[di] = comb((al, unit(di)), (1.0, ed))
+                    terms += [(be, ed), (be * (al - 1.0), unit(di))]
+            else:
+                fx = np.zeros((Bsz, N))
+                fx[:, :n] = -lp.K
+                terms = [(1.0, (fx, np.zeros(Bsz))), (lp.Nr, r)]
+                if ii is not None:
+                    nxt[ii] = comb((1.0, unit(ii)), (1.0, e))
+                    terms.append((lp.Kint * dt, nxt[ii]))
+            r = comb(*terms)
+        ux, uu = r
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u_row = ux / (1.0 - uu)[:, None]  # u[k] = u_row @ state
+
+        def resolve(sig):
+            sx, su = sig
+            return sx + su[:, None] * u_row
+
+        Acl = np.zeros((Bsz, N, N))
+        Acl[:, :n, :n] += sp.Ad
+        Acl[:, :n, :] += sp.G0[None, :, None] * resolve(past(sp.d))[:, None, :]
+        if sp.has_G1:
+            Acl[:, :n, :] += sp.G1[None, :, None] * resolve(past(sp.d + 1))[:, None, :]
+        if m:
+            Acl[:, n, :] = u_row
+            for j in range(1, m):
+                Acl[:, n + j, n + j - 1] = 1.0
+        for j, sig in nxt.items():
+            Acl[:, j, :] = resolve(sig)
+        return Acl
+
+
+def _out_index(spec: TuningSpec, lin: LinearModel, i: int) -> int:
+    loop = spec.loops[i]
+    name = loop.measure or lin.outputs[0]
+    if name not in lin.outputs:
+        raise SpecError(f"loops[{i}].measure", f"unknown output {name!r}; plant outputs are {lin.outputs}")
+    return lin.outputs.index(name)
+
+
+def pid_arrays(loop, G: np.ndarray, names: list[str]) -> dict[str, np.ndarray]:
+    """:func:`gaintune.controllers.pid.pid_params` over a batch (G: (B, n_loop_gains)), as a dict."""
+    p = pid_params(loop, {nm: G[:, j] for j, nm in enumerate(names)})
+    return {"Kp": p.Kp, "Ki": p.Ki, "Kd": p.Kd, "Tf": p.Tf}
+
+
+def build_cascade(
+    spec: TuningSpec, layout: GainLayout, full: np.ndarray, lin: LinearModel, lq_cache: dict | None = None
+) -> Cascade:
+    """Controllers for a batch of full gain vectors ``full`` (B, n_gains) on the linear model ``lin``.
+
+    LQ gains in ``weights`` mode are computed once per gain set with :func:`control.lqr` on
+    ``lin`` (pass the nominal model: gains are frozen for robustness analysis).
+    """
+    from gaintune.controllers.lq import lq_gains
+
+    full = np.atleast_2d(np.asarray(full, dtype=float))
+    Bsz = full.shape[0]
+    loops: list[LoopCtl] = []
+    for i, loop in enumerate(spec.loops):
+        cols = [k for k, sl in enumerate(layout.slots) if sl.loop == i]
+        names = [layout.slots[k].name for k in cols]
+        G = full[:, cols]
+        out_idx = _out_index(spec, lin, i)
+        name = loop.name or f"loop{i}"
+        if loop.is_lq:
+            Ks, Kis, Nrs = [], [], []
+            for b in range(Bsz):
+                gd = dict(zip(names, G[b]))
+                lg = lq_gains(loop, gd, lin, out_idx)
+                Ks.append(lg.K)
+                Kis.append(lg.Kint)
+                Nrs.append(lg.Nr)
+            loops.append(
+                LoopCtl(name, "lq", out_idx, has_i=loop.type == "lqi", K=np.array(Ks, dtype=float).reshape(Bsz, -1),
+                        Kint=np.array(Kis, dtype=float), Nr=np.array(Nrs, dtype=float))
+            )
+        else:
+            pa = pid_arrays(loop, G, names)
+            has_d = "d" in loop.type[1:]
+            if has_d and np.any((pa["Tf"] <= 0) & (pa["Kd"] != 0)):  # Kd = 0: no derivative, no filter needed
+                raise GainError(f"gains.{name}", "derivative filter time constant is zero; give Kp > 0")
+            loops.append(
+                # Ki = 0 turns integral action off: no integrator state, whose pole at s = 0 would count as unstable
+                LoopCtl(name, "pid", out_idx, has_i="i" in loop.type[1:] and bool(np.any(pa["Ki"] != 0)), has_d=has_d, Kp=pa["Kp"], Ki=pa["Ki"],
+                        Kd=pa["Kd"], Tf=pa["Tf"], b=loop.b, c=loop.c)
+            )
+    return Cascade(loops, Bsz, [lp.name for lp in loops])
