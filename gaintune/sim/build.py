@@ -60,7 +60,9 @@ def discretize(A: np.ndarray, B: np.ndarray, dt: float, delay: np.ndarray):
     return Ad, G0, G1, d
 
 
-def profile_pieces(p: ProfileSpec, dt: float, n_steps: int, kind: str | None = None) -> list[tuple[int, int, float, float]]:
+def profile_pieces(
+    p: ProfileSpec, dt: float, n_steps: int, kind: str | None = None
+) -> list[tuple[int, int, float, float]]:
     """Additive pieces (k_start, k_end, offset, slope) of a profile, at unit scale for step/ramp/impulse."""
     kind = kind or p.kind
     k0 = int(round(p.time / dt))
@@ -81,6 +83,14 @@ def profile_pieces(p: ProfileSpec, dt: float, n_steps: int, kind: str | None = N
     return pieces
 
 
+def _dt(sc: ScenarioSpec) -> float:
+    """The scenario's sample time: the simulator is only given resolved scenarios (dt derived from the plant
+    where the spec left it out, :func:`gaintune.classical.timescale.resolve_scenarios`)."""
+    if sc.dt is None:
+        raise ValueError(f"scenario {sc.name!r} has no dt yet: resolve the spec's scenarios first")
+    return sc.dt
+
+
 @dataclass
 class SimSetup:
     """Everything about a spec that does not depend on the gains: built once, reused per batch."""
@@ -95,10 +105,12 @@ class SimSetup:
     loop_columns: list[list[tuple[int, str]]]
 
     @classmethod
-    def build(cls, spec: TuningSpec, plant: Plant, layout: GainLayout) -> "SimSetup":
+    def build(cls, spec: TuningSpec, plant: Plant, layout: GainLayout) -> SimSetup:
         meas = measured_indices(spec, plant.outputs)
         f_tape = h_tape = None
         if plant.kind == "nonlinear":
+            if plant.f is None or plant.h is None:  # a nonlinear plant always has both (plants.plant)
+                raise ValueError("a nonlinear plant without its casadi functions f and h")
             f_tape, h_tape = make_tape(plant.f), make_tape(plant.h)
         if spec.safety.action == "fallback" and any(loop.is_lq for loop in spec.loops):
             # the kernel switches PID gains only: an LQ loop would silently keep its tuned K after a trip
@@ -116,7 +128,7 @@ class SimSetup:
         """Linear models for the distinct parameter rows, and each row's index into them."""
         rows, inverse = np.unique(draws.params, axis=0, return_inverse=True)
         names = self.plant.param_names
-        lins = [self.plant.linearize(dict(zip(names, row))) for row in rows]
+        lins = [self.plant.linearize(dict(zip(names, row, strict=True))) for row in rows]
         return lins, inverse.ravel()
 
     def plant_arrays(self, draws: Draws, sc: ScenarioSpec) -> dict[str, Any]:
@@ -128,7 +140,7 @@ class SimSetup:
         y_op = y_all[:, self.meas].T.copy()
         if np.any(draws.delay + 1e-12 < 0):
             raise SpecError("randomize.delay", "delays must be >= 0")
-        check_delay_samples(float(np.max(draws.delay, initial=0.0)), sc.dt)
+        check_delay_samples(float(np.max(draws.delay, initial=0.0)), _dt(sc))
         # Distinct (parameter row, delay) pairs are discretised once.
         keys = np.stack([inv.astype(float), draws.delay], axis=1)
         ukeys, kinv = np.unique(keys, axis=0, return_inverse=True)
@@ -136,13 +148,12 @@ class SimSetup:
         A = np.stack([lins[int(k)].A for k in ukeys[:, 0]])
         Bm = np.stack([lins[int(k)].B for k in ukeys[:, 0]])
         if self.plant.kind == "lti":
-            Ad, G0, G1, d = self._discretize_cached(A, Bm, sc.dt, ukeys[:, 1])
+            Ad, G0, G1, d = self._discretize_cached(A, Bm, _dt(sc), ukeys[:, 1])
             Cm = np.stack([lins[int(k)].C[self.meas] for k in ukeys[:, 0]])  # (U, L, n)
             Dm = np.stack([lins[int(k)].D[self.meas, 0] for k in ukeys[:, 0]])  # (U, L)
-            if np.any(Dm != 0) and np.any(ukeys[:, 1] < sc.dt):
-                raise SpecError(
-                    "plant", "a measured output has direct feedthrough (D != 0); give a delay of at least one sample or a strictly proper model"
-                )
+            if np.any(Dm != 0) and np.any(ukeys[:, 1] < _dt(sc)):
+                raise SpecError("plant", "a measured output has direct feedthrough (D != 0); give a delay of at least "
+                                "one sample or a strictly proper model")
             out.update(
                 Ad=np.ascontiguousarray(np.moveaxis(Ad[kinv], 0, -1)),
                 G0=np.ascontiguousarray(G0[kinv].T),
@@ -222,7 +233,8 @@ class SimSetup:
                 keys = np.concatenate([np.stack(list(cols.values()), 1), inv[:, None].astype(float)], 1)
                 ukeys, kinv = np.unique(keys, axis=0, return_inverse=True)
                 sols = [
-                    lq_gains(loop, dict(zip(cols, row[:-1])), lins[int(row[-1])], self.meas[li]) for row in ukeys
+                    lq_gains(loop, dict(zip(cols, row[:-1], strict=True)), lins[int(row[-1])], self.meas[li])
+                    for row in ukeys
                 ]
                 arrs.update(
                     K=np.stack([s.K for s in sols])[kinv.ravel()].T,
@@ -250,9 +262,10 @@ class SimSetup:
     def signal_arrays(self, draws: Draws, sc: ScenarioSpec) -> dict[str, np.ndarray]:
         B = len(draws)
         T = sc.n_steps
-        base_ref = profile_pieces(sc.reference, sc.dt, T)
-        per_kind = [profile_pieces(sc.reference, sc.dt, T, kind) for kind in REF_KINDS]
-        dist = profile_pieces(sc.disturbance, sc.dt, T)
+        dt = _dt(sc)
+        base_ref = profile_pieces(sc.reference, dt, T)
+        per_kind = [profile_pieces(sc.reference, dt, T, kind) for kind in REF_KINDS]
+        dist = profile_pieces(sc.disturbance, dt, T)
         S = max([len(base_ref), len(dist), 1] + [len(p) for p in per_kind])
         k0 = np.full((3, S, B), T + 1, dtype=np.int64)
         k1 = np.full((3, S, B), T + 1, dtype=np.int64)
@@ -276,13 +289,14 @@ class SimSetup:
             fill(0, pieces, draws.ref_kind == i, scale)
         dsize = sc.disturbance.amplitude if sc.disturbance.kind != "ramp" else sc.disturbance.slope
         dscale = np.where(np.isnan(draws.dist_size), 1.0, draws.dist_size / (dsize if dsize != 0 else 1.0))
-        shift = np.where(np.isnan(draws.dist_time), 0, np.round((draws.dist_time - sc.disturbance.time) / sc.dt)).astype(np.int64)
+        late = np.round((draws.dist_time - sc.disturbance.time) / dt)
+        shift = np.where(np.isnan(draws.dist_time), 0, late).astype(np.int64)
         sig = 1 if sc.disturbance.entry == "input" else 2
         fill(sig, dist, np.ones(B, dtype=bool), dscale, shift)
         # Metric anchors: final reference value, step start, load start.
         kk = T - 1
         active = (k0[0] <= kk) & (kk < k1[0])
-        target = (active * (off[0] + slope[0] * (kk - k0[0]) * sc.dt)).sum(axis=0)
+        target = (active * (off[0] + slope[0] * (kk - k0[0]) * dt)).sum(axis=0)
         k_step = np.where(k0[0, 0] <= T, k0[0, 0], 0)
         k_load = np.where(k0[sig, 0] <= T, k0[sig, 0], T + 1) if dist else np.full(B, T + 1)
         return dict(sk0=k0, sk1=k1, soff=off, sslope=slope, target=target, k_step=k_step, k_load=k_load)

@@ -57,10 +57,17 @@ def nominal(spec: TuningSpec, plant: Plant, n: int = 1, seed: int = 0) -> Draws:
 def draw_dist(d: DistSpec, rng: np.random.Generator, n: int) -> np.ndarray:
     """n samples of one spec distribution (uniform, log-uniform or normal)."""
     if d.dist == "uniform":
-        return rng.uniform(d.low, d.high, n)
+        return rng.uniform(_given(d.low), _given(d.high), n)
     if d.dist == "loguniform":
-        return np.exp(rng.uniform(np.log(d.low), np.log(d.high), n))
-    return rng.normal(d.mean, d.std, n)
+        return np.exp(rng.uniform(np.log(_given(d.low)), np.log(_given(d.high)), n))
+    return rng.normal(_given(d.mean), _given(d.std), n)
+
+
+def _given(x: float | None) -> float:
+    # DistSpec's validator requires the fields of its distribution; None here is a bug, not input
+    if x is None:
+        raise ValueError("a distribution without the bounds its kind needs")
+    return x
 
 
 def sample(spec: TuningSpec, plant: Plant, rng: np.random.Generator, n: int) -> Draws:
@@ -145,12 +152,14 @@ def context(spec: TuningSpec, plant: Plant, d: Draws) -> np.ndarray:
     if rz.reference_kinds:
         for i in range(len(REF_KINDS)):
             cols.append((d.ref_kind == i).astype(float))
-    for dist, v in ((rz.reference_amplitude, d.ref_amp), (rz.disturbance_size, d.dist_size), (rz.disturbance_time, d.dist_time)):
-        if dist:
+    drawn = ((rz.reference_amplitude, d.ref_amp), (rz.disturbance_size, d.dist_size),
+             (rz.disturbance_time, d.dist_time))
+    for box, v in drawn:
+        if box is not None:
             # NaN = "the scenario's own value" (the nominal draw): the centre of the box, 0, as the
             # policy's input must be a number (a NaN observation made torch refuse the policy)
             with np.errstate(invalid="ignore"):
-                cols.append(np.where(np.isnan(v), 0.0, norm(v, dist)))
+                cols.append(np.where(np.isnan(v), 0.0, norm(v, box)))
     if not cols:
         return np.zeros((len(d), 1), dtype=np.float32)
     return np.stack(cols, axis=1).astype(np.float32)

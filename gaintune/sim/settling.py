@@ -54,7 +54,8 @@ class Unsettled:
             return (head + "; it does not decay, so a longer horizon will not remove it (no integral action, a "
                     "saturated actuator, or a ramp the loop cannot follow)")
         want = max(self.need, derived or 0.0)
-        src = "derived from the plant" if want == derived else f"where the error's decay reaches {100 * SETTLE_BAND:g} %"
+        src = ("derived from the plant" if want == derived
+               else f"where the error's decay reaches {100 * SETTLE_BAND:g} %")
         return (head + f"; a horizon of about {want:.3g} s ({src}) would cover it: set scenarios[{index}].horizon: "
                 f"{want:.3g}, or leave dt/horizon out and let gaintune derive them")
 

@@ -19,7 +19,7 @@ from gaintune.errors import SpecError
 if TYPE_CHECKING:  # pragma: no cover
     import casadi as ca
 
-__all__ = ["Tape", "make_tape", "OPS"]
+__all__ = ["Tape", "make_tape", "OPS"]  # noqa: F822  # OPS comes from the module __getattr__ (loads casadi lazily)
 
 # Kernel op codes (independent of casadi's numbering).
 LOAD, STORE, CONST, ADD, SUB, MUL, DIV, NEG, EXP, LOG, POW, SQRT, SQ, TWICE = range(14)
