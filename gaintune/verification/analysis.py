@@ -24,10 +24,20 @@ from gaintune.verification.cascade import Cascade
 from gaintune.verification.freqresp import DelayModel, Evaluator, char_freqs
 from gaintune.verification.margins import MAG_FLOOR, BreakFigures, all_margins
 from gaintune.verification.sampled import SampledPlant
-from gaintune.verification.stability import Stability, closed_loop_stability, closed_loop_stability_sampled, observable_part
+from gaintune.verification.stability import (
+    Stability,
+    closed_loop_stability,
+    closed_loop_stability_sampled,
+    observable_part,
+)
 from gaintune.verification.tail import INNER_LEVEL, chain_ss, level_clear, series, tail_levels
 
-__all__ = ["Analysis", "analyse", "sampling_delay"]
+__all__ = ["Analysis", "analyse", "analysis_dt", "analysis_band", "sampling_delay", "BAND_NYQUIST"]
+
+#: The continuous analysis band ends at this multiple of the controller's Nyquist frequency pi/dt
+#: (largest scenario dt) when the frequencies above are proven harmless (:func:`analyse`, ``band``).
+#: The sampled analysis ends at pi/dt itself.
+BAND_NYQUIST = 10.0
 
 
 @dataclass
@@ -51,9 +61,31 @@ def _overflow_problems(L: np.ndarray) -> list[str]:
             "gains or plant coefficients too large to analyse"]
 
 
+def analysis_dt(spec: TuningSpec) -> float:
+    """The sample time verification uses: the largest scenario dt (the conservative choice).
+
+    Raises
+    ------
+    ValueError
+        When a scenario has no dt yet (derive it from the plant first:
+        :func:`gaintune.classical.timescale.resolve_scenarios`).
+    """
+    dts = [sc.dt for sc in spec.scenarios]
+    known = [dt for dt in dts if dt is not None]
+    if len(known) < len(dts) or not known:
+        raise ValueError("a scenario has no dt yet: derive it from the plant first "
+                         "(gaintune.classical.timescale.resolve_scenarios)")
+    return max(known)
+
+
+def analysis_band(spec: TuningSpec) -> float:
+    """Upper end (rad/s) of the continuous analysis band: BAND_NYQUIST x the Nyquist frequency pi/dt of the largest dt."""
+    return BAND_NYQUIST * math.pi / analysis_dt(spec)
+
+
 def sampling_delay(spec: TuningSpec) -> float:
     """Sample-and-hold approximation: dt/2 of extra input delay (largest scenario dt)."""
-    return 0.5 * max(sc.dt for sc in spec.scenarios)
+    return 0.5 * analysis_dt(spec)
 
 
 #: A grid interval is refined when L turns by more than 0.5 rad over it.

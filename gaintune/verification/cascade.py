@@ -37,6 +37,7 @@ sampled closed loop's transition matrix (plant, input buffer, controller states)
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,7 +51,10 @@ from gaintune.plants.plant import LinearModel
 from gaintune.spec import TuningSpec
 from gaintune.verification.sampled import SampledPlant, discrete_ops
 
-__all__ = ["LoopCtl", "Cascade", "build_cascade", "controller_state_index", "pid_arrays"]
+__all__ = ["LoopCtl", "Cascade", "build_cascade", "controller_state_index", "pid_arrays", "Signal"]
+
+#: One loop's responses (F_k, m_k, C_k), each (B, W): setpoint path, feedback per unit u, feedback controller.
+Resp = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def controller_state_index(loops, start: int) -> tuple[list[tuple[int | None, int | None]], int]:
@@ -78,15 +82,17 @@ class LoopCtl:
     out_idx: int
     has_i: bool = False
     has_d: bool = False
-    Kp: np.ndarray | None = None
-    Ki: np.ndarray | None = None
-    Kd: np.ndarray | None = None
-    Tf: np.ndarray | None = None
+    # PID gains (B,) each; empty for an LQ loop
+    Kp: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    Ki: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    Kd: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    Tf: np.ndarray = field(default_factory=lambda: np.zeros(0))
     b: float = 1.0
     c: float = 0.0
-    K: np.ndarray | None = None  # (B, n)
-    Kint: np.ndarray | None = None
-    Nr: np.ndarray | None = None
+    # LQ gains: state feedback (B, n), integral gain and reference gain (B,); empty for a PID loop
+    K: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    Kint: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    Nr: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def n_states(self) -> int:
         """Number of controller states: integrator and derivative filter."""
@@ -114,7 +120,9 @@ class Cascade:
         return [(lp.name, "controller_output") for lp in self.loops] + [("plant", "plant_input")]
 
     # ------------------------------------------------------------ frequency
-    def controller_responses(self, s: np.ndarray, lin: LinearModel, X: np.ndarray, P: np.ndarray, ops=None):
+    def controller_responses(self, s: np.ndarray, lin: LinearModel, X: np.ndarray, P: np.ndarray,
+                             ops: tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]] | None = None
+                             ) -> list[Resp]:
         """Per loop (F_k, m_k, C_k), each (B, W), given X = u->x (W, n) and P = u->y (W, q) incl. delay.
 
         ``C_k`` is the feedback controller (measurement -> loop output); NaN for an LQ loop,
@@ -128,7 +136,7 @@ class Cascade:
         if ops is None:
             inv_s = 1.0 / s
 
-            def deriv(tf):
+            def deriv(tf: np.ndarray) -> np.ndarray:
                 return s / (tf * s + 1.0)
         else:
             inv_s, deriv = ops
@@ -137,79 +145,87 @@ class Cascade:
                 Kp, Ki, Kd, Tf = (a[:, None] for a in (lp.Kp, lp.Ki, lp.Kd, lp.Tf))
                 C, F = Kp, lp.b * Kp  # absent terms are skipped, not added as zeros: each is a (B, W) op
                 if lp.has_i:
-                    I = Ki * inv_s
-                    C, F = C + I, F + I
+                    integ = Ki * inv_s
+                    C, F = C + integ, F + integ
                 if lp.has_d:
                     Dd = Kd * deriv(Tf)
                     C, F = C + Dd, F + lp.c * Dd
                 m = C * -P[None, :, lp.out_idx]  # = -C * P, negating the (W,) factor
             else:
                 KX = lp.K @ X.T  # (B, W)
-                I = lp.Kint[:, None] * inv_s if lp.has_i else 0.0
-                m = -(KX + I * P[None, :, lp.out_idx])
-                F = lp.Nr[:, None] + I
+                integ_lq = lp.Kint[:, None] * inv_s if lp.has_i else 0.0
+                m = -(KX + integ_lq * P[None, :, lp.out_idx])
+                F = lp.Nr[:, None] + integ_lq
                 C = np.nan
             shape = (self.batch, s.size)
             out.append((np.broadcast_to(F, shape), m, np.broadcast_to(C, shape)))
         return out
 
+    def _responses(self, s: np.ndarray, lin: LinearModel, delay: np.ndarray | complex,
+                   sampled: SampledPlant | None) -> list[Resp]:
+        """Per loop (F_k, m_k, C_k) at ``s``: the continuous loop with the delay factor, or the sampled one."""
+        if sampled is not None:
+            with np.errstate(all="ignore"):
+                z = np.exp(s * sampled.dt)
+                X, P = sampled.responses(z)
+                _, integ, deriv = discrete_ops(z, sampled.dt)
+            return self.controller_responses(s, lin, X, P, (integ, deriv))
+        X = plant_state_response(lin, s) * np.asarray(delay)[:, None]  # (W, n)
+        P = X @ lin.C.T + (lin.D[:, 0][None, :] * np.asarray(delay)[:, None])  # (W, q)
+        return self.controller_responses(s, lin, X, P)
+
     def loop_responses(self, s: np.ndarray, lin: LinearModel, delay: np.ndarray | complex = 1.0,
-                       sampled: SampledPlant | None = None, noise: bool = False):
+                       sampled: SampledPlant | None = None) -> np.ndarray:
         """Open-loop responses at complex frequencies ``s``: (n_loops + 1, B, W).
 
         ``delay`` is the delay factor at ``s`` (e^{-sT} or its Padé approximant), shape (W,).
         ``sampled``: evaluate the sampled loop instead (plant as the simulator steps it, the
         controllers' discrete laws) at z = e^{s dt}; ``delay`` is then unused (the sampled
         plant holds its delays). Rows: each loop broken at its controller output, then the plant input.
-
-        ``noise``: also return the noise responses ``N`` (n_loops, B, W): measurement noise of each
-        loop to the plant input ``u`` (see the module docstring); the result is then ``(L, N)``.
         """
         s = np.asarray(s)
-        if sampled is not None:
-            with np.errstate(all="ignore"):
-                z = np.exp(s * sampled.dt)
-                X, P = sampled.responses(z)
-                _, integ, deriv = discrete_ops(z, sampled.dt)
-            resp = self.controller_responses(s, lin, X, P, (integ, deriv))
-        else:
-            X = plant_state_response(lin, s) * np.asarray(delay)[:, None]  # (W, n)
-            P = X @ lin.C.T + (lin.D[:, 0][None, :] * np.asarray(delay)[:, None])  # (W, q)
-            resp = self.controller_responses(s, lin, X, P)
-        if not noise:
-            return self.cascade(resp, s.size)
-        L, H = self.cascade(resp, s.size, inner=True)
+        return self.cascade(self._responses(s, lin, delay, sampled), s.size)
+
+    def noise_responses(self, s: np.ndarray, lin: LinearModel, delay: np.ndarray | complex = 1.0,
+                        sampled: SampledPlant | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(L, N)``: the open-loop responses of :meth:`loop_responses` and the noise responses
+        ``N`` (n_loops, B, W): measurement noise of each loop to the plant input ``u`` (see the
+        module docstring)."""
+        s = np.asarray(s)
+        resp = self._responses(s, lin, delay, sampled)
+        L, H = self._chain(resp, s.size)
         with np.errstate(all="ignore"):
-            N = np.stack([-resp[i][2] * H[i + 1] / (1.0 + L[i]) for i in range(len(self.loops))])
+            N = np.stack([-resp[i][2] * H[i] / (1.0 + L[i]) for i in range(len(self.loops))])
         return L, N
 
-    def cascade(self, resp, W: int, inner: bool = False):
-        """The break-point loops (n_loops + 1, B, W) from the per-loop (F_k, m_k, C_k).
+    def cascade(self, resp: list[Resp], W: int) -> np.ndarray:
+        """The break-point loops (n_loops + 1, B, W) from the per-loop (F_k, m_k, C_k)."""
+        return self._chain(resp, W)[0]
 
-        ``inner``: return ``(L, H)`` with ``H[k]`` (r_k -> u, loops k..n-1 closed; ``H[n] = 1``) for
-        k >= 1 (``H[0]`` is None)."""
+    def _chain(self, resp: list[Resp], W: int) -> tuple[np.ndarray, list[np.ndarray]]:
+        """``(L, H)``: the break-point loops, and ``H[k - 1]`` = H_k (r_k -> u, loops k..n-1 closed;
+        H_n = 1) for k = 1..n (H_0, all loops closed, is no break point's: not computed)."""
         n = len(self.loops)
-        g = []
-        for k, (F, m, _) in enumerate(resp):
-            if k:  # in place where it saves a (B, W) temporary
-                prev = F * prev
-                prev += m
-            else:  # nothing is outside the outermost loop: its setpoint path F would multiply zero
-                # (skipped: an F that overflowed, e.g. a huge setpoint weight, made inf * 0 = NaN)
-                prev = m
+        # nothing is outside the outermost loop: its setpoint path F would multiply zero
+        # (skipped: an F that overflowed, e.g. a huge setpoint weight, made inf * 0 = NaN)
+        prev = resp[0][1]
+        g = [prev]
+        for F, m, _ in resp[1:]:
+            prev = F * prev  # then in place: saves a (B, W) temporary
+            prev += m
             g.append(prev)
-        H = [None] * (n + 1)  # H[0] (all loops closed, r_0 -> u) is no break point's: not computed
-        H[n] = np.ones((self.batch, W), dtype=complex)
+        H = [np.ones((self.batch, W), dtype=complex)]  # built inner first: H_n, H_{n-1}, ..., H_1
         with np.errstate(divide="ignore", invalid="ignore"):
             for k in range(n - 1, 0, -1):
                 F, m, _ = resp[k]
-                H[k] = H[k + 1] * F / (1.0 - H[k + 1] * m)
+                H.append(H[-1] * F / (1.0 - H[-1] * m))
+            H.reverse()
             L = np.empty((n + 1, self.batch, W), dtype=complex)
             for i in range(n):
                 np.negative(g[i], out=L[i])
-                L[i] *= H[i + 1]
+                L[i] *= H[i]
         np.negative(g[n - 1], out=L[n])
-        return (L, H) if inner else L
+        return L, H
 
     # -------------------------------------------------------- state space
     def open_loop_poles(self, lin: LinearModel, pade: tuple[float, int] | None) -> np.ndarray:
@@ -219,7 +235,7 @@ class Cascade:
         if pade is not None:
             base += list(pade_poles(*pade))
         poles = np.tile(np.array(base, dtype=complex), (self.batch, 1))
-        extra = []
+        extra: list[np.ndarray] = []
         for lp in self.loops:
             if lp.has_i:
                 extra.append(np.zeros(self.batch, dtype=complex))
@@ -236,86 +252,39 @@ class Cascade:
         """
         Bsz = self.batch
         n = lin.A.shape[0]
-        if pade is not None and pade[0] > 0:
-            Ad, Bd, Cd, Dd = pade_ss(*pade)
-        else:
-            Ad = np.zeros((0, 0))
-            Bd = np.zeros((0, 1))
-            Cd = np.zeros((1, 0))
-            Dd = 1.0
+        Ad, Bd, Cd, Dd = _pade_blocks(pade)
         npd = Ad.shape[0]
         ctl_idx, N = controller_state_index(self.loops, n + npd)
-
-        def zero():
-            return np.zeros((Bsz, N)), np.zeros(Bsz)
-
-        def unit(j):
-            r = np.zeros((Bsz, N))
-            r[:, j] = 1.0
-            return r, np.zeros(Bsz)
-
+        sig = _Signals(Bsz, N)
         # Delayed plant input u_p = Cd x_pade + Dd u
         up_x = np.zeros((Bsz, N))
         up_x[:, n : n + npd] = Cd[0]
         up = (up_x, np.full(Bsz, Dd))
 
-        def output(j):
+        def output(j: int) -> Signal:
             rx = np.zeros((Bsz, N))
             rx[:, :n] = lin.C[j]
             d = lin.D[j, 0]
             return rx + d * up[0], d * up[1]
 
-        def lin_comb(*terms):
-            rx, ru = zero()
-            for coef, (tx, tu) in terms:
-                coef = np.asarray(coef, dtype=float)
-                cx = coef[:, None] if coef.ndim else coef
-                rx = rx + cx * tx
-                ru = ru + coef * tu
-            return rx, ru
-
-        derivs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        r = zero()
-        for lp, (ii, di) in zip(self.loops, ctl_idx):
+        derivs: dict[int, Signal] = {}
+        r = sig.zero()
+        for lp, (ii, di) in zip(self.loops, ctl_idx, strict=True):
+            y = output(lp.out_idx)
             if lp.kind == "pid":
-                y = output(lp.out_idx)
-                e = lin_comb((1.0, r), (-1.0, y))
-                terms = [(lp.Kp * lp.b, r), (-lp.Kp, y)]
-                if ii is not None:
-                    derivs[ii] = e
-                    terms.append((lp.Ki, unit(ii)))
-                if di is not None:
-                    ed = lin_comb((lp.c, r), (-1.0, y), (-1.0, unit(di)))  # c r - y - xd
-                    derivs[di] = lin_comb((1.0 / lp.Tf, ed))
-                    terms.append((lp.Kd / lp.Tf, ed))
-                v = lin_comb(*terms)
+                r = _pid_law(sig, lp, r, y, ii, di, derivs)
             else:
-                y = output(lp.out_idx)
-                fx = np.zeros((Bsz, N))
-                fx[:, :n] = -lp.K
-                terms = [(1.0, (fx, np.zeros(Bsz))), (lp.Nr, r)]
-                if ii is not None:
-                    derivs[ii] = lin_comb((1.0, r), (-1.0, y))
-                    terms.append((lp.Kint, unit(ii)))
-                v = lin_comb(*terms)
-            r = v
-        ux, uu = r
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u_row = ux / (1.0 - uu)[:, None]  # u = u_row @ X
-
-        def resolve(sig):
-            sx, su = sig
-            return sx + su[:, None] * u_row
-
+                r = _lq_law(sig, lp, r, y, ii, n, derivs)
+        u_row = _solve_u(r)  # u = u_row @ X
         Acl = np.zeros((Bsz, N, N))
-        upr = resolve(up)
+        upr = _resolve(up, u_row)
         Acl[:, :n, :n] += lin.A
         Acl[:, :n, :] += lin.B[:, 0][None, :, None] * upr[:, None, :]
         if npd:
             Acl[:, n : n + npd, n : n + npd] += Ad
             Acl[:, n : n + npd, :] += Bd[:, 0][None, :, None] * u_row[:, None, :]
-        for j, sig in derivs.items():
-            Acl[:, j, :] = resolve(sig)
+        for j, sg in derivs.items():
+            Acl[:, j, :] = _resolve(sg, u_row)
         return Acl
 
     # ------------------------------------------------------- sampled loop
@@ -324,7 +293,7 @@ class Cascade:
         input buffer (z = 0), integrators (z = 1) and derivative filters (z = Tf/(Tf + dt))."""
         base = list(sp.eigvals()) + [0.0] * sp.buffer_len
         poles = np.tile(np.array(base, dtype=complex), (self.batch, 1))
-        extra = []
+        extra: list[np.ndarray] = []
         for lp in self.loops:
             if lp.has_i:
                 extra.append(np.ones(self.batch, dtype=complex))
@@ -341,78 +310,154 @@ class Cascade:
         states. Signals are rows over the states plus a coefficient of u[k] (only feedthrough
         without delay gives one), solved for at the end as in :meth:`closed_loop_A`.
         """
-        Bsz, dt = self.batch, sp.dt
+        Bsz = self.batch
         n, m = sp.n, sp.buffer_len
         ctl_idx, N = controller_state_index(self.loops, n + m)
-        z0 = np.zeros((Bsz, N))
+        sig = _Signals(Bsz, N)
 
-        def unit(j):
-            r = np.zeros((Bsz, N))
-            r[:, j] = 1.0
-            return r, np.zeros(Bsz)
+        def past(j: int) -> Signal:  # u[k-j]
+            return (np.zeros((Bsz, N)), np.ones(Bsz)) if j == 0 else sig.unit(n + j - 1)
 
-        def past(j):  # u[k-j]
-            return (z0, np.ones(Bsz)) if j == 0 else unit(n + j - 1)
-
-        def comb(*terms):
-            rx, ru = np.zeros((Bsz, N)), np.zeros(Bsz)
-            for coef, (tx, tu) in terms:
-                coef = np.asarray(coef, dtype=float)
-                rx = rx + (coef[:, None] if coef.ndim else coef) * tx
-                ru = ru + coef * tu
-            return rx, ru
-
-        def output(j):
+        def output(j: int) -> Signal:
             rx = np.zeros((Bsz, N))
             rx[:, :n] = sp.C[j]
             if sp.D[j] != 0.0:
-                return comb((1.0, (rx, np.zeros(Bsz))), (sp.D[j], past(sp.dD)))
+                return sig.comb((1.0, (rx, np.zeros(Bsz))), (sp.D[j], past(sp.dD)))
             return rx, np.zeros(Bsz)
 
-        nxt: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        r = (z0, np.zeros(Bsz))
-        for lp, (ii, di) in zip(self.loops, ctl_idx):
+        nxt: dict[int, Signal] = {}
+        r = sig.zero()
+        for lp, (ii, di) in zip(self.loops, ctl_idx, strict=True):
             y = output(lp.out_idx)
-            e = comb((1.0, r), (-1.0, y))
             if lp.kind == "pid":
-                terms = [(lp.Kp * lp.b, r), (-lp.Kp, y)]
-                if ii is not None:
-                    nxt[ii] = comb((1.0, unit(ii)), (1.0, e))  # sum of e up to k
-                    terms.append((lp.Ki * dt, nxt[ii]))
-                if di is not None:
-                    al = lp.Tf / (lp.Tf + dt)
-                    be = lp.Kd / (lp.Tf + dt)
-                    ed = comb((lp.c, r), (-1.0, y))
-                    nxt[di] = comb((al, unit(di)), (1.0, ed))
-                    terms += [(be, ed), (be * (al - 1.0), unit(di))]
+                r = _pid_law_sampled(sig, lp, r, y, ii, di, sp.dt, nxt)
             else:
-                fx = np.zeros((Bsz, N))
-                fx[:, :n] = -lp.K
-                terms = [(1.0, (fx, np.zeros(Bsz))), (lp.Nr, r)]
-                if ii is not None:
-                    nxt[ii] = comb((1.0, unit(ii)), (1.0, e))
-                    terms.append((lp.Kint * dt, nxt[ii]))
-            r = comb(*terms)
-        ux, uu = r
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u_row = ux / (1.0 - uu)[:, None]  # u[k] = u_row @ state
-
-        def resolve(sig):
-            sx, su = sig
-            return sx + su[:, None] * u_row
-
+                r = _lq_law_sampled(sig, lp, r, y, ii, n, sp.dt, nxt)
+        u_row = _solve_u(r)  # u[k] = u_row @ state
         Acl = np.zeros((Bsz, N, N))
         Acl[:, :n, :n] += sp.Ad
-        Acl[:, :n, :] += sp.G0[None, :, None] * resolve(past(sp.d))[:, None, :]
+        Acl[:, :n, :] += sp.G0[None, :, None] * _resolve(past(sp.d), u_row)[:, None, :]
         if sp.has_G1:
-            Acl[:, :n, :] += sp.G1[None, :, None] * resolve(past(sp.d + 1))[:, None, :]
+            Acl[:, :n, :] += sp.G1[None, :, None] * _resolve(past(sp.d + 1), u_row)[:, None, :]
         if m:
             Acl[:, n, :] = u_row
             for j in range(1, m):
                 Acl[:, n + j, n + j - 1] = 1.0
-        for j, sig in nxt.items():
-            Acl[:, j, :] = resolve(sig)
+        for j, sg in nxt.items():
+            Acl[:, j, :] = _resolve(sg, u_row)
         return Acl
+
+
+# ------------------------------------------------------------ signal algebra of the state-space forms
+
+#: A batched linear signal: its row over the N states (B, N) and its coefficient of the input u (B,).
+Signal = tuple[np.ndarray, np.ndarray]
+
+
+class _Signals:
+    """Builds batched linear :data:`Signal` s over N states for B gain sets."""
+
+    def __init__(self, batch: int, n_states: int):
+        self.B, self.N = batch, n_states
+
+    def zero(self) -> Signal:
+        return np.zeros((self.B, self.N)), np.zeros(self.B)
+
+    def unit(self, j: int) -> Signal:
+        """State ``j`` itself."""
+        r = np.zeros((self.B, self.N))
+        r[:, j] = 1.0
+        return r, np.zeros(self.B)
+
+    def comb(self, *terms: tuple[float | np.ndarray, Signal]) -> Signal:
+        """Sum of coefficient x signal; a coefficient is a scalar or one per gain set (B,)."""
+        rx, ru = self.zero()
+        for coef, (tx, tu) in terms:
+            c = np.asarray(coef, dtype=float)
+            rx = rx + (c[:, None] if c.ndim else c) * tx
+            ru = ru + c * tu
+        return rx, ru
+
+
+def _pade_blocks(pade: tuple[float, int] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """(Ad, Bd, Cd, Dd) of the Padé delay (T, order); no states and Dd = 1 without delay."""
+    if pade is not None and pade[0] > 0:
+        return pade_ss(*pade)
+    return np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), 1.0
+
+
+def _pid_law(sig: _Signals, lp: LoopCtl, r: Signal, y: Signal, ii: int | None, di: int | None,
+             derivs: dict[int, Signal]) -> Signal:
+    """A continuous PID loop's output from its setpoint ``r`` and measurement ``y``; its states'
+    derivatives go to ``derivs``."""
+    e = sig.comb((1.0, r), (-1.0, y))
+    terms: list[tuple[float | np.ndarray, Signal]] = [(lp.Kp * lp.b, r), (-lp.Kp, y)]
+    if ii is not None:
+        derivs[ii] = e
+        terms.append((lp.Ki, sig.unit(ii)))
+    if di is not None:
+        ed = sig.comb((lp.c, r), (-1.0, y), (-1.0, sig.unit(di)))  # c r - y - xd
+        derivs[di] = sig.comb((1.0 / lp.Tf, ed))
+        terms.append((lp.Kd / lp.Tf, ed))
+    return sig.comb(*terms)
+
+
+def _lq_feedback(sig: _Signals, lp: LoopCtl, n: int) -> Signal:
+    """-K x over the first ``n`` (plant) states."""
+    fx = np.zeros((sig.B, sig.N))
+    fx[:, :n] = -lp.K
+    return fx, np.zeros(sig.B)
+
+
+def _lq_law(sig: _Signals, lp: LoopCtl, r: Signal, y: Signal, ii: int | None, n: int,
+            derivs: dict[int, Signal]) -> Signal:
+    """A continuous LQ loop's output (state feedback, optional integrator of r - y, reference gain)."""
+    terms: list[tuple[float | np.ndarray, Signal]] = [(1.0, _lq_feedback(sig, lp, n)), (lp.Nr, r)]
+    if ii is not None:
+        derivs[ii] = sig.comb((1.0, r), (-1.0, y))
+        terms.append((lp.Kint, sig.unit(ii)))
+    return sig.comb(*terms)
+
+
+def _pid_law_sampled(sig: _Signals, lp: LoopCtl, r: Signal, y: Signal, ii: int | None, di: int | None, dt: float,
+                     nxt: dict[int, Signal]) -> Signal:
+    """A PID loop's discrete law (the simulator's: backward-Euler integrator and derivative filter);
+    its states' next values go to ``nxt``."""
+    e = sig.comb((1.0, r), (-1.0, y))
+    terms: list[tuple[float | np.ndarray, Signal]] = [(lp.Kp * lp.b, r), (-lp.Kp, y)]
+    if ii is not None:
+        nxt[ii] = sig.comb((1.0, sig.unit(ii)), (1.0, e))  # sum of e up to k
+        terms.append((lp.Ki * dt, nxt[ii]))
+    if di is not None:
+        al = lp.Tf / (lp.Tf + dt)
+        be = lp.Kd / (lp.Tf + dt)
+        ed = sig.comb((lp.c, r), (-1.0, y))
+        nxt[di] = sig.comb((al, sig.unit(di)), (1.0, ed))
+        terms += [(be, ed), (be * (al - 1.0), sig.unit(di))]
+    return sig.comb(*terms)
+
+
+def _lq_law_sampled(sig: _Signals, lp: LoopCtl, r: Signal, y: Signal, ii: int | None, n: int, dt: float,
+                    nxt: dict[int, Signal]) -> Signal:
+    """An LQ loop's discrete law (the integrator a running sum of r - y)."""
+    terms: list[tuple[float | np.ndarray, Signal]] = [(1.0, _lq_feedback(sig, lp, n)), (lp.Nr, r)]
+    if ii is not None:
+        nxt[ii] = sig.comb((1.0, sig.unit(ii)), (1.0, sig.comb((1.0, r), (-1.0, y))))
+        terms.append((lp.Kint * dt, nxt[ii]))
+    return sig.comb(*terms)
+
+
+def _solve_u(u: Signal) -> np.ndarray:
+    """The input's row over the states, from the signal u = ux X + uu u (the algebraic loop solved)."""
+    ux, uu = u
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return ux / (1.0 - uu)[:, None]
+
+
+def _resolve(sg: Signal, u_row: np.ndarray) -> np.ndarray:
+    """A signal's row over the states, with u replaced by its row ``u_row``."""
+    sx, su = sg
+    return sx + su[:, None] * u_row
 
 
 def _out_index(spec: TuningSpec, lin: LinearModel, i: int) -> int:

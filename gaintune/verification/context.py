@@ -50,7 +50,7 @@ class SpecContext:
 
                     try:
                         sim = importlib.import_module("gaintune.sim")
-                        runner = getattr(sim, "Simulator")
+                        runner = sim.Simulator
                     except (ImportError, AttributeError):
                         return None
                     self._sim = runner(spec, self.plant, self.layout)

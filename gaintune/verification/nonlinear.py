@@ -19,7 +19,7 @@ import numpy as np
 
 from gaintune.verification.report import NonlinearReport
 
-__all__ = ["nonlinear_check"]
+__all__ = ["nonlinear_check", "settling_notes"]
 
 _SUMMARY = ("iae", "overshoot", "settling_time", "sat_frac")
 
@@ -43,7 +43,7 @@ def nonlinear_check(spec, plant, layout, full_gains: np.ndarray, sim=None, compu
         return _report(_run_all(sim, spec, full, compute_delay))
     try:
         simmod = importlib.import_module("gaintune.sim")
-        simulate = getattr(simmod, "simulate")
+        simulate = simmod.simulate
     except (ImportError, AttributeError) as exc:
         return NonlinearReport(ran=False, note=f"simulator unavailable ({exc.__class__.__name__}: {exc})")
     runner = getattr(simmod, "Simulator", None)
@@ -87,3 +87,11 @@ def _report(results) -> NonlinearReport:
     elif diverged:
         note = "simulation diverged"
     return NonlinearReport(ran=True, passed=passed, tripped=tripped, diverged=diverged, metrics=summary, note=note)
+
+
+def settling_notes(spec, sim, plant, layout, full: np.ndarray) -> list[str]:
+    """A note per scenario whose response has not settled by its end (:mod:`gaintune.sim.settling`)."""
+    from gaintune.sim import Simulator
+    from gaintune.sim.settling import settling_messages
+
+    return settling_messages(sim or Simulator(spec, plant, layout), full)

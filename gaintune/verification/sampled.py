@@ -36,6 +36,7 @@ frequency pi/dt), or s = -eps + j w for the Nyquist contour |z| = e^{-eps dt}.
 from __future__ import annotations
 
 import math
+
 import numpy as np
 
 from gaintune.errors import SpecError
@@ -141,7 +142,7 @@ class SampledPlant:
             m = max(m, self.dD)
         return m
 
-    def for_model(self, lin: LinearModel) -> "SampledPlant":
+    def for_model(self, lin: LinearModel) -> SampledPlant:
         """The same sampling (dt, computation delay, method, plant delay) of another model of this plant."""
         return sample_plant(lin, self.dt, self.compute_delay, self.method == "rk4", self.delay)
 

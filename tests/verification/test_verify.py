@@ -8,12 +8,12 @@ import math
 import control as ct
 import numpy as np
 import pytest
+from plant_fixtures import MOTOR
 
 from gaintune.errors import GainError
 from gaintune.spec import load_spec
 from gaintune.verification import format_table, verify
 from gaintune.verification.report import VerificationReport
-from plant_fixtures import MOTOR
 
 # dt = 1 us: the dt/2 sampling delay is negligible when comparing with delay-free python-control loops
 FAST = {"dt": 1e-6, "horizon": 0.1}

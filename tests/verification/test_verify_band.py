@@ -13,17 +13,18 @@ import math
 
 import numpy as np
 import pytest
+from plant_fixtures import MOTOR
 
 from gaintune.controllers.layout import GainLayout
 from gaintune.plants.plant import build_plant
 from gaintune.spec import load_spec as _load_spec
 from gaintune.verification import verify
-from gaintune.verification.analysis import analyse, sampling_delay
+from gaintune.verification.analysis import analyse, analysis_band, sampling_delay
 from gaintune.verification.cascade import build_cascade
-from gaintune.verification.core import _to_model, analysis_band
+from gaintune.verification.figures import loop_figures
 from gaintune.verification.freqresp import DelayModel
 from gaintune.verification.tail import chain_ss, level_clear, series
-from plant_fixtures import MOTOR
+
 
 def load_spec(d: dict):
     """Every spec here is analysed in continuous time (verify.sampled: false): the band and its
@@ -170,7 +171,7 @@ def _assert_same(capped, full, rel=1e-6):
         # crossings: nothing above the band; the same gain crossings; and every crossing the
         # uncapped report lists inside the band is listed too (fewer competitors in the band)
         top = capped.omega_range[1]
-        ra, rb = _to_model(a), _to_model(b)
+        ra, rb = loop_figures(a), loop_figures(b)
         assert all(c.omega <= top for c in ra.crossings)
         ga, gb = [c for c in ra.crossings if c.kind == "gain"], [c for c in rb.crossings if c.kind == "gain"]
         assert [c.omega for c in ga] == pytest.approx([c.omega for c in gb], rel=1e-6)
@@ -305,7 +306,7 @@ def test_pade_mode_keeps_the_adequacy_check():
 
 def test_robust_worst_case_same_with_and_without_band(monkeypatch):
     """Every robust sample is analysed on the band too; the worst case is the uncapped one."""
-    import gaintune.verification.core as core
+    import gaintune.verification.steps as steps
 
     spec = load_spec({"plant": {"tf": {"num": ["K"], "den": "T*s+1"}, "params": {"K": 1.0, "T": 1.0}, "delay": 0.1},
                       "loops": [{"type": "pi"}], "scenario": {"dt": 0.01, "horizon": 20},
@@ -315,7 +316,7 @@ def test_robust_worst_case_same_with_and_without_band(monkeypatch):
     rep = verify(spec, gains, nonlinear=False, cache=False)
     assert rep.robust.n_samples == 11 and rep.robust.n_unstable == 0
     assert rep.analysis_band[1] == pytest.approx(10 * math.pi / 0.01)
-    monkeypatch.setattr(core, "analysis_band", lambda spec: math.inf)
+    monkeypatch.setattr(steps, "analysis_band", lambda spec: math.inf)
     ref = verify(spec, gains, nonlinear=False, cache=False)
     assert ref.analysis_band[1] > rep.analysis_band[1]
     for w, v in zip(rep.robust.worst, ref.robust.worst):

@@ -10,6 +10,7 @@ import math
 import control as ct
 import numpy as np
 import pytest
+from plant_fixtures import MOTOR
 
 from gaintune.controllers.layout import GainLayout
 from gaintune.plants.plant import build_plant
@@ -20,7 +21,6 @@ from gaintune.verification.cascade import build_cascade
 from gaintune.verification.report import VerificationReport
 from gaintune.verification.sampled import sample_plant, zoh_delay
 from gaintune.verification.stability import observable_part
-from plant_fixtures import MOTOR
 
 #: The API benchmark's DC-motor cascade (speed PI outside, current PI inside) at dt = 1 ms.
 MOTOR2 = {

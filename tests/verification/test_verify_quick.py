@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from plant_fixtures import MOTOR
 
 from gaintune.controllers.layout import GainLayout
 from gaintune.controllers.pid import pid_params
@@ -14,7 +15,6 @@ from gaintune.spec import load_spec
 from gaintune.verification import quick_margins, requirement_violation, verify
 from gaintune.verification.cascade import pid_arrays
 from gaintune.verification.quick import UNSTABLE_VIOLATION
-from plant_fixtures import MOTOR
 
 MOTOR_LOOPS = [
     {"name": "position", "type": "p", "measure": "th"},
