@@ -79,7 +79,8 @@ def analysis_dt(spec: TuningSpec) -> float:
 
 
 def analysis_band(spec: TuningSpec) -> float:
-    """Upper end (rad/s) of the continuous analysis band: BAND_NYQUIST x the Nyquist frequency pi/dt of the largest dt."""
+    """Upper end (rad/s) of the continuous analysis band: BAND_NYQUIST x the Nyquist frequency pi/dt
+    of the largest dt."""
     return BAND_NYQUIST * math.pi / analysis_dt(spec)
 
 
@@ -119,7 +120,24 @@ def _band_ends(ev: Evaluator, cas, lin) -> tuple[float, float, np.ndarray]:
     return float(lo), float(hi), L0
 
 
-def _grid(ev: Evaluator, lo: float, hi: float, n_freq: int):
+#: Grid intervals (left w, right w, left L, right L, left |L|, right |L|); L and |L| are (R, count).
+_Intervals = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def _pick(idx: np.ndarray, E: np.ndarray, LE: np.ndarray, AE: np.ndarray, rest: _Intervals) -> _Intervals:
+    """The intervals ``idx`` of a block (end points E (m, k+1), responses LE and |L| AE (R, m, k+1))
+    followed by the leftover intervals ``rest`` (indices from m k on)."""
+    m, k = E.shape[0], E.shape[1] - 1
+    blk = idx[idx < m * k]
+    bi, bj = np.divmod(blk, k)
+    ri = idx[idx >= m * k] - m * k
+    cat = np.concatenate
+    return (cat([E[bi, bj], rest[0][ri]]), cat([E[bi, bj + 1], rest[1][ri]]),
+            cat([LE[:, bi, bj], rest[2][:, ri]], axis=1), cat([LE[:, bi, bj + 1], rest[3][:, ri]], axis=1),
+            cat([AE[:, bi, bj], rest[4][:, ri]], axis=1), cat([AE[:, bi, bj + 1], rest[5][:, ri]], axis=1))
+
+
+def _grid(ev: Evaluator, lo: float, hi: float, n_freq: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Log grid on [lo, hi], refined where the phase turns fast (delays). Returns (w, L, |L|).
 
     Each refinement round checks only the intervals created by the previous one (the
@@ -134,7 +152,8 @@ def _grid(ev: Evaluator, lo: float, hi: float, n_freq: int):
     # candidate intervals: the sub-intervals of a block of refined intervals (end points E (m, k+1),
     # responses LE (R, m, k+1)), then bad intervals left over by the cap (higher w, rarely any)
     E, LE, AE = w[None, :], L[:, None, :], aL[:, None, :]
-    rest = (np.zeros(0), np.zeros(0), np.zeros((R, 0), complex), np.zeros((R, 0), complex), np.zeros((R, 0)), np.zeros((R, 0)))
+    rest: _Intervals = (np.zeros(0), np.zeros(0), np.zeros((R, 0), complex), np.zeros((R, 0), complex),
+                        np.zeros((R, 0)), np.zeros((R, 0)))
     for _ in range(4):
         m, k = E.shape[0], E.shape[1] - 1
         with np.errstate(all="ignore"):
@@ -148,18 +167,8 @@ def _grid(ev: Evaluator, lo: float, hi: float, n_freq: int):
                                   m * k + np.nonzero(np.any(turn_r & big_r, axis=0))[0]])
         if bad_all.size == 0:
             break
-
-        def pick(idx):
-            blk = idx[idx < m * k]
-            bi, bj = np.divmod(blk, k)
-            ri = idx[idx >= m * k] - m * k
-            cat = np.concatenate
-            return (cat([E[bi, bj], rest[0][ri]]), cat([E[bi, bj + 1], rest[1][ri]]),
-                    cat([LE[:, bi, bj], rest[2][:, ri]], axis=1), cat([LE[:, bi, bj + 1], rest[3][:, ri]], axis=1),
-                    cat([AE[:, bi, bj], rest[4][:, ri]], axis=1), cat([AE[:, bi, bj + 1], rest[5][:, ri]], axis=1))
-
-        wl, wr, Ll, Lr, al, ar = pick(bad_all[:20000])
-        rest = pick(bad_all[20000:])
+        wl, wr, Ll, Lr, al, ar = _pick(bad_all[:20000], E, LE, AE, rest)
+        rest = _pick(bad_all[20000:], E, LE, AE, rest)
         nb = wl.size
         new = np.exp(np.log(wl[:, None]) + np.log(wr / wl)[:, None] * np.linspace(0, 1, 8)[None, 1:-1])
         Ln = ev(new.ravel())

@@ -48,7 +48,7 @@ from gaintune.errors import GainError, SpecError
 from gaintune.lti.modes import plant_eigvals, plant_state_response
 from gaintune.lti.pade import pade_poles, pade_ss
 from gaintune.plants.plant import LinearModel
-from gaintune.spec import TuningSpec
+from gaintune.spec import LoopSpec, TuningSpec
 from gaintune.verification.sampled import SampledPlant, discrete_ops
 
 __all__ = ["LoopCtl", "Cascade", "build_cascade", "controller_state_index", "pid_arrays", "Signal"]
@@ -57,7 +57,7 @@ __all__ = ["LoopCtl", "Cascade", "build_cascade", "controller_state_index", "pid
 Resp = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
-def controller_state_index(loops, start: int) -> tuple[list[tuple[int | None, int | None]], int]:
+def controller_state_index(loops: list[LoopCtl], start: int) -> tuple[list[tuple[int | None, int | None]], int]:
     """State indices of each loop's integrator and derivative filter, numbered from ``start``.
 
     Returns ``[(integrator index or None, filter index or None) per loop]`` and the total count.
@@ -468,10 +468,37 @@ def _out_index(spec: TuningSpec, lin: LinearModel, i: int) -> int:
     return lin.outputs.index(name)
 
 
-def pid_arrays(loop, G: np.ndarray, names: list[str]) -> dict[str, np.ndarray]:
+def pid_arrays(loop: LoopSpec, G: np.ndarray, names: list[str]) -> dict[str, np.ndarray]:
     """:func:`gaintune.controllers.pid.pid_params` over a batch (G: (B, n_loop_gains)), as a dict."""
     p = pid_params(loop, {nm: G[:, j] for j, nm in enumerate(names)})
     return {"Kp": p.Kp, "Ki": p.Ki, "Kd": p.Kd, "Tf": p.Tf}
+
+
+def _lq_ctl(loop: LoopSpec, name: str, out_idx: int, G: np.ndarray, names: list[str], lin: LinearModel) -> LoopCtl:
+    """An LQ loop's controller: its gains computed per gain set (:func:`gaintune.controllers.lq.lq_gains`)."""
+    from gaintune.controllers.lq import lq_gains
+
+    Bsz = G.shape[0]
+    Ks, Kis, Nrs = [], [], []
+    for b in range(Bsz):
+        lg = lq_gains(loop, dict(zip(names, G[b], strict=True)), lin, out_idx)
+        Ks.append(lg.K)
+        Kis.append(lg.Kint)
+        Nrs.append(lg.Nr)
+    return LoopCtl(name, "lq", out_idx, has_i=loop.type == "lqi", K=np.array(Ks, dtype=float).reshape(Bsz, -1),
+                   Kint=np.array(Kis, dtype=float), Nr=np.array(Nrs, dtype=float))
+
+
+def _pid_ctl(loop: LoopSpec, name: str, out_idx: int, G: np.ndarray, names: list[str]) -> LoopCtl:
+    """A PID loop's controller. Raises GainError for a derivative without a filter time constant."""
+    pa = pid_arrays(loop, G, names)
+    has_d = "d" in loop.type[1:]
+    if has_d and np.any((pa["Tf"] <= 0) & (pa["Kd"] != 0)):  # Kd = 0: no derivative, no filter needed
+        raise GainError(f"gains.{name}", "derivative filter time constant is zero; give Kp > 0")
+    # Ki = 0 turns integral action off: no integrator state, whose pole at s = 0 would count as unstable
+    has_i = "i" in loop.type[1:] and bool(np.any(pa["Ki"] != 0))
+    return LoopCtl(name, "pid", out_idx, has_i=has_i, has_d=has_d, Kp=pa["Kp"], Ki=pa["Ki"], Kd=pa["Kd"], Tf=pa["Tf"],
+                   b=loop.b, c=loop.c)
 
 
 def build_cascade(
@@ -480,12 +507,9 @@ def build_cascade(
     """Controllers for a batch of full gain vectors ``full`` (B, n_gains) on the linear model ``lin``.
 
     LQ gains in ``weights`` mode are computed once per gain set with :func:`control.lqr` on
-    ``lin`` (pass the nominal model: gains are frozen for robustness analysis).
+    ``lin`` (pass the nominal model: gains are frozen for robustness analysis). ``lq_cache`` is not used.
     """
-    from gaintune.controllers.lq import lq_gains
-
     full = np.atleast_2d(np.asarray(full, dtype=float))
-    Bsz = full.shape[0]
     loops: list[LoopCtl] = []
     for i, loop in enumerate(spec.loops):
         cols = [k for k, sl in enumerate(layout.slots) if sl.loop == i]
@@ -493,26 +517,6 @@ def build_cascade(
         G = full[:, cols]
         out_idx = _out_index(spec, lin, i)
         name = loop.name or f"loop{i}"
-        if loop.is_lq:
-            Ks, Kis, Nrs = [], [], []
-            for b in range(Bsz):
-                gd = dict(zip(names, G[b]))
-                lg = lq_gains(loop, gd, lin, out_idx)
-                Ks.append(lg.K)
-                Kis.append(lg.Kint)
-                Nrs.append(lg.Nr)
-            loops.append(
-                LoopCtl(name, "lq", out_idx, has_i=loop.type == "lqi", K=np.array(Ks, dtype=float).reshape(Bsz, -1),
-                        Kint=np.array(Kis, dtype=float), Nr=np.array(Nrs, dtype=float))
-            )
-        else:
-            pa = pid_arrays(loop, G, names)
-            has_d = "d" in loop.type[1:]
-            if has_d and np.any((pa["Tf"] <= 0) & (pa["Kd"] != 0)):  # Kd = 0: no derivative, no filter needed
-                raise GainError(f"gains.{name}", "derivative filter time constant is zero; give Kp > 0")
-            loops.append(
-                # Ki = 0 turns integral action off: no integrator state, whose pole at s = 0 would count as unstable
-                LoopCtl(name, "pid", out_idx, has_i="i" in loop.type[1:] and bool(np.any(pa["Ki"] != 0)), has_d=has_d, Kp=pa["Kp"], Ki=pa["Ki"],
-                        Kd=pa["Kd"], Tf=pa["Tf"], b=loop.b, c=loop.c)
-            )
-    return Cascade(loops, Bsz, [lp.name for lp in loops])
+        ctl = _lq_ctl(loop, name, out_idx, G, names, lin) if loop.is_lq else _pid_ctl(loop, name, out_idx, G, names)
+        loops.append(ctl)
+    return Cascade(loops, full.shape[0], [lp.name for lp in loops])

@@ -92,16 +92,15 @@ def verify(
     gains
         ``{loop: {gain: value}}``, or a vector of all gains (layout order) or of the tuned gains only.
     robust
-        Evaluate the randomisation set (box corners + ``verify.robust_samples`` draws).
-        Default: when the spec randomises plant parameters or the delay.
+        Evaluate the randomisation set (box corners + ``verify.robust_samples`` draws); default:
+        when the spec randomises plant parameters or the delay.
     nonlinear
         Run the nonlinear simulation check (skipped with a note if :mod:`gaintune.sim` is missing).
     plant, layout
         Pre-built objects to reuse (built from ``spec`` when omitted).
     cache
-        Reuse the per-spec objects (plant, layout, linearisation, simulator) of earlier calls
-        on the same spec (keyed by ``spec.content_hash()``; see :mod:`gaintune.verification.context`).
-        A cached entry takes precedence over ``plant``/``layout``.
+        Reuse the per-spec plant, layout, linearisation and simulator of earlier calls on the same spec
+        (:mod:`gaintune.verification.context`); a cached entry takes precedence over ``plant``/``layout``.
     spec_hash
         ``spec.content_hash()`` when the caller has computed it already (saves hashing the spec again).
 
@@ -113,9 +112,8 @@ def verify(
         For a spec that is not a valid :class:`TuningSpec` (the message names the field).
     """
     t0 = time.perf_counter()
-    if not isinstance(spec, TuningSpec):
-        spec = load_spec(spec)
-    setup = prepare(spec, gains, plant, layout, cache, spec_hash)
+    tspec = spec if isinstance(spec, TuningSpec) else load_spec(spec)
+    setup = prepare(tspec, gains, plant, layout, cache, spec_hash)
     found = Findings(notes=fixed_gain_overrides(setup.spec, setup.layout, setup.full))
     nom = nominal_analysis(setup, found)
     loops, mks = noise_figures(setup, nom, found)

@@ -46,7 +46,8 @@ from gaintune.spec import check_delay_samples
 __all__ = ["SampledPlant", "sample_plant", "zoh_delay", "rk4_matrices", "discrete_ops"]
 
 
-def zoh_delay(A: np.ndarray, B: np.ndarray, dt: float, delay: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, float]:
+def zoh_delay(A: np.ndarray, B: np.ndarray, dt: float,
+              delay: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, float]:
     """Exact ZOH with an input delay: (Ad, G0, G1, d, frac), as :func:`gaintune.sim.build.discretize`.
 
     ``x[k+1] = Ad x[k] + G0 u[k-d] + G1 u[k-d-1]`` with delay = d dt + frac, 0 <= frac < dt:
@@ -79,11 +80,11 @@ def rk4_matrices(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, n
     """One classical RK4 step of dx/dt = A x + B u with u held: (Ad, G0), as the simulator steps nonlinear plants."""
     n = A.shape[0]
     M = A * dt
-    I = np.eye(n)
+    eye = np.eye(n)
     M2 = M @ M
     M3 = M2 @ M
-    Ad = I + M + M2 / 2.0 + M3 / 6.0 + M3 @ M / 24.0
-    G0 = (I + M / 2.0 + M2 / 6.0 + M3 / 24.0) @ B[:, 0] * dt
+    Ad = eye + M + M2 / 2.0 + M3 / 6.0 + M3 @ M / 24.0
+    G0 = (eye + M / 2.0 + M2 / 6.0 + M3 / 24.0) @ B[:, 0] * dt
     return Ad, G0
 
 
@@ -206,7 +207,8 @@ def _check_finite(sp: SampledPlant, A: np.ndarray) -> None:
     with np.errstate(all="ignore"):
         a = float(np.max(np.abs(A))) if A.size else 1.0
     # blame whichever of the plant's rate |A| and dt is further from ordinary scales
-    field = "plant" if not math.isfinite(a) or abs(math.log10(max(a, 1e-320))) >= abs(math.log10(sp.dt)) else "scenario.dt"
+    plant_side = not math.isfinite(a) or abs(math.log10(max(a, 1e-320))) >= abs(math.log10(sp.dt))
+    field = "plant" if plant_side else "scenario.dt"
     raise SpecError(field, f"the plant sampled at dt = {sp.dt:.3g} s (the largest scenario dt) is not finite "
                            f"(plant matrix entries up to {a:.3g}): plant coefficients or dt out of any usable range")
 
