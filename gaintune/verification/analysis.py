@@ -241,9 +241,11 @@ def analyse(cas: Cascade, lin: LinearModel, delay: DelayModel | None, n_freq: in
     """
     if sampled is not None:
         return _analyse_sampled(cas, lin, sampled, n_freq)
+    if delay is None:
+        raise ValueError("analyse: the continuous loop needs its delay model")
     ev = Evaluator(cas, lin, delay)
     lo, hi, L0 = _band_ends(ev, cas, lin)
-    caps = []
+    caps: list[float] = []
     if band is not None and cas.batch == 1 and math.isfinite(band) and band > 0:
         c = max(float(band), lo * 10.0)
         while c < hi and len(caps) < _BAND_TRIES:

@@ -46,57 +46,28 @@ from gaintune.controllers.layout import GainLayout
 from gaintune.controllers.pid import pid_params
 from gaintune.errors import GainError, SpecError
 from gaintune.lti.modes import plant_eigvals, plant_state_response
-from gaintune.lti.pade import pade_poles, pade_ss
+from gaintune.lti.pade import pade_poles
 from gaintune.plants.plant import LinearModel
 from gaintune.spec import LoopSpec, TuningSpec
+from gaintune.verification.laws import (
+    LoopCtl,
+    Signal,
+    Signals,
+    controller_state_index,
+    lq_law,
+    lq_law_sampled,
+    pade_blocks,
+    pid_law,
+    pid_law_sampled,
+    resolve,
+    solve_u,
+)
 from gaintune.verification.sampled import SampledPlant, discrete_ops
 
-__all__ = ["LoopCtl", "Cascade", "build_cascade", "controller_state_index", "pid_arrays", "Signal"]
+__all__ = ["LoopCtl", "Cascade", "build_cascade", "controller_state_index", "pid_arrays"]
 
 #: One loop's responses (F_k, m_k, C_k), each (B, W): setpoint path, feedback per unit u, feedback controller.
 Resp = tuple[np.ndarray, np.ndarray, np.ndarray]
-
-
-def controller_state_index(loops: list[LoopCtl], start: int) -> tuple[list[tuple[int | None, int | None]], int]:
-    """State indices of each loop's integrator and derivative filter, numbered from ``start``.
-
-    Returns ``[(integrator index or None, filter index or None) per loop]`` and the total count.
-    """
-    idx = start
-    out = []
-    for lp in loops:
-        ii = idx if lp.has_i else None
-        idx += int(lp.has_i)
-        di = idx if (lp.kind == "pid" and lp.has_d) else None
-        idx += int(lp.kind == "pid" and lp.has_d)
-        out.append((ii, di))
-    return out, idx
-
-
-@dataclass
-class LoopCtl:
-    """One loop's controller, batched: every array has a leading axis B."""
-
-    name: str
-    kind: str  # "pid" | "lq"
-    out_idx: int
-    has_i: bool = False
-    has_d: bool = False
-    # PID gains (B,) each; empty for an LQ loop
-    Kp: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    Ki: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    Kd: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    Tf: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    b: float = 1.0
-    c: float = 0.0
-    # LQ gains: state feedback (B, n), integral gain and reference gain (B,); empty for a PID loop
-    K: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
-    Kint: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    Nr: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-    def n_states(self) -> int:
-        """Number of controller states: integrator and derivative filter."""
-        return int(self.has_i) + int(self.has_d)
 
 
 @dataclass
@@ -133,14 +104,9 @@ class Cascade:
         simulator's discrete laws.
         """
         out = []
-        if ops is None:
-            inv_s = 1.0 / s
-
-            def deriv(tf: np.ndarray) -> np.ndarray:
-                return s / (tf * s + 1.0)
-        else:
-            inv_s, deriv = ops
+        inv_s, deriv = ops if ops is not None else (1.0 / s, _continuous_deriv(s))
         for lp in self.loops:
+            C: np.ndarray | float  # NaN for an LQ loop
             if lp.kind == "pid":
                 Kp, Ki, Kd, Tf = (a[:, None] for a in (lp.Kp, lp.Ki, lp.Kd, lp.Tf))
                 C, F = Kp, lp.b * Kp  # absent terms are skipped, not added as zeros: each is a (B, W) op
@@ -153,7 +119,7 @@ class Cascade:
                 m = C * -P[None, :, lp.out_idx]  # = -C * P, negating the (W,) factor
             else:
                 KX = lp.K @ X.T  # (B, W)
-                integ_lq = lp.Kint[:, None] * inv_s if lp.has_i else 0.0
+                integ_lq: np.ndarray | float = lp.Kint[:, None] * inv_s if lp.has_i else 0.0
                 m = -(KX + integ_lq * P[None, :, lp.out_idx])
                 F = lp.Nr[:, None] + integ_lq
                 C = np.nan
@@ -252,10 +218,10 @@ class Cascade:
         """
         Bsz = self.batch
         n = lin.A.shape[0]
-        Ad, Bd, Cd, Dd = _pade_blocks(pade)
+        Ad, Bd, Cd, Dd = pade_blocks(pade)
         npd = Ad.shape[0]
         ctl_idx, N = controller_state_index(self.loops, n + npd)
-        sig = _Signals(Bsz, N)
+        sig = Signals(Bsz, N)
         # Delayed plant input u_p = Cd x_pade + Dd u
         up_x = np.zeros((Bsz, N))
         up_x[:, n : n + npd] = Cd[0]
@@ -272,19 +238,19 @@ class Cascade:
         for lp, (ii, di) in zip(self.loops, ctl_idx, strict=True):
             y = output(lp.out_idx)
             if lp.kind == "pid":
-                r = _pid_law(sig, lp, r, y, ii, di, derivs)
+                r = pid_law(sig, lp, r, y, ii, di, derivs)
             else:
-                r = _lq_law(sig, lp, r, y, ii, n, derivs)
-        u_row = _solve_u(r)  # u = u_row @ X
+                r = lq_law(sig, lp, r, y, ii, n, derivs)
+        u_row = solve_u(r)  # u = u_row @ X
         Acl = np.zeros((Bsz, N, N))
-        upr = _resolve(up, u_row)
+        upr = resolve(up, u_row)
         Acl[:, :n, :n] += lin.A
         Acl[:, :n, :] += lin.B[:, 0][None, :, None] * upr[:, None, :]
         if npd:
             Acl[:, n : n + npd, n : n + npd] += Ad
             Acl[:, n : n + npd, :] += Bd[:, 0][None, :, None] * u_row[:, None, :]
         for j, sg in derivs.items():
-            Acl[:, j, :] = _resolve(sg, u_row)
+            Acl[:, j, :] = resolve(sg, u_row)
         return Acl
 
     # ------------------------------------------------------- sampled loop
@@ -313,7 +279,7 @@ class Cascade:
         Bsz = self.batch
         n, m = sp.n, sp.buffer_len
         ctl_idx, N = controller_state_index(self.loops, n + m)
-        sig = _Signals(Bsz, N)
+        sig = Signals(Bsz, N)
 
         def past(j: int) -> Signal:  # u[k-j]
             return (np.zeros((Bsz, N)), np.ones(Bsz)) if j == 0 else sig.unit(n + j - 1)
@@ -330,134 +296,31 @@ class Cascade:
         for lp, (ii, di) in zip(self.loops, ctl_idx, strict=True):
             y = output(lp.out_idx)
             if lp.kind == "pid":
-                r = _pid_law_sampled(sig, lp, r, y, ii, di, sp.dt, nxt)
+                r = pid_law_sampled(sig, lp, r, y, ii, di, sp.dt, nxt)
             else:
-                r = _lq_law_sampled(sig, lp, r, y, ii, n, sp.dt, nxt)
-        u_row = _solve_u(r)  # u[k] = u_row @ state
+                r = lq_law_sampled(sig, lp, r, y, ii, n, sp.dt, nxt)
+        u_row = solve_u(r)  # u[k] = u_row @ state
         Acl = np.zeros((Bsz, N, N))
         Acl[:, :n, :n] += sp.Ad
-        Acl[:, :n, :] += sp.G0[None, :, None] * _resolve(past(sp.d), u_row)[:, None, :]
+        Acl[:, :n, :] += sp.G0[None, :, None] * resolve(past(sp.d), u_row)[:, None, :]
         if sp.has_G1:
-            Acl[:, :n, :] += sp.G1[None, :, None] * _resolve(past(sp.d + 1), u_row)[:, None, :]
+            Acl[:, :n, :] += sp.G1[None, :, None] * resolve(past(sp.d + 1), u_row)[:, None, :]
         if m:
             Acl[:, n, :] = u_row
             for j in range(1, m):
                 Acl[:, n + j, n + j - 1] = 1.0
         for j, sg in nxt.items():
-            Acl[:, j, :] = _resolve(sg, u_row)
+            Acl[:, j, :] = resolve(sg, u_row)
         return Acl
 
 
-# ------------------------------------------------------------ signal algebra of the state-space forms
+def _continuous_deriv(s: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """The filtered derivative s/(Tf s + 1) at ``s``, as a function of Tf."""
 
-#: A batched linear signal: its row over the N states (B, N) and its coefficient of the input u (B,).
-Signal = tuple[np.ndarray, np.ndarray]
+    def deriv(tf: np.ndarray) -> np.ndarray:
+        return s / (tf * s + 1.0)
 
-
-class _Signals:
-    """Builds batched linear :data:`Signal` s over N states for B gain sets."""
-
-    def __init__(self, batch: int, n_states: int):
-        self.B, self.N = batch, n_states
-
-    def zero(self) -> Signal:
-        return np.zeros((self.B, self.N)), np.zeros(self.B)
-
-    def unit(self, j: int) -> Signal:
-        """State ``j`` itself."""
-        r = np.zeros((self.B, self.N))
-        r[:, j] = 1.0
-        return r, np.zeros(self.B)
-
-    def comb(self, *terms: tuple[float | np.ndarray, Signal]) -> Signal:
-        """Sum of coefficient x signal; a coefficient is a scalar or one per gain set (B,)."""
-        rx, ru = self.zero()
-        for coef, (tx, tu) in terms:
-            c = np.asarray(coef, dtype=float)
-            rx = rx + (c[:, None] if c.ndim else c) * tx
-            ru = ru + c * tu
-        return rx, ru
-
-
-def _pade_blocks(pade: tuple[float, int] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """(Ad, Bd, Cd, Dd) of the Padé delay (T, order); no states and Dd = 1 without delay."""
-    if pade is not None and pade[0] > 0:
-        return pade_ss(*pade)
-    return np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), 1.0
-
-
-def _pid_law(sig: _Signals, lp: LoopCtl, r: Signal, y: Signal, ii: int | None, di: int | None,
-             derivs: dict[int, Signal]) -> Signal:
-    """A continuous PID loop's output from its setpoint ``r`` and measurement ``y``; its states'
-    derivatives go to ``derivs``."""
-    e = sig.comb((1.0, r), (-1.0, y))
-    terms: list[tuple[float | np.ndarray, Signal]] = [(lp.Kp * lp.b, r), (-lp.Kp, y)]
-    if ii is not None:
-        derivs[ii] = e
-        terms.append((lp.Ki, sig.unit(ii)))
-    if di is not None:
-        ed = sig.comb((lp.c, r), (-1.0, y), (-1.0, sig.unit(di)))  # c r - y - xd
-        derivs[di] = sig.comb((1.0 / lp.Tf, ed))
-        terms.append((lp.Kd / lp.Tf, ed))
-    return sig.comb(*terms)
-
-
-def _lq_feedback(sig: _Signals, lp: LoopCtl, n: int) -> Signal:
-    """-K x over the first ``n`` (plant) states."""
-    fx = np.zeros((sig.B, sig.N))
-    fx[:, :n] = -lp.K
-    return fx, np.zeros(sig.B)
-
-
-def _lq_law(sig: _Signals, lp: LoopCtl, r: Signal, y: Signal, ii: int | None, n: int,
-            derivs: dict[int, Signal]) -> Signal:
-    """A continuous LQ loop's output (state feedback, optional integrator of r - y, reference gain)."""
-    terms: list[tuple[float | np.ndarray, Signal]] = [(1.0, _lq_feedback(sig, lp, n)), (lp.Nr, r)]
-    if ii is not None:
-        derivs[ii] = sig.comb((1.0, r), (-1.0, y))
-        terms.append((lp.Kint, sig.unit(ii)))
-    return sig.comb(*terms)
-
-
-def _pid_law_sampled(sig: _Signals, lp: LoopCtl, r: Signal, y: Signal, ii: int | None, di: int | None, dt: float,
-                     nxt: dict[int, Signal]) -> Signal:
-    """A PID loop's discrete law (the simulator's: backward-Euler integrator and derivative filter);
-    its states' next values go to ``nxt``."""
-    e = sig.comb((1.0, r), (-1.0, y))
-    terms: list[tuple[float | np.ndarray, Signal]] = [(lp.Kp * lp.b, r), (-lp.Kp, y)]
-    if ii is not None:
-        nxt[ii] = sig.comb((1.0, sig.unit(ii)), (1.0, e))  # sum of e up to k
-        terms.append((lp.Ki * dt, nxt[ii]))
-    if di is not None:
-        al = lp.Tf / (lp.Tf + dt)
-        be = lp.Kd / (lp.Tf + dt)
-        ed = sig.comb((lp.c, r), (-1.0, y))
-        nxt[di] = sig.comb((al, sig.unit(di)), (1.0, ed))
-        terms += [(be, ed), (be * (al - 1.0), sig.unit(di))]
-    return sig.comb(*terms)
-
-
-def _lq_law_sampled(sig: _Signals, lp: LoopCtl, r: Signal, y: Signal, ii: int | None, n: int, dt: float,
-                    nxt: dict[int, Signal]) -> Signal:
-    """An LQ loop's discrete law (the integrator a running sum of r - y)."""
-    terms: list[tuple[float | np.ndarray, Signal]] = [(1.0, _lq_feedback(sig, lp, n)), (lp.Nr, r)]
-    if ii is not None:
-        nxt[ii] = sig.comb((1.0, sig.unit(ii)), (1.0, sig.comb((1.0, r), (-1.0, y))))
-        terms.append((lp.Kint * dt, nxt[ii]))
-    return sig.comb(*terms)
-
-
-def _solve_u(u: Signal) -> np.ndarray:
-    """The input's row over the states, from the signal u = ux X + uu u (the algebraic loop solved)."""
-    ux, uu = u
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return ux / (1.0 - uu)[:, None]
-
-
-def _resolve(sg: Signal, u_row: np.ndarray) -> np.ndarray:
-    """A signal's row over the states, with u replaced by its row ``u_row``."""
-    sx, su = sg
-    return sx + su[:, None] * u_row
+    return deriv
 
 
 def _out_index(spec: TuningSpec, lin: LinearModel, i: int) -> int:

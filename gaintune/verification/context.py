@@ -27,6 +27,9 @@ CACHE_SIZE = 32
 
 @dataclass
 class SpecContext:
+    """The per-spec objects verification reuses: plant, layout, linearisation, and (built on first
+    use) noise limits and simulator."""
+
     spec_hash: str
     plant: Plant
     layout: GainLayout

@@ -86,6 +86,10 @@ def _dot(c: np.ndarray, X: np.ndarray) -> np.ndarray:
     return out
 
 
+#: A response over the frequencies, or a constant one.
+_Val = np.ndarray | complex
+
+
 @dataclass(frozen=True)
 class _PidScalars:
     """A PID loop's gains as Python scalars (member 0 of the cascade)."""
@@ -118,8 +122,8 @@ class _Point:
 
     s: np.ndarray
     x_at: np.ndarray  # where the resolvent is evaluated: s, or z (the back-substitution runs in z)
-    d: np.ndarray | float  # input delay factor: e^{-sT} (or Padé), or z^-d
-    dD: np.ndarray | float  # feedthrough delay factor: as d, or z^-dD
+    d: _Val  # input delay factor: e^{-sT} (or Padé), or z^-d
+    dD: _Val  # feedthrough delay factor: as d, or z^-dD
     zi: np.ndarray | None = None  # z^-1 (sampled)
     one_m: np.ndarray | None = None  # 1 - z^-1 (sampled)
     dt: float = 0.0
@@ -207,9 +211,9 @@ class Evaluator:
         dt = sp.dt
         z = np.exp(s * dt)
         zi = 1.0 / z
-        d = np.exp(-s * (dt * sp.d)) if sp.d else 1.0  # z^-d
-        dD = np.exp(-s * (dt * sp.dD)) if sp.dD else 1.0  # z^-dD (feedthrough)
-        return _Point(s, z, d, dD, zi, 1.0 - zi, dt)
+        zd = np.exp(-s * (dt * sp.d)) if sp.d else 1.0  # z^-d
+        zdD = np.exp(-s * (dt * sp.dD)) if sp.dD else 1.0  # z^-dD (feedthrough)
+        return _Point(s, z, zd, zdD, zi, 1.0 - zi, dt)
 
     def _states(self, pt: _Point) -> np.ndarray:
         """The plant's state response in Schur coordinates (n, W), by back-substitution."""
@@ -223,10 +227,10 @@ class Evaluator:
             xs[i] = acc / (pt.x_at - diag[i])
         return xs
 
-    def _outputs(self, pt: _Point, xs: np.ndarray) -> dict[int, np.ndarray]:
+    def _outputs(self, pt: _Point, xs: np.ndarray) -> dict[int, _Val]:
         """The measured outputs per unit plant input, delays included."""
         n = self._n
-        P = {}
+        P: dict[int, _Val] = {}
         for j, (cz, dj) in self._outs.items():
             if self.sampled is None:
                 P[j] = (_dot(cz, xs) + dj) * pt.d if n else dj * pt.d
@@ -234,19 +238,19 @@ class Evaluator:
                 P[j] = (_dot(cz, xs) * pt.d + dj * pt.dD) if n else dj * pt.dD
         return P
 
-    def _controllers(self, pt: _Point, xs: np.ndarray, P: dict[int, np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    def _controllers(self, pt: _Point, xs: np.ndarray, P: dict[int, _Val]) -> list[tuple[_Val, _Val]]:
         """Per loop (F_k, m_k): setpoint path and feedback per unit u (as :meth:`Cascade.controller_responses`)."""
         s = pt.s
         # the integrator's response: backward Euler dt/(1 - z^-1) in the sampled loop, else 1/s
-        inv_s: np.ndarray | float = 0.0
+        inv_s: _Val = 0.0
         if any(c.has_i for c in self._ctl):
             inv_s = pt.dt / pt.one_m if pt.one_m is not None else 1.0 / s
         resp = []
         for c in self._ctl:
-            integ: np.ndarray | float
+            integ: _Val
             if isinstance(c, _PidScalars):
                 integ = c.ki * inv_s if c.has_i else 0.0
-                Dd: np.ndarray | float = 0.0
+                Dd: _Val = 0.0
                 if c.has_d and pt.one_m is not None and pt.zi is not None:
                     Dd = c.kd * pt.one_m / (c.tf + pt.dt - c.tf * pt.zi)
                 elif c.has_d:  # the continuous loop
@@ -269,16 +273,16 @@ class Evaluator:
         return _break_loops(self._controllers(pt, xs, self._outputs(pt, xs)), s.size)
 
 
-def _break_loops(resp: list[tuple[np.ndarray, np.ndarray]], size: int) -> np.ndarray:
+def _break_loops(resp: list[tuple[_Val, _Val]], size: int) -> np.ndarray:
     """The break-point loops (n_loops + 1, W) from the per-loop (F_k, m_k), as :meth:`Cascade.cascade`."""
     nl = len(resp)
     g = []
-    prev: np.ndarray | float = 0.0
+    prev: _Val = 0.0
     for k, (F, m) in enumerate(resp):
         prev = F * prev + m if k else m  # the outermost loop's F would multiply zero (see Cascade.cascade)
         g.append(prev)
     L = np.empty((nl + 1, size), dtype=complex)
-    H: np.ndarray | float = 1.0
+    H: _Val = 1.0
     for k in range(nl - 1, -1, -1):
         L[k] = -g[k] * H
         F, m = resp[k]

@@ -143,7 +143,8 @@ def disk_from_alpha(alpha: float) -> tuple[float, float]:
 def _figures_for_row(row_name, gm_w, gm_k, pm_w, pm_deg, peaks, phase_omitted: int) -> BreakFigures:
     fig = BreakFigures(loop=row_name[0], break_point=row_name[1])
     crossings: list[Crossing] = []
-    ups, lows = [], []
+    ups: list[tuple[float, float, int]] = []
+    lows: list[tuple[float, float, int]] = []
     with np.errstate(divide="ignore", invalid="ignore"):
         keep = np.isfinite(gm_k) & (gm_k <= GM_INF_LIMIT) & (gm_k >= 1.0 / GM_INF_LIMIT)
     for wc, k in zip(gm_w[keep].tolist(), gm_k[keep].tolist(), strict=True):  # k: critical gain factor

@@ -70,10 +70,10 @@ class QuickMargins:
 def _grid(lin: LinearModel, T: float, n: int) -> np.ndarray:
     """Log grid from the plant alone (poles/zeros magnitudes and the delay), so that a
     candidate's estimate does not depend on the rest of its batch."""
-    f = [abs(x) for x in plant_eigvals(lin)]  # remembered per model: the search calls this per batch
+    mags = [abs(x) for x in plant_eigvals(lin)]  # remembered per model: the search calls this per batch
     if T > 0:
-        f.append(1.0 / T)
-    f = np.array([x for x in f if np.isfinite(x) and x > 1e-12])
+        mags.append(1.0 / T)
+    f = np.array([x for x in mags if np.isfinite(x) and x > 1e-12])
     if f.size == 0:
         f = np.array([1.0])
     lo, hi = f.min() / 300.0, f.max() * 300.0

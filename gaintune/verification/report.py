@@ -101,6 +101,8 @@ class LoopFigures(_Out):
 
 
 class StabilityReport(_Out):
+    """Closed-loop stability of the nominal loop: the verdict, how it was decided, and the poles."""
+
     stable: bool
     method: Literal["poles", "nyquist"] = Field(
         description="What decided: closed-loop eigenvalues (rational or sampled loop) or the argument principle "
@@ -152,6 +154,9 @@ class WorstCase(_Out):
 
 
 class RobustReport(_Out):
+    """The robust check: the sample set (box corners and Monte-Carlo draws), the unstable samples
+    and the worst figures per break point."""
+
     n_samples: int
     n_corners: int
     n_monte_carlo: int
@@ -162,6 +167,8 @@ class RobustReport(_Out):
 
 
 class NonlinearReport(_Out):
+    """The nonlinear simulation check: whether it ran and passed (no divergence, no safety trip)."""
+
     ran: bool
     passed: bool | None = None
     tripped: bool | None = None
@@ -228,6 +235,7 @@ class VerificationReport(_Out):
 
     @property
     def passed(self) -> bool:
+        """Whether the verdict is ``pass``."""
         return self.verdict == "pass"
 
     @property

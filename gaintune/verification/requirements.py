@@ -31,7 +31,7 @@ def _candidates(attr: str, loops: list[LoopFigures], worst: list[WorstCase] | No
         (getattr(f, attr), f.loop, f.break_point, "nominal") for f in loops]
     if worst and attr != "pm_freq":  # the robust set records no crossover frequencies
         raw += [(getattr(w, attr), w.loop, w.break_point, "worst") for w in worst]
-    return [(0.0 if v is None else v, *rest) for v, *rest in raw]  # no gain crossover: wc = 0
+    return [(0.0 if v is None else v, loop, brk, case) for v, loop, brk, case in raw]  # no gain crossover: wc = 0
 
 
 def _binding(cands: list[_Candidate], limit: float, kind: str) -> tuple[float, _Candidate]:

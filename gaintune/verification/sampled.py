@@ -36,6 +36,7 @@ frequency pi/dt), or s = -eps + j w for the Nyquist contour |z| = e^{-eps dt}.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -88,16 +89,20 @@ def rk4_matrices(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, n
     return Ad, G0
 
 
-def discrete_ops(z: np.ndarray, dt: float):
+def discrete_ops(z: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], np.ndarray]]:
     """(z^-1, integral operator dt/(1 - z^-1), derivative operator Tf -> (1 - z^-1)/(Tf + dt - Tf z^-1))."""
     zi = 1.0 / z
     one_m = 1.0 - zi
     integ = dt / one_m
 
-    def deriv(tf):
+    def deriv(tf: np.ndarray) -> np.ndarray:
         return one_m / (tf + dt - tf * zi)
 
     return zi, integ, deriv
+
+
+#: (T, Z, Z^H G0, Z^H G1, diag T) of the complex Schur form Ad = Z T Z^H.
+_Schur = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
 class SampledPlant:
@@ -106,8 +111,8 @@ class SampledPlant:
     ``d`` (input) and ``dD`` (feedthrough) include the computation delay.
     """
 
-    def __init__(self, lin: LinearModel, dt: float, Ad, G0, G1, d: int, frac: float, dD: int, method: str,
-                 compute_delay: int, delay: float):
+    def __init__(self, lin: LinearModel, dt: float, Ad: np.ndarray, G0: np.ndarray, G1: np.ndarray, d: int,
+                 frac: float, dD: int, method: str, compute_delay: int, delay: float):
         self.lin = lin
         self.dt = float(dt)
         self.Ad, self.G0, self.G1 = Ad, G0, G1
@@ -119,15 +124,17 @@ class SampledPlant:
         self.delay = float(delay)  # the plant's own input delay (s), without the computation delay
         self.has_G1 = bool(np.any(G1 != 0.0))
         self.has_D = bool(np.any(self.D != 0.0))
-        self._schur = None
-        self._eig = None
+        self._schur: _Schur | None = None
+        self._eig: np.ndarray | None = None
 
     @property
     def n(self) -> int:
+        """Number of plant states."""
         return self.Ad.shape[0]
 
     @property
     def nyquist(self) -> float:
+        """The Nyquist frequency pi/dt (rad/s)."""
         return math.pi / self.dt
 
     @property
@@ -155,11 +162,12 @@ class SampledPlant:
         return np.exp(x)
 
     def eigvals(self) -> np.ndarray:
+        """Eigenvalues of Ad (computed once)."""
         if self._eig is None:
             self._eig = np.linalg.eigvals(self.Ad) if self.n else np.zeros(0, dtype=complex)
         return self._eig
 
-    def schur(self):
+    def schur(self) -> _Schur:
         """Complex Schur form Ad = Z T Z^H and Z^H G0, Z^H G1 (computed once)."""
         if self._schur is None:
             import scipy.linalg  # deferred (see above)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Literal, overload
 
 import numpy as np
 
@@ -260,6 +261,16 @@ def _undecided(rhp: int | None, notes: list[str]) -> tuple[int, str | None]:
         notes.append(_OVERFLOW)
         return 1, _OVERFLOW
     return rhp, None
+
+
+@overload
+def closed_loop_stability(ev: Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel, w_hi: float,
+                          n_freq: int, capped: Literal[False] = False, g_u: SS | None = None) -> Stability: ...
+
+
+@overload
+def closed_loop_stability(ev: Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel, w_hi: float,
+                          n_freq: int, capped: bool, g_u: SS | None = None) -> Stability | None: ...
 
 
 def closed_loop_stability(ev: Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel, w_hi: float,

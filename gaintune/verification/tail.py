@@ -38,7 +38,8 @@ import math
 import numpy as np
 
 from gaintune.plants.plant import LinearModel
-from gaintune.verification.cascade import Cascade, LoopCtl, controller_state_index
+from gaintune.verification.cascade import Cascade
+from gaintune.verification.laws import LoopCtl, controller_state_index
 
 __all__ = ["chain_ss", "series", "level_clear", "tail_levels"]
 

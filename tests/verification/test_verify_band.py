@@ -40,7 +40,8 @@ def _mag(g, w):
     out = np.empty(w.size)
     for i in range(0, w.size, 20000):
         s = 1j * w[i : i + 20000]
-        X = np.linalg.solve(s[:, None, None] * np.eye(A.shape[0])[None] - A[None], np.broadcast_to(B, (s.size,) + B.shape))
+        X = np.linalg.solve(s[:, None, None] * np.eye(A.shape[0])[None] - A[None],
+                            np.broadcast_to(B, (s.size,) + B.shape))
         out[i : i + 20000] = np.abs((C[None] @ X)[:, 0, 0] + D)
     return out
 
@@ -101,7 +102,8 @@ def _three_loop(loops_extra=None):
         {"name": "current", "type": "pi", "measure": "i", "b": 0.5},
     ]
     spec = load_spec({"plant": MOTOR, "loops": loops, "scenario": {"dt": 1e-3, "horizon": 0.5}})
-    gains = {"position": {"Kp": 10.0}, "speed": {"Kp": 2.0, "Ki": 40.0, "Kd": 0.01}, "current": {"Kp": 10.0, "Ki": 1000.0}}
+    gains = {"position": {"Kp": 10.0}, "speed": {"Kp": 2.0, "Ki": 40.0, "Kd": 0.01},
+             "current": {"Kp": 10.0, "Ki": 1000.0}}
     return spec, gains
 
 
@@ -161,7 +163,7 @@ def _assert_same(capped, full, rel=1e-6):
     assert capped.stability.stable == full.stability.stable
     assert capped.stability.rhp_count == full.stability.rhp_count
     assert capped.stability.nyquist_rhp == full.stability.nyquist_rhp
-    for a, b in zip(capped.figures, full.figures):
+    for a, b in zip(capped.figures, full.figures, strict=True):
         for k in FIGS:
             x, y = getattr(a, k), getattr(b, k)
             if x is None or y is None or math.isinf(x) or math.isinf(y):
@@ -243,7 +245,8 @@ def test_encirclement_above_the_band_is_not_missed(kp, stable):
 
 def test_neutral_loop_falls_back_to_the_old_tail_check():
     """PD on (s+2)/(s+1): |L(j inf)| = Kp + Kd/Tf = 22 >= 1 with a delay: unstable, whatever the band."""
-    spec = load_spec({"plant": {"tf": {"num": [1, 2], "den": [1, 1]}}, "loops": [{"type": "pd"}], "scenario": {"dt": 0.01}})
+    spec = load_spec({"plant": {"tf": {"num": [1, 2], "den": [1, 1]}}, "loops": [{"type": "pd"}],
+                      "scenario": {"dt": 0.01}})
     gains = {"loop0": {"Kp": 2.0, "Kd": 0.5}}
     capped, full = _both(spec, gains)
     _assert_same(capped, full)
@@ -319,7 +322,7 @@ def test_robust_worst_case_same_with_and_without_band(monkeypatch):
     monkeypatch.setattr(steps, "analysis_band", lambda spec: math.inf)
     ref = verify(spec, gains, nonlinear=False, cache=False)
     assert ref.analysis_band[1] > rep.analysis_band[1]
-    for w, v in zip(rep.robust.worst, ref.robust.worst):
+    for w, v in zip(rep.robust.worst, ref.robust.worst, strict=True):
         for k in ("gm_db", "pm_deg", "delay_margin", "ms", "mt", "disk_alpha"):
             assert getattr(w, k) == pytest.approx(getattr(v, k), rel=1e-6)
         assert w.where == v.where

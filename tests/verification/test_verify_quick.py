@@ -116,7 +116,7 @@ def test_vectorised_pid_conversion_matches_pid_params():
     ]:
         spec = load_spec({"plant": {"tf": {"num": [1], "den": [1, 1]}}, "loops": [loop_d]})
         loop = spec.loops[0]
-        ref = pid_params(loop, dict(zip(names, vals)))
+        ref = pid_params(loop, dict(zip(names, vals, strict=True)))
         got = pid_arrays(loop, np.array([vals]), names)
         for k in ("Kp", "Ki", "Kd", "Tf"):
             assert got[k][0] == pytest.approx(getattr(ref, k))
