@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from gaintune.errors import SpecError
 from gaintune.plants.plant import LinearModel
 from gaintune.spec import TuningSpec
 from gaintune.verification.cascade import Cascade
@@ -66,16 +67,15 @@ def analysis_dt(spec: TuningSpec) -> float:
 
     Raises
     ------
-    ValueError
+    SpecError
         When a scenario has no dt yet (derive it from the plant first:
-        :func:`gaintune.classical.timescale.resolve_scenarios`).
+        :func:`gaintune.classical.timescale.resolve_scenarios`, as :func:`gaintune.verification.verify` does).
     """
-    dts = [sc.dt for sc in spec.scenarios]
-    known = [dt for dt in dts if dt is not None]
-    if len(known) < len(dts) or not known:
-        raise ValueError("a scenario has no dt yet: derive it from the plant first "
-                         "(gaintune.classical.timescale.resolve_scenarios)")
-    return max(known)
+    for i, sc in enumerate(spec.scenarios):
+        if sc.dt is None:
+            raise SpecError(f"scenarios[{i}].dt", "not set yet: derive it from the plant first "
+                            "(gaintune.classical.timescale.resolve_scenarios) or give it in the spec")
+    return max(sc.dt for sc in spec.scenarios if sc.dt is not None)
 
 
 def analysis_band(spec: TuningSpec) -> float:

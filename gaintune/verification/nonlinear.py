@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from gaintune.controllers.layout import GainLayout
+from gaintune.errors import SpecError
 from gaintune.plants.plant import Plant
 from gaintune.spec import ScenarioSpec, TuningSpec
 from gaintune.verification.report import NonlinearReport
@@ -41,10 +42,10 @@ def _run_all(sim: Simulator, spec: TuningSpec, full: np.ndarray, compute_delay: 
 
 
 def _dt(sc: ScenarioSpec) -> float:
-    """The scenario's sample time (ValueError before it is derived from the plant)."""
+    """The scenario's sample time (SpecError before it is derived from the plant)."""
     if sc.dt is None:
-        raise ValueError(f"scenario {sc.name!r} has no dt yet: derive it from the plant first "
-                         "(gaintune.classical.timescale.resolve_scenarios)")
+        raise SpecError(f"scenario {sc.name!r} dt", "not set yet: derive it from the plant first "
+                        "(gaintune.classical.timescale.resolve_scenarios) or give it in the spec")
     return sc.dt
 
 
