@@ -18,16 +18,27 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from gaintune.errors import SpecError
 from gaintune.plants.plant import LinearModel
 from gaintune.spec import TuningSpec
 from gaintune.verification.cascade import Cascade
 from gaintune.verification.freqresp import DelayModel, Evaluator, char_freqs
 from gaintune.verification.margins import MAG_FLOOR, BreakFigures, all_margins
 from gaintune.verification.sampled import SampledPlant
-from gaintune.verification.stability import Stability, closed_loop_stability, closed_loop_stability_sampled, observable_part
+from gaintune.verification.stability import (
+    Stability,
+    closed_loop_stability,
+    closed_loop_stability_sampled,
+    observable_part,
+)
 from gaintune.verification.tail import INNER_LEVEL, chain_ss, level_clear, series, tail_levels
 
-__all__ = ["Analysis", "analyse", "sampling_delay"]
+__all__ = ["Analysis", "analyse", "analysis_dt", "analysis_band", "sampling_delay", "BAND_NYQUIST"]
+
+#: The continuous analysis band ends at this multiple of the controller's Nyquist frequency pi/dt
+#: (largest scenario dt) when the frequencies above are proven harmless (:func:`analyse`, ``band``).
+#: The sampled analysis ends at pi/dt itself.
+BAND_NYQUIST = 10.0
 
 
 @dataclass
@@ -51,9 +62,31 @@ def _overflow_problems(L: np.ndarray) -> list[str]:
             "gains or plant coefficients too large to analyse"]
 
 
+def analysis_dt(spec: TuningSpec) -> float:
+    """The sample time verification uses: the largest scenario dt (the conservative choice).
+
+    Raises
+    ------
+    SpecError
+        When a scenario has no dt yet (derive it from the plant first:
+        :func:`gaintune.classical.timescale.resolve_scenarios`, as :func:`gaintune.verification.verify` does).
+    """
+    for i, sc in enumerate(spec.scenarios):
+        if sc.dt is None:
+            raise SpecError(f"scenarios[{i}].dt", "not set yet: derive it from the plant first "
+                            "(gaintune.classical.timescale.resolve_scenarios) or give it in the spec")
+    return max(sc.dt for sc in spec.scenarios if sc.dt is not None)
+
+
+def analysis_band(spec: TuningSpec) -> float:
+    """Upper end (rad/s) of the continuous analysis band: BAND_NYQUIST x the Nyquist frequency pi/dt
+    of the largest dt."""
+    return BAND_NYQUIST * math.pi / analysis_dt(spec)
+
+
 def sampling_delay(spec: TuningSpec) -> float:
     """Sample-and-hold approximation: dt/2 of extra input delay (largest scenario dt)."""
-    return 0.5 * max(sc.dt for sc in spec.scenarios)
+    return 0.5 * analysis_dt(spec)
 
 
 #: A grid interval is refined when L turns by more than 0.5 rad over it.
@@ -87,7 +120,24 @@ def _band_ends(ev: Evaluator, cas, lin) -> tuple[float, float, np.ndarray]:
     return float(lo), float(hi), L0
 
 
-def _grid(ev: Evaluator, lo: float, hi: float, n_freq: int):
+#: Grid intervals (left w, right w, left L, right L, left |L|, right |L|); L and |L| are (R, count).
+_Intervals = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def _pick(idx: np.ndarray, E: np.ndarray, LE: np.ndarray, AE: np.ndarray, rest: _Intervals) -> _Intervals:
+    """The intervals ``idx`` of a block (end points E (m, k+1), responses LE and |L| AE (R, m, k+1))
+    followed by the leftover intervals ``rest`` (indices from m k on)."""
+    m, k = E.shape[0], E.shape[1] - 1
+    blk = idx[idx < m * k]
+    bi, bj = np.divmod(blk, k)
+    ri = idx[idx >= m * k] - m * k
+    cat = np.concatenate
+    return (cat([E[bi, bj], rest[0][ri]]), cat([E[bi, bj + 1], rest[1][ri]]),
+            cat([LE[:, bi, bj], rest[2][:, ri]], axis=1), cat([LE[:, bi, bj + 1], rest[3][:, ri]], axis=1),
+            cat([AE[:, bi, bj], rest[4][:, ri]], axis=1), cat([AE[:, bi, bj + 1], rest[5][:, ri]], axis=1))
+
+
+def _grid(ev: Evaluator, lo: float, hi: float, n_freq: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Log grid on [lo, hi], refined where the phase turns fast (delays). Returns (w, L, |L|).
 
     Each refinement round checks only the intervals created by the previous one (the
@@ -102,7 +152,8 @@ def _grid(ev: Evaluator, lo: float, hi: float, n_freq: int):
     # candidate intervals: the sub-intervals of a block of refined intervals (end points E (m, k+1),
     # responses LE (R, m, k+1)), then bad intervals left over by the cap (higher w, rarely any)
     E, LE, AE = w[None, :], L[:, None, :], aL[:, None, :]
-    rest = (np.zeros(0), np.zeros(0), np.zeros((R, 0), complex), np.zeros((R, 0), complex), np.zeros((R, 0)), np.zeros((R, 0)))
+    rest: _Intervals = (np.zeros(0), np.zeros(0), np.zeros((R, 0), complex), np.zeros((R, 0), complex),
+                        np.zeros((R, 0)), np.zeros((R, 0)))
     for _ in range(4):
         m, k = E.shape[0], E.shape[1] - 1
         with np.errstate(all="ignore"):
@@ -116,18 +167,8 @@ def _grid(ev: Evaluator, lo: float, hi: float, n_freq: int):
                                   m * k + np.nonzero(np.any(turn_r & big_r, axis=0))[0]])
         if bad_all.size == 0:
             break
-
-        def pick(idx):
-            blk = idx[idx < m * k]
-            bi, bj = np.divmod(blk, k)
-            ri = idx[idx >= m * k] - m * k
-            cat = np.concatenate
-            return (cat([E[bi, bj], rest[0][ri]]), cat([E[bi, bj + 1], rest[1][ri]]),
-                    cat([LE[:, bi, bj], rest[2][:, ri]], axis=1), cat([LE[:, bi, bj + 1], rest[3][:, ri]], axis=1),
-                    cat([AE[:, bi, bj], rest[4][:, ri]], axis=1), cat([AE[:, bi, bj + 1], rest[5][:, ri]], axis=1))
-
-        wl, wr, Ll, Lr, al, ar = pick(bad_all[:20000])
-        rest = pick(bad_all[20000:])
+        wl, wr, Ll, Lr, al, ar = _pick(bad_all[:20000], E, LE, AE, rest)
+        rest = _pick(bad_all[20000:], E, LE, AE, rest)
         nb = wl.size
         new = np.exp(np.log(wl[:, None]) + np.log(wr / wl)[:, None] * np.linspace(0, 1, 8)[None, 1:-1])
         Ln = ev(new.ravel())
@@ -200,9 +241,11 @@ def analyse(cas: Cascade, lin: LinearModel, delay: DelayModel | None, n_freq: in
     """
     if sampled is not None:
         return _analyse_sampled(cas, lin, sampled, n_freq)
+    if delay is None:
+        raise ValueError("analyse: the continuous loop needs its delay model")
     ev = Evaluator(cas, lin, delay)
     lo, hi, L0 = _band_ends(ev, cas, lin)
-    caps = []
+    caps: list[float] = []
     if band is not None and cas.batch == 1 and math.isfinite(band) and band > 0:
         c = max(float(band), lo * 10.0)
         while c < hi and len(caps) < _BAND_TRIES:

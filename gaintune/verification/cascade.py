@@ -37,6 +37,7 @@ sampled closed loop's transition matrix (plant, input buffer, controller states)
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,52 +46,28 @@ from gaintune.controllers.layout import GainLayout
 from gaintune.controllers.pid import pid_params
 from gaintune.errors import GainError, SpecError
 from gaintune.lti.modes import plant_eigvals, plant_state_response
-from gaintune.lti.pade import pade_poles, pade_ss
+from gaintune.lti.pade import pade_poles
 from gaintune.plants.plant import LinearModel
-from gaintune.spec import TuningSpec
+from gaintune.spec import LoopSpec, TuningSpec
+from gaintune.verification.laws import (
+    LoopCtl,
+    Signal,
+    Signals,
+    controller_state_index,
+    lq_law,
+    lq_law_sampled,
+    pade_blocks,
+    pid_law,
+    pid_law_sampled,
+    resolve,
+    solve_u,
+)
 from gaintune.verification.sampled import SampledPlant, discrete_ops
 
 __all__ = ["LoopCtl", "Cascade", "build_cascade", "controller_state_index", "pid_arrays"]
 
-
-def controller_state_index(loops, start: int) -> tuple[list[tuple[int | None, int | None]], int]:
-    """State indices of each loop's integrator and derivative filter, numbered from ``start``.
-
-    Returns ``[(integrator index or None, filter index or None) per loop]`` and the total count.
-    """
-    idx = start
-    out = []
-    for lp in loops:
-        ii = idx if lp.has_i else None
-        idx += int(lp.has_i)
-        di = idx if (lp.kind == "pid" and lp.has_d) else None
-        idx += int(lp.kind == "pid" and lp.has_d)
-        out.append((ii, di))
-    return out, idx
-
-
-@dataclass
-class LoopCtl:
-    """One loop's controller, batched: every array has a leading axis B."""
-
-    name: str
-    kind: str  # "pid" | "lq"
-    out_idx: int
-    has_i: bool = False
-    has_d: bool = False
-    Kp: np.ndarray | None = None
-    Ki: np.ndarray | None = None
-    Kd: np.ndarray | None = None
-    Tf: np.ndarray | None = None
-    b: float = 1.0
-    c: float = 0.0
-    K: np.ndarray | None = None  # (B, n)
-    Kint: np.ndarray | None = None
-    Nr: np.ndarray | None = None
-
-    def n_states(self) -> int:
-        """Number of controller states: integrator and derivative filter."""
-        return int(self.has_i) + int(self.has_d)
+#: One loop's responses (F_k, m_k, C_k), each (B, W): setpoint path, feedback per unit u, feedback controller.
+Resp = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 @dataclass
@@ -114,7 +91,9 @@ class Cascade:
         return [(lp.name, "controller_output") for lp in self.loops] + [("plant", "plant_input")]
 
     # ------------------------------------------------------------ frequency
-    def controller_responses(self, s: np.ndarray, lin: LinearModel, X: np.ndarray, P: np.ndarray, ops=None):
+    def controller_responses(self, s: np.ndarray, lin: LinearModel, X: np.ndarray, P: np.ndarray,
+                             ops: tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]] | None = None
+                             ) -> list[Resp]:
         """Per loop (F_k, m_k, C_k), each (B, W), given X = u->x (W, n) and P = u->y (W, q) incl. delay.
 
         ``C_k`` is the feedback controller (measurement -> loop output); NaN for an LQ loop,
@@ -125,91 +104,94 @@ class Cascade:
         simulator's discrete laws.
         """
         out = []
-        if ops is None:
-            inv_s = 1.0 / s
-
-            def deriv(tf):
-                return s / (tf * s + 1.0)
-        else:
-            inv_s, deriv = ops
+        inv_s, deriv = ops if ops is not None else (1.0 / s, _continuous_deriv(s))
         for lp in self.loops:
+            C: np.ndarray | float  # NaN for an LQ loop
             if lp.kind == "pid":
                 Kp, Ki, Kd, Tf = (a[:, None] for a in (lp.Kp, lp.Ki, lp.Kd, lp.Tf))
                 C, F = Kp, lp.b * Kp  # absent terms are skipped, not added as zeros: each is a (B, W) op
                 if lp.has_i:
-                    I = Ki * inv_s
-                    C, F = C + I, F + I
+                    integ = Ki * inv_s
+                    C, F = C + integ, F + integ
                 if lp.has_d:
                     Dd = Kd * deriv(Tf)
                     C, F = C + Dd, F + lp.c * Dd
                 m = C * -P[None, :, lp.out_idx]  # = -C * P, negating the (W,) factor
             else:
                 KX = lp.K @ X.T  # (B, W)
-                I = lp.Kint[:, None] * inv_s if lp.has_i else 0.0
-                m = -(KX + I * P[None, :, lp.out_idx])
-                F = lp.Nr[:, None] + I
+                integ_lq: np.ndarray | float = lp.Kint[:, None] * inv_s if lp.has_i else 0.0
+                m = -(KX + integ_lq * P[None, :, lp.out_idx])
+                F = lp.Nr[:, None] + integ_lq
                 C = np.nan
             shape = (self.batch, s.size)
             out.append((np.broadcast_to(F, shape), m, np.broadcast_to(C, shape)))
         return out
 
+    def _responses(self, s: np.ndarray, lin: LinearModel, delay: np.ndarray | complex,
+                   sampled: SampledPlant | None) -> list[Resp]:
+        """Per loop (F_k, m_k, C_k) at ``s``: the continuous loop with the delay factor, or the sampled one."""
+        if sampled is not None:
+            with np.errstate(all="ignore"):
+                z = np.exp(s * sampled.dt)
+                X, P = sampled.responses(z)
+                _, integ, deriv = discrete_ops(z, sampled.dt)
+            return self.controller_responses(s, lin, X, P, (integ, deriv))
+        X = plant_state_response(lin, s) * np.asarray(delay)[:, None]  # (W, n)
+        P = X @ lin.C.T + (lin.D[:, 0][None, :] * np.asarray(delay)[:, None])  # (W, q)
+        return self.controller_responses(s, lin, X, P)
+
     def loop_responses(self, s: np.ndarray, lin: LinearModel, delay: np.ndarray | complex = 1.0,
-                       sampled: SampledPlant | None = None, noise: bool = False):
+                       sampled: SampledPlant | None = None) -> np.ndarray:
         """Open-loop responses at complex frequencies ``s``: (n_loops + 1, B, W).
 
         ``delay`` is the delay factor at ``s`` (e^{-sT} or its Padé approximant), shape (W,).
         ``sampled``: evaluate the sampled loop instead (plant as the simulator steps it, the
         controllers' discrete laws) at z = e^{s dt}; ``delay`` is then unused (the sampled
         plant holds its delays). Rows: each loop broken at its controller output, then the plant input.
-
-        ``noise``: also return the noise responses ``N`` (n_loops, B, W): measurement noise of each
-        loop to the plant input ``u`` (see the module docstring); the result is then ``(L, N)``.
         """
         s = np.asarray(s)
-        if sampled is not None:
-            with np.errstate(all="ignore"):
-                z = np.exp(s * sampled.dt)
-                X, P = sampled.responses(z)
-                _, integ, deriv = discrete_ops(z, sampled.dt)
-            resp = self.controller_responses(s, lin, X, P, (integ, deriv))
-        else:
-            X = plant_state_response(lin, s) * np.asarray(delay)[:, None]  # (W, n)
-            P = X @ lin.C.T + (lin.D[:, 0][None, :] * np.asarray(delay)[:, None])  # (W, q)
-            resp = self.controller_responses(s, lin, X, P)
-        if not noise:
-            return self.cascade(resp, s.size)
-        L, H = self.cascade(resp, s.size, inner=True)
+        return self.cascade(self._responses(s, lin, delay, sampled), s.size)
+
+    def noise_responses(self, s: np.ndarray, lin: LinearModel, delay: np.ndarray | complex = 1.0,
+                        sampled: SampledPlant | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(L, N)``: the open-loop responses of :meth:`loop_responses` and the noise responses
+        ``N`` (n_loops, B, W): measurement noise of each loop to the plant input ``u`` (see the
+        module docstring)."""
+        s = np.asarray(s)
+        resp = self._responses(s, lin, delay, sampled)
+        L, H = self._chain(resp, s.size)
         with np.errstate(all="ignore"):
-            N = np.stack([-resp[i][2] * H[i + 1] / (1.0 + L[i]) for i in range(len(self.loops))])
+            N = np.stack([-resp[i][2] * H[i] / (1.0 + L[i]) for i in range(len(self.loops))])
         return L, N
 
-    def cascade(self, resp, W: int, inner: bool = False):
-        """The break-point loops (n_loops + 1, B, W) from the per-loop (F_k, m_k, C_k).
+    def cascade(self, resp: list[Resp], W: int) -> np.ndarray:
+        """The break-point loops (n_loops + 1, B, W) from the per-loop (F_k, m_k, C_k)."""
+        return self._chain(resp, W)[0]
 
-        ``inner``: return ``(L, H)`` with ``H[k]`` (r_k -> u, loops k..n-1 closed; ``H[n] = 1``) for
-        k >= 1 (``H[0]`` is None)."""
+    def _chain(self, resp: list[Resp], W: int) -> tuple[np.ndarray, list[np.ndarray]]:
+        """``(L, H)``: the break-point loops, and ``H[k - 1]`` = H_k (r_k -> u, loops k..n-1 closed;
+        H_n = 1) for k = 1..n (H_0, all loops closed, is no break point's: not computed)."""
         n = len(self.loops)
-        g = []
-        for k, (F, m, _) in enumerate(resp):
-            if k:  # in place where it saves a (B, W) temporary
-                prev = F * prev
-                prev += m
-            else:  # nothing is outside the outermost loop: its setpoint path F would multiply zero
-                # (skipped: an F that overflowed, e.g. a huge setpoint weight, made inf * 0 = NaN)
-                prev = m
+        # nothing is outside the outermost loop: its setpoint path F would multiply zero
+        # (skipped: an F that overflowed, e.g. a huge setpoint weight, made inf * 0 = NaN)
+        prev = resp[0][1]
+        g = [prev]
+        for F, m, _ in resp[1:]:
+            prev = F * prev  # then in place: saves a (B, W) temporary
+            prev += m
             g.append(prev)
-        H = [None] * (n + 1)  # H[0] (all loops closed, r_0 -> u) is no break point's: not computed
-        H[n] = np.ones((self.batch, W), dtype=complex)
+        H = [np.ones((self.batch, W), dtype=complex)]  # built inner first: H_n, H_{n-1}, ..., H_1
         with np.errstate(divide="ignore", invalid="ignore"):
             for k in range(n - 1, 0, -1):
                 F, m, _ = resp[k]
-                H[k] = H[k + 1] * F / (1.0 - H[k + 1] * m)
+                H.append(H[-1] * F / (1.0 - H[-1] * m))
+            H.reverse()
             L = np.empty((n + 1, self.batch, W), dtype=complex)
             for i in range(n):
                 np.negative(g[i], out=L[i])
-                L[i] *= H[i + 1]
+                L[i] *= H[i]
         np.negative(g[n - 1], out=L[n])
-        return (L, H) if inner else L
+        return L, H
 
     # -------------------------------------------------------- state space
     def open_loop_poles(self, lin: LinearModel, pade: tuple[float, int] | None) -> np.ndarray:
@@ -219,7 +201,7 @@ class Cascade:
         if pade is not None:
             base += list(pade_poles(*pade))
         poles = np.tile(np.array(base, dtype=complex), (self.batch, 1))
-        extra = []
+        extra: list[np.ndarray] = []
         for lp in self.loops:
             if lp.has_i:
                 extra.append(np.zeros(self.batch, dtype=complex))
@@ -236,86 +218,39 @@ class Cascade:
         """
         Bsz = self.batch
         n = lin.A.shape[0]
-        if pade is not None and pade[0] > 0:
-            Ad, Bd, Cd, Dd = pade_ss(*pade)
-        else:
-            Ad = np.zeros((0, 0))
-            Bd = np.zeros((0, 1))
-            Cd = np.zeros((1, 0))
-            Dd = 1.0
+        Ad, Bd, Cd, Dd = pade_blocks(pade)
         npd = Ad.shape[0]
         ctl_idx, N = controller_state_index(self.loops, n + npd)
-
-        def zero():
-            return np.zeros((Bsz, N)), np.zeros(Bsz)
-
-        def unit(j):
-            r = np.zeros((Bsz, N))
-            r[:, j] = 1.0
-            return r, np.zeros(Bsz)
-
+        sig = Signals(Bsz, N)
         # Delayed plant input u_p = Cd x_pade + Dd u
         up_x = np.zeros((Bsz, N))
         up_x[:, n : n + npd] = Cd[0]
         up = (up_x, np.full(Bsz, Dd))
 
-        def output(j):
+        def output(j: int) -> Signal:
             rx = np.zeros((Bsz, N))
             rx[:, :n] = lin.C[j]
             d = lin.D[j, 0]
             return rx + d * up[0], d * up[1]
 
-        def lin_comb(*terms):
-            rx, ru = zero()
-            for coef, (tx, tu) in terms:
-                coef = np.asarray(coef, dtype=float)
-                cx = coef[:, None] if coef.ndim else coef
-                rx = rx + cx * tx
-                ru = ru + coef * tu
-            return rx, ru
-
-        derivs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        r = zero()
-        for lp, (ii, di) in zip(self.loops, ctl_idx):
+        derivs: dict[int, Signal] = {}
+        r = sig.zero()
+        for lp, (ii, di) in zip(self.loops, ctl_idx, strict=True):
+            y = output(lp.out_idx)
             if lp.kind == "pid":
-                y = output(lp.out_idx)
-                e = lin_comb((1.0, r), (-1.0, y))
-                terms = [(lp.Kp * lp.b, r), (-lp.Kp, y)]
-                if ii is not None:
-                    derivs[ii] = e
-                    terms.append((lp.Ki, unit(ii)))
-                if di is not None:
-                    ed = lin_comb((lp.c, r), (-1.0, y), (-1.0, unit(di)))  # c r - y - xd
-                    derivs[di] = lin_comb((1.0 / lp.Tf, ed))
-                    terms.append((lp.Kd / lp.Tf, ed))
-                v = lin_comb(*terms)
+                r = pid_law(sig, lp, r, y, ii, di, derivs)
             else:
-                y = output(lp.out_idx)
-                fx = np.zeros((Bsz, N))
-                fx[:, :n] = -lp.K
-                terms = [(1.0, (fx, np.zeros(Bsz))), (lp.Nr, r)]
-                if ii is not None:
-                    derivs[ii] = lin_comb((1.0, r), (-1.0, y))
-                    terms.append((lp.Kint, unit(ii)))
-                v = lin_comb(*terms)
-            r = v
-        ux, uu = r
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u_row = ux / (1.0 - uu)[:, None]  # u = u_row @ X
-
-        def resolve(sig):
-            sx, su = sig
-            return sx + su[:, None] * u_row
-
+                r = lq_law(sig, lp, r, y, ii, n, derivs)
+        u_row = solve_u(r)  # u = u_row @ X
         Acl = np.zeros((Bsz, N, N))
-        upr = resolve(up)
+        upr = resolve(up, u_row)
         Acl[:, :n, :n] += lin.A
         Acl[:, :n, :] += lin.B[:, 0][None, :, None] * upr[:, None, :]
         if npd:
             Acl[:, n : n + npd, n : n + npd] += Ad
             Acl[:, n : n + npd, :] += Bd[:, 0][None, :, None] * u_row[:, None, :]
-        for j, sig in derivs.items():
-            Acl[:, j, :] = resolve(sig)
+        for j, sg in derivs.items():
+            Acl[:, j, :] = resolve(sg, u_row)
         return Acl
 
     # ------------------------------------------------------- sampled loop
@@ -324,7 +259,7 @@ class Cascade:
         input buffer (z = 0), integrators (z = 1) and derivative filters (z = Tf/(Tf + dt))."""
         base = list(sp.eigvals()) + [0.0] * sp.buffer_len
         poles = np.tile(np.array(base, dtype=complex), (self.batch, 1))
-        extra = []
+        extra: list[np.ndarray] = []
         for lp in self.loops:
             if lp.has_i:
                 extra.append(np.ones(self.batch, dtype=complex))
@@ -341,78 +276,51 @@ class Cascade:
         states. Signals are rows over the states plus a coefficient of u[k] (only feedthrough
         without delay gives one), solved for at the end as in :meth:`closed_loop_A`.
         """
-        Bsz, dt = self.batch, sp.dt
+        Bsz = self.batch
         n, m = sp.n, sp.buffer_len
         ctl_idx, N = controller_state_index(self.loops, n + m)
-        z0 = np.zeros((Bsz, N))
+        sig = Signals(Bsz, N)
 
-        def unit(j):
-            r = np.zeros((Bsz, N))
-            r[:, j] = 1.0
-            return r, np.zeros(Bsz)
+        def past(j: int) -> Signal:  # u[k-j]
+            return (np.zeros((Bsz, N)), np.ones(Bsz)) if j == 0 else sig.unit(n + j - 1)
 
-        def past(j):  # u[k-j]
-            return (z0, np.ones(Bsz)) if j == 0 else unit(n + j - 1)
-
-        def comb(*terms):
-            rx, ru = np.zeros((Bsz, N)), np.zeros(Bsz)
-            for coef, (tx, tu) in terms:
-                coef = np.asarray(coef, dtype=float)
-                rx = rx + (coef[:, None] if coef.ndim else coef) * tx
-                ru = ru + coef * tu
-            return rx, ru
-
-        def output(j):
+        def output(j: int) -> Signal:
             rx = np.zeros((Bsz, N))
             rx[:, :n] = sp.C[j]
             if sp.D[j] != 0.0:
-                return comb((1.0, (rx, np.zeros(Bsz))), (sp.D[j], past(sp.dD)))
+                return sig.comb((1.0, (rx, np.zeros(Bsz))), (sp.D[j], past(sp.dD)))
             return rx, np.zeros(Bsz)
 
-        nxt: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        r = (z0, np.zeros(Bsz))
-        for lp, (ii, di) in zip(self.loops, ctl_idx):
+        nxt: dict[int, Signal] = {}
+        r = sig.zero()
+        for lp, (ii, di) in zip(self.loops, ctl_idx, strict=True):
             y = output(lp.out_idx)
-            e = comb((1.0, r), (-1.0, y))
             if lp.kind == "pid":
-                terms = [(lp.Kp * lp.b, r), (-lp.Kp, y)]
-                if ii is not None:
-                    nxt[ii] = comb((1.0, unit(ii)), (1.0, e))  # sum of e up to k
-                    terms.append((lp.Ki * dt, nxt[ii]))
-                if di is not None:
-                    al = lp.Tf / (lp.Tf + dt)
-                    be = lp.Kd / (lp.Tf + dt)
-                    ed = comb((lp.c, r), (-1.0, y))
-                    nxt[di] = comb((al, unit(di)), (1.0, ed))
-                    terms += [(be, ed), (be * (al - 1.0), unit(di))]
+                r = pid_law_sampled(sig, lp, r, y, ii, di, sp.dt, nxt)
             else:
-                fx = np.zeros((Bsz, N))
-                fx[:, :n] = -lp.K
-                terms = [(1.0, (fx, np.zeros(Bsz))), (lp.Nr, r)]
-                if ii is not None:
-                    nxt[ii] = comb((1.0, unit(ii)), (1.0, e))
-                    terms.append((lp.Kint * dt, nxt[ii]))
-            r = comb(*terms)
-        ux, uu = r
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u_row = ux / (1.0 - uu)[:, None]  # u[k] = u_row @ state
-
-        def resolve(sig):
-            sx, su = sig
-            return sx + su[:, None] * u_row
-
+                r = lq_law_sampled(sig, lp, r, y, ii, n, sp.dt, nxt)
+        u_row = solve_u(r)  # u[k] = u_row @ state
         Acl = np.zeros((Bsz, N, N))
         Acl[:, :n, :n] += sp.Ad
-        Acl[:, :n, :] += sp.G0[None, :, None] * resolve(past(sp.d))[:, None, :]
+        Acl[:, :n, :] += sp.G0[None, :, None] * resolve(past(sp.d), u_row)[:, None, :]
         if sp.has_G1:
-            Acl[:, :n, :] += sp.G1[None, :, None] * resolve(past(sp.d + 1))[:, None, :]
+            Acl[:, :n, :] += sp.G1[None, :, None] * resolve(past(sp.d + 1), u_row)[:, None, :]
         if m:
             Acl[:, n, :] = u_row
             for j in range(1, m):
                 Acl[:, n + j, n + j - 1] = 1.0
-        for j, sig in nxt.items():
-            Acl[:, j, :] = resolve(sig)
+        for j, sg in nxt.items():
+            Acl[:, j, :] = resolve(sg, u_row)
         return Acl
+
+
+def _continuous_deriv(s: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """The filtered derivative s/(Tf s + 1) at ``s``, as a function of Tf."""
+
+    def deriv(tf: np.ndarray) -> np.ndarray:
+        return s / (tf * s + 1.0)
+
+    return deriv
 
 
 def _out_index(spec: TuningSpec, lin: LinearModel, i: int) -> int:
@@ -423,10 +331,37 @@ def _out_index(spec: TuningSpec, lin: LinearModel, i: int) -> int:
     return lin.outputs.index(name)
 
 
-def pid_arrays(loop, G: np.ndarray, names: list[str]) -> dict[str, np.ndarray]:
+def pid_arrays(loop: LoopSpec, G: np.ndarray, names: list[str]) -> dict[str, np.ndarray]:
     """:func:`gaintune.controllers.pid.pid_params` over a batch (G: (B, n_loop_gains)), as a dict."""
     p = pid_params(loop, {nm: G[:, j] for j, nm in enumerate(names)})
     return {"Kp": p.Kp, "Ki": p.Ki, "Kd": p.Kd, "Tf": p.Tf}
+
+
+def _lq_ctl(loop: LoopSpec, name: str, out_idx: int, G: np.ndarray, names: list[str], lin: LinearModel) -> LoopCtl:
+    """An LQ loop's controller: its gains computed per gain set (:func:`gaintune.controllers.lq.lq_gains`)."""
+    from gaintune.controllers.lq import lq_gains
+
+    Bsz = G.shape[0]
+    Ks, Kis, Nrs = [], [], []
+    for b in range(Bsz):
+        lg = lq_gains(loop, dict(zip(names, G[b], strict=True)), lin, out_idx)
+        Ks.append(lg.K)
+        Kis.append(lg.Kint)
+        Nrs.append(lg.Nr)
+    return LoopCtl(name, "lq", out_idx, has_i=loop.type == "lqi", K=np.array(Ks, dtype=float).reshape(Bsz, -1),
+                   Kint=np.array(Kis, dtype=float), Nr=np.array(Nrs, dtype=float))
+
+
+def _pid_ctl(loop: LoopSpec, name: str, out_idx: int, G: np.ndarray, names: list[str]) -> LoopCtl:
+    """A PID loop's controller. Raises GainError for a derivative without a filter time constant."""
+    pa = pid_arrays(loop, G, names)
+    has_d = "d" in loop.type[1:]
+    if has_d and np.any((pa["Tf"] <= 0) & (pa["Kd"] != 0)):  # Kd = 0: no derivative, no filter needed
+        raise GainError(f"gains.{name}", "derivative filter time constant is zero; give Kp > 0")
+    # Ki = 0 turns integral action off: no integrator state, whose pole at s = 0 would count as unstable
+    has_i = "i" in loop.type[1:] and bool(np.any(pa["Ki"] != 0))
+    return LoopCtl(name, "pid", out_idx, has_i=has_i, has_d=has_d, Kp=pa["Kp"], Ki=pa["Ki"], Kd=pa["Kd"], Tf=pa["Tf"],
+                   b=loop.b, c=loop.c)
 
 
 def build_cascade(
@@ -435,12 +370,9 @@ def build_cascade(
     """Controllers for a batch of full gain vectors ``full`` (B, n_gains) on the linear model ``lin``.
 
     LQ gains in ``weights`` mode are computed once per gain set with :func:`control.lqr` on
-    ``lin`` (pass the nominal model: gains are frozen for robustness analysis).
+    ``lin`` (pass the nominal model: gains are frozen for robustness analysis). ``lq_cache`` is not used.
     """
-    from gaintune.controllers.lq import lq_gains
-
     full = np.atleast_2d(np.asarray(full, dtype=float))
-    Bsz = full.shape[0]
     loops: list[LoopCtl] = []
     for i, loop in enumerate(spec.loops):
         cols = [k for k, sl in enumerate(layout.slots) if sl.loop == i]
@@ -448,26 +380,6 @@ def build_cascade(
         G = full[:, cols]
         out_idx = _out_index(spec, lin, i)
         name = loop.name or f"loop{i}"
-        if loop.is_lq:
-            Ks, Kis, Nrs = [], [], []
-            for b in range(Bsz):
-                gd = dict(zip(names, G[b]))
-                lg = lq_gains(loop, gd, lin, out_idx)
-                Ks.append(lg.K)
-                Kis.append(lg.Kint)
-                Nrs.append(lg.Nr)
-            loops.append(
-                LoopCtl(name, "lq", out_idx, has_i=loop.type == "lqi", K=np.array(Ks, dtype=float).reshape(Bsz, -1),
-                        Kint=np.array(Kis, dtype=float), Nr=np.array(Nrs, dtype=float))
-            )
-        else:
-            pa = pid_arrays(loop, G, names)
-            has_d = "d" in loop.type[1:]
-            if has_d and np.any((pa["Tf"] <= 0) & (pa["Kd"] != 0)):  # Kd = 0: no derivative, no filter needed
-                raise GainError(f"gains.{name}", "derivative filter time constant is zero; give Kp > 0")
-            loops.append(
-                # Ki = 0 turns integral action off: no integrator state, whose pole at s = 0 would count as unstable
-                LoopCtl(name, "pid", out_idx, has_i="i" in loop.type[1:] and bool(np.any(pa["Ki"] != 0)), has_d=has_d, Kp=pa["Kp"], Ki=pa["Ki"],
-                        Kd=pa["Kd"], Tf=pa["Tf"], b=loop.b, c=loop.c)
-            )
-    return Cascade(loops, Bsz, [lp.name for lp in loops])
+        ctl = _lq_ctl(loop, name, out_idx, G, names, lin) if loop.is_lq else _pid_ctl(loop, name, out_idx, G, names)
+        loops.append(ctl)
+    return Cascade(loops, full.shape[0], [lp.name for lp in loops])

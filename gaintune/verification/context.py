@@ -27,6 +27,9 @@ CACHE_SIZE = 32
 
 @dataclass
 class SpecContext:
+    """The per-spec objects verification reuses: plant, layout, linearisation, and (built on first
+    use) noise limits and simulator."""
+
     spec_hash: str
     plant: Plant
     layout: GainLayout
@@ -50,7 +53,7 @@ class SpecContext:
 
                     try:
                         sim = importlib.import_module("gaintune.sim")
-                        runner = getattr(sim, "Simulator")
+                        runner = sim.Simulator
                     except (ImportError, AttributeError):
                         return None
                     self._sim = runner(spec, self.plant, self.layout)

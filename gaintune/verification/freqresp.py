@@ -68,8 +68,8 @@ def char_freqs(cas: Cascade, lin: LinearModel, delay: DelayModel) -> np.ndarray:
                 f += [abs(kp / kd), 1.0 / tf]
     if delay.T > 0:
         f.append(1.0 / delay.T)
-    f = np.array([x for x in f if np.isfinite(x) and x > 1e-12])
-    return f if f.size else np.array([1.0])
+    kept = np.array([x for x in f if np.isfinite(x) and x > 1e-12])
+    return kept if kept.size else np.array([1.0])
 
 
 #: Frequencies evaluated per block (see :meth:`Evaluator.__call__`).
@@ -86,6 +86,49 @@ def _dot(c: np.ndarray, X: np.ndarray) -> np.ndarray:
     return out
 
 
+#: A response over the frequencies, or a constant one.
+_Val = np.ndarray | complex
+
+
+@dataclass(frozen=True)
+class _PidScalars:
+    """A PID loop's gains as Python scalars (member 0 of the cascade)."""
+
+    out_idx: int
+    has_i: bool
+    has_d: bool
+    kp: float
+    ki: float
+    kd: float
+    tf: float
+    b: float
+    c: float
+
+
+@dataclass(frozen=True)
+class _LqScalars:
+    """An LQ loop's gains: the state feedback in Schur coordinates K Z, the integral and reference gains."""
+
+    out_idx: int
+    has_i: bool
+    KZ: np.ndarray
+    kint: float
+    nr: float
+
+
+@dataclass
+class _Point:
+    """Per-frequency factors of one evaluation: the continuous loop at s, or the sampled one at z = e^{s dt}."""
+
+    s: np.ndarray
+    x_at: np.ndarray  # where the resolvent is evaluated: s, or z (the back-substitution runs in z)
+    d: _Val  # input delay factor: e^{-sT} (or Padé), or z^-d
+    dD: _Val  # feedthrough delay factor: as d, or z^-dD
+    zi: np.ndarray | None = None  # z^-1 (sampled)
+    one_m: np.ndarray | None = None  # 1 - z^-1 (sampled)
+    dt: float = 0.0
+
+
 class Evaluator:
     """L at arbitrary frequencies for one gain set (rows: break points).
 
@@ -95,54 +138,52 @@ class Evaluator:
     so one call is a few dozen numpy operations over the frequency vector.
 
     ``sampled``: evaluate the sampled loop (:mod:`gaintune.verification.sampled`) at z = e^{s dt}
-    instead of the continuous one (``delay`` is then unused).
+    instead of the continuous one (``delay`` is then unused; without ``sampled`` it is required).
     """
 
     def __init__(self, cas: Cascade, lin: LinearModel, delay: DelayModel | None, sampled: SampledPlant | None = None):
-        self.cas, self.lin, self.delay, self.sampled = cas, lin, delay, sampled
+        if sampled is None and delay is None:
+            raise ValueError("Evaluator: the continuous loop needs its delay model")
+        self.cas, self.lin, self.sampled = cas, lin, sampled
+        self.delay = delay if delay is not None else DelayModel(0.0)  # unused by the sampled loop
         #: delay (s) whose phase spin e^{-jwT} the grids must resolve
-        self.spin_T = sampled.total_delay if sampled is not None else max(delay.T, 0.0)
+        self.spin_T = sampled.total_delay if sampled is not None else max(self.delay.T, 0.0)
         self.calls = 0
         self.points = 0
         self.fast = cas.batch == 1
-        if not self.fast:
-            return
-        if sampled is not None:
-            n = sampled.n
-            if n:
-                T, Z, zb0, zb1, diag = sampled.schur()
-                self._T, self._zb, self._zb1, self._diag = T, zb0, (zb1 if sampled.has_G1 else None), diag
-                CZ = sampled.C.astype(complex) @ Z
-            else:
-                Z = None
-                self._T = self._zb = self._zb1 = self._diag = None
-                CZ = np.zeros((sampled.C.shape[0], 0), dtype=complex)
-        else:
-            n = lin.A.shape[0]
-            self._zb1 = None
-            if n:
-                T, Z, zb = complex_schur(lin)
-                self._T, self._zb = T, zb
-                self._diag = np.diag(T).copy()
-                CZ = lin.C.astype(complex) @ Z
-            else:
-                Z = None
-                self._T = self._zb = self._diag = None
-                CZ = np.zeros((lin.C.shape[0], 0), dtype=complex)
+        if self.fast:
+            self._prepare(cas, lin, sampled)
+
+    def _prepare(self, cas: Cascade, lin: LinearModel, sampled: SampledPlant | None) -> None:
+        """The Schur form of the plant (continuous, or the sampled plant's), C Z and the scalar gains."""
+        self._zb1: np.ndarray | None = None
+        C = sampled.C if sampled is not None else lin.C
+        n = sampled.n if sampled is not None else lin.A.shape[0]
+        Z = np.zeros((0, 0), dtype=complex)
+        self._T, self._zb, self._diag = Z, np.zeros(0, dtype=complex), np.zeros(0, dtype=complex)
+        if n and sampled is not None:
+            T, Z, zb0, zb1, diag = sampled.schur()
+            self._T, self._zb, self._zb1, self._diag = T, zb0, (zb1 if sampled.has_G1 else None), diag
+        elif n:
+            T, Z, zb = complex_schur(lin)
+            self._T, self._zb = T, zb
+            self._diag = np.diag(T).copy()
+        CZ = C.astype(complex) @ Z if n else np.zeros((C.shape[0], 0), dtype=complex)
         self._n = n
         outs = sorted({lp.out_idx for lp in cas.loops})
         self._outs = {j: (CZ[j], complex(lin.D[j, 0])) for j in outs}
-        self._ctl = []
+        self._ctl: list[_PidScalars | _LqScalars] = []
         for lp in cas.loops:
             if lp.kind == "pid":
-                self._ctl.append(("pid", lp.out_idx, lp.has_i, lp.has_d, float(lp.Kp[0]), float(lp.Ki[0]),
-                                  float(lp.Kd[0]), float(lp.Tf[0]), float(lp.b), float(lp.c)))
+                self._ctl.append(_PidScalars(lp.out_idx, lp.has_i, lp.has_d, float(lp.Kp[0]), float(lp.Ki[0]),
+                                             float(lp.Kd[0]), float(lp.Tf[0]), float(lp.b), float(lp.c)))
             else:
                 KZ = (np.asarray(lp.K[0], dtype=float) @ Z) if n else np.zeros(0, dtype=complex)
-                self._ctl.append(("lq", lp.out_idx, lp.has_i, KZ, float(lp.Kint[0]) if lp.has_i else 0.0,
-                                  float(lp.Nr[0])))
+                self._ctl.append(_LqScalars(lp.out_idx, lp.has_i, KZ, float(lp.Kint[0]) if lp.has_i else 0.0,
+                                            float(lp.Nr[0])))
 
     def __call__(self, w: np.ndarray, shift: float = 0.0) -> np.ndarray:
+        """L (n_loops + 1, W) at s = -shift + jw (rows as :meth:`Cascade.loop_responses`)."""
         self.calls += 1
         w = np.asarray(w, dtype=float)
         self.points += w.size
@@ -161,70 +202,93 @@ class Evaluator:
                 out[:, i : i + _CHUNK] = self._eval(s[i : i + _CHUNK])
             return out
 
-    def _eval(self, s: np.ndarray) -> np.ndarray:
-        n = self._n
+    def _point(self, s: np.ndarray) -> _Point:
+        """The per-frequency factors at ``s``."""
         sp = self.sampled
-        if sp is not None:
-            dt = sp.dt
-            z = np.exp(s * dt)
-            zi = 1.0 / z
-            x_at = z  # the back-substitution runs in z
-            d = np.exp(-s * (dt * sp.d)) if sp.d else 1.0  # z^-d
-            dD = np.exp(-s * (dt * sp.dD)) if sp.dD else 1.0  # z^-dD (feedthrough)
-            one_m = 1.0 - zi
-        else:
-            x_at = s
-            d = dD = self.delay.factor(s)
-            zi = None
-        if n:
-            T, zb, zb1, diag = self._T, self._zb, self._zb1, self._diag
-            xs = np.empty((n, s.size), dtype=complex)
-            for i in range(n - 1, -1, -1):
-                acc = zb[i] if zb1 is None else zb[i] + zb1[i] * zi
-                if i + 1 < n:
-                    acc = acc + _dot(T[i, i + 1 :], xs[i + 1 :])
-                xs[i] = acc / (x_at - diag[i])
-        P = {}
+        if sp is None:
+            d = self.delay.factor(s)
+            return _Point(s, s, d, d)
+        dt = sp.dt
+        z = np.exp(s * dt)
+        zi = 1.0 / z
+        zd = np.exp(-s * (dt * sp.d)) if sp.d else 1.0  # z^-d
+        zdD = np.exp(-s * (dt * sp.dD)) if sp.dD else 1.0  # z^-dD (feedthrough)
+        return _Point(s, z, zd, zdD, zi, 1.0 - zi, dt)
+
+    def _states(self, pt: _Point) -> np.ndarray:
+        """The plant's state response in Schur coordinates (n, W), by back-substitution."""
+        n = self._n
+        T, zb, zb1, diag = self._T, self._zb, self._zb1, self._diag
+        xs = np.empty((n, pt.s.size), dtype=complex)
+        for i in range(n - 1, -1, -1):
+            acc = zb[i] if zb1 is None or pt.zi is None else zb[i] + zb1[i] * pt.zi
+            if i + 1 < n:
+                acc = acc + _dot(T[i, i + 1 :], xs[i + 1 :])
+            xs[i] = acc / (pt.x_at - diag[i])
+        return xs
+
+    def _outputs(self, pt: _Point, xs: np.ndarray) -> dict[int, _Val]:
+        """The measured outputs per unit plant input, delays included."""
+        n = self._n
+        P: dict[int, _Val] = {}
         for j, (cz, dj) in self._outs.items():
-            if sp is None:
-                P[j] = (_dot(cz, xs) + dj) * d if n else dj * d
+            if self.sampled is None:
+                P[j] = (_dot(cz, xs) + dj) * pt.d if n else dj * pt.d
             else:
-                P[j] = (_dot(cz, xs) * d + dj * dD) if n else dj * dD
+                P[j] = (_dot(cz, xs) * pt.d + dj * pt.dD) if n else dj * pt.dD
+        return P
+
+    def _controllers(self, pt: _Point, xs: np.ndarray, P: dict[int, _Val]) -> list[tuple[_Val, _Val]]:
+        """Per loop (F_k, m_k): setpoint path and feedback per unit u (as :meth:`Cascade.controller_responses`)."""
+        s = pt.s
         # the integrator's response: backward Euler dt/(1 - z^-1) in the sampled loop, else 1/s
-        inv_s = (dt / one_m if sp is not None else 1.0 / s) if any(c[2] for c in self._ctl) else None
+        inv_s: _Val = 0.0
+        if any(c.has_i for c in self._ctl):
+            inv_s = pt.dt / pt.one_m if pt.one_m is not None else 1.0 / s
         resp = []
         for c in self._ctl:
-            if c[0] == "pid":
-                _, oi, has_i, has_d, kp, ki, kd, tf, b, cw = c
-                I = ki * inv_s if has_i else 0.0
-                if has_d:
-                    Dd = kd * one_m / (tf + dt - tf * zi) if sp is not None else kd * s / (tf * s + 1.0)
-                else:
-                    Dd = 0.0
-                C = kp + I + Dd
-                F = b * kp + I + cw * Dd
-                m = -C * P[oi]
+            integ: _Val
+            if isinstance(c, _PidScalars):
+                integ = c.ki * inv_s if c.has_i else 0.0
+                Dd: _Val = 0.0
+                if c.has_d and pt.one_m is not None and pt.zi is not None:
+                    Dd = c.kd * pt.one_m / (c.tf + pt.dt - c.tf * pt.zi)
+                elif c.has_d:  # the continuous loop
+                    Dd = c.kd * s / (c.tf * s + 1.0)
+                C = c.kp + integ + Dd
+                F = c.b * c.kp + integ + c.c * Dd
+                m = -C * P[c.out_idx]
             else:
-                _, oi, has_i, KZ, kint, nr = c
-                KX = (_dot(KZ, xs) * d) if n else np.zeros(s.size, dtype=complex)
-                I = kint * inv_s if has_i else 0.0
-                m = -(KX + I * P[oi])
-                F = nr + I
+                KX = (_dot(c.KZ, xs) * pt.d) if self._n else np.zeros(s.size, dtype=complex)
+                integ = c.kint * inv_s if c.has_i else 0.0
+                m = -(KX + integ * P[c.out_idx])
+                F = c.nr + integ
             resp.append((F, m))
-        nl = len(resp)
-        g = []
-        prev = 0.0
-        for k, (F, m) in enumerate(resp):
-            prev = F * prev + m if k else m  # the outermost loop's F would multiply zero (see Cascade.cascade)
-            g.append(prev)
-        L = np.empty((nl + 1, s.size), dtype=complex)
-        H = 1.0
-        for k in range(nl - 1, -1, -1):
-            L[k] = -g[k] * H
-            F, m = resp[k]
-            H = H * F / (1.0 - H * m)
-        L[nl] = -g[nl - 1]
-        return L
+        return resp
+
+    def _eval(self, s: np.ndarray) -> np.ndarray:
+        """L at ``s`` (the fast path for one gain set)."""
+        pt = self._point(s)
+        xs = self._states(pt) if self._n else np.zeros((0, s.size), dtype=complex)
+        return _break_loops(self._controllers(pt, xs, self._outputs(pt, xs)), s.size)
+
+
+def _break_loops(resp: list[tuple[_Val, _Val]], size: int) -> np.ndarray:
+    """The break-point loops (n_loops + 1, W) from the per-loop (F_k, m_k), as :meth:`Cascade.cascade`."""
+    nl = len(resp)
+    g = []
+    prev: _Val = 0.0
+    for k, (F, m) in enumerate(resp):
+        prev = F * prev + m if k else m  # the outermost loop's F would multiply zero (see Cascade.cascade)
+        g.append(prev)
+    L = np.empty((nl + 1, size), dtype=complex)
+    H: _Val = 1.0
+    for k in range(nl - 1, -1, -1):
+        L[k] = -g[k] * H
+        F, m = resp[k]
+        H = H * F / (1.0 - H * m)
+    L[nl] = -g[nl - 1]
+    return L
 
 
 #: Convergence of the crossing refinement, in log w.

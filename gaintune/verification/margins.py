@@ -26,6 +26,7 @@ the peaks are refined the same way.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -142,10 +143,11 @@ def disk_from_alpha(alpha: float) -> tuple[float, float]:
 def _figures_for_row(row_name, gm_w, gm_k, pm_w, pm_deg, peaks, phase_omitted: int) -> BreakFigures:
     fig = BreakFigures(loop=row_name[0], break_point=row_name[1])
     crossings: list[Crossing] = []
-    ups, lows = [], []
+    ups: list[tuple[float, float, int]] = []
+    lows: list[tuple[float, float, int]] = []
     with np.errstate(divide="ignore", invalid="ignore"):
         keep = np.isfinite(gm_k) & (gm_k <= GM_INF_LIMIT) & (gm_k >= 1.0 / GM_INF_LIMIT)
-    for wc, k in zip(gm_w[keep].tolist(), gm_k[keep].tolist()):  # k: critical gain factor
+    for wc, k in zip(gm_w[keep].tolist(), gm_k[keep].tolist(), strict=True):  # k: critical gain factor
         db = 20 * math.log10(k)
         crossings.append(Crossing("phase", wc, db))
         (ups if k > 1 else lows).append((db, wc, len(crossings) - 1))
@@ -159,7 +161,7 @@ def _figures_for_row(row_name, gm_w, gm_k, pm_w, pm_deg, peaks, phase_omitted: i
         fig.gm_db, fig.gm_freq = float(d), float(wc)
         crossings[i].binding = True
     pms = []
-    for wc, phase_deg in zip(np.asarray(pm_w).tolist(), np.asarray(pm_deg).tolist()):
+    for wc, phase_deg in zip(np.asarray(pm_w).tolist(), np.asarray(pm_deg).tolist(), strict=True):
         pm = 180.0 - ((180.0 - (180.0 + phase_deg)) % 360.0)
         lag = math.radians(pm % 360.0)
         dm = lag / wc if wc > 0 else math.inf
@@ -194,28 +196,35 @@ def _crit_gain(z: np.ndarray) -> np.ndarray:
         return np.where(z.real < 0, k, np.nan)
 
 
-def _margins(ev: Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names, L0: np.ndarray,
-             Lend: np.ndarray | None = None) -> list[BreakFigures]:
-    """Figures per row from the grid (w, L, |L|); ``L0``: L at w = 0 per row. ``Lend``: a
-    sampled loop's L at the grid's last point, the Nyquist frequency, where it is real: an end
-    point of the Nyquist curve like w = 0 (its crossing is added from ``Lend``, not bracketed)."""
+@dataclass
+class _PhaseBrackets:
+    """Grid intervals where L may cross the negative real axis, and how to rank them.
+
+    Delays give hundreds of phase crossings; only those that can be listed (smallest |GM|) or
+    whose classification is not clear from the bracket are refined, the rest counted."""
+
+    rows: np.ndarray  # row of each bracket
+    idx: np.ndarray  # grid index of its left end
+    La: np.ndarray  # L at the ends
+    Lb: np.ndarray
+    lo_m: np.ndarray  # smaller and larger |L| of the ends
+    hi_m: np.ndarray
+    score: np.ndarray  # ~ |ln GM| of the crossing
+    slack: np.ndarray  # how far the crossing's |ln GM| may be from score
+    refine: np.ndarray  # bool: to be refined
+
+
+def _phase_brackets(ev: Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, end_point: bool) -> _PhaseBrackets:
+    """The phase-crossing brackets on the grid; ``end_point``: the grid's last point is a sampled
+    loop's Nyquist frequency (an end point of the Nyquist curve, added separately)."""
     R = L.shape[0]
     im, re = L.imag, L.real
-    with np.errstate(invalid="ignore"):
-        fin = np.isfinite(aL) & (aL > 0)
-        sgn = np.sign(aL - 1.0)  # sign of log|L|
-    # ---- gain crossings
-    sc = (sgn[:, :-1] != sgn[:, 1:]) & fin[:, :-1] & fin[:, 1:]
-    r_g, i_g = np.nonzero(sc)
-    # ---- phase crossings (negative real axis)
     sp = (np.sign(im[:, :-1]) != np.sign(im[:, 1:])) & ((re[:, :-1] < 0) | (re[:, 1:] < 0))
     sp &= (aL[:, :-1] > 0.5 * MAG_FLOOR) | (aL[:, 1:] > 0.5 * MAG_FLOOR)
     sp &= (aL[:, :-1] < 2 * GM_INF_LIMIT) | (aL[:, 1:] < 2 * GM_INF_LIMIT)
-    if Lend is not None:
-        sp[:, -1] = False  # the end point itself is on the real axis: added below
+    if end_point:
+        sp[:, -1] = False  # the end point itself is on the real axis: added separately
     r_p, i_p = np.nonzero(sp)
-    # Delays give hundreds of phase crossings; only those that can be listed (smallest |GM|)
-    # or whose classification is not clear from the bracket are refined, the rest counted.
     Pa, Pb = L[r_p, i_p], L[r_p, i_p + 1]
     aa, ab = aL[r_p, i_p], aL[r_p, i_p + 1]
     lo_m, hi_m = np.minimum(aa, ab), np.maximum(aa, ab)
@@ -236,26 +245,61 @@ def _margins(ev: Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names,
             refine[idx[np.argpartition(score[idx], _PHASE_REFINE)[:_PHASE_REFINE]]] = True
         else:
             refine[idx] = True
-    # ---- zoom: gain and phase brackets together
-    fn_gain = lambda Z: np.log(np.abs(Z))  # noqa: E731
-    done = np.zeros(r_p.size, dtype=bool)
-    wp = np.full(r_p.size, np.nan)
-    kp_ = np.full(r_p.size, np.nan)
+    return _PhaseBrackets(r_p, i_p, Pa, Pb, lo_m, hi_m, score, slack, refine)
+
+
+def _crossing_fn(ng: int) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """The function whose sign changes are zoomed: log|L| for the first ``ng`` brackets (gain
+    crossings), sin(arg L) for the rest (phase crossings)."""
+
+    def fn(Z: np.ndarray, kk: np.ndarray) -> np.ndarray:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(kk < ng, np.log(np.abs(Z)), Z.imag / np.abs(Z))
+
+    return fn
+
+
+def _needs_more(pb: _PhaseBrackets, done: np.ndarray, kp_: np.ndarray, R: int) -> bool:
+    """Mark for refinement every unrefined bracket that could rank among the MAX_PHASE_LISTED
+    smallest |GM| of its row; True when any was marked."""
+    more = False
+    for r in range(R):
+        un = np.nonzero((pb.rows == r) & ~done)[0]
+        if un.size == 0:
+            continue
+        kr = kp_[(pb.rows == r) & done]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v = np.abs(np.log(kr[np.isfinite(kr) & (kr <= GM_INF_LIMIT) & (kr >= 1 / GM_INF_LIMIT)]))
+        tau = np.sort(v)[MAX_PHASE_LISTED - 1] if v.size >= MAX_PHASE_LISTED else np.inf
+        need = un[pb.score[un] - pb.slack[un] <= tau]
+        if need.size:
+            pb.refine[need] = True
+            more = True
+    return more
+
+
+def _zoom_crossings(ev: Evaluator, w: np.ndarray, L: np.ndarray, r_g: np.ndarray, i_g: np.ndarray,
+                    pb: _PhaseBrackets) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Refine the gain crossings and the phase brackets to refine (gain and phase together in the
+    first round, then more phase brackets until the listed ones are certain).
+
+    Returns (w, L) at the gain crossings, and per phase bracket its crossing's w, critical gain
+    factor (NaN where not refined) and whether it was refined."""
+    R = L.shape[0]
+    done = np.zeros(pb.rows.size, dtype=bool)
+    wp = np.full(pb.rows.size, np.nan)
+    kp_ = np.full(pb.rows.size, np.nan)
+    wg, Lg = np.zeros(0), np.zeros(0, dtype=complex)
     first = True
     while True:
-        todo = np.nonzero(refine & ~done)[0]
+        todo = np.nonzero(pb.refine & ~done)[0]
         ng = r_g.size if first else 0
-        lo = np.concatenate([w[i_g] if first else np.zeros(0), w[i_p[todo]]])
-        hi = np.concatenate([w[i_g + 1] if first else np.zeros(0), w[i_p[todo] + 1]])
-        rows = np.concatenate([r_g if first else np.zeros(0, dtype=np.int64), r_p[todo]]).astype(np.int64)
-        La = np.concatenate([L[r_g, i_g] if first else np.zeros(0, dtype=complex), Pa[todo]])
-        Lb = np.concatenate([L[r_g, i_g + 1] if first else np.zeros(0, dtype=complex), Pb[todo]])
-
-        def fn(Z, kk, ng=ng):
-            with np.errstate(divide="ignore", invalid="ignore"):
-                return np.where(kk < ng, fn_gain(Z), Z.imag / np.abs(Z))  # log|L|; sin(arg L)
-
-        wz, Lz = zoom_roots(ev, lo, hi, rows, fn, La=La, Lb=Lb)
+        lo = np.concatenate([w[i_g] if first else np.zeros(0), w[pb.idx[todo]]])
+        hi = np.concatenate([w[i_g + 1] if first else np.zeros(0), w[pb.idx[todo] + 1]])
+        rows = np.concatenate([r_g if first else np.zeros(0, dtype=np.int64), pb.rows[todo]]).astype(np.int64)
+        La = np.concatenate([L[r_g, i_g] if first else np.zeros(0, dtype=complex), pb.La[todo]])
+        Lb = np.concatenate([L[r_g, i_g + 1] if first else np.zeros(0, dtype=complex), pb.Lb[todo]])
+        wz, Lz = zoom_roots(ev, lo, hi, rows, _crossing_fn(ng), La=La, Lb=Lb)
         if first:
             wg, Lg = wz[:ng], Lz[:ng]
             first = False
@@ -263,33 +307,26 @@ def _margins(ev: Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names,
         kp_[todo] = _crit_gain(Lz[ng:])
         done[todo] = True
         # every unrefined bracket must rank after the MAX_PHASE_LISTED-th refined crossing of its row
-        more = False
-        for r in range(R):
-            un = np.nonzero((r_p == r) & ~done)[0]
-            if un.size == 0:
-                continue
-            kr = kp_[(r_p == r) & done]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                v = np.abs(np.log(kr[np.isfinite(kr) & (kr <= GM_INF_LIMIT) & (kr >= 1 / GM_INF_LIMIT)]))
-            tau = np.sort(v)[MAX_PHASE_LISTED - 1] if v.size >= MAX_PHASE_LISTED else np.inf
-            need = un[score[un] - slack[un] <= tau]
-            if need.size:
-                refine[need] = True
-                more = True
-        if not more:
-            break
-    # ---- per row: listed crossings and counts
-    gm_w = [[] for _ in range(R)]
-    gm_k = [[] for _ in range(R)]
+        if not _needs_more(pb, done, kp_, R):
+            return wg, Lg, wp, kp_, done
+
+
+def _phase_crossing_lists(pb: _PhaseBrackets, wp: np.ndarray, kp_: np.ndarray, done: np.ndarray, R: int,
+                          ends: list[tuple[float, np.ndarray]]
+                          ) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
+    """Per row: the refined phase crossings' w and critical gain factors (with the real end points
+    of the Nyquist curve that are crossings), and how many valid crossings were only counted."""
+    gm_w: list[np.ndarray] = []
+    gm_k: list[np.ndarray] = []
     omitted = np.zeros(R, dtype=np.int64)
     for r in range(R):
-        sel = (r_p == r) & done
-        gm_w[r], gm_k[r] = wp[sel], kp_[sel]
-        un = (r_p == r) & ~done
+        sel = (pb.rows == r) & done
+        gm_w.append(wp[sel])
+        gm_k.append(kp_[sel])
+        un = (pb.rows == r) & ~done
         # unrefined: clearly on the negative real axis, |L| clearly inside (MAG_FLOOR, GM_INF_LIMIT)
-        omitted[r] = int(np.count_nonzero(un & (lo_m > MAG_FLOOR) & (hi_m < GM_INF_LIMIT)))
+        omitted[r] = int(np.count_nonzero(un & (pb.lo_m > MAG_FLOOR) & (pb.hi_m < GM_INF_LIMIT)))
     # w = 0 (and a sampled loop's Nyquist frequency): a finite negative real L is a phase crossing too
-    ends = [(0.0, L0)] + ([(float(w[-1]), Lend)] if Lend is not None else [])
     for r in range(R):
         for we, Le in ends:
             z = Le[r]
@@ -298,9 +335,12 @@ def _margins(ev: Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names,
                 gm_w[r] = np.concatenate([[we], gm_w[r]])[o]
                 with np.errstate(over="ignore"):  # |L| denormal (a 1e308 plant gain): GM inf, as meant
                     gm_k[r] = np.concatenate([[1.0 / abs(z)], gm_k[r]])[o]
-    pm_w = [wg[r_g == r] for r in range(R)]
-    pm_deg = [np.degrees(np.angle(Lg[r_g == r])) for r in range(R)]
-    # ---- peaks: Ms, Mt, 1/alpha (all rows and figures zoomed together)
+    return gm_w, gm_k, omitted
+
+
+def _peaks(ev: Evaluator, w: np.ndarray, L: np.ndarray) -> list[list[tuple[float, float]]]:
+    """Per row, (w, value) of the Ms, Mt and 1/alpha peaks (all rows and figures zoomed together)."""
+    R = L.shape[0]
     rows = np.tile(np.arange(R), 3)
     q = np.repeat(np.arange(3), R)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -313,7 +353,27 @@ def _margins(ev: Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names,
     hi = w[np.minimum(jj + 1, w.size - 1)]
     with np.errstate(divide="ignore", invalid="ignore"):
         pw, pv = _zoom_peaks(ev, lo, hi, rows, q)
-    peaks = [[(float(pw[qi * R + r]), float(max(pv[qi * R + r], Vj[qi][r]))) for qi in range(3)] for r in range(R)]
+    return [[(float(pw[qi * R + r]), float(max(pv[qi * R + r], Vj[qi][r]))) for qi in range(3)] for r in range(R)]
+
+
+def _margins(ev: Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names: list[tuple[str, str]],
+             L0: np.ndarray, Lend: np.ndarray | None = None) -> list[BreakFigures]:
+    """Figures per row from the grid (w, L, |L|); ``L0``: L at w = 0 per row. ``Lend``: a
+    sampled loop's L at the grid's last point, the Nyquist frequency, where it is real: an end
+    point of the Nyquist curve like w = 0 (its crossing is added from ``Lend``, not bracketed)."""
+    R = L.shape[0]
+    with np.errstate(invalid="ignore"):
+        fin = np.isfinite(aL) & (aL > 0)
+        sgn = np.sign(aL - 1.0)  # sign of log|L|
+    # gain crossings: sign changes of log|L|
+    r_g, i_g = np.nonzero((sgn[:, :-1] != sgn[:, 1:]) & fin[:, :-1] & fin[:, 1:])
+    pb = _phase_brackets(ev, w, L, aL, Lend is not None)
+    wg, Lg, wp, kp_, done = _zoom_crossings(ev, w, L, r_g, i_g, pb)
+    ends = [(0.0, L0)] + ([(float(w[-1]), Lend)] if Lend is not None else [])
+    gm_w, gm_k, omitted = _phase_crossing_lists(pb, wp, kp_, done, R, ends)
+    pm_w = [wg[r_g == r] for r in range(R)]
+    pm_deg = [np.degrees(np.angle(Lg[r_g == r])) for r in range(R)]
+    peaks = _peaks(ev, w, L)
     return [_figures_for_row(names[r], gm_w[r], gm_k[r], pm_w[r], pm_deg[r], peaks[r], omitted[r]) for r in range(R)]
 
 

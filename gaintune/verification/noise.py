@@ -36,10 +36,10 @@ def _responses(cas: Cascade, lin: LinearModel, w: np.ndarray, delay: DelayModel 
     s = 1j * w
     with np.errstate(all="ignore"):
         if sampled is not None:
-            _, N = cas.loop_responses(s, lin, sampled=sampled, noise=True)
+            _, N = cas.noise_responses(s, lin, sampled=sampled)
         else:
             fac = delay.factor(s) if delay is not None else 1.0
-            _, N = cas.loop_responses(s, lin, fac, noise=True)
+            _, N = cas.noise_responses(s, lin, fac)
     return np.abs(N[:, 0, :])  # (n_loops, W)
 
 

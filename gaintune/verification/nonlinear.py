@@ -14,25 +14,43 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from gaintune.controllers.layout import GainLayout
+from gaintune.errors import SpecError
+from gaintune.plants.plant import Plant
+from gaintune.spec import ScenarioSpec, TuningSpec
 from gaintune.verification.report import NonlinearReport
 
-__all__ = ["nonlinear_check"]
+if TYPE_CHECKING:  # gaintune.sim loads numba: imported where it runs
+    from gaintune.sim import SimResult, Simulator
+
+__all__ = ["nonlinear_check", "settling_notes"]
 
 _SUMMARY = ("iae", "overshoot", "settling_time", "sat_frac")
 
 
-def _run_all(sim, spec, full: np.ndarray, compute_delay: int) -> list:
+def _run_all(sim: Simulator, spec: TuningSpec, full: np.ndarray, compute_delay: int) -> list[SimResult]:
+    """Every scenario on the nominal draw (the computation delay as extra input delay)."""
     if not compute_delay:
         return [sim.run(full, None, i) for i in range(len(spec.scenarios))]
     base = sim.nominal_draws(full.shape[0])
-    return [sim.run(full, replace(base, delay=base.delay + compute_delay * sc.dt), i)
+    return [sim.run(full, replace(base, delay=base.delay + compute_delay * _dt(sc)), i)
             for i, sc in enumerate(spec.scenarios)]
 
 
-def nonlinear_check(spec, plant, layout, full_gains: np.ndarray, sim=None, compute_delay: int = 0) -> NonlinearReport:
+def _dt(sc: ScenarioSpec) -> float:
+    """The scenario's sample time (SpecError before it is derived from the plant)."""
+    if sc.dt is None:
+        raise SpecError(f"scenario {sc.name!r} dt", "not set yet: derive it from the plant first "
+                        "(gaintune.classical.timescale.resolve_scenarios) or give it in the spec")
+    return sc.dt
+
+
+def nonlinear_check(spec: TuningSpec, plant: Plant, layout: GainLayout, full_gains: np.ndarray,
+                    sim: Simulator | None = None, compute_delay: int = 0) -> NonlinearReport:
     """Run the simulator on one full gain vector; ``ran=False`` when :mod:`gaintune.sim` is unavailable.
 
     ``sim``: a :class:`gaintune.sim.Simulator` of this spec to reuse (its discretisation memo stays warm).
@@ -43,7 +61,7 @@ def nonlinear_check(spec, plant, layout, full_gains: np.ndarray, sim=None, compu
         return _report(_run_all(sim, spec, full, compute_delay))
     try:
         simmod = importlib.import_module("gaintune.sim")
-        simulate = getattr(simmod, "simulate")
+        simulate = simmod.simulate
     except (ImportError, AttributeError) as exc:
         return NonlinearReport(ran=False, note=f"simulator unavailable ({exc.__class__.__name__}: {exc})")
     runner = getattr(simmod, "Simulator", None)
@@ -54,17 +72,18 @@ def nonlinear_check(spec, plant, layout, full_gains: np.ndarray, sim=None, compu
     return _report(results)
 
 
-def _report(results) -> NonlinearReport:
+def _report(results: Any) -> NonlinearReport:
+    """The check's verdict from the simulator's results (one per scenario, or one for all)."""
     if not isinstance(results, (list, tuple)):
         results = [results]
-    metrics: dict[str, list] = {}
+    parts: dict[str, list[np.ndarray]] = {}
     for res in results:
         m = getattr(res, "metrics", None)
         if m is None and isinstance(res, dict):
             m = res.get("metrics", res)
         for k, v in dict(m or {}).items():
-            metrics.setdefault(k, []).append(np.atleast_1d(np.asarray(v)))
-    metrics = {k: np.concatenate(v) for k, v in metrics.items()}
+            parts.setdefault(k, []).append(np.atleast_1d(np.asarray(v)))
+    metrics = {k: np.concatenate(v) for k, v in parts.items()}
 
     def flag(name: str) -> bool | None:
         if name not in metrics:
@@ -87,3 +106,12 @@ def _report(results) -> NonlinearReport:
     elif diverged:
         note = "simulation diverged"
     return NonlinearReport(ran=True, passed=passed, tripped=tripped, diverged=diverged, metrics=summary, note=note)
+
+
+def settling_notes(spec: TuningSpec, sim: Simulator | None, plant: Plant, layout: GainLayout,
+                   full: np.ndarray) -> list[str]:
+    """A note per scenario whose response has not settled by its end (:mod:`gaintune.sim.settling`)."""
+    from gaintune.sim import Simulator
+    from gaintune.sim.settling import settling_messages
+
+    return settling_messages(sim or Simulator(spec, plant, layout), full)

@@ -25,13 +25,13 @@ from gaintune.lti.pade import pade_response
 from gaintune.plants.noise_limit import noise_limits
 from gaintune.plants.plant import LinearModel, Plant
 from gaintune.spec import TuningSpec
-from gaintune.verification.analysis import sampling_delay
-from gaintune.verification.cascade import build_cascade
+from gaintune.verification.analysis import analysis_dt, sampling_delay
+from gaintune.verification.cascade import Cascade, build_cascade
 from gaintune.verification.sampled import SampledPlant, sample_plant
 from gaintune.verification.stability import observable_part, sampled_stability
 
-__all__ = ["QuickMargins", "quick_margins", "requirement_violation", "requirement_scores", "noise_limit_array", "sampled_grid", "UNSTABLE_VIOLATION",
-           "FEASIBILITY_MARGIN", "MAX_TERM"]
+__all__ = ["QuickMargins", "quick_margins", "requirement_violation", "requirement_scores", "noise_limit_array",
+           "sampled_grid", "UNSTABLE_VIOLATION", "FEASIBILITY_MARGIN", "MAX_TERM"]
 
 #: Violation of an unstable closed loop, plus a grade that grows with the largest real pole.
 UNSTABLE_VIOLATION = 10.0
@@ -70,10 +70,10 @@ class QuickMargins:
 def _grid(lin: LinearModel, T: float, n: int) -> np.ndarray:
     """Log grid from the plant alone (poles/zeros magnitudes and the delay), so that a
     candidate's estimate does not depend on the rest of its batch."""
-    f = [abs(x) for x in plant_eigvals(lin)]  # remembered per model: the search calls this per batch
+    mags = [abs(x) for x in plant_eigvals(lin)]  # remembered per model: the search calls this per batch
     if T > 0:
-        f.append(1.0 / T)
-    f = np.array([x for x in f if np.isfinite(x) and x > 1e-12])
+        mags.append(1.0 / T)
+    f = np.array([x for x in mags if np.isfinite(x) and x > 1e-12])
     if f.size == 0:
         f = np.array([1.0])
     lo, hi = f.min() / 300.0, f.max() * 300.0
@@ -108,6 +108,116 @@ def _parabolic_peak(V: np.ndarray) -> np.ndarray:
     return np.where(ok, np.maximum(peak, vmax), vmax).reshape(shape)
 
 
+def _delay_response(s: np.ndarray, T: float, order: int | None) -> np.ndarray:
+    """The delay factor at ``s``: e^{-sT}, its Padé approximant of ``order``, or 1 without delay."""
+    if T > 0 and order is None:
+        return np.exp(-s * T)
+    if T > 0 and order is not None:
+        return pade_response(s, T, order)
+    return np.ones_like(s)
+
+
+def _responses(cas: Cascade, lin: LinearModel, s: np.ndarray, dly: np.ndarray, sp: SampledPlant | None,
+               peaks: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(L (R, B, W), L(0) (R, B), Mks (R, B)) of the controller-output rows; ``s`` ends with 0."""
+    R, B = len(cas.loops), cas.batch
+    if "mks" in peaks:
+        Lall, Nall = cas.noise_responses(s, lin, dly, sampled=sp)  # (R+1, B, W+1), (R, B, W+1)
+        mks = _parabolic_peak(np.abs(Nall[..., :-1]))
+        mks[[lp.kind != "pid" for lp in cas.loops]] = np.nan
+    else:
+        Lall = cas.loop_responses(s, lin, dly, sampled=sp)
+        mks = np.full((R, B), np.nan)
+    L, L0 = Lall[:R, :, :-1], Lall[:R, :, -1]
+    if sp is not None:
+        L[..., -1] = L[..., -1].real  # real at z = -1: an end point, like w = 0
+    return L, L0, mks
+
+
+def _gain_crossings(L: np.ndarray, aL: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(binding PM, its crossover (0 without one), delay margin), each (R, B), by linear
+    interpolation in log w at the sign changes of log|L|."""
+    R, B = L.shape[:2]
+    lw = np.log(w)
+    above = aL > 1.0
+    r, b, i = np.nonzero(above[..., :-1] != above[..., 1:])
+    f0, f1 = np.log(aL[r, b, i]), np.log(aL[r, b, i + 1])
+    a = np.clip(f0 / (f0 - f1), 0.0, 1.0)
+    wc = np.exp(lw[i] + a * (lw[i + 1] - lw[i]))
+    z0 = L[r, b, i]
+    ph = np.degrees(np.angle(z0) + a * np.angle(L[r, b, i + 1] / z0))
+    pm = 180.0 - np.mod(-ph, 360.0)
+    dm = np.radians(np.mod(pm, 360.0)) / wc
+    ok = np.isfinite(pm) & np.isfinite(wc)
+    r, b, pm, dm, wc = r[ok], b[ok], pm[ok], dm[ok], wc[ok]
+    pm_b = np.full((R, B), np.inf)
+    wc_b = np.zeros((R, B))  # the binding PM's crossover; 0 without a gain crossover
+    dm_b = np.full((R, B), np.inf)
+    # binding PM: the one of smallest |PM| (sort descending by |PM| so the last write wins)
+    o = np.argsort(-np.abs(pm))
+    pm_b[r[o], b[o]] = pm[o]
+    wc_b[r[o], b[o]] = wc[o]
+    np.minimum.at(dm_b, (r, b), dm)
+    return pm_b, wc_b, dm_b
+
+
+def _gain_margin(L: np.ndarray, aL: np.ndarray, L0: np.ndarray, sampled: bool) -> np.ndarray:
+    """Binding |GM| in dB (R, B) from the phase crossings (sign changes of Im L with Re L < 0),
+    w = 0 and, for the sampled loop, the Nyquist end point."""
+    R, B = L.shape[:2]
+    im, re = L.imag, L.real
+    pos = im > 0
+    brk = (pos[..., :-1] != pos[..., 1:]) & ((re[..., :-1] < 0) | (re[..., 1:] < 0))
+    if sampled:
+        brk[..., -1] = False  # the Nyquist end point is added below
+    r, b, i = np.nonzero(brk)
+    i0, i1 = im[r, b, i], im[r, b, i + 1]
+    t = np.clip(i0 / (i0 - i1), 0.0, 1.0)
+    mag = np.exp(np.log(aL[r, b, i]) + t * (np.log(aL[r, b, i + 1]) - np.log(aL[r, b, i])))
+    keep = (mag > 1.0 / _GM_CAP) & (mag < _GM_CAP) & (re[r, b, i] + t * (re[r, b, i + 1] - re[r, b, i]) < 0)
+    gm_b = np.full((R, B), np.inf)
+    np.minimum.at(gm_b, (r[keep], b[keep]), np.abs(20.0 * np.log10(mag[keep])))
+    dc_cross = np.isfinite(L0) & (L0.real < 0) & (np.abs(L0.imag) < 1e-9 * np.abs(L0))
+    dc_cross &= (np.abs(L0) > 1.0 / _GM_CAP) & (np.abs(L0) < _GM_CAP)
+    gm_b = np.minimum(gm_b, np.where(dc_cross, np.abs(20.0 * np.log10(np.abs(L0))), np.inf))
+    if sampled:
+        Ln = L[..., -1].real
+        ny_cross = np.isfinite(Ln) & (Ln < 0) & (-Ln > 1.0 / _GM_CAP) & (-Ln < _GM_CAP)
+        gm_b = np.minimum(gm_b, np.where(ny_cross, np.abs(20.0 * np.log10(np.abs(Ln))), np.inf))
+    return gm_b
+
+
+def _continuous_stability(cas: Cascade, lin: LinearModel, w: np.ndarray, T: float,
+                          order: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """Batched closed-loop stability of the continuous loop: (stable (B,), max real pole (B,)),
+    from the eigenvalues of the closed-loop state matrices (delay as Padé)."""
+    w_char = w[-1] / 300.0  # fastest characteristic frequency of the loop (see _grid)
+    pade = (T, order or (6 if T * w_char > 0.05 else 2)) if T > 0 else None
+    lin_cl = lin
+    extra_unstable = False
+    if cas.measured is not None:  # modes no loop measures are not moved by feedback
+        lin_cl, unobs = observable_part(lin, cas.measured)
+        if unobs.size:
+            extra_unstable = bool(np.any(unobs.real > 1e-9 * max(1.0, float(np.max(np.abs(unobs))))))
+    Acl = cas.closed_loop_A(lin_cl, pade)
+    with np.errstate(all="ignore"):
+        finite = np.all(np.isfinite(Acl), axis=(1, 2))
+        Acl = np.where(finite[:, None, None], Acl, 0.0)
+        ev = np.linalg.eigvals(Acl) if Acl.shape[1] else np.zeros((cas.batch, 0))
+    max_re = np.where(finite, ev.real.max(axis=-1) if ev.shape[-1] else -np.inf, np.inf)
+    scale = np.maximum(1.0, np.abs(ev).max(axis=-1) if ev.shape[-1] else 1.0)
+    stable = (max_re < -1e-12 * scale) & (not extra_unstable)
+    return stable, max_re
+
+
+def _with_plant_input(x: np.ndarray) -> np.ndarray:
+    """(R, B) -> (B, R + 1): the innermost loop's row repeated for the plant input, last.
+
+    The innermost loop's output is the plant input u, so the loop broken there and at the plant
+    input is one loop: its row is analysed once and reported for both break points."""
+    return np.moveaxis(np.concatenate([x, x[-1:]]), 0, -1)
+
+
 def quick_margins(
     spec: TuningSpec,
     plant: Plant,
@@ -126,11 +236,12 @@ def quick_margins(
 
     ``peaks``: which of the peaks ``"ms"``, ``"mt"``, ``"mks"`` to estimate (the others are NaN);
     a caller that needs only some of them saves their cost (``mks`` needs the noise responses).
+    ``stability=False``: skip the closed-loop stability check (every loop counts as stable).
     """
     full = np.atleast_2d(np.asarray(full_gains, dtype=float))
     lin = lin if lin is not None else plant.linearize()
     vs = spec.verify
-    dt = max(sc.dt for sc in spec.scenarios)
+    dt = analysis_dt(spec)
     sp = sample_plant(lin, dt, vs.compute_delay, plant.kind == "nonlinear") if vs.sampled else None
     T = sp.total_delay if sp is not None else lin.delay + sampling_delay(spec) + vs.compute_delay * dt
     cas = build_cascade(spec, layout, full, lin)
@@ -139,102 +250,31 @@ def quick_margins(
         w = sampled_grid(w, sp)
     s = np.concatenate([1j * w, [0.0]])
     order = spec.verify.pade_order
-    if T > 0 and order is None:
-        dly = np.exp(-s * T)
-    elif T > 0:
-        dly = pade_response(s, T, order)
-    else:
-        dly = np.ones_like(s)
-    # The innermost loop's output is the plant input u, so the loop broken there and at the plant
-    # input is one loop: its row is analysed once and reported for both break points (below, `tr`).
+    dly = _delay_response(s, T, order)
     R, B = len(cas.loops), full.shape[0]
     with np.errstate(all="ignore"):
-        if "mks" in peaks:
-            Lall, Nall = cas.loop_responses(s, lin, dly, sampled=sp, noise=True)  # (R+1, B, W+1), (R, B, W+1)
-            mks = _parabolic_peak(np.abs(Nall[..., :-1]))
-            mks[[lp.kind != "pid" for lp in cas.loops]] = np.nan
-        else:
-            Lall = cas.loop_responses(s, lin, dly, sampled=sp)
-            mks = np.full((R, B), np.nan)
-        L, L0 = Lall[:R, :, :-1], Lall[:R, :, -1]
-        if sp is not None:
-            L[..., -1] = L[..., -1].real  # real at z = -1: an end point, like w = 0
+        L, L0, mks = _responses(cas, lin, s, dly, sp, peaks)
         aL = np.abs(L)
         a1 = np.abs(1.0 + L)
         ms = _parabolic_peak(1.0 / a1) if "ms" in peaks else np.full((R, B), np.nan)
         mt = _parabolic_peak(aL / a1) if "mt" in peaks else np.full((R, B), np.nan)
-        lw = np.log(w)
-        # gain crossings: only at the (few) sign changes of log|L|
-        above = aL > 1.0
-        r, b, i = np.nonzero(above[..., :-1] != above[..., 1:])
-        f0, f1 = np.log(aL[r, b, i]), np.log(aL[r, b, i + 1])
-        a = np.clip(f0 / (f0 - f1), 0.0, 1.0)
-        wc = np.exp(lw[i] + a * (lw[i + 1] - lw[i]))
-        z0 = L[r, b, i]
-        ph = np.degrees(np.angle(z0) + a * np.angle(L[r, b, i + 1] / z0))
-        pm = 180.0 - np.mod(-ph, 360.0)
-        dm = np.radians(np.mod(pm, 360.0)) / wc
-        ok = np.isfinite(pm) & np.isfinite(wc)
-        r, b, pm, dm, wc = r[ok], b[ok], pm[ok], dm[ok], wc[ok]
-        pm_b = np.full((R, B), np.inf)
-        wc_b = np.zeros((R, B))  # the binding PM's crossover; 0 without a gain crossover
-        dm_b = np.full((R, B), np.inf)
-        # binding PM: the one of smallest |PM| (sort descending by |PM| so the last write wins)
-        o = np.argsort(-np.abs(pm))
-        pm_b[r[o], b[o]] = pm[o]
-        wc_b[r[o], b[o]] = wc[o]
-        np.minimum.at(dm_b, (r, b), dm)
-        # phase crossings: sign changes of Im L with Re L < 0
-        im, re = L.imag, L.real
-        pos = im > 0
-        brk = (pos[..., :-1] != pos[..., 1:]) & ((re[..., :-1] < 0) | (re[..., 1:] < 0))
-        if sp is not None:
-            brk[..., -1] = False  # the Nyquist end point is added below
-        r, b, i = np.nonzero(brk)
-        i0, i1 = im[r, b, i], im[r, b, i + 1]
-        t = np.clip(i0 / (i0 - i1), 0.0, 1.0)
-        mag = np.exp(np.log(aL[r, b, i]) + t * (np.log(aL[r, b, i + 1]) - np.log(aL[r, b, i])))
-        keep = (mag > 1.0 / _GM_CAP) & (mag < _GM_CAP) & (re[r, b, i] + t * (re[r, b, i + 1] - re[r, b, i]) < 0)
-        gm_b = np.full((R, B), np.inf)
-        np.minimum.at(gm_b, (r[keep], b[keep]), np.abs(20.0 * np.log10(mag[keep])))
-        dc_cross = np.isfinite(L0) & (L0.real < 0) & (np.abs(L0.imag) < 1e-9 * np.abs(L0))
-        dc_cross &= (np.abs(L0) > 1.0 / _GM_CAP) & (np.abs(L0) < _GM_CAP)
-        gm_b = np.minimum(gm_b, np.where(dc_cross, np.abs(20.0 * np.log10(np.abs(L0))), np.inf))
-        if sp is not None:
-            Ln = L[..., -1].real
-            ny_cross = np.isfinite(Ln) & (Ln < 0) & (-Ln > 1.0 / _GM_CAP) & (-Ln < _GM_CAP)
-            gm_b = np.minimum(gm_b, np.where(ny_cross, np.abs(20.0 * np.log10(np.abs(Ln))), np.inf))
-    tr = lambda x: np.moveaxis(np.concatenate([x, x[-1:]]), 0, -1)  # (R, B) -> (B, R + 1): the plant input last
-    tr_loops = lambda x: np.moveaxis(x, 0, -1)  # (R, B) -> (B, R), per loop (mks)
+        pm_b, wc_b, dm_b = _gain_crossings(L, aL, w)
+        gm_b = _gain_margin(L, aL, L0, sp is not None)
     if not stability:  # the caller checks stability elsewhere (gaintune.evaluation.boundary_estimate's final check)
-        return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), tr_loops(mks), tr(wc_b), np.ones(B, dtype=bool),
-                            np.full(B, -np.inf), w, cas.break_names)
-    if sp is not None:  # closed-loop stability of the sampled loop: |z| < 1
+        stable, max_re = np.ones(B, dtype=bool), np.full(B, -np.inf)
+    elif sp is not None:  # closed-loop stability of the sampled loop: |z| < 1
         stable, max_re = sampled_stability(cas, lin, sp, float(w[0]))
-        return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), tr_loops(mks), tr(wc_b), stable, max_re, w, cas.break_names)
-    # closed-loop stability: batched eigenvalues (delay as Padé)
-    w_char = w[-1] / 300.0  # fastest characteristic frequency of the loop (see _grid)
-    pade = (T, order or (6 if T * w_char > 0.05 else 2)) if T > 0 else None
-    lin_cl = lin
-    extra_unstable = False
-    if cas.measured is not None:  # modes no loop measures are not moved by feedback
-        lin_cl, unobs = observable_part(lin, cas.measured)
-        if unobs.size:
-            extra_unstable = bool(np.any(unobs.real > 1e-9 * max(1.0, float(np.max(np.abs(unobs))))))
-    Acl = cas.closed_loop_A(lin_cl, pade)
-    with np.errstate(all="ignore"):
-        finite = np.all(np.isfinite(Acl), axis=(1, 2))
-        Acl = np.where(finite[:, None, None], Acl, 0.0)
-        ev = np.linalg.eigvals(Acl) if Acl.shape[1] else np.zeros((full.shape[0], 0))
-    max_re = np.where(finite, ev.real.max(axis=-1) if ev.shape[-1] else -np.inf, np.inf)
-    scale = np.maximum(1.0, np.abs(ev).max(axis=-1) if ev.shape[-1] else 1.0)
-    stable = (max_re < -1e-12 * scale) & (not extra_unstable)
-    return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), tr_loops(mks), tr(wc_b), stable, max_re, w, cas.break_names)
+    else:
+        stable, max_re = _continuous_stability(cas, lin, w, T, order)
+    tr = _with_plant_input
+    return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), np.moveaxis(mks, 0, -1), tr(wc_b), stable,
+                        max_re, w, cas.break_names)
 
 
 def noise_limit_array(spec: TuningSpec, plant: Plant) -> np.ndarray:
     """The spec's per-loop Mks limits on the plant's nominal model, NaN where a loop has none."""
-    return np.array([np.nan if n.limit is None else n.limit for n in noise_limits(spec, plant.linearize())], dtype=float)
+    limits = noise_limits(spec, plant.linearize())
+    return np.array([np.nan if n.limit is None else n.limit for n in limits], dtype=float)
 
 
 def requirement_violation(
@@ -275,8 +315,8 @@ def requirement_scores(
     """(violation, shortfall), each (B,): the violation of :func:`requirement_violation`, and the signed
     tightest relative shortfall (the largest term, FEASIBILITY_MARGIN included; <= 0 exactly when the
     violation is 0; the unstable grade for an unstable loop). The shortfall is what a root finder
-    along a gain direction needs (:mod:`gaintune.evaluation.boundary_estimate`). ``stability=False`` skips the closed-loop
-    stability check (every loop counts as stable): only for a caller that checks it afterwards."""
+    along a gain direction needs (:mod:`gaintune.evaluation.boundary_estimate`). ``stability=False`` skips the
+    closed-loop stability check (every loop counts as stable): only for a caller that checks it afterwards."""
     if noise_limit is None:
         noise_limit = noise_limit_array(spec, plant)
     req = spec.requirements

@@ -40,8 +40,10 @@ class CrossingModel(_Out):
 
     kind: Literal["gain", "phase"] = Field(description="gain: |L| = 1; phase: L on the negative real axis.")
     omega: float = Field(description="Frequency in rad/s.")
-    value: float = Field(description="gain crossing: phase margin (deg); phase crossing: gain margin (dB, >0 upper, <0 lower).")
-    delay_margin: float | None = Field(None, description="Gain crossings: extra delay (s) that reaches -1 at this crossing.")
+    value: float = Field(
+        description="gain crossing: phase margin (deg); phase crossing: gain margin (dB, >0 upper, <0 lower).")
+    delay_margin: float | None = Field(
+        None, description="Gain crossings: extra delay (s) that reaches -1 at this crossing.")
     binding: bool = Field(False, description="This crossing gives the reported PM or GM.")
 
 
@@ -54,7 +56,8 @@ class LoopFigures(_Out):
         description="The binding gain margin in dB: min(gm_upper_db, gm_lower_db), the one of smaller |dB| "
         "(gm_binding says which); inf when neither exists.")
     gm_upper_db: float = Field(description="dB by which the loop gain may be increased; inf if no limit.")
-    gm_lower_db: float = Field(description="dB by which the loop gain may be decreased (conditionally stable loops); inf if none.")
+    gm_lower_db: float = Field(
+        description="dB by which the loop gain may be decreased (conditionally stable loops); inf if none.")
     gm_binding: Literal["increase", "reduction", "none"] = Field(
         description="Which gain margin gm_db is: increase (gm_upper_db), reduction (gm_lower_db), none (both inf).")
     gm_freq: float | None = Field(description="Phase-crossover frequency of the binding GM (rad/s).")
@@ -63,7 +66,8 @@ class LoopFigures(_Out):
     delay_margin: float = Field(
         description="Extra input delay (s) the loop tolerates: min over gain crossovers of (PM mod 360, in rad) / wc.")
     delay_margin_samples: float | None = Field(
-        None, description="delay_margin / dt (dt: the analysis sample time): compare with a computation delay in samples.")
+        None,
+        description="delay_margin / dt (dt: the analysis sample time): compare with a computation delay in samples.")
     ms: float = Field(description="Sensitivity peak max|1/(1+L)|.")
     ms_freq: float | None = None
     mt: float = Field(description="Complementary-sensitivity peak max|L/(1+L)|.")
@@ -72,15 +76,18 @@ class LoopFigures(_Out):
         None, description="Noise sensitivity: peak gain from this loop's measurement noise to the plant input "
         "(SISO: max|C S|), actuator units per measured unit. Null at the plant-input break point and for LQ loops.")
     mks_freq: float | None = None
-    mks_max: float | None = Field(None, description="The noise-sensitivity limit applied to this loop (requirements.mks_max, 'auto' resolved).")
+    mks_max: float | None = Field(
+        None, description="The noise-sensitivity limit applied to this loop (requirements.mks_max, 'auto' resolved).")
     disk_alpha: float = Field(description="Balanced (skew 0) disk margin alpha.")
     disk_gm_db: float = Field(description="Disk-based gain margin in dB.")
     disk_pm_deg: float = Field(description="Disk-based phase margin in degrees.")
     disk_freq: float | None = None
     gain_crossovers: list[float] = Field(default_factory=list, description="All gain-crossover frequencies (rad/s).")
-    phase_crossovers: list[float] = Field(default_factory=list, description="Listed phase-crossover frequencies (rad/s), within the analysis band.")
+    phase_crossovers: list[float] = Field(
+        default_factory=list, description="Listed phase-crossover frequencies (rad/s), within the analysis band.")
     crossings: list[CrossingModel] = Field(default_factory=list)
-    crossings_omitted: int = Field(0, description="Phase crossings in the analysis band not listed (only the 20 of smallest |GM| are kept).")
+    crossings_omitted: int = Field(
+        0, description="Phase crossings in the analysis band not listed (only the 20 of smallest |GM| are kept).")
 
     @model_validator(mode="before")
     @classmethod
@@ -88,27 +95,34 @@ class LoopFigures(_Out):
         # reports written before gm_binding existed: derive it from the two margins
         if isinstance(data, dict) and "gm_binding" not in data:
             up, lo = (_as_float(data.get(k, math.inf)) for k in ("gm_upper_db", "gm_lower_db"))
-            data = {**data, "gm_binding": "none" if math.isinf(up) and math.isinf(lo) else ("increase" if up <= lo else "reduction")}
+            binding = "none" if math.isinf(up) and math.isinf(lo) else ("increase" if up <= lo else "reduction")
+            data = {**data, "gm_binding": binding}
         return data
 
 
 class StabilityReport(_Out):
+    """Closed-loop stability of the nominal loop: the verdict, how it was decided, and the poles."""
+
     stable: bool
     method: Literal["poles", "nyquist"] = Field(
         description="What decided: closed-loop eigenvalues (rational or sampled loop) or the argument principle "
         "(continuous loop with an exact delay; sampled loop with more closed-loop states than are eigen-solved).")
-    rhp_count: int = Field(description="Unstable closed-loop poles (Re >= 0; sampled loop: |z| >= 1), counted by the deciding method.")
+    rhp_count: int = Field(
+        description="Unstable closed-loop poles (Re >= 0; sampled loop: |z| >= 1), counted by the deciding method.")
     nyquist_rhp: int | None = Field(None, description="Argument-principle (Nyquist) count (cross-check).")
     poles: list[tuple[float, float]] = Field(
         default_factory=list, description="Closed-loop poles (re, im): s-plane poles of the delay-free or Padé loop "
         "(domain s), or z-plane poles of the sampled loop (domain z), largest first.")
-    poles_method: str = Field("exact", description="exact; padeN when the delay is Padé-approximated for the pole list; none when not computed.")
+    poles_method: str = Field(
+        "exact", description="exact; padeN when the delay is Padé-approximated for the pole list; none when not "
+        "computed.")
     max_real_pole: float = Field(
         description="Largest real part of the closed-loop poles; sampled loop: ln(max|z|)/dt, the equivalent s-plane "
         "figure (negative when stable). NaN when the poles are not computed.")
     notes: list[str] = Field(default_factory=list)
     domain: Literal["s", "z"] = Field("s", description="s: continuous-time poles; z: poles of the sampled loop.")
-    spectral_radius: float | None = Field(None, description="Sampled loop: max |z| over the closed-loop poles (< 1 when stable).")
+    spectral_radius: float | None = Field(
+        None, description="Sampled loop: max |z| over the closed-loop poles (< 1 when stable).")
 
 
 class PadeCheck(_Out):
@@ -135,10 +149,14 @@ class WorstCase(_Out):
     mt: float
     mks: float | None = None
     disk_alpha: float
-    where: dict[str, dict[str, float]] = Field(default_factory=dict, description="figure -> sample (parameter values, delay) attaining it.")
+    where: dict[str, dict[str, float]] = Field(
+        default_factory=dict, description="figure -> sample (parameter values, delay) attaining it.")
 
 
 class RobustReport(_Out):
+    """The robust check: the sample set (box corners and Monte-Carlo draws), the unstable samples
+    and the worst figures per break point."""
+
     n_samples: int
     n_corners: int
     n_monte_carlo: int
@@ -149,6 +167,8 @@ class RobustReport(_Out):
 
 
 class NonlinearReport(_Out):
+    """The nonlinear simulation check: whether it ran and passed (no divergence, no safety trip)."""
+
     ran: bool
     passed: bool | None = None
     tripped: bool | None = None
@@ -164,15 +184,16 @@ class RequirementLine(_Out):
     figure: str
     limit: float
     value: float
-    margin: float = Field(description="Distance to the limit, positive when met (value - limit for minima, limit - value for maxima).")
+    margin: float = Field(
+        description="Distance to the limit, positive when met (value - limit for minima, limit - value for maxima).")
     passed: bool
     loop: str | None = None
     break_point: str | None = None
     case: Literal["nominal", "worst"] = "nominal"
     applicable: bool = Field(
-        True, description="False when the closed loop the figure is read on is unstable (nominal case: the nominal loop; "
-        "worst case: any sampled plant): margins and sensitivity peaks of an unstable loop mean nothing. Such a line "
-        "is neither pass nor fail: passed is false and the instability is the reason.")
+        True, description="False when the closed loop the figure is read on is unstable (nominal case: the nominal "
+        "loop; worst case: any sampled plant): margins and sensitivity peaks of an unstable loop mean nothing. "
+        "Such a line is neither pass nor fail: passed is false and the instability is the reason.")
 
     @property
     def status(self) -> Literal["pass", "fail", "n/a"]:
@@ -192,7 +213,8 @@ class VerificationReport(_Out):
     sampling_delay: float = Field(
         description="Continuous analysis (sampled false): dt/2 added to the loop delay for sample-and-hold (largest "
         "scenario dt). Sampled analysis: 0, the hold is modelled exactly.")
-    sampled: bool = Field(False, description="The sampled loop was analysed (verify.sampled); false: continuous plus dt/2.")
+    sampled: bool = Field(
+        False, description="The sampled loop was analysed (verify.sampled); false: continuous plus dt/2.")
     dt: float | None = Field(None, description="Sample time of the analysis (s): the largest scenario dt.")
     compute_delay: int = Field(0, description="Samples of computation delay included (verify.compute_delay).")
     delay_method: Literal["exact", "pade", "none"]
@@ -200,10 +222,10 @@ class VerificationReport(_Out):
     operating_point: dict[str, float] = Field(default_factory=dict, description="x0 and u0 of the linearisation.")
     stability: StabilityReport
     analysis_band: tuple[float, float] | None = Field(
-        None, description="Frequency band (rad/s) of the nominal analysis. Sampled loop: it ends at the Nyquist frequency "
-        "pi/dt (the rest of the unit circle mirrors it). Continuous loop: it ends at 10 x pi/dt when the frequencies above "
-        "are proven unable to change any figure or the stability count, else higher; crossings above it are neither "
-        "listed nor counted.")
+        None, description="Frequency band (rad/s) of the nominal analysis. Sampled loop: it ends at the Nyquist "
+        "frequency pi/dt (the rest of the unit circle mirrors it). Continuous loop: it ends at 10 x pi/dt when the "
+        "frequencies above are proven unable to change any figure or the stability count, else higher; crossings "
+        "above it are neither listed nor counted.")
     loops: list[LoopFigures]
     robust: RobustReport | None = None
     nonlinear: NonlinearReport | None = None
@@ -213,6 +235,7 @@ class VerificationReport(_Out):
 
     @property
     def passed(self) -> bool:
+        """Whether the verdict is ``pass``."""
         return self.verdict == "pass"
 
     @property
@@ -295,8 +318,8 @@ def _other_form(gains: dict[str, float]) -> str:
     return f" ({other}: " + ", ".join(f"{k} {_f(v, '{:.4g}')}{unit.get(k, '')}" for k, v in alt.items()) + ")"
 
 
-def format_table(report: VerificationReport) -> str:
-    """Plain-text summary used by ``gaintune verify``."""
+def _header(report: VerificationReport) -> list[str]:
+    """Verdict, gains and the closed loop analysed."""
     lines = [f"verification of {report.spec_name!r}: {report.verdict.upper()}"]
     # the verdict belongs to these gains: print them, so that a table is never read without them
     lines.append("gains: " + "; ".join(
@@ -315,12 +338,18 @@ def format_table(report: VerificationReport) -> str:
             f"closed loop: {'stable' if st.stable else 'UNSTABLE'} ({st.method}; max Re pole {_f(st.max_real_pole)})"
             f"; delay {_f(report.delay)} s + sampling {_f(report.sampling_delay)} s ({report.delay_method}{cd})"
         )
+    return lines
+
+
+def _loop_table(report: VerificationReport) -> list[str]:
+    """The figures per break point (not applicable on an unstable loop)."""
     hdr = (f"{'loop':<12} {'break':<8} {'GM dB':>7} {'GMlo dB':>7} {'PM deg':>7} {'wc':>8} {'DM s':>8} {'DM smp':>7} "
            f"{'Ms':>6} {'Mt':>6} {'Mks':>8} {'disk a':>6}")
-    lines += ["", hdr, "-" * len(hdr)]
-    if not st.stable and report.loops:
+    lines = ["", hdr, "-" * len(hdr)]
+    stable = report.stability.stable
+    if not stable and report.loops:
         lines.append(f"{'(all loops)':<12} {NOT_APPLICABLE}")
-    for f in report.loops if st.stable else []:
+    for f in report.loops if stable else []:
         brk = "ctrl" if f.break_point == "controller_output" else "u"
         gm_up, gm_lo = _f(f.gm_upper_db, '{:.2f}'), _f(f.gm_lower_db, '{:.2f}')
         if f.gm_binding == "increase":
@@ -334,33 +363,63 @@ def format_table(report: VerificationReport) -> str:
         )
     if report.loops:
         lines.append("(* the binding gain margin, gm_db)")
+    return lines
+
+
+def _robust_lines(r: RobustReport) -> list[str]:
+    """The robust check's worst figures per break point."""
+    lines = ["", f"robust: {r.n_samples} samples ({r.n_corners} corners + {r.n_monte_carlo} draws), "
+             f"{r.n_unstable} unstable"]
+    for w in r.worst:
+        brk = "ctrl" if w.break_point == "controller_output" else "u"
+        lines.append(
+            f"{w.loop:<12} {brk:<8} worst GM {_f(w.gm_db, '{:.2f}')} dB, PM {_f(w.pm_deg, '{:.1f}')} deg, "
+            f"DM {_f(w.delay_margin)} s, Ms {_f(w.ms, '{:.2f}')}, Mt {_f(w.mt, '{:.2f}')}"
+            + (f", Mks {_f(w.mks, '{:.4g}')}" if w.mks is not None else "")
+        )
+    return lines
+
+
+def _requirement_table(requirements: list[RequirementLine]) -> list[str]:
+    """One line per requirement: PASS, FAIL or N/A, with its figure, limit and margin."""
+    lines = ["", "requirements:"]
+    for q in requirements:
+        where = f"{q.loop}/{q.break_point}/{q.case}" if q.loop else q.case
+        if not q.applicable:
+            lines.append(f"  N/A  {q.requirement:<11} {NOT_APPLICABLE} at {where}")
+            continue
+        lines.append(
+            f"  {'PASS' if q.passed else 'FAIL'} {q.requirement:<11} {q.figure}={_f(q.value, '{:.4g}')} "
+            f"limit {_f(q.limit, '{:.4g}')} margin {_f(q.margin, '{:+.4g}')} at {where}"
+        )
+    return lines
+
+
+def format_table(report: VerificationReport) -> str:
+    """Plain-text summary used by ``gaintune verify``.
+
+    Parameters
+    ----------
+    report
+        A verification report.
+
+    Returns
+    -------
+    str
+        Verdict, gains and closed loop; the figures per break point; the robust and nonlinear
+        checks; the requirement lines; the reasons and notes.
+    """
+    lines = _header(report) + _loop_table(report)
     if report.robust is not None:
-        r = report.robust
-        lines += ["", f"robust: {r.n_samples} samples ({r.n_corners} corners + {r.n_monte_carlo} draws), {r.n_unstable} unstable"]
-        for w in r.worst:
-            brk = "ctrl" if w.break_point == "controller_output" else "u"
-            lines.append(
-                f"{w.loop:<12} {brk:<8} worst GM {_f(w.gm_db, '{:.2f}')} dB, PM {_f(w.pm_deg, '{:.1f}')} deg, "
-                f"DM {_f(w.delay_margin)} s, Ms {_f(w.ms, '{:.2f}')}, Mt {_f(w.mt, '{:.2f}')}"
-                + (f", Mks {_f(w.mks, '{:.4g}')}" if w.mks is not None else "")
-            )
+        lines += _robust_lines(report.robust)
     if report.nonlinear is not None:
-        n = report.nonlinear
-        state = "not run" if not n.ran else ("not applicable" if n.passed is None else ("ok" if n.passed else "FAILED"))
-        lines += ["", f"nonlinear check: {state}" + (f" ({n.note})" if n.note else "")]
+        nl = report.nonlinear
+        passed = "not applicable" if nl.passed is None else ("ok" if nl.passed else "FAILED")
+        state = "not run" if not nl.ran else passed
+        lines += ["", f"nonlinear check: {state}" + (f" ({nl.note})" if nl.note else "")]
     if report.requirements:
-        lines += ["", "requirements:"]
-        for q in report.requirements:
-            where = f"{q.loop}/{q.break_point}/{q.case}" if q.loop else q.case
-            if not q.applicable:
-                lines.append(f"  N/A  {q.requirement:<11} {NOT_APPLICABLE} at {where}")
-                continue
-            lines.append(
-                f"  {'PASS' if q.passed else 'FAIL'} {q.requirement:<11} {q.figure}={_f(q.value, '{:.4g}')} limit {_f(q.limit, '{:.4g}')} "
-                f"margin {_f(q.margin, '{:+.4g}')} at {where}"
-            )
+        lines += _requirement_table(report.requirements)
     if report.reasons:
         lines += ["", "reasons:"] + [f"  - {r}" for r in report.reasons]
-    for n in report.notes:
-        lines.append(f"note: {n}")
+    lines += [f"note: {note}" for note in report.notes]
     return "\n".join(lines)

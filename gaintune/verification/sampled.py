@@ -36,6 +36,8 @@ frequency pi/dt), or s = -eps + j w for the Nyquist contour |z| = e^{-eps dt}.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+
 import numpy as np
 
 from gaintune.errors import SpecError
@@ -45,7 +47,8 @@ from gaintune.spec import check_delay_samples
 __all__ = ["SampledPlant", "sample_plant", "zoh_delay", "rk4_matrices", "discrete_ops"]
 
 
-def zoh_delay(A: np.ndarray, B: np.ndarray, dt: float, delay: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, float]:
+def zoh_delay(A: np.ndarray, B: np.ndarray, dt: float,
+              delay: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, float]:
     """Exact ZOH with an input delay: (Ad, G0, G1, d, frac), as :func:`gaintune.sim.build.discretize`.
 
     ``x[k+1] = Ad x[k] + G0 u[k-d] + G1 u[k-d-1]`` with delay = d dt + frac, 0 <= frac < dt:
@@ -78,24 +81,28 @@ def rk4_matrices(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, n
     """One classical RK4 step of dx/dt = A x + B u with u held: (Ad, G0), as the simulator steps nonlinear plants."""
     n = A.shape[0]
     M = A * dt
-    I = np.eye(n)
+    eye = np.eye(n)
     M2 = M @ M
     M3 = M2 @ M
-    Ad = I + M + M2 / 2.0 + M3 / 6.0 + M3 @ M / 24.0
-    G0 = (I + M / 2.0 + M2 / 6.0 + M3 / 24.0) @ B[:, 0] * dt
+    Ad = eye + M + M2 / 2.0 + M3 / 6.0 + M3 @ M / 24.0
+    G0 = (eye + M / 2.0 + M2 / 6.0 + M3 / 24.0) @ B[:, 0] * dt
     return Ad, G0
 
 
-def discrete_ops(z: np.ndarray, dt: float):
+def discrete_ops(z: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], np.ndarray]]:
     """(z^-1, integral operator dt/(1 - z^-1), derivative operator Tf -> (1 - z^-1)/(Tf + dt - Tf z^-1))."""
     zi = 1.0 / z
     one_m = 1.0 - zi
     integ = dt / one_m
 
-    def deriv(tf):
+    def deriv(tf: np.ndarray) -> np.ndarray:
         return one_m / (tf + dt - tf * zi)
 
     return zi, integ, deriv
+
+
+#: (T, Z, Z^H G0, Z^H G1, diag T) of the complex Schur form Ad = Z T Z^H.
+_Schur = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
 class SampledPlant:
@@ -104,8 +111,8 @@ class SampledPlant:
     ``d`` (input) and ``dD`` (feedthrough) include the computation delay.
     """
 
-    def __init__(self, lin: LinearModel, dt: float, Ad, G0, G1, d: int, frac: float, dD: int, method: str,
-                 compute_delay: int, delay: float):
+    def __init__(self, lin: LinearModel, dt: float, Ad: np.ndarray, G0: np.ndarray, G1: np.ndarray, d: int,
+                 frac: float, dD: int, method: str, compute_delay: int, delay: float):
         self.lin = lin
         self.dt = float(dt)
         self.Ad, self.G0, self.G1 = Ad, G0, G1
@@ -117,15 +124,17 @@ class SampledPlant:
         self.delay = float(delay)  # the plant's own input delay (s), without the computation delay
         self.has_G1 = bool(np.any(G1 != 0.0))
         self.has_D = bool(np.any(self.D != 0.0))
-        self._schur = None
-        self._eig = None
+        self._schur: _Schur | None = None
+        self._eig: np.ndarray | None = None
 
     @property
     def n(self) -> int:
+        """Number of plant states."""
         return self.Ad.shape[0]
 
     @property
     def nyquist(self) -> float:
+        """The Nyquist frequency pi/dt (rad/s)."""
         return math.pi / self.dt
 
     @property
@@ -141,7 +150,7 @@ class SampledPlant:
             m = max(m, self.dD)
         return m
 
-    def for_model(self, lin: LinearModel) -> "SampledPlant":
+    def for_model(self, lin: LinearModel) -> SampledPlant:
         """The same sampling (dt, computation delay, method, plant delay) of another model of this plant."""
         return sample_plant(lin, self.dt, self.compute_delay, self.method == "rk4", self.delay)
 
@@ -153,11 +162,12 @@ class SampledPlant:
         return np.exp(x)
 
     def eigvals(self) -> np.ndarray:
+        """Eigenvalues of Ad (computed once)."""
         if self._eig is None:
             self._eig = np.linalg.eigvals(self.Ad) if self.n else np.zeros(0, dtype=complex)
         return self._eig
 
-    def schur(self):
+    def schur(self) -> _Schur:
         """Complex Schur form Ad = Z T Z^H and Z^H G0, Z^H G1 (computed once)."""
         if self._schur is None:
             import scipy.linalg  # deferred (see above)
@@ -205,7 +215,8 @@ def _check_finite(sp: SampledPlant, A: np.ndarray) -> None:
     with np.errstate(all="ignore"):
         a = float(np.max(np.abs(A))) if A.size else 1.0
     # blame whichever of the plant's rate |A| and dt is further from ordinary scales
-    field = "plant" if not math.isfinite(a) or abs(math.log10(max(a, 1e-320))) >= abs(math.log10(sp.dt)) else "scenario.dt"
+    plant_side = not math.isfinite(a) or abs(math.log10(max(a, 1e-320))) >= abs(math.log10(sp.dt))
+    field = "plant" if plant_side else "scenario.dt"
     raise SpecError(field, f"the plant sampled at dt = {sp.dt:.3g} s (the largest scenario dt) is not finite "
                            f"(plant matrix entries up to {a:.3g}): plant coefficients or dt out of any usable range")
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Literal, overload
 
 import numpy as np
 
@@ -28,7 +29,7 @@ from gaintune.plants.plant import LinearModel
 from gaintune.verification.cascade import Cascade
 from gaintune.verification.freqresp import DelayModel, Evaluator, char_freqs
 from gaintune.verification.sampled import SampledPlant
-from gaintune.verification.tail import chain_ss, level_clear
+from gaintune.verification.tail import SS, chain_ss, level_clear
 
 __all__ = ["Stability", "closed_loop_stability", "closed_loop_stability_sampled", "sampled_stability",
            "nyquist_count_sampled", "observable_part", "EIG_MAX", "QUICK_EIG_MAX"]
@@ -55,7 +56,8 @@ class Stability:
 
 
 #: The reason given when overflow leaves the closed loop undecidable.
-_OVERFLOW = "the closed loop overflows (non-finite matrix, poles or Nyquist count): gains or plant coefficients too large to analyse"
+_OVERFLOW = ("the closed loop overflows (non-finite matrix, poles or Nyquist count): gains or plant coefficients "
+             "too large to analyse")
 
 
 def _eigvals_finite(A: np.ndarray) -> np.ndarray | None:
@@ -143,8 +145,12 @@ def _contour(ev: Evaluator, ol_poles_s: np.ndarray, w_hi: float, eps: float, n_f
     return w, phi
 
 
+#: (count or None when L overflowed, distance of the raw count from an integer, tail checked, |L| far out)
+_Count = tuple[int | None, float, bool, float]
+
+
 def _argument_principle(ev: Evaluator, ol_poles: np.ndarray, w_hi: float, eps: float, n_freq: int,
-                        tail_proven: bool = False):
+                        tail_proven: bool = False) -> _Count:
     """Number of closed-loop roots right of Re s = -eps (plant-input cut, row -1).
 
     The contour runs on the grid up to ``w_hi``; above it |L| < 1 keeps 1 + L in the right
@@ -172,18 +178,19 @@ def _argument_principle(ev: Evaluator, ol_poles: np.ndarray, w_hi: float, eps: f
     return z, abs(z_real - z), tail_ok, float(np.abs(far - 1.0))
 
 
-def _discrete_nyquist(ev: Evaluator, ol_z: np.ndarray, eps: float, n_freq: int):
+def _discrete_nyquist(ev: Evaluator, sp: SampledPlant, ol_z: np.ndarray, eps: float,
+                      n_freq: int) -> tuple[int | None, float]:
     """Closed-loop roots of the sampled loop on or outside |z| = rho = e^{-eps dt} (discrete Nyquist).
 
     With chi_cl = chi_ol (1 + L_u) and the contour |z| = rho run counter-clockwise, the roots
     inside are the open-loop poles inside plus the turns of 1 + L_u; by conjugate symmetry
     the upper half (w from 0 to the Nyquist frequency, both ends real) gives half the turn.
-    Returns (count, distance of the raw count from an integer).
+    ``sp``: the sampled plant ``ev`` evaluates. Returns (count, distance of the raw count from an integer).
     """
-    dt = ev.sampled.dt
+    dt = sp.dt
     rho = math.exp(-eps * dt)
     nz = ol_z[np.abs(ol_z) > 0]
-    w, phi = _contour(ev, np.log(nz.astype(complex)) / dt, ev.sampled.nyquist, eps, n_freq)
+    w, phi = _contour(ev, np.log(nz.astype(complex)) / dt, sp.nyquist, eps, n_freq)
     ang = np.unwrap(np.angle(phi))
     turns = (ang[-1] - ang[0]) / np.pi  # full turns of 1 + L_u around the closed contour
     p_out = int(np.sum(np.abs(ol_z) >= rho))
@@ -197,7 +204,8 @@ def _discrete_nyquist(ev: Evaluator, ol_z: np.ndarray, eps: float, n_freq: int):
 def _unmeasured_modes(bad: np.ndarray, marginal: np.ndarray, notes: list[str]) -> int:
     """Note the plant modes no loop measures; return how many of them are unstable (they add to the count)."""
     if bad.size:
-        notes.append(f"unstable plant mode(s) {np.round(bad, 6).tolist()} not measured by any loop: cannot be stabilised")
+        notes.append(f"unstable plant mode(s) {np.round(bad, 6).tolist()} not measured by any loop: "
+                     "cannot be stabilised")
     if marginal.size:
         notes.append(
             f"marginal plant mode(s) {np.round(marginal, 6).tolist()} not measured by any loop (e.g. an integrator "
@@ -206,8 +214,67 @@ def _unmeasured_modes(bad: np.ndarray, marginal: np.ndarray, notes: list[str]) -
     return int(bad.size)
 
 
+def _closed_loop_poles(A: np.ndarray) -> tuple[np.ndarray, float, int | None]:
+    """(poles, largest real part, count with Re >= 0) of the closed-loop matrix ``A``; no poles,
+    NaN and None when it overflows."""
+    eig = _eigvals_finite(A)
+    poles = eig if eig is not None else np.zeros(0, dtype=complex)
+    scale = max(1.0, float(np.max(np.abs(poles))) if poles.size else 1.0)
+    max_re = float(np.max(poles.real)) if poles.size else (-math.inf if eig is not None else math.nan)
+    rhp_poles = int(np.sum(poles.real > -1e-12 * scale)) if eig is not None else None
+    return poles, max_re, rhp_poles
+
+
+def _tail_proven(cas: Cascade, lin: LinearModel, delay: DelayModel, eps: float, w_hi: float,
+                 g_u: SS | None) -> bool:
+    """|L_u(-eps + jw)| < 1 above ``w_hi``, proven. On this contour the delay factor (exact or
+    Padé) has modulus 1 + O(eps T), with eps T < 1e-6 in practice: 0.999 leaves room for it."""
+    if g_u is None:
+        g_u = chain_ss(cas, lin, 0, len(cas.loops) - 1, "u")
+    return level_clear(g_u, 0.999 * math.exp(-2.0 * eps * max(delay.T, 0.0)), w_hi, shift=eps)
+
+
+def _nyquist_decides(count: _Count, notes: list[str]) -> int | None:
+    """The right-half-plane count of an exact-delay loop, from the argument principle."""
+    nyq, frac_err, tail_ok, l_inf = count
+    rhp = nyq
+    if nyq is not None and not tail_ok:
+        notes.append(f"|L(jw)| does not fall below 1 at high frequency (|L| -> {l_inf:.3g}): neutral delay loop, "
+                     "unstable")
+        rhp = max(nyq, 1)
+    if frac_err > 0.25 and nyq is not None:
+        notes.append("argument-principle count is not close to an integer; grid may be too coarse")
+    return rhp
+
+
+def _poles_decide(nyq: int | None, rhp_poles: int | None, notes: list[str], what: str = "Nyquist count") -> None:
+    """Note where the Nyquist cross-check of a pole count fails or disagrees (the poles decide)."""
+    if nyq is None and rhp_poles is not None:
+        notes.append(f"{what} not computable (the loop response overflows); poles decide")
+    elif nyq != rhp_poles and rhp_poles is not None:
+        notes.append(f"{what} ({nyq}) differs from the pole count ({rhp_poles}); poles decide")
+
+
+def _undecided(rhp: int | None, notes: list[str]) -> tuple[int, str | None]:
+    """(count, why undecided): an overflow (no count) certifies nothing, so the loop counts as unstable."""
+    if rhp is None:
+        notes.append(_OVERFLOW)
+        return 1, _OVERFLOW
+    return rhp, None
+
+
+@overload
 def closed_loop_stability(ev: Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel, w_hi: float,
-                          n_freq: int, capped: bool = False, g_u=None) -> Stability | None:
+                          n_freq: int, capped: Literal[False] = False, g_u: SS | None = None) -> Stability: ...
+
+
+@overload
+def closed_loop_stability(ev: Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel, w_hi: float,
+                          n_freq: int, capped: bool, g_u: SS | None = None) -> Stability | None: ...
+
+
+def closed_loop_stability(ev: Evaluator, cas: Cascade, lin: LinearModel, delay: DelayModel, w_hi: float,
+                          n_freq: int, capped: bool = False, g_u: SS | None = None) -> Stability | None:
     """Closed-loop stability. ``capped``: the grid stops at ``w_hi``, short of where |L| is
     negligible; the Nyquist contour is then closed with a proven bound |L_u| < 1 above
     ``w_hi``, and None is returned when that bound cannot be proven. ``g_u``: the delay-free
@@ -219,57 +286,31 @@ def closed_loop_stability(ev: Evaluator, cas: Cascade, lin: LinearModel, delay: 
     # pole list of an exact-delay loop: Padé of order 6, or 2 when the delay is tiny for the loop
     pade = delay.pade(6 if delay.T * float(cf.max()) > 0.05 else 2) if has_delay else None
     # modes no loop measures are untouched by feedback: judge them separately
-    meas = cas.measured
     lin_full = lin
     unobs = np.zeros(0, dtype=complex)
-    if meas is not None:
-        lin, unobs = observable_part(lin, meas)
-    A = cas.closed_loop_A(lin, pade)[0]
-    eig = _eigvals_finite(A)
-    poles = eig if eig is not None else np.zeros(0, dtype=complex)
-    scale = max(1.0, float(np.max(np.abs(poles))) if poles.size else 1.0)
+    if cas.measured is not None:
+        lin, unobs = observable_part(lin, cas.measured)
+    poles, max_re, rhp_poles = _closed_loop_poles(cas.closed_loop_A(lin, pade)[0])
     eps = 1e-7 * float(char_freqs(cas, lin, delay).min())
-    max_re = float(np.max(poles.real)) if poles.size else (-math.inf if eig is not None else math.nan)
-    rhp_poles = int(np.sum(poles.real > -1e-12 * scale)) if eig is not None else None
     ol = cas.open_loop_poles(lin, pade if not exact_delay else None)[0]
-    proven = False
-    if capped:
-        # |L_u(-eps + jw)| < 1 above the band. On this contour the delay factor (exact or Padé)
-        # has modulus 1 + O(eps T), with eps T < 1e-6 in practice: 0.999 leaves room for it.
-        if g_u is None:
-            g_u = chain_ss(cas, lin, 0, len(cas.loops) - 1, "u")
-        proven = level_clear(g_u, 0.999 * math.exp(-2.0 * eps * max(delay.T, 0.0)), w_hi, shift=eps)
-        if not proven:
-            return None
-    nyq, frac_err, tail_ok, l_inf = _argument_principle(ev, ol, w_hi, eps, n_freq, proven)
+    proven = capped and _tail_proven(cas, lin, delay, eps, w_hi, g_u)
+    if capped and not proven:
+        return None
+    count = _argument_principle(ev, ol, w_hi, eps, n_freq, proven)
+    nyq = count[0]
     if exact_delay:
-        method = "nyquist"
-        rhp = nyq
-        if nyq is None:
-            pass  # undecided: see below
-        elif not tail_ok:
-            notes.append(f"|L(jw)| does not fall below 1 at high frequency (|L| -> {l_inf:.3g}): neutral delay loop, unstable")
-            rhp = max(rhp, 1)
-        if frac_err > 0.25 and nyq is not None:
-            notes.append("argument-principle count is not close to an integer; grid may be too coarse")
+        method, rhp = "nyquist", _nyquist_decides(count, notes)
         poles_method = f"pade{pade[1]}" if pade else "exact"
     else:
-        method = "poles"
-        rhp = rhp_poles
+        method, rhp = "poles", rhp_poles
         poles_method = "exact" if not has_delay else f"pade{delay.pade_order}"
-        if nyq is None and rhp is not None:
-            notes.append("Nyquist count not computable (the loop response overflows); poles decide")
-        elif nyq != rhp_poles and rhp is not None:
-            notes.append(f"Nyquist count ({nyq}) differs from the pole count ({rhp_poles}); poles decide")
-    uncertain = None
-    if rhp is None:  # overflow: nothing certified, so not stable
-        uncertain, rhp = _OVERFLOW, 1
-        notes.append(_OVERFLOW)
+        _poles_decide(nyq, rhp_poles, notes)
+    n_rhp, uncertain = _undecided(rhp, notes)
     if unobs.size:
         tol = 1e-9 * max(1.0, float(np.max(np.abs(plant_eigvals(lin_full)))))
-        rhp += _unmeasured_modes(unobs[unobs.real > tol], unobs[np.abs(unobs.real) <= tol], notes)
-    return Stability(rhp == 0, method, int(rhp), None if nyq is None else int(nyq), poles, poles_method, max_re, notes,
-                     uncertain=uncertain)
+        n_rhp += _unmeasured_modes(unobs[unobs.real > tol], unobs[np.abs(unobs.real) <= tol], notes)
+    return Stability(n_rhp == 0, method, int(n_rhp), None if nyq is None else int(nyq), poles, poles_method, max_re,
+                     notes, uncertain=uncertain)
 
 
 #: Largest closed-loop state dimension of a sampled loop whose eigenvalues are computed (a long
@@ -292,7 +333,7 @@ def closed_loop_stability_sampled(ev: Evaluator, cas: Cascade, lin: LinearModel,
     ol = cas.open_loop_poles_sampled(spr)[0]
     N = spr.n + spr.buffer_len + sum(lp.n_states() for lp in cas.loops)
     eps = 1e-7 * float(char_freqs(cas, lin_r, DelayModel(sp.total_delay)).min())
-    nyq, frac_err = _discrete_nyquist(ev, ol, eps, n_freq)
+    nyq, frac_err = _discrete_nyquist(ev, sp, ol, eps, n_freq)
     if N <= EIG_MAX:
         A = cas.closed_loop_sampled(spr)[0]
         eig = _eigvals_finite(A)
@@ -300,10 +341,7 @@ def closed_loop_stability_sampled(ev: Evaluator, cas: Cascade, lin: LinearModel,
         rad = (float(np.max(np.abs(poles))) if poles.size else 0.0) if eig is not None else math.nan
         rhp = int(np.sum(np.abs(poles) > 1.0 - 1e-10)) if eig is not None else None
         method, poles_method = "poles", "exact"
-        if nyq is None and rhp is not None:
-            notes.append("discrete Nyquist count not computable (the loop response overflows); poles decide")
-        elif nyq != rhp and rhp is not None:
-            notes.append(f"discrete Nyquist count ({nyq}) differs from the pole count ({rhp}); poles decide")
+        _poles_decide(nyq, rhp, notes, "discrete Nyquist count")
     else:
         poles = np.zeros(0, dtype=complex)
         rad = math.nan
@@ -313,17 +351,14 @@ def closed_loop_stability_sampled(ev: Evaluator, cas: Cascade, lin: LinearModel,
                      "criterion decides; poles not listed")
         if frac_err > 0.25 and nyq is not None:
             notes.append("discrete Nyquist count is not close to an integer; grid may be too coarse")
-    uncertain = None
-    if rhp is None:  # overflow: nothing certified, so not stable
-        uncertain, rhp = _OVERFLOW, 1
-        notes.append(_OVERFLOW)
+    n_rhp, uncertain = _undecided(rhp, notes)
     if unobs.size:
         zu = np.abs(sp.mode_factor(unobs))
-        rhp += _unmeasured_modes(unobs[zu > 1.0 + 1e-9], unobs[np.abs(zu - 1.0) <= 1e-9], notes)
+        n_rhp += _unmeasured_modes(unobs[zu > 1.0 + 1e-9], unobs[np.abs(zu - 1.0) <= 1e-9], notes)
     with np.errstate(divide="ignore"):
         max_re = math.log(rad) / sp.dt if math.isfinite(rad) and rad > 0 else (-math.inf if rad == 0 else math.nan)
-    return Stability(rhp == 0, method, int(rhp), None if nyq is None else int(nyq), poles, poles_method, max_re, notes,
-                     "z", rad if math.isfinite(rad) else None, uncertain)
+    return Stability(n_rhp == 0, method, int(n_rhp), None if nyq is None else int(nyq), poles, poles_method, max_re,
+                     notes, "z", rad if math.isfinite(rad) else None, uncertain)
 
 
 # --------------------------------------------------------------- batched (the quick estimate)
@@ -379,7 +414,8 @@ def nyquist_count_sampled(cas: Cascade, lin: LinearModel, sp: SampledPlant, ol: 
     eps = 1e-3 * w_lo
     rho = math.exp(-eps * dt)
     spin = max(sp.total_delay, dt)
-    parts = [[0.0], np.logspace(np.log10(eps / 100), np.log10(wn), 400), np.linspace(0.0, wn, int(wn * spin / 0.3) + 2)]
+    parts: list[np.ndarray] = [np.zeros(1), np.logspace(np.log10(eps / 100), np.log10(wn), 400),
+                               np.linspace(0.0, wn, int(wn * spin / 0.3) + 2)]
     pz = np.unique(ol[np.abs(ol) > 0.5].ravel())
     if pz.size:
         s_p = np.log(pz.astype(complex)) / dt

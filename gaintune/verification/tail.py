@@ -2,11 +2,12 @@
 
 This concerns the continuous analysis (``verify.sampled: false``; the sampled loop's band
 simply ends at pi/dt, where its Nyquist curve ends). The loop is analysed in continuous time
-with the sample-and-hold as dt/2 of delay, a model that only holds below the Nyquist frequency pi/dt. Resolving the delay's phase spin far
-above it (up to where |L| < 1e-4, often 1e7 rad/s) costs most of the grid and describes
-nothing physical. :func:`gaintune.verification.analysis.analyse` therefore stops the band at a
-multiple of the Nyquist frequency, *provided* this module proves that the frequencies above
-the band cannot change any figure or the stability count:
+with the sample-and-hold as dt/2 of delay, a model that only holds below the Nyquist frequency
+pi/dt. Resolving the delay's phase spin far above it (up to where |L| < 1e-4, often 1e7 rad/s)
+costs most of the grid and describes nothing physical.
+:func:`gaintune.verification.analysis.analyse` therefore stops the band at a multiple of the
+Nyquist frequency, *provided* this module proves that the frequencies above the band cannot
+change any figure or the stability count:
 
 * every break point's |L(jw)| stays below a level tau for all w >= w_cap, where tau is
   chosen from the band's own figures so that no gain crossing, no lower gain margin, no
@@ -37,7 +38,8 @@ import math
 import numpy as np
 
 from gaintune.plants.plant import LinearModel
-from gaintune.verification.cascade import controller_state_index
+from gaintune.verification.cascade import Cascade
+from gaintune.verification.laws import LoopCtl, controller_state_index
 
 __all__ = ["chain_ss", "series", "level_clear", "tail_levels"]
 
@@ -47,7 +49,56 @@ SS = tuple[np.ndarray, np.ndarray, np.ndarray, float]
 INNER_LEVEL = 0.5
 
 
-def chain_ss(cas, lin: LinearModel, j0: int, j1: int, drive: str) -> SS:
+#: An unbatched linear signal: its row over the states and its coefficient of the chain's input.
+_Sig = tuple[np.ndarray, float]
+
+
+def _comb(N: int, *terms: tuple[float, _Sig]) -> _Sig:
+    """Sum of coefficient x signal."""
+    rx, ru = np.zeros(N), 0.0
+    for c, (tx, tu) in terms:
+        rx = rx + c * tx
+        ru = ru + c * tu
+    return rx, ru
+
+
+def _unit(N: int, j: int) -> _Sig:
+    """State ``j`` itself."""
+    r = np.zeros(N)
+    r[j] = 1.0
+    return r, 0.0
+
+
+def _pid_rows(lp: LoopCtl, r: _Sig, y: _Sig, ii: int | None, di: int | None, A: np.ndarray,
+              Bv: np.ndarray) -> _Sig:
+    """A PID loop of the chain: its states' rows of (A, B) are written, its output returned."""
+    N = A.shape[0]
+    kp, ki, kd, tf = float(lp.Kp[0]), float(lp.Ki[0]), float(lp.Kd[0]), float(lp.Tf[0])
+    terms = [(kp * lp.b, r), (-kp, y)]
+    if ii is not None:
+        A[ii], Bv[ii] = _comb(N, (1.0, r), (-1.0, y))
+        terms.append((ki, _unit(N, ii)))
+    if di is not None:
+        ed = _comb(N, (lp.c, r), (-1.0, y), (-1.0, _unit(N, di)))  # c r - y - xd
+        A[di], Bv[di] = _comb(N, (1.0 / tf, ed))
+        terms.append((kd / tf, ed))
+    return _comb(N, *terms)
+
+
+def _lq_rows(lp: LoopCtl, r: _Sig, y: _Sig, ii: int | None, n: int, A: np.ndarray, Bv: np.ndarray) -> _Sig:
+    """An LQ loop of the chain (state feedback over the ``n`` plant states, 0 when the plant is at rest)."""
+    N = A.shape[0]
+    fx = np.zeros(N)
+    if n:
+        fx[:n] = -np.asarray(lp.K[0], dtype=float)
+    terms = [(1.0, (fx, 0.0)), (float(lp.Nr[0]), r)]
+    if ii is not None:
+        A[ii], Bv[ii] = _comb(N, (1.0, r), (-1.0, y))
+        terms.append((float(lp.Kint[0]), _unit(N, ii)))
+    return _comb(N, *terms)
+
+
+def chain_ss(cas: Cascade, lin: LinearModel, j0: int, j1: int, drive: str) -> SS:
     """Delay-free state space of the open controller chain, loops j0..j1, member 0 of ``cas``.
 
     ``drive = "u"``: input u enters the plant, r_{j0} = 0, output v_{j1} (that is G_{j1} for
@@ -58,22 +109,9 @@ def chain_ss(cas, lin: LinearModel, j0: int, j1: int, drive: str) -> SS:
     n = lin.A.shape[0] if plant else 0
     loops = cas.loops[j0 : j1 + 1]
     ctl, N = controller_state_index(loops, n)
-    # a signal is (row over the states, coefficient of the input)
     zero = (np.zeros(N), 0.0)
 
-    def unit(j):
-        r = np.zeros(N)
-        r[j] = 1.0
-        return r, 0.0
-
-    def comb(*terms):
-        rx, ru = np.zeros(N), 0.0
-        for c, (tx, tu) in terms:
-            rx = rx + c * tx
-            ru = ru + c * tu
-        return rx, ru
-
-    def output(j):
+    def output(j: int) -> _Sig:
         if not plant:
             return zero
         rx = np.zeros(N)
@@ -86,27 +124,9 @@ def chain_ss(cas, lin: LinearModel, j0: int, j1: int, drive: str) -> SS:
         A[:n, :n] = lin.A
         Bv[:n] = lin.B[:, 0]
     r = zero if plant else (np.zeros(N), 1.0)
-    for lp, (ii, di) in zip(loops, ctl):
+    for lp, (ii, di) in zip(loops, ctl, strict=True):
         y = output(lp.out_idx)
-        if lp.kind == "pid":
-            kp, ki, kd, tf = float(lp.Kp[0]), float(lp.Ki[0]), float(lp.Kd[0]), float(lp.Tf[0])
-            terms = [(kp * lp.b, r), (-kp, y)]
-            if ii is not None:
-                A[ii], Bv[ii] = comb((1.0, r), (-1.0, y))
-                terms.append((ki, unit(ii)))
-            if di is not None:
-                ed = comb((lp.c, r), (-1.0, y), (-1.0, unit(di)))  # c r - y - xd
-                A[di], Bv[di] = comb((1.0 / tf, ed))
-                terms.append((kd / tf, ed))
-        else:
-            fx = np.zeros(N)
-            if plant:
-                fx[:n] = -np.asarray(lp.K[0], dtype=float)
-            terms = [(1.0, (fx, 0.0)), (float(lp.Nr[0]), r)]
-            if ii is not None:
-                A[ii], Bv[ii] = comb((1.0, r), (-1.0, y))
-                terms.append((float(lp.Kint[0]), unit(ii)))
-        r = comb(*terms)
+        r = _pid_rows(lp, r, y, ii, di, A, Bv) if lp.kind == "pid" else _lq_rows(lp, r, y, ii, n, A, Bv)
     return A, Bv[:, None], r[0][None, :], float(r[1])
 
 

@@ -160,7 +160,8 @@ def test_verify_of_a_dict_or_a_spec_file_loads_it_instead_of_attribute_error(tmp
 
     from gaintune import load_spec, verify
 
-    data = {"plant": {"tf": {"num": [1], "den": "(s+1)^2"}}, "loops": [{"type": "pi"}], "scenario": {"dt": 0.05, "horizon": 5}}
+    data = {"plant": {"tf": {"num": [1], "den": "(s+1)^2"}}, "loops": [{"type": "pi"}],
+            "scenario": {"dt": 0.05, "horizon": 5}}
     gains = {"loop0": {"Kp": 1.0, "Ki": 0.5}}
     path = tmp_path / "pi.json"
     path.write_text(json.dumps(data))

@@ -50,8 +50,8 @@ def test_unstable_loop_html_report_shows_not_applicable(demo):
 
     gains = UNSTABLE[0]
     rep = verify(demo, gains)
-    result = TuneResult(spec=demo.model_dump(mode="json"), algo="ppo", gains=gains, cost=1.0, metrics={}, curve=[], sims=0,
-                        wall_time=0.0, stopped="budget", verification=rep.model_dump(mode="json"),
+    result = TuneResult(spec=demo.model_dump(mode="json"), algo="ppo", gains=gains, cost=1.0, metrics={}, curve=[],
+                        sims=0, wall_time=0.0, stopped="budget", verification=rep.model_dump(mode="json"),
                         provenance=Provenance(spec_hash=demo.content_hash(), seed=0, versions={}))
     html = render_html(result)
     req = html.split('id="requirements"', 1)[1].split("</table>", 1)[0]

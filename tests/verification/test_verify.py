@@ -8,12 +8,12 @@ import math
 import control as ct
 import numpy as np
 import pytest
+from plant_fixtures import MOTOR
 
 from gaintune.errors import GainError
 from gaintune.spec import load_spec
 from gaintune.verification import format_table, verify
 from gaintune.verification.report import VerificationReport
-from plant_fixtures import MOTOR
 
 # dt = 1 us: the dt/2 sampling delay is negligible when comparing with delay-free python-control loops
 FAST = {"dt": 1e-6, "horizon": 0.1}
@@ -242,7 +242,8 @@ def test_delay_dominant_loop_against_dense_grid_and_pade():
 
 
 def test_two_loop_cascade_matches_hand_computation_with_feedback():
-    spec = make_spec(MOTOR, [{"name": "speed", "type": "pi", "measure": "w"}, {"name": "current", "type": "pi", "measure": "i"}])
+    spec = make_spec(MOTOR, [{"name": "speed", "type": "pi", "measure": "w"},
+                             {"name": "current", "type": "pi", "measure": "i"}])
     gains = {"speed": {"Kp": 2.0, "Ki": 40.0}, "current": {"Kp": 10.0, "Ki": 1000.0}}
     rep = run(spec, gains)
     A, B = np.array(MOTOR["ss"]["A"]), np.array(MOTOR["ss"]["B"])
@@ -357,13 +358,14 @@ def test_robust_worst_case_not_better_than_nominal():
     spec = make_spec(
         {"tf": {"num": ["K"], "den": "(T*s+1)^3"}, "params": {"K": 1.0, "T": 1.0}, "delay": 0.1},
         [{"type": "pi"}],
-        randomize={"params": {"K": [0.7, 1.4], "T": {"dist": "loguniform", "low": 0.8, "high": 1.25}}, "delay": [0.05, 0.3]},
+        randomize={"params": {"K": [0.7, 1.4], "T": {"dist": "loguniform", "low": 0.8, "high": 1.25}},
+                   "delay": [0.05, 0.3]},
         verify={"robust_samples": 6},
     )
     rep = run(spec, {"loop0": {"Kp": 1.0, "Ki": 0.4}})
     assert rep.robust is not None
     assert rep.robust.n_corners == 8 and rep.robust.n_monte_carlo == 6 and rep.robust.n_samples == 14
-    for f, w in zip(rep.loops, rep.robust.worst):
+    for f, w in zip(rep.loops, rep.robust.worst, strict=True):
         assert w.gm_db <= f.gm_db and w.pm_deg <= f.pm_deg and w.delay_margin <= f.delay_margin
         assert w.ms >= f.ms and w.mt >= f.mt and w.disk_alpha <= f.disk_alpha
     # the high-gain, slow, long-delay corner binds GM
@@ -414,13 +416,15 @@ def test_requirement_lines_and_verdict():
 
 
 def test_gains_as_vectors_and_bad_gains():
-    spec = make_spec({"tf": {"num": [1], "den": "(s+1)^3"}}, [{"type": "pi", "gains": {"Ki": {"tune": False, "value": 0.454}}}])
+    spec = make_spec({"tf": {"num": [1], "den": "(s+1)^3"}},
+                     [{"type": "pi", "gains": {"Ki": {"tune": False, "value": 0.454}}}])
     a = run(spec, [1.14, 0.454])  # full vector
     b = run(spec, [1.14])  # tuned only
     c = run(spec, {"loop0": {"Kp": 1.14}})  # fixed gain filled in
     assert a.loops[0].pm_deg == b.loops[0].pm_deg == c.loops[0].pm_deg
     for bad in ([1.0, float("nan")], [1.0, -0.4], [1.0, 2.0, 3.0], [[1.0, 2.0]], "abc",
-                {"loop0": {"Kp": float("inf")}}, {"loopX": {"Kp": 1.0}}, {"loop0": {"Kq": 1.0}}, {"loop0": {"Kp": "1"}}):
+                {"loop0": {"Kp": float("inf")}}, {"loopX": {"Kp": 1.0}}, {"loop0": {"Kq": 1.0}},
+                {"loop0": {"Kp": "1"}}):
         with pytest.raises(GainError):
             run(spec, bad)
 

@@ -13,17 +13,18 @@ import math
 
 import numpy as np
 import pytest
+from plant_fixtures import MOTOR
 
 from gaintune.controllers.layout import GainLayout
 from gaintune.plants.plant import build_plant
 from gaintune.spec import load_spec as _load_spec
 from gaintune.verification import verify
-from gaintune.verification.analysis import analyse, sampling_delay
+from gaintune.verification.analysis import analyse, analysis_band, sampling_delay
 from gaintune.verification.cascade import build_cascade
-from gaintune.verification.core import _to_model, analysis_band
+from gaintune.verification.figures import loop_figures
 from gaintune.verification.freqresp import DelayModel
 from gaintune.verification.tail import chain_ss, level_clear, series
-from plant_fixtures import MOTOR
+
 
 def load_spec(d: dict):
     """Every spec here is analysed in continuous time (verify.sampled: false): the band and its
@@ -39,7 +40,8 @@ def _mag(g, w):
     out = np.empty(w.size)
     for i in range(0, w.size, 20000):
         s = 1j * w[i : i + 20000]
-        X = np.linalg.solve(s[:, None, None] * np.eye(A.shape[0])[None] - A[None], np.broadcast_to(B, (s.size,) + B.shape))
+        X = np.linalg.solve(s[:, None, None] * np.eye(A.shape[0])[None] - A[None],
+                            np.broadcast_to(B, (s.size,) + B.shape))
         out[i : i + 20000] = np.abs((C[None] @ X)[:, 0, 0] + D)
     return out
 
@@ -100,7 +102,8 @@ def _three_loop(loops_extra=None):
         {"name": "current", "type": "pi", "measure": "i", "b": 0.5},
     ]
     spec = load_spec({"plant": MOTOR, "loops": loops, "scenario": {"dt": 1e-3, "horizon": 0.5}})
-    gains = {"position": {"Kp": 10.0}, "speed": {"Kp": 2.0, "Ki": 40.0, "Kd": 0.01}, "current": {"Kp": 10.0, "Ki": 1000.0}}
+    gains = {"position": {"Kp": 10.0}, "speed": {"Kp": 2.0, "Ki": 40.0, "Kd": 0.01},
+             "current": {"Kp": 10.0, "Ki": 1000.0}}
     return spec, gains
 
 
@@ -160,7 +163,7 @@ def _assert_same(capped, full, rel=1e-6):
     assert capped.stability.stable == full.stability.stable
     assert capped.stability.rhp_count == full.stability.rhp_count
     assert capped.stability.nyquist_rhp == full.stability.nyquist_rhp
-    for a, b in zip(capped.figures, full.figures):
+    for a, b in zip(capped.figures, full.figures, strict=True):
         for k in FIGS:
             x, y = getattr(a, k), getattr(b, k)
             if x is None or y is None or math.isinf(x) or math.isinf(y):
@@ -170,7 +173,7 @@ def _assert_same(capped, full, rel=1e-6):
         # crossings: nothing above the band; the same gain crossings; and every crossing the
         # uncapped report lists inside the band is listed too (fewer competitors in the band)
         top = capped.omega_range[1]
-        ra, rb = _to_model(a), _to_model(b)
+        ra, rb = loop_figures(a), loop_figures(b)
         assert all(c.omega <= top for c in ra.crossings)
         ga, gb = [c for c in ra.crossings if c.kind == "gain"], [c for c in rb.crossings if c.kind == "gain"]
         assert [c.omega for c in ga] == pytest.approx([c.omega for c in gb], rel=1e-6)
@@ -242,7 +245,8 @@ def test_encirclement_above_the_band_is_not_missed(kp, stable):
 
 def test_neutral_loop_falls_back_to_the_old_tail_check():
     """PD on (s+2)/(s+1): |L(j inf)| = Kp + Kd/Tf = 22 >= 1 with a delay: unstable, whatever the band."""
-    spec = load_spec({"plant": {"tf": {"num": [1, 2], "den": [1, 1]}}, "loops": [{"type": "pd"}], "scenario": {"dt": 0.01}})
+    spec = load_spec({"plant": {"tf": {"num": [1, 2], "den": [1, 1]}}, "loops": [{"type": "pd"}],
+                      "scenario": {"dt": 0.01}})
     gains = {"loop0": {"Kp": 2.0, "Kd": 0.5}}
     capped, full = _both(spec, gains)
     _assert_same(capped, full)
@@ -305,7 +309,7 @@ def test_pade_mode_keeps_the_adequacy_check():
 
 def test_robust_worst_case_same_with_and_without_band(monkeypatch):
     """Every robust sample is analysed on the band too; the worst case is the uncapped one."""
-    import gaintune.verification.core as core
+    import gaintune.verification.steps as steps
 
     spec = load_spec({"plant": {"tf": {"num": ["K"], "den": "T*s+1"}, "params": {"K": 1.0, "T": 1.0}, "delay": 0.1},
                       "loops": [{"type": "pi"}], "scenario": {"dt": 0.01, "horizon": 20},
@@ -315,10 +319,10 @@ def test_robust_worst_case_same_with_and_without_band(monkeypatch):
     rep = verify(spec, gains, nonlinear=False, cache=False)
     assert rep.robust.n_samples == 11 and rep.robust.n_unstable == 0
     assert rep.analysis_band[1] == pytest.approx(10 * math.pi / 0.01)
-    monkeypatch.setattr(core, "analysis_band", lambda spec: math.inf)
+    monkeypatch.setattr(steps, "analysis_band", lambda spec: math.inf)
     ref = verify(spec, gains, nonlinear=False, cache=False)
     assert ref.analysis_band[1] > rep.analysis_band[1]
-    for w, v in zip(rep.robust.worst, ref.robust.worst):
+    for w, v in zip(rep.robust.worst, ref.robust.worst, strict=True):
         for k in ("gm_db", "pm_deg", "delay_margin", "ms", "mt", "disk_alpha"):
             assert getattr(w, k) == pytest.approx(getattr(v, k), rel=1e-6)
         assert w.where == v.where

@@ -10,6 +10,7 @@ import math
 import control as ct
 import numpy as np
 import pytest
+from plant_fixtures import MOTOR
 
 from gaintune.controllers.layout import GainLayout
 from gaintune.plants.plant import build_plant
@@ -20,7 +21,6 @@ from gaintune.verification.cascade import build_cascade
 from gaintune.verification.report import VerificationReport
 from gaintune.verification.sampled import sample_plant, zoh_delay
 from gaintune.verification.stability import observable_part
-from plant_fixtures import MOTOR
 
 #: The API benchmark's DC-motor cascade (speed PI outside, current PI inside) at dt = 1 ms.
 MOTOR2 = {
@@ -151,7 +151,8 @@ def test_integrator_under_p_control_hand_derived():
     """L(z) = K dt / (z - 1): |L| = K dt / (2 sin(theta/2)), arg L = -(pi + theta)/2, L(-1) = -K dt/2.
     GM = 2/(K dt) at the Nyquist frequency; PM = 90 - theta_c/2 (deg) at theta_c = 2 asin(K dt/2)."""
     K, dt = 2.0, 0.1
-    rep = verify(spec_of({"tf": {"num": [1], "den": [1, 0]}}, [{"type": "p"}], dt), {"loop0": {"Kp": K}}, nonlinear=False)
+    rep = verify(spec_of({"tf": {"num": [1], "den": [1, 0]}}, [{"type": "p"}], dt), {"loop0": {"Kp": K}},
+                 nonlinear=False)
     f = fig(rep)
     th = 2 * math.asin(K * dt / 2)
     assert f.gm_db == pytest.approx(20 * math.log10(2 / (K * dt)), rel=1e-12)
@@ -165,7 +166,8 @@ def test_integrator_under_p_control_hand_derived():
 
 def test_gm_binding_labels_the_binding_margin():
     """Upper GM binds (increase), lower GM binds (reduction: conditionally stable), no GM (none)."""
-    up = verify(spec_of({"tf": {"num": [1], "den": "(s+1)^3"}}, [{"type": "p"}], 0.01), {"loop0": {"Kp": 2.0}}, nonlinear=False)
+    up = verify(spec_of({"tf": {"num": [1], "den": "(s+1)^3"}}, [{"type": "p"}], 0.01), {"loop0": {"Kp": 2.0}},
+                nonlinear=False)
     assert fig(up).gm_binding == "increase" and fig(up).gm_db == fig(up).gm_upper_db
     den = np.polymul(np.polymul([1, 0], [1, 2, 1]), [1, 36]).tolist()
     cond = verify(spec_of({"tf": {"num": [1, 12, 36], "den": den}}, [{"type": "pi"}], 1e-3),
@@ -173,7 +175,8 @@ def test_gm_binding_labels_the_binding_margin():
     f = fig(cond)
     assert cond.stability.stable and f.gm_binding == "reduction" and f.gm_db == f.gm_lower_db < f.gm_upper_db
     # a first-order lag has a GM at the Nyquist frequency once sampled (L(-1) < 0); a lead does not
-    none = verify(spec_of({"tf": {"num": [1, 2], "den": [1, 1]}}, [{"type": "p"}], 0.01), {"loop0": {"Kp": 0.5}}, nonlinear=False)
+    none = verify(spec_of({"tf": {"num": [1, 2], "den": [1, 1]}}, [{"type": "p"}], 0.01), {"loop0": {"Kp": 0.5}},
+                  nonlinear=False)
     assert fig(none).gm_binding == "none" and math.isinf(fig(none).gm_db)
 
 
@@ -201,12 +204,14 @@ def test_delay_margin_below_one_sample_fails_in_sampled_verification():
     assert late.reasons[0].startswith("closed loop unstable") and "|z| >= 1" in late.reasons[0]
     assert late.nonlinear.ran and late.nonlinear.diverged
     # the continuous analysis with one sample of extra delay agrees (its DM was below one sample too)
-    assert not verify(with_verify(MOTOR2, sampled=False, compute_delay=1), MOTOR2_GAINS, nonlinear=False).stability.stable
+    continuous = with_verify(MOTOR2, sampled=False, compute_delay=1)
+    assert not verify(continuous, MOTOR2_GAINS, nonlinear=False).stability.stable
 
 
 def test_compute_delay_lowers_the_phase_margin_by_wc_dt():
     """z^-c has unit modulus: the crossover stays, the PM drops by c wc dt (deg), DM by c samples."""
-    d = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}], "scenario": {"dt": 0.05, "horizon": 20}}
+    d = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+         "scenario": {"dt": 0.05, "horizon": 20}}
     g = {"loop0": {"Kp": 1.14, "Ki": 0.454}}
     r0 = verify(load_spec(d), g, nonlinear=False)
     for c in (1, 3):
@@ -219,7 +224,7 @@ def test_compute_delay_lowers_the_phase_margin_by_wc_dt():
     # the same z^-c as a plant delay of c samples
     rd = verify(load_spec({**d, "plant": {**d["plant"], "delay": 0.15}}), g, nonlinear=False)
     r3 = verify(with_verify(d, compute_delay=3), g, nonlinear=False)
-    for a, b in zip(rd.loops, r3.loops):
+    for a, b in zip(rd.loops, r3.loops, strict=True):
         assert a.pm_deg == pytest.approx(b.pm_deg, rel=1e-9) and a.ms == pytest.approx(b.ms, rel=1e-9)
 
 
@@ -229,7 +234,8 @@ def test_compute_delay_lowers_the_phase_margin_by_wc_dt():
 def test_loop_unstable_at_coarse_dt_is_reported_and_diverges_in_simulation():
     """P = 2.5 on 1/s at dt = 1 s: the closed-loop pole is z = 1 - 2.5 = -1.5. The continuous
     analysis plus dt/2 (PM 18 deg) calls it stable; the sampled one does not, nor does the simulator."""
-    d = {"plant": {"tf": {"num": [1], "den": [1, 0]}}, "loops": [{"type": "p"}], "scenario": {"dt": 1.0, "horizon": 200}}
+    d = {"plant": {"tf": {"num": [1], "den": [1, 0]}}, "loops": [{"type": "p"}],
+         "scenario": {"dt": 1.0, "horizon": 200}}
     g = {"loop0": {"Kp": 2.5}}
     cont = verify(with_verify(d, sampled=False), g, nonlinear=False)
     assert cont.stability.stable
@@ -244,7 +250,8 @@ def test_loop_unstable_at_coarse_dt_is_reported_and_diverges_in_simulation():
 
 
 def test_third_order_pi_unstable_at_coarse_dt():
-    d = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}], "scenario": {"dt": 0.05, "horizon": 60}}
+    d = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+         "scenario": {"dt": 0.05, "horizon": 60}}
     g = {"loop0": {"Kp": 2.0, "Ki": 0.8}}
     fine = verify(load_spec(d), g)
     assert fine.stability.stable and fine.nonlinear.passed
@@ -272,9 +279,10 @@ def _annihilation(y: np.ndarray, A: np.ndarray, keep_above: float = 1e-9) -> flo
 
 
 POLE_CASES = [
-    ("pi_third_order", {"tf": {"num": [1], "den": "(s+1)^3"}}, [{"type": "pi"}], {"loop0": {"Kp": 1.14, "Ki": 0.454}}, 0.1),
-    ("pid_fractional_delay", {"tf": {"num": [1], "den": "(s+1)^3"}, "delay": 0.23}, [{"type": "pid", "c": 0.5, "b": 0.7}],
-     {"loop0": {"Kp": 1.0, "Ki": 0.3, "Kd": 0.4}}, 0.1),
+    ("pi_third_order", {"tf": {"num": [1], "den": "(s+1)^3"}}, [{"type": "pi"}], {"loop0": {"Kp": 1.14, "Ki": 0.454}},
+     0.1),
+    ("pid_fractional_delay", {"tf": {"num": [1], "den": "(s+1)^3"}, "delay": 0.23},
+     [{"type": "pid", "c": 0.5, "b": 0.7}], {"loop0": {"Kp": 1.0, "Ki": 0.3, "Kd": 0.4}}, 0.1),
     ("motor_two_loops", MOTOR2["plant"], MOTOR2["loops"], MOTOR2_GAINS, 1e-3),
     ("motor_three_loops", MOTOR, [{"name": "position", "type": "p", "measure": "th"},
                                   {"name": "speed", "type": "pi", "measure": "w"},
@@ -396,7 +404,7 @@ def test_reverse_acting_loop_mirrors_the_direct_one():
     dt = 0.05
     plants = [{"tf": {"num": [s], "den": "(s+1)^3"}, "delay": 0.12} for s in (1, -1)]
     out = []
-    for plant, sign in zip(plants, (1, -1)):
+    for plant, sign in zip(plants, (1, -1), strict=True):
         spec = spec_of(plant, [{"type": "pid"}], dt)
         p = build_plant(spec.plant)
         lay = GainLayout(spec, p.states)
@@ -407,7 +415,7 @@ def test_reverse_acting_loop_mirrors_the_direct_one():
     a, b = out
     assert a.stability.stable and b.stability.stable
     assert a.stability.spectral_radius == pytest.approx(b.stability.spectral_radius, rel=1e-12)
-    for fa, fb in zip(a.figures, b.figures):
+    for fa, fb in zip(a.figures, b.figures, strict=True):
         for k in ("gm_db", "pm_deg", "delay_margin", "ms", "mt", "disk_alpha"):
             assert getattr(fa, k) == pytest.approx(getattr(fb, k), rel=1e-9)
 
@@ -424,7 +432,8 @@ def test_loop_frequency_responses_are_the_verified_loop():
         p = build_plant(spec.plant)
         lay = GainLayout(spec, p.states)
         rep = verify(spec, MOTOR2_GAINS, nonlinear=False)
-        L = loop_frequency_responses(spec, p, lay, lay.from_dict(MOTOR2_GAINS), np.array([f.pm_freq for f in rep.loops]))
+        wc = np.array([f.pm_freq for f in rep.loops])
+        L = loop_frequency_responses(spec, p, lay, lay.from_dict(MOTOR2_GAINS), wc)
         np.testing.assert_allclose(np.abs(np.diag(L)), 1.0, rtol=1e-8)  # each row's gain crossover
         np.testing.assert_allclose(180 + np.degrees(np.angle(np.diag(L))), [f.pm_deg for f in rep.loops], atol=1e-6)
 
@@ -455,7 +464,8 @@ def test_report_fields_and_json_round_trip():
 def test_robust_samples_use_the_sampled_loop():
     spec = load_spec({"plant": {"tf": {"num": ["K"], "den": "(T*s+1)^3"}, "params": {"K": 1.0, "T": 1.0}, "delay": 0.1},
                       "loops": [{"type": "pi"}], "scenario": {"dt": 0.1, "horizon": 30},
-                      "randomize": {"params": {"K": [0.7, 1.4]}, "delay": [0.05, 0.33]}, "verify": {"robust_samples": 2}})
+                      "randomize": {"params": {"K": [0.7, 1.4]}, "delay": [0.05, 0.33]},
+                      "verify": {"robust_samples": 2}})
     g = {"loop0": {"Kp": 1.0, "Ki": 0.4}}
     rep = verify(spec, g, nonlinear=False)
     w = rep.robust.worst[0]
@@ -469,7 +479,8 @@ def test_robust_samples_use_the_sampled_loop():
 
 
 def test_pade_order_is_not_used_by_the_sampled_analysis():
-    d = {"plant": {"tf": {"num": [1], "den": [1, 1]}, "delay": 1.0}, "loops": [{"type": "pi"}], "scenario": {"dt": 0.05, "horizon": 20}}
+    d = {"plant": {"tf": {"num": [1], "den": [1, 1]}, "delay": 1.0}, "loops": [{"type": "pi"}],
+         "scenario": {"dt": 0.05, "horizon": 20}}
     g = {"loop0": {"Kp": 0.5, "Ki": 0.4}}
     a = verify(load_spec(d), g, nonlinear=False)
     b = verify(with_verify(d, pade_order=2), g, nonlinear=False)
@@ -484,6 +495,7 @@ def test_sampled_converges_to_continuous_as_dt_shrinks():
     errs = []
     for dt in (0.1, 0.01, 0.001):
         s = fig(verify(load_spec({**d, "scenario": {"dt": dt, "horizon": 30}}), g, nonlinear=False))
-        c = fig(verify(load_spec({**d, "scenario": {"dt": dt, "horizon": 30}, "verify": {"sampled": False}}), g, nonlinear=False))
+        cspec = load_spec({**d, "scenario": {"dt": dt, "horizon": 30}, "verify": {"sampled": False}})
+        c = fig(verify(cspec, g, nonlinear=False))
         errs.append(abs(s.pm_deg - c.pm_deg))
     assert errs[0] > errs[1] > errs[2] and errs[2] < 0.05

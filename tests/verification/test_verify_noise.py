@@ -35,7 +35,10 @@ def test_mks_of_a_continuous_pi_loop_matches_python_control():
     C = 3.0 + 1.5 / s
     T = dt / 2  # the continuous analysis adds half a sample of delay
     w = np.logspace(-3, 5, 200_001)
-    CS = lambda w: C(1j * w) / (1.0 + C(1j * w) * G(1j * w) * np.exp(-1j * w * T))
+
+    def CS(w):
+        return C(1j * w) / (1.0 + C(1j * w) * G(1j * w) * np.exp(-1j * w * T))
+
     assert rep.loops[0].mks == pytest.approx(_peak(CS, w), rel=1e-6)
     assert rep.loops[1].mks is None  # the plant-input break point has no measurement of its own
 
@@ -49,7 +52,10 @@ def test_mks_of_the_sampled_loop_matches_python_control_c2d():
     z = ct.tf([1, 0], [1], dt)
     Cd = kp + ki * dt * z / (z - 1)  # the simulator's backward-Euler integral dt/(1 - z^-1)
     w = np.linspace(1e-4, np.pi / dt, 200_001)
-    CS = lambda w: Cd(np.exp(1j * w * dt)) / (1.0 + Cd(np.exp(1j * w * dt)) * Gd(np.exp(1j * w * dt)))
+
+    def CS(w):
+        return Cd(np.exp(1j * w * dt)) / (1.0 + Cd(np.exp(1j * w * dt)) * Gd(np.exp(1j * w * dt)))
+
     assert rep.loops[0].mks == pytest.approx(_peak(CS, w), rel=1e-6)
 
 

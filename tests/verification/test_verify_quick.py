@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from plant_fixtures import MOTOR
 
 from gaintune.controllers.layout import GainLayout
 from gaintune.controllers.pid import pid_params
@@ -14,7 +15,6 @@ from gaintune.spec import load_spec
 from gaintune.verification import quick_margins, requirement_violation, verify
 from gaintune.verification.cascade import pid_arrays
 from gaintune.verification.quick import UNSTABLE_VIOLATION
-from plant_fixtures import MOTOR
 
 MOTOR_LOOPS = [
     {"name": "position", "type": "p", "measure": "th"},
@@ -116,7 +116,7 @@ def test_vectorised_pid_conversion_matches_pid_params():
     ]:
         spec = load_spec({"plant": {"tf": {"num": [1], "den": [1, 1]}}, "loops": [loop_d]})
         loop = spec.loops[0]
-        ref = pid_params(loop, dict(zip(names, vals)))
+        ref = pid_params(loop, dict(zip(names, vals, strict=True)))
         got = pid_arrays(loop, np.array([vals]), names)
         for k in ("Kp", "Ki", "Kd", "Tf"):
             assert got[k][0] == pytest.approx(getattr(ref, k))
