@@ -30,8 +30,9 @@ import socket
 import struct
 import threading
 from collections import deque
+from collections.abc import Callable
 from concurrent.futures import Future
-from typing import Any, BinaryIO, Callable
+from typing import Any, BinaryIO
 
 from gaintune.cache import LRU
 
@@ -111,8 +112,8 @@ def compute_policy(tuners: LRU[str, Any], key: str, agent: Any, spec: dict[str, 
 
 def compute_simulate(spec, gains, chosen: list[int], max_points: int, plant=None, layout=None) -> tuple[str, Any]:
     """``("ok", JSON bytes of a SimulateResponse)`` | ``("gains", problem details)`` | ``("error", message)``."""
-    from gaintune_api.simulation import simulate_payload
     from gaintune.errors import GaintuneError, problem_details
+    from gaintune_api.simulation import simulate_payload
 
     try:
         return "ok", simulate_payload(spec, gains, chosen, max_points, plant, layout)

@@ -9,10 +9,10 @@ from typing import Annotated
 from fastapi import Depends, Request, Security
 from fastapi.security import APIKeyHeader
 
+from gaintune_api.job_store import JobStore
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.problem_details import ApiError
 from gaintune_api.settings import Settings
-from gaintune_api.job_store import JobStore
 
 __all__ = ["SettingsDep", "StoreDep", "FilesDep", "OwnerDep", "require_key", "owner_of", "check_key", "api_key_header", "run_compute",
            "run_pooled"]

@@ -35,10 +35,11 @@ import sqlite3
 import threading
 import time
 import uuid
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import wraps
 from pathlib import Path
-from typing import Any, Callable, Iterable, TypeVar
+from typing import Any, TypeVar
 
 from gaintune_api.storage_faults import FaultInjector, classify
 from gaintune_api.writegate import WriteGate
@@ -127,7 +128,7 @@ class JobRow:
     artifacts: str | None = None
 
     @classmethod
-    def from_row(cls, row: sqlite3.Row) -> "JobRow":
+    def from_row(cls, row: sqlite3.Row) -> JobRow:
         return cls(**{k: row[k] for k in cls.__dataclass_fields__})
 
 
@@ -145,7 +146,7 @@ def _db(write: bool) -> Callable[[_F], _F]:
 
     def deco(fn: _F) -> _F:
         @wraps(fn)
-        def wrapper(self: "JobStore", *args: Any, **kw: Any) -> Any:
+        def wrapper(self: JobStore, *args: Any, **kw: Any) -> Any:
             try:
                 if not write:
                     return fn(self, *args, **kw)
@@ -197,7 +198,7 @@ class JobStore:
             self._local.pid = os.getpid()
         return conn
 
-    def _tx(self, point: str | None = None) -> "_Tx":
+    def _tx(self, point: str | None = None) -> _Tx:
         return _Tx(self._conn(), self.faults if point else None, point)
 
     def init(self) -> None:

@@ -25,8 +25,9 @@ import os
 import shutil
 import threading
 import uuid
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from gaintune.files import write_atomic
 from gaintune_api.storage_faults import FaultInjector, classify

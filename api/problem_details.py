@@ -26,8 +26,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from gaintune_api.storage_faults import StorageFault, classify
 from gaintune.errors import GaintuneError, problem_details
+from gaintune_api.storage_faults import StorageFault, classify
 
 __all__ = ["ApiError", "problem_response", "install_handlers", "SafeJSONResponse", "json_safe", "PROBLEM_TYPES",
            "storage_problem", "error_response"]

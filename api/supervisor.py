@@ -33,12 +33,13 @@ import multiprocessing as mp
 import os
 import signal
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
+from gaintune_api.job_store import JobRow, JobStore, claim_tag
 from gaintune_api.settings import Settings
 from gaintune_api.storage_faults import StorageFault, wal_write_lock_holder
-from gaintune_api.job_store import JobRow, JobStore, claim_tag
 from gaintune_api.worker import PROCESS_NAME
 
 __all__ = ["Supervisor", "pid_alive", "pid_stopped"]

@@ -15,12 +15,12 @@ from typing import Any, Literal
 
 from pydantic import ValidationError
 
-from gaintune_api.deps import run_compute
-from gaintune_api.problem_details import ApiError
-from gaintune_api.settings import Settings
 from gaintune.cache import LRU
 from gaintune.errors import GaintuneError, problem_details
 from gaintune.spec import TuningSpec
+from gaintune_api.deps import run_compute
+from gaintune_api.problem_details import ApiError
+from gaintune_api.settings import Settings
 
 __all__ = ["Checked", "check_spec", "cached_check", "check_and_remember", "checked_spec", "nonfinite_paths", "invalid"]
 

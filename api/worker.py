@@ -38,13 +38,14 @@ import sys
 import threading
 import time
 import traceback
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
+from gaintune_api.job_store import JobRow, JobStore, claim_tag
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.settings import Settings, warn_unknown_settings
 from gaintune_api.storage_faults import FaultInjector, StorageFault, classify
-from gaintune_api.job_store import JobRow, JobStore, claim_tag
 
 __all__ = ["worker_main", "run_job", "process_next", "PROCESS_NAME"]
 

@@ -2,24 +2,34 @@
 
 from __future__ import annotations
 
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Body, Header, Query, Request, Response
 from fastapi.responses import FileResponse, HTMLResponse
 
+from gaintune.cache import LRU
+from gaintune.spec import TuningSpec
 from gaintune_api.artifacts import EXPORT_MEDIA, export_gains, export_verdict, render_report, render_report_html
 from gaintune_api.compute import compute_policy
 from gaintune_api.deps import FilesDep, OwnerDep, SettingsDep, StoreDep, run_compute
+from gaintune_api.job_store import IdempotencyConflict, JobRow, QueueFull, loads
 from gaintune_api.jobfiles import ArtifactMismatch, ArtifactMissing
 from gaintune_api.jsonbody import StrictJSONRoute
 from gaintune_api.problem_details import ApiError, log
-from gaintune_api.schemas import ExportFormat, JobList, PolicyAnswers, PolicyRequest, JobPublic, JobResultPublic, JobStatus, JobSummary, ProgressPublic
-from gaintune_api.job_store import IdempotencyConflict, JobRow, QueueFull, loads
+from gaintune_api.schemas import (
+    ExportFormat,
+    JobList,
+    JobPublic,
+    JobResultPublic,
+    JobStatus,
+    JobSummary,
+    PolicyAnswers,
+    PolicyRequest,
+    ProgressPublic,
+)
 from gaintune_api.validation import check_spec
-from gaintune.cache import LRU
-from gaintune.spec import TuningSpec
 
 router = APIRouter(prefix="/v1", tags=["jobs"], route_class=StrictJSONRoute)
 
@@ -31,7 +41,7 @@ STORAGE = {503: {"description": "Storage fault (read-only database or data direc
 
 
 def _ts(x: float | None) -> datetime | None:
-    return None if x is None else datetime.fromtimestamp(x, tz=timezone.utc)
+    return None if x is None else datetime.fromtimestamp(x, tz=UTC)
 
 
 def _progress(row: JobRow) -> ProgressPublic | None:

@@ -89,9 +89,9 @@ def test_pool_queues_recovers_and_shuts_down(loop: str):
 
 
 def test_pool_verify_matches_in_process():
-    from gaintune_api.compute import compute_verify
     from gaintune.spec import load_spec
     from gaintune.verification import verify
+    from gaintune_api.compute import compute_verify
 
     spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}], "scenario": {"dt": 0.01}})
     gains = {"loop0": {"Kp": 1.14, "Ki": 0.454}}

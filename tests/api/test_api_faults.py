@@ -20,11 +20,11 @@ import pytest
 from fastapi.testclient import TestClient
 from test_api_routes import GOOD, SPEC, make_fake_tune, settings_for
 
+from gaintune_api.job_store import JobStore, loads
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.main import create_app
 from gaintune_api.settings import unknown_settings
 from gaintune_api.storage_faults import FaultInjector, StorageFault, classify
-from gaintune_api.job_store import JobStore, loads
 from gaintune_api.supervisor import Supervisor
 from gaintune_api.worker import process_next, run_job
 

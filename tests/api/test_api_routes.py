@@ -10,12 +10,12 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
+from gaintune.search.result import CurvePoint, Progress, Provenance, TuneResult
+from gaintune_api.job_store import JobStore
 from gaintune_api.main import create_app
 from gaintune_api.settings import Settings
-from gaintune_api.job_store import JobStore
 from gaintune_api.supervisor import Supervisor
 from gaintune_api.worker import process_next
-from gaintune.search.result import CurvePoint, Progress, Provenance, TuneResult
 
 SPEC = {
     "name": "lag3",
