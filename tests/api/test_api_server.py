@@ -160,7 +160,7 @@ def pid_gone(pid: int, timeout: float = 10) -> bool:
 
 
 def test_real_server_tiny_job_end_to_end_and_worker_crash(tmp_path):
-    hold = tmp_path / "hold"  # GAINTUNE_TEST_HOLD_FILE: see gaintune_api.worker._hold_while_exists (absent for the tiny job)
+    hold = tmp_path / "hold"  # GAINTUNE_TEST_HOLD_FILE: see gaintune_api.attempt.hold_while_exists (absent for the tiny job)
     srv = Server(tmp_path, use_uvicorn=True, GAINTUNE_WORKERS="1", GAINTUNE_RECOVER="fail",
                  GAINTUNE_TEST_HOLD_FILE=str(hold))
     try:
@@ -218,7 +218,7 @@ def test_sigkill_server_during_job_then_restart_requeues_and_finishes(tmp_path):
     job_spec = {**TINY, "name": "durable", "search": {**TINY["search"], "budget": 300}}
     # The 300-simulation job takes ~2 s on a fast machine: without control it can succeed before this test sees
     # it running. While the hold file exists, workers pause a job after its first progress report (test hook
-    # GAINTUNE_TEST_HOLD_FILE, see gaintune_api.worker._hold_while_exists), so the server is killed while the job is
+    # GAINTUNE_TEST_HOLD_FILE, see gaintune_api.attempt.hold_while_exists), so the server is killed while the job is
     # provably mid-run, and after the restart it cannot finish (nor can "waiting" start, with one worker)
     # before the checks below; deleting the file lets it finish.
     hold = tmp_path / "hold"
