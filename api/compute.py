@@ -255,6 +255,11 @@ class ComputePool:
         self._workers = [self._spawn() for _ in range(self.n)]
         self.warm = [w.warm for w in self._workers]
 
+    def _started_loop(self) -> asyncio.AbstractEventLoop:
+        """The event loop :meth:`start` ran on (workers are spawned and awaited only while the pool runs)."""
+        assert self._loop is not None, "compute pool not started"
+        return self._loop
+
     def _spawn(self) -> _Worker:
         ctx = mp.get_context("spawn")
         here, there = socket.socketpair()
@@ -262,7 +267,7 @@ class ComputePool:
         proc.start()
         there.close()  # the worker's end: EOF here when the worker dies
         w = _Worker(proc, here, Future())
-        w.task = self._loop.create_task(self._serve(w))
+        w.task = self._started_loop().create_task(self._serve(w))
         return w
 
     async def _serve(self, w: _Worker) -> None:
@@ -301,7 +306,7 @@ class ComputePool:
             if w.ready:
                 w.ready = False
                 return w
-        f = self._loop.create_future()
+        f = self._started_loop().create_future()
         self._waiters.append(f)
         try:
             return await f
@@ -409,7 +414,8 @@ class ComputePool:
         self._loop = None
         workers, self._workers = self._workers, []
         for w in workers:
-            w.task.cancel()
+            if w.task is not None:
+                w.task.cancel()
             self._close(w)
         for w in workers:
             w.proc.join(timeout=5)

@@ -29,6 +29,7 @@ this module as :class:`gaintune_api.storage_faults.StorageFault`, naming the cau
 
 from __future__ import annotations
 
+import builtins
 import json
 import os
 import sqlite3
@@ -295,7 +296,7 @@ class JobStore:
         return out
 
     @_db(write=False)
-    def running(self) -> list[JobRow]:
+    def running(self) -> builtins.list[JobRow]:  # builtins: the method list() shadows it here
         rows = self._conn().execute(f"SELECT {_COLS} FROM jobs WHERE status='running'").fetchall()
         return [JobRow.from_row(r) for r in rows]
 
@@ -434,7 +435,8 @@ class JobStore:
 
     # ------------------------------------------------------------ recovery
     @_db(write=True)
-    def recover(self, job_ids: Iterable[str], policy: str, reason: str, max_attempts: int) -> list[tuple[str, str, str]]:
+    def recover(self, job_ids: Iterable[str], policy: str, reason: str,
+                max_attempts: int) -> builtins.list[tuple[str, str, str]]:
         """Re-queue (or fail) running jobs whose worker is gone or whose lease expired.
 
         Returns

@@ -174,8 +174,8 @@ def validation_errors(exc: RequestValidationError) -> list[dict[str, Any]]:
         groups.setdefault(prefix, []).append({**err, "loc": loc[1 + len(prefix):]})
     for prefix, errs in groups.items():
         for e in explain(errs):
-            loc = ".".join([*prefix, e["loc"]] if e["loc"] else prefix)
-            out.append({"loc": loc, "msg": e["msg"][:1000]})
+            dotted = ".".join([*prefix, e["loc"]] if e["loc"] else prefix)
+            out.append({"loc": dotted, "msg": e["msg"][:1000]})
     return out
 
 

@@ -191,7 +191,7 @@ class FaultInjector:
         if where == "database":
             msg, code = ("attempt to write a readonly database", 8) if kind == "readonly" else ("database or disk is full", 13)
             exc = sqlite3.OperationalError(msg)
-            exc.sqlite_errorcode = code  # type: ignore[attr-defined] - as sqlite3 sets it
+            exc.sqlite_errorcode = code  # as sqlite3 sets it on its own errors
             raise exc
         num = errno.EROFS if kind == "readonly" else errno.ENOSPC
         raise OSError(num, f"{'Read-only file system' if kind == 'readonly' else 'No space left on device'} (injected)",

@@ -76,6 +76,12 @@ def pid_stopped(pid: int | None) -> bool:
         return False
 
 
+def _pid(p: mp.process.BaseProcess) -> int:
+    """The pid of a started worker process (multiprocessing types it Optional: None only before ``start()``)."""
+    assert p.pid is not None, "worker process not started"
+    return p.pid
+
+
 def _is_worker(pid: int) -> bool:
     """Whether ``pid`` is a job worker (it names itself ``gaintune-worker``; Linux)."""
     try:
@@ -138,7 +144,7 @@ class Supervisor:
         p.start()
         self.procs[i] = p
         self.pulses[i] = pulse
-        self.holding[p.pid] = holding
+        self.holding[_pid(p)] = holding
         log.info("started worker %d (pid %s)", i, p.pid)
 
     def worker_state(self, i: int) -> str:
@@ -168,7 +174,7 @@ class Supervisor:
         log.warning("killing worker pid %s: %s", p.pid, why)
         p.kill()  # SIGKILL also ends a stopped (SIGSTOP) process
         p.join(5)
-        self.holding.pop(p.pid, None)
+        self.holding.pop(_pid(p), None)
 
     def kill_if_holding(self, p: mp.process.BaseProcess, job: JobRow, why: str) -> bool:
         """Kill our worker ``p`` for ``job`` only if it still runs that attempt; True when killed.
@@ -178,22 +184,23 @@ class Supervisor:
         runs another attempt now (it gave up on this one, e.g. after its final write failed) is
         resumed untouched: killing it would throw away an unrelated job.
         """
-        holding = self.holding.get(p.pid)
+        pid = _pid(p)
+        holding = self.holding.get(pid)
         if holding is None or not job.claim:
             log.warning("worker pid %s not killed for job %s: what it runs is unknown", p.pid, job.id)
             return False
-        stopped_before = pid_stopped(p.pid)
+        stopped_before = pid_stopped(pid)
         if not stopped_before:
             try:
-                os.kill(p.pid, signal.SIGSTOP)
+                os.kill(pid, signal.SIGSTOP)
             except ProcessLookupError:
                 return False
-            _until(lambda: pid_stopped(p.pid) or not pid_alive(p.pid), 2.0)
+            _until(lambda: pid_stopped(pid) or not pid_alive(pid), 2.0)
         if holding.value == claim_tag(job.claim):
             self._kill(p, why)
             return True
         if not stopped_before:
-            os.kill(p.pid, signal.SIGCONT)
+            os.kill(pid, signal.SIGCONT)
         log.warning("worker pid %s not killed for job %s (attempt %d): it runs another job now", p.pid, job.id,
                     job.attempts)
         return False
@@ -353,7 +360,7 @@ class Supervisor:
             if p is not None and not p.is_alive():
                 log.warning("worker %d (pid %s) exited with %s; restarting", i, p.pid, p.exitcode)
                 p.join(0)
-                self.holding.pop(p.pid, None)
+                self.holding.pop(_pid(p), None)
                 self.restarts += 1
                 self._spawn(i)
 

@@ -33,11 +33,12 @@ from gaintune_api.validation import check_spec
 
 router = APIRouter(prefix="/v1", tags=["jobs"], route_class=StrictJSONRoute)
 
-_PROBLEM = {"content": {"application/problem+json": {}}}
-NOT_FOUND = {404: {"description": "No such job (for this API key).", **_PROBLEM}}
-STORAGE = {503: {"description": "Storage fault (read-only database or data directory; `cause` names it); "
-                                "retry after Retry-After seconds.", **_PROBLEM},
-           507: {"description": "Storage full (`cause` names which); retry after Retry-After seconds.", **_PROBLEM}}
+_PROBLEM: dict[str, Any] = {"content": {"application/problem+json": {}}}
+NOT_FOUND: dict[int | str, dict[str, Any]] = {404: {"description": "No such job (for this API key).", **_PROBLEM}}
+STORAGE: dict[int | str, dict[str, Any]] = {
+    503: {"description": "Storage fault (read-only database or data directory; `cause` names it); "
+                         "retry after Retry-After seconds.", **_PROBLEM},
+    507: {"description": "Storage full (`cause` names which); retry after Retry-After seconds.", **_PROBLEM}}
 
 
 def _ts(x: float | None) -> datetime | None:

@@ -205,7 +205,7 @@ def test_storage_fault_answered_generic_500(faulty, fault, status, cause):
 
 @pytest.mark.parametrize("fault,cause", [("db:readonly", "database-read-only"), ("db:full", "database-full"),
                                          ("data:readonly", "data-dir-read-only"), ("data:full", "data-dir-full")])
-def test_readyz_reported_ready_on_read_only_db(faulty, fault, cause):
+def test_readyz_is_not_ready_on_read_only_or_full_storage(faulty, fault, cause):
     c, faults = faulty
     assert c.get("/readyz").status_code == 200
     faults.write_text(fault)
@@ -219,7 +219,7 @@ def test_readyz_reported_ready_on_read_only_db(faulty, fault, cause):
 
 
 @pytest.mark.parametrize("fault", ["data:readonly", "data:full"])
-def test_report_rendering_on_full_or_read_only_disk_answered_500(client_and_job, tmp_path, fault):
+def test_report_on_full_or_read_only_disk_is_rendered_uncached_not_500(client_and_job, tmp_path, fault):
     c, job_id, _ = client_and_job
     c.app.state.files.faults = FaultInjector(tmp_path / "faults")
     (tmp_path / "faults").write_text(fault)
