@@ -82,7 +82,8 @@ def compute_verify(spec, gains, robust, nonlinear, plant=None, layout=None, spec
     from gaintune.verification import verify
 
     try:
-        report = verify(spec, gains, robust=robust, nonlinear=nonlinear, plant=plant, layout=layout, spec_hash=spec_hash)
+        report = verify(spec, gains, robust=robust, nonlinear=nonlinear, plant=plant, layout=layout,
+                        spec_hash=spec_hash)
     except GaintuneError as exc:
         return "gains", problem_details(exc)
     except Exception as exc:  # noqa: BLE001 - user input must never produce a 500
@@ -289,6 +290,7 @@ class ComputePool:
 
     @property
     def pids(self) -> list[int]:
+        """The pids of the pool's current worker processes, sorted."""
         return sorted(w.proc.pid for w in self._workers)
 
     # ---------------------------------------------------------------- dispatch

@@ -88,6 +88,7 @@ def dumps(obj: Any) -> str:
 
 
 def loads(text: str | None) -> Any:
+    """Parse a JSON column written by :func:`dumps` (None stays None)."""
     return None if text is None else json.loads(text)
 
 
@@ -107,6 +108,8 @@ class IdempotencyConflict(Exception):
 
 @dataclass(frozen=True)
 class JobRow:
+    """One row of the ``jobs`` table, as read (JSON columns still text)."""
+
     id: str
     owner: str
     idem_key: str | None
@@ -130,6 +133,7 @@ class JobRow:
 
     @classmethod
     def from_row(cls, row: sqlite3.Row) -> JobRow:
+        """The row selected with :data:`_COLS`."""
         return cls(**{k: row[k] for k in cls.__dataclass_fields__})
 
 
@@ -161,7 +165,7 @@ def _db(write: bool) -> Callable[[_F], _F]:
                     raise
                 raise fault from exc
 
-        return wrapper  # type: ignore[return-value]
+        return wrapper  # type: ignore[return-value]  # functools.wraps keeps fn's signature; mypy cannot see it
 
     return deco
 
@@ -266,6 +270,7 @@ class JobStore:
     # --------------------------------------------------------------- read
     @_db(write=False)
     def get(self, job_id: str, owner: str | None = None) -> JobRow | None:
+        """The job ``job_id`` (only if ``owner`` owns it, when given), or None."""
         q = f"SELECT {_COLS} FROM jobs WHERE id=?"
         args: tuple = (job_id,)
         if owner is not None:
@@ -276,6 +281,7 @@ class JobStore:
 
     @_db(write=False)
     def list(self, owner: str, status: str | None, limit: int, offset: int) -> tuple[list[JobRow], int]:
+        """One page of ``owner``'s jobs, newest first (optionally one ``status`` only), and their total count."""
         where = "owner=?"
         args: list[Any] = [owner]
         if status is not None:
@@ -290,6 +296,7 @@ class JobStore:
 
     @_db(write=False)
     def counts(self) -> dict[str, int]:
+        """The number of jobs in each status (every status listed, 0 included)."""
         out = {s: 0 for s in STATUSES}
         for status, n in self._conn().execute("SELECT status, COUNT(*) FROM jobs GROUP BY status"):
             out[status] = n
@@ -297,6 +304,7 @@ class JobStore:
 
     @_db(write=False)
     def running(self) -> builtins.list[JobRow]:  # builtins: the method list() shadows it here
+        """Every running job."""
         rows = self._conn().execute(f"SELECT {_COLS} FROM jobs WHERE status='running'").fetchall()
         return [JobRow.from_row(r) for r in rows]
 
@@ -448,13 +456,15 @@ class JobStore:
         now = time.time()
         with self._tx() as c:
             for job_id in job_ids:
-                row = c.execute("SELECT status, attempts, cancel_requested_at FROM jobs WHERE id=?", (job_id,)).fetchone()
+                row = c.execute("SELECT status, attempts, cancel_requested_at FROM jobs WHERE id=?",
+                                (job_id,)).fetchone()
                 if row is None or row["status"] != "running":
                     continue
                 if row["cancel_requested_at"] is not None:
                     new, err = "cancelled", f"cancelled ({reason})"
                     c.execute(
-                        "UPDATE jobs SET status='cancelled', finished_at=?, updated_at=?, claim=NULL, error=? WHERE id=?",
+                        "UPDATE jobs SET status='cancelled', finished_at=?, updated_at=?, claim=NULL, error=? "
+                        "WHERE id=?",
                         (now, now, err, job_id),
                     )
                 elif policy == "requeue" and row["attempts"] < max_attempts:

@@ -63,6 +63,7 @@ def _warm_up(done: threading.Event, pool: ComputePool | None = None) -> None:
 
 @asynccontextmanager
 async def lifespan(app: FastAPI):
+    """Open the job store and files, start the job workers' supervisor and the compute pool; stop them on shutdown."""
     settings: Settings = app.state.settings
     warn_unknown_settings(log)
     faults = FaultInjector(settings.test_storage_fault_file)

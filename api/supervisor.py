@@ -285,7 +285,8 @@ class Supervisor:
             _until(lambda: not pid_alive(pid), 5.0)
         self._lock_seen = None
         if job is not None:
-            reason = f"its lease expired while its worker (pid {pid}) held the database write lock; the worker was killed"
+            reason = (f"its lease expired while its worker (pid {pid}) held the database write lock; "
+                      "the worker was killed")
             end = time.monotonic() + self.store.gate.timeout
             while True:  # other writes of this server may be trying the freed lock too: take a turn
                 try:
@@ -311,7 +312,8 @@ class Supervisor:
                 expired.append(j)
         changed = self._recover(dead, reason) if dead else []
         if expired:
-            recovered = set(self._recover([j.id for j in expired], f"its lease expired (no heartbeat for {timeout:g} s)"))
+            recovered = set(self._recover([j.id for j in expired],
+                                          f"its lease expired (no heartbeat for {timeout:g} s)"))
             changed += list(recovered)
             for j in expired:
                 p = ours.get(j.worker_pid)
@@ -392,7 +394,7 @@ class Supervisor:
         try:
             self.kill_frozen()
             self.respawn()
-        except Exception:  # noqa: BLE001
+        except Exception:  # noqa: BLE001 - keep supervising; the next tick tries again
             log.exception("restarting workers failed")
 
     async def watch(self, period: float = 1.0) -> None:

@@ -163,6 +163,7 @@ def list_jobs(
     limit: Annotated[int, Query(ge=1, le=200)] = 50,
     offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
 ) -> JobList:
+    """Your jobs, newest first, optionally of one status; ``next_offset`` pages on."""
     rows, total = store.list(owner, status, limit, offset)
     items = [JobSummary(**_summary_fields(r)) for r in rows]
     nxt = offset + len(rows) if offset + len(rows) < total else None
@@ -301,7 +302,8 @@ def job_agent(job_id: str, store: StoreDep, files: FilesDep, owner: OwnerDep) ->
     return FileResponse(path, media_type="application/zip", filename=f"agent_{row.id}.zip", headers=headers)
 
 
-@router.get("/jobs/{job_id}/export", summary="Gains exported as json, yaml, C, MATLAB or Python, verified at the export dt",
+@router.get("/jobs/{job_id}/export",
+            summary="Gains exported as json, yaml, C, MATLAB or Python, verified at the export dt",
             responses={**NOT_FOUND,
                        409: {"description": "No result, or the gains' verdict at this dt is not pass.", **_PROBLEM},
                        422: {"description": "Bad format or dt (the field is named in `errors`).", **_PROBLEM},
@@ -316,7 +318,8 @@ def job_export(
         "Sample time (s) of the exported controller. Default: the dt the job's result was verified at (its largest "
         "scenario dt). At any other dt the gains are re-verified at that dt before they are exported."))] = None,
     allow_unverified: Annotated[bool, Query(description=(
-        "Export gains whose verdict at this dt is not pass; the file is then marked FAILED, with the reason."))] = False,
+        "Export gains whose verdict at this dt is not pass; the file is then marked FAILED, with the reason.")
+    )] = False,
 ) -> Response:
     """The file carries the verdict at ``dt``: the stored one at the verified dt, else a fresh verification."""
     from gaintune.errors import GaintuneError
@@ -329,7 +332,8 @@ def job_export(
     except GaintuneError as exc:
         if exc.field != "dt":
             raise
-        raise ApiError(422, f"Cannot export at dt = {dt:g} s.", errors=[{"loc": "query.dt", "msg": exc.message}]) from None
+        raise ApiError(422, f"Cannot export at dt = {dt:g} s.",
+                       errors=[{"loc": "query.dt", "msg": exc.message}]) from None
     verdict, report = checked
     if verdict != "pass" and not allow_unverified:
         reasons = (report or {}).get("reasons") if isinstance(report, dict) else None

@@ -1,4 +1,7 @@
-"""``POST /v1/verify``: synchronous verification of gains against a spec (in the compute pool, see :mod:`gaintune_api.compute`)."""
+"""``POST /v1/verify``: synchronous verification of gains against a spec.
+
+Computed in the compute pool (:mod:`gaintune_api.compute`).
+"""
 
 from __future__ import annotations
 

@@ -120,7 +120,8 @@ def test_pool_verify_matches_in_process():
     from gaintune.verification import verify
     from gaintune_api.compute import compute_verify
 
-    spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}], "scenario": {"dt": 0.01}})
+    spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+                      "scenario": {"dt": 0.01}})
     gains = {"loop0": {"Kp": 1.14, "Ki": 0.454}}
 
     async def main():

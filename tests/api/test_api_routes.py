@@ -194,7 +194,8 @@ def test_api_export_dt_reverifies(client):
     assert client.get(f"/v1/jobs/{job['id']}").json()["result"]["verdict"] == "pass"  # at 1 ms
     r = client.get(url, params={"format": "c"})  # default: the verified dt, stored verdict
     assert r.status_code == 200, r.text
-    assert "#define GT_DT 0.001\n" in r.text and "#define GT_VERIFIED 1\n" in r.text and "#define GT_VERIFIED_DT 0.001 " in r.text
+    assert "#define GT_DT 0.001\n" in r.text and "#define GT_VERIFIED 1\n" in r.text
+    assert "#define GT_VERIFIED_DT 0.001 " in r.text
     r = client.get(url, params={"format": "c", "dt": 0.01})  # 10 ms: re-verified, unstable -> refused
     assert r.status_code == 409 and r.headers["content-type"] == "application/problem+json"
     detail = r.json()["detail"]
@@ -202,7 +203,8 @@ def test_api_export_dt_reverifies(client):
     assert "allow_unverified=true" in detail
     r = client.get(url, params={"format": "c", "dt": 0.01, "allow_unverified": "true"})
     assert r.status_code == 200, r.text
-    assert "#define GT_DT 0.01\n" in r.text and "#define GT_VERIFIED 0\n" in r.text and '#define GT_VERDICT "fail"' in r.text
+    assert "#define GT_DT 0.01\n" in r.text and "#define GT_VERIFIED 0\n" in r.text
+    assert '#define GT_VERDICT "fail"' in r.text
     assert "verification: FAILED at dt = 0.01 s - closed loop unstable" in r.text
     r = client.get(url, params={"format": "json", "dt": 0.0005})  # finer: re-verified, passes
     assert r.status_code == 200, r.text
@@ -230,7 +232,8 @@ def test_api_export_dt_over_server_step_limit_is_422(make_client):
     job = submit(client, _motor_spec())  # 2 s at 1 ms = 2000 steps
     run_next(client, make_fake_tune(FLIP_GAINS))
     r = client.get(f"/v1/jobs/{job['id']}/export", params={"format": "c", "dt": 0.0001})  # 20000 steps
-    assert r.status_code == 422 and r.json()["errors"][0]["loc"] == "query.dt" and "5000" in r.json()["errors"][0]["msg"]
+    assert r.status_code == 422
+    assert r.json()["errors"][0]["loc"] == "query.dt" and "5000" in r.json()["errors"][0]["msg"]
 
 
 def test_report_html(client):
@@ -604,7 +607,8 @@ def test_compute_pool_matches_in_process_and_leaves_no_process(make_client, tmp_
 
     local = make_client()
     (tmp_path / "pooled").mkdir()
-    with TestClient(create_app(settings_for(tmp_path / "pooled", compute_processes=1)), raise_server_exceptions=False) as pooled:
+    pooled_app = create_app(settings_for(tmp_path / "pooled", compute_processes=1))
+    with TestClient(pooled_app, raise_server_exceptions=False) as pooled:
         pool = pooled.app.state.compute_pool
         assert pool is not None and pool.warm[0].result(timeout=120) != os.getpid()
         pids = pool.pids
