@@ -8,6 +8,7 @@ from gaintune_api.main import serve
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Parse the command line and serve the API (:func:`gaintune_api.main.serve`)."""
     ap = argparse.ArgumentParser(prog="python -m gaintune_api", description="gaintune REST API server")
     ap.add_argument("--host", default="127.0.0.1")
     ap.add_argument("--port", type=int, default=8000)

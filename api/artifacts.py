@@ -30,10 +30,12 @@ def _module(name: str, feature: str):
 
 
 def render_report(result: Any, path: Path) -> Path:
+    """Render ``result``'s HTML report to ``path`` with :mod:`gaintune.report` (501 when not installed)."""
     mod = _module("gaintune.report", "The HTML report")
     fn = getattr(mod, "render_report", None)
     if fn is None:
-        raise ApiError(501, "The HTML report is not available in this installation (gaintune.report.render_report missing).")
+        raise ApiError(501, "The HTML report is not available in this installation "
+                            "(gaintune.report.render_report missing).")
     out = fn(result, path)
     return Path(out) if isinstance(out, (str, Path)) else path
 
@@ -54,11 +56,13 @@ def export_verdict(result: Any, dt: float | None, max_steps: int | None = None) 
     mod = _module("gaintune.export", "Gain export")
     fn = getattr(mod, "result_verdict_at_dt", None)
     if fn is None:
-        raise ApiError(501, "Gain export is not available in this installation (gaintune.export.result_verdict_at_dt missing).")
+        raise ApiError(501, "Gain export is not available in this installation "
+                            "(gaintune.export.result_verdict_at_dt missing).")
     return fn(result, dt, max_steps=max_steps)
 
 
-def export_gains(result: Any, fmt: str, dt: float | None = None, checked: tuple[str | None, Any] | None = None) -> str | bytes:
+def export_gains(result: Any, fmt: str, dt: float | None = None,
+                 checked: tuple[str | None, Any] | None = None) -> str | bytes:
     """Text of ``result``'s gains in ``fmt`` at sample time ``dt`` via :mod:`gaintune.export`.
 
     ``checked``: the ``(verdict, report)`` of :func:`export_verdict` for the same ``dt``.

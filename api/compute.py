@@ -30,8 +30,9 @@ import socket
 import struct
 import threading
 from collections import deque
+from collections.abc import Callable
 from concurrent.futures import Future
-from typing import Any, BinaryIO, Callable
+from typing import Any, BinaryIO
 
 from gaintune.cache import LRU
 
@@ -81,7 +82,8 @@ def compute_verify(spec, gains, robust, nonlinear, plant=None, layout=None, spec
     from gaintune.verification import verify
 
     try:
-        report = verify(spec, gains, robust=robust, nonlinear=nonlinear, plant=plant, layout=layout, spec_hash=spec_hash)
+        report = verify(spec, gains, robust=robust, nonlinear=nonlinear, plant=plant, layout=layout,
+                        spec_hash=spec_hash)
     except GaintuneError as exc:
         return "gains", problem_details(exc)
     except Exception as exc:  # noqa: BLE001 - user input must never produce a 500
@@ -111,8 +113,8 @@ def compute_policy(tuners: LRU[str, Any], key: str, agent: Any, spec: dict[str, 
 
 def compute_simulate(spec, gains, chosen: list[int], max_points: int, plant=None, layout=None) -> tuple[str, Any]:
     """``("ok", JSON bytes of a SimulateResponse)`` | ``("gains", problem details)`` | ``("error", message)``."""
-    from gaintune_api.simulation import simulate_payload
     from gaintune.errors import GaintuneError, problem_details
+    from gaintune_api.simulation import simulate_payload
 
     try:
         return "ok", simulate_payload(spec, gains, chosen, max_points, plant, layout)
@@ -254,6 +256,11 @@ class ComputePool:
         self._workers = [self._spawn() for _ in range(self.n)]
         self.warm = [w.warm for w in self._workers]
 
+    def _started_loop(self) -> asyncio.AbstractEventLoop:
+        """The event loop :meth:`start` ran on (workers are spawned and awaited only while the pool runs)."""
+        assert self._loop is not None, "compute pool not started"
+        return self._loop
+
     def _spawn(self) -> _Worker:
         ctx = mp.get_context("spawn")
         here, there = socket.socketpair()
@@ -261,7 +268,7 @@ class ComputePool:
         proc.start()
         there.close()  # the worker's end: EOF here when the worker dies
         w = _Worker(proc, here, Future())
-        w.task = self._loop.create_task(self._serve(w))
+        w.task = self._started_loop().create_task(self._serve(w))
         return w
 
     async def _serve(self, w: _Worker) -> None:
@@ -283,6 +290,7 @@ class ComputePool:
 
     @property
     def pids(self) -> list[int]:
+        """The pids of the pool's current worker processes, sorted."""
         return sorted(w.proc.pid for w in self._workers)
 
     # ---------------------------------------------------------------- dispatch
@@ -300,7 +308,7 @@ class ComputePool:
             if w.ready:
                 w.ready = False
                 return w
-        f = self._loop.create_future()
+        f = self._started_loop().create_future()
         self._waiters.append(f)
         try:
             return await f
@@ -408,7 +416,8 @@ class ComputePool:
         self._loop = None
         workers, self._workers = self._workers, []
         for w in workers:
-            w.task.cancel()
+            if w.task is not None:
+                w.task.cancel()
             self._close(w)
         for w in workers:
             w.proc.join(timeout=5)

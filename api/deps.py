@@ -9,15 +9,16 @@ from typing import Annotated
 from fastapi import Depends, Request, Security
 from fastapi.security import APIKeyHeader
 
+from gaintune_api.job_store import JobStore
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.problem_details import ApiError
 from gaintune_api.settings import Settings
-from gaintune_api.job_store import JobStore
 
-__all__ = ["SettingsDep", "StoreDep", "FilesDep", "OwnerDep", "require_key", "owner_of", "check_key", "api_key_header", "run_compute",
-           "run_pooled"]
+__all__ = ["SettingsDep", "StoreDep", "FilesDep", "OwnerDep", "require_key", "owner_of", "check_key", "api_key_header",
+           "run_compute", "run_pooled"]
 
-api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False, description="API key (when the server has keys configured).")
+api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
+                              description="API key (when the server has keys configured).")
 
 
 async def run_compute(request: Request, fn, *args):
@@ -45,14 +46,17 @@ async def run_pooled(request: Request, fn, *args, ref: tuple[int, str] | None = 
 
 
 async def get_settings(request: Request) -> Settings:
+    """The app's settings (dependency)."""
     return request.app.state.settings
 
 
 async def get_store(request: Request) -> JobStore:
+    """The app's job store (dependency)."""
     return request.app.state.store
 
 
 async def get_files(request: Request) -> JobFiles:
+    """The app's artefact layer (dependency)."""
     return request.app.state.files
 
 

@@ -29,16 +29,18 @@ this module as :class:`gaintune_api.storage_faults.StorageFault`, naming the cau
 
 from __future__ import annotations
 
+import builtins
 import json
 import os
 import sqlite3
 import threading
 import time
 import uuid
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import wraps
 from pathlib import Path
-from typing import Any, Callable, Iterable, TypeVar
+from typing import Any, TypeVar
 
 from gaintune_api.storage_faults import FaultInjector, classify
 from gaintune_api.writegate import WriteGate
@@ -86,6 +88,7 @@ def dumps(obj: Any) -> str:
 
 
 def loads(text: str | None) -> Any:
+    """Parse a JSON column written by :func:`dumps` (None stays None)."""
     return None if text is None else json.loads(text)
 
 
@@ -105,6 +108,8 @@ class IdempotencyConflict(Exception):
 
 @dataclass(frozen=True)
 class JobRow:
+    """One row of the ``jobs`` table, as read (JSON columns still text)."""
+
     id: str
     owner: str
     idem_key: str | None
@@ -127,7 +132,8 @@ class JobRow:
     artifacts: str | None = None
 
     @classmethod
-    def from_row(cls, row: sqlite3.Row) -> "JobRow":
+    def from_row(cls, row: sqlite3.Row) -> JobRow:
+        """The row selected with :data:`_COLS`."""
         return cls(**{k: row[k] for k in cls.__dataclass_fields__})
 
 
@@ -145,7 +151,7 @@ def _db(write: bool) -> Callable[[_F], _F]:
 
     def deco(fn: _F) -> _F:
         @wraps(fn)
-        def wrapper(self: "JobStore", *args: Any, **kw: Any) -> Any:
+        def wrapper(self: JobStore, *args: Any, **kw: Any) -> Any:
             try:
                 if not write:
                     return fn(self, *args, **kw)
@@ -159,7 +165,7 @@ def _db(write: bool) -> Callable[[_F], _F]:
                     raise
                 raise fault from exc
 
-        return wrapper  # type: ignore[return-value]
+        return wrapper  # type: ignore[return-value]  # functools.wraps keeps fn's signature; mypy cannot see it
 
     return deco
 
@@ -197,7 +203,7 @@ class JobStore:
             self._local.pid = os.getpid()
         return conn
 
-    def _tx(self, point: str | None = None) -> "_Tx":
+    def _tx(self, point: str | None = None) -> _Tx:
         return _Tx(self._conn(), self.faults if point else None, point)
 
     def init(self) -> None:
@@ -264,6 +270,7 @@ class JobStore:
     # --------------------------------------------------------------- read
     @_db(write=False)
     def get(self, job_id: str, owner: str | None = None) -> JobRow | None:
+        """The job ``job_id`` (only if ``owner`` owns it, when given), or None."""
         q = f"SELECT {_COLS} FROM jobs WHERE id=?"
         args: tuple = (job_id,)
         if owner is not None:
@@ -274,6 +281,7 @@ class JobStore:
 
     @_db(write=False)
     def list(self, owner: str, status: str | None, limit: int, offset: int) -> tuple[list[JobRow], int]:
+        """One page of ``owner``'s jobs, newest first (optionally one ``status`` only), and their total count."""
         where = "owner=?"
         args: list[Any] = [owner]
         if status is not None:
@@ -288,13 +296,15 @@ class JobStore:
 
     @_db(write=False)
     def counts(self) -> dict[str, int]:
+        """The number of jobs in each status (every status listed, 0 included)."""
         out = {s: 0 for s in STATUSES}
         for status, n in self._conn().execute("SELECT status, COUNT(*) FROM jobs GROUP BY status"):
             out[status] = n
         return out
 
     @_db(write=False)
-    def running(self) -> list[JobRow]:
+    def running(self) -> builtins.list[JobRow]:  # builtins: the method list() shadows it here
+        """Every running job."""
         rows = self._conn().execute(f"SELECT {_COLS} FROM jobs WHERE status='running'").fetchall()
         return [JobRow.from_row(r) for r in rows]
 
@@ -433,7 +443,8 @@ class JobStore:
 
     # ------------------------------------------------------------ recovery
     @_db(write=True)
-    def recover(self, job_ids: Iterable[str], policy: str, reason: str, max_attempts: int) -> list[tuple[str, str, str]]:
+    def recover(self, job_ids: Iterable[str], policy: str, reason: str,
+                max_attempts: int) -> builtins.list[tuple[str, str, str]]:
         """Re-queue (or fail) running jobs whose worker is gone or whose lease expired.
 
         Returns
@@ -445,13 +456,15 @@ class JobStore:
         now = time.time()
         with self._tx() as c:
             for job_id in job_ids:
-                row = c.execute("SELECT status, attempts, cancel_requested_at FROM jobs WHERE id=?", (job_id,)).fetchone()
+                row = c.execute("SELECT status, attempts, cancel_requested_at FROM jobs WHERE id=?",
+                                (job_id,)).fetchone()
                 if row is None or row["status"] != "running":
                     continue
                 if row["cancel_requested_at"] is not None:
                     new, err = "cancelled", f"cancelled ({reason})"
                     c.execute(
-                        "UPDATE jobs SET status='cancelled', finished_at=?, updated_at=?, claim=NULL, error=? WHERE id=?",
+                        "UPDATE jobs SET status='cancelled', finished_at=?, updated_at=?, claim=NULL, error=? "
+                        "WHERE id=?",
                         (now, now, err, job_id),
                     )
                 elif policy == "requeue" and row["attempts"] < max_attempts:

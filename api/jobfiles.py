@@ -25,8 +25,9 @@ import os
 import shutil
 import threading
 import uuid
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from gaintune.files import write_atomic
 from gaintune_api.storage_faults import FaultInjector, classify
@@ -142,7 +143,7 @@ class JobFiles:
         return str(self.job_dir(job_id) / p.name)
 
     def promoter(self, job_id: str, staging: Path, attempt: int, claim: str) -> Callable[[], dict[str, Any]]:
-        """The function :meth:`gaintune_api.job_store.JobStore.finish` calls, under its write lock, once the claim is verified.
+        """The function :meth:`gaintune_api.job_store.JobStore.finish` calls under its write lock, the claim verified.
 
         Digests are computed now, outside the lock; the returned function only renames
         (``os.replace``, atomic per file) the staged files into the job folder and returns

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from fastapi import Request, Response
 from fastapi.routing import APIRoute
@@ -40,7 +41,8 @@ def parse_strict(body: bytes) -> Any:
     except UnicodeDecodeError:
         raise ApiError(400, "The request body is not valid UTF-8.") from None
     except json.JSONDecodeError as exc:
-        raise ApiError(400, f"The request body is not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}.") from None
+        raise ApiError(400, f"The request body is not valid JSON: {exc.msg} at line {exc.lineno} "
+                            f"column {exc.colno}.") from None
     except ValueError as exc:
         raise ApiError(400, f"The request body is not valid JSON: {str(exc)[:200]}.") from None
 
@@ -57,7 +59,8 @@ def check_shape(data: Any, max_depth: int, max_items: int) -> None:
             if isinstance(node, list):
                 if len(node) > max_items:
                     raise ApiError(422, f"JSON array longer than {max_items} items.",
-                                   errors=[{"loc": ".".join(map(str, path)), "msg": f"array has {len(node)} items; at most {max_items}"}])
+                                   errors=[{"loc": ".".join(map(str, path)),
+                                            "msg": f"array has {len(node)} items; at most {max_items}"}])
                 stack.extend((v, (*path, i), depth + 1) for i, v in enumerate(node) if isinstance(v, (dict, list)))
             else:
                 stack.extend((v, (*path, k), depth + 1) for k, v in node.items() if isinstance(v, (dict, list)))
@@ -117,6 +120,7 @@ class StrictJSONRoute(APIRoute):
     """APIRoute that pre-checks JSON bodies (limits from ``app.state.settings``)."""
 
     def get_route_handler(self) -> Callable:
+        """FastAPI's handler, after the body checks (size, depth, array lengths, content type)."""
         handler = super().get_route_handler()
 
         async def strict_handler(request: Request) -> Response:
@@ -133,7 +137,8 @@ class StrictJSONRoute(APIRoute):
                 elif body:
                     raise ApiError(415, "Send the body as JSON with 'Content-Type: application/json' "
                                         "(a spec may also be sent as YAML with 'Content-Type: application/yaml').",
-                                   errors=[{"loc": "header.content-type", "msg": "send application/json or application/yaml"}])
+                                   errors=[{"loc": "header.content-type",
+                                            "msg": "send application/json or application/yaml"}])
             return await handler(request)
 
         return strict_handler

@@ -15,6 +15,7 @@ from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 
 from gaintune_api.compute import ComputePool
+from gaintune_api.job_store import JobStore
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.metrics import Metrics
 from gaintune_api.middleware import BodySizeLimit, CatchAll, DocsAuth, LatencyMetrics
@@ -24,7 +25,6 @@ from gaintune_api.routes.docs import install_docs
 from gaintune_api.schemas import install_client_openapi
 from gaintune_api.settings import Settings, warn_unknown_settings
 from gaintune_api.storage_faults import FaultInjector, StorageFault
-from gaintune_api.job_store import JobStore
 from gaintune_api.supervisor import Supervisor
 
 __all__ = ["create_app", "app", "serve"]
@@ -63,6 +63,7 @@ def _warm_up(done: threading.Event, pool: ComputePool | None = None) -> None:
 
 @asynccontextmanager
 async def lifespan(app: FastAPI):
+    """Open the job store and files, start the job workers' supervisor and the compute pool; stop them on shutdown."""
     settings: Settings = app.state.settings
     warn_unknown_settings(log)
     faults = FaultInjector(settings.test_storage_fault_file)

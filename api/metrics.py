@@ -35,6 +35,7 @@ class Metrics:
         self.compute: ComputeCounters | None = None
 
     def observe(self, method: str, route: str, status: int, seconds: float) -> None:
+        """Count one request of ``route`` in the latency histogram."""
         key = (method, route, str(status))
         with self._lock:
             h = self._hist[key]
@@ -59,10 +60,13 @@ class Metrics:
                 "# TYPE gaintune_workers_configured gauge", f"gaintune_workers_configured {workers_configured}"]
         out += ["# HELP gaintune_worker_restarts_total Worker processes restarted after dying.",
                 "# TYPE gaintune_worker_restarts_total counter", f"gaintune_worker_restarts_total {worker_restarts}"]
-        out += ["# HELP gaintune_workers_unresponsive Worker processes alive by PID but without a fresh pulse (frozen).",
-                "# TYPE gaintune_workers_unresponsive gauge", f"gaintune_workers_unresponsive {workers_unresponsive}"]
+        out += ["# HELP gaintune_workers_unresponsive "
+                "Worker processes alive by PID but without a fresh pulse (frozen).",
+                "# TYPE gaintune_workers_unresponsive gauge",
+                f"gaintune_workers_unresponsive {workers_unresponsive}"]
         out += ["# HELP gaintune_worker_frozen_kills_total Workers killed because their pulse stopped (frozen).",
-                "# TYPE gaintune_worker_frozen_kills_total counter", f"gaintune_worker_frozen_kills_total {frozen_kills}"]
+                "# TYPE gaintune_worker_frozen_kills_total counter",
+                f"gaintune_worker_frozen_kills_total {frozen_kills}"]
         if database_writable is not None:
             out += ["# HELP gaintune_database_writable 1 when the supervisor's last write probe of the job database "
                     "committed.", "# TYPE gaintune_database_writable gauge",

@@ -100,7 +100,7 @@ class DocsAuth:
 
 
 class _TooLarge(HTTPException):
-    """Raised from ``receive`` when a streamed body passes the limit (an HTTPException, so FastAPI passes it through)."""
+    """Raised from ``receive`` when a streamed body passes the limit (an HTTPException: FastAPI passes it through)."""
 
     def __init__(self, max_bytes: int) -> None:
         super().__init__(413, f"Request bodies are limited to {max_bytes} bytes.")
@@ -114,7 +114,8 @@ class BodySizeLimit:
         self.max_bytes = max_bytes
 
     async def _reject(self, scope: Scope, receive: Receive, send: Send) -> None:
-        resp = problem_response(413, f"Request bodies are limited to {self.max_bytes} bytes.", instance=scope.get("path", ""))
+        resp = problem_response(413, f"Request bodies are limited to {self.max_bytes} bytes.",
+                                instance=scope.get("path", ""))
         await resp(scope, receive, send)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:

@@ -26,8 +26,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from gaintune_api.storage_faults import StorageFault, classify
 from gaintune.errors import GaintuneError, problem_details
+from gaintune_api.storage_faults import StorageFault, classify
 
 __all__ = ["ApiError", "problem_response", "install_handlers", "SafeJSONResponse", "json_safe", "PROBLEM_TYPES",
            "storage_problem", "error_response"]
@@ -86,6 +86,7 @@ class SafeJSONResponse(JSONResponse):
     """JSONResponse that never fails on inf/NaN (encoded as strings, like the verification report)."""
 
     def render(self, content: Any) -> bytes:
+        """``content`` as compact JSON, non-finite floats as strings."""
         try:
             return json.dumps(content, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
         except ValueError:
@@ -174,17 +175,21 @@ def validation_errors(exc: RequestValidationError) -> list[dict[str, Any]]:
         groups.setdefault(prefix, []).append({**err, "loc": loc[1 + len(prefix):]})
     for prefix, errs in groups.items():
         for e in explain(errs):
-            loc = ".".join([*prefix, e["loc"]] if e["loc"] else prefix)
-            out.append({"loc": loc, "msg": e["msg"][:1000]})
+            dotted = ".".join([*prefix, e["loc"]] if e["loc"] else prefix)
+            out.append({"loc": dotted, "msg": e["msg"][:1000]})
     return out
 
 
 def install_handlers(app: FastAPI) -> None:
+    """Answer every error of ``app`` as problem details: invalid requests, ApiError, GaintuneError, HTTP errors
+    and storage faults (named, 503/507; anything else a logged 500)."""
+
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError):
         errors = validation_errors(exc)
         if any(e["msg"].startswith("JSON decode error") for e in errors):
-            return problem_response(400, "The request body is not valid JSON.", instance=request.url.path, errors=errors)
+            return problem_response(400, "The request body is not valid JSON.", instance=request.url.path,
+                                    errors=errors)
         return problem_response(422, f"{len(errors)} invalid field(s)", instance=request.url.path, errors=errors)
 
     @app.exception_handler(ApiError)

@@ -43,6 +43,8 @@ class _In(BaseModel):
 
 
 class ProgressPublic(BaseModel):
+    """Progress of a running search (the last heartbeat's)."""
+
     sims: int = Field(description="Simulations done.")
     budget: int = Field(description="Simulation budget of the search.")
     fraction: float = Field(description="sims / budget, in [0, 1].")
@@ -77,6 +79,8 @@ class JobResultPublic(BaseModel):
 
 
 class JobSummary(BaseModel):
+    """A job's status and progress, without its result."""
+
     id: str
     status: JobStatus
     spec_name: str
@@ -92,11 +96,15 @@ class JobSummary(BaseModel):
 
 
 class JobPublic(JobSummary):
+    """A job with its result (once finished) and links to its files."""
+
     result: JobResultPublic | None = None
     links: dict[str, str] = Field(default_factory=dict)
 
 
 class JobList(BaseModel):
+    """One page of jobs, newest first."""
+
     items: list[JobSummary]
     total: int
     limit: int
@@ -108,6 +116,8 @@ class JobList(BaseModel):
 
 
 class VerifyRequest(_In):
+    """Gains to verify against a spec."""
+
     spec: TuningSpec
     gains: GainsBody = Field(description="{loop_name: {gain_name: value}}; fixed gains may be omitted.")
     robust: bool | None = Field(None, description="Check the randomisation set; default: when the spec randomises.")
@@ -115,6 +125,8 @@ class VerifyRequest(_In):
 
 
 class PolicyRequest(_In):
+    """Plant parameters to ask a job's trained policy about."""
+
     params: dict[str, FiniteFloat | list[FiniteFloat]] = Field(
         default_factory=dict, description="Plant parameter -> value, or values: several values (or several parameters) "
         "make a grid, answered point by point (a gain schedule). Parameters left out keep the training spec's nominal "
@@ -122,10 +134,14 @@ class PolicyRequest(_In):
 
 
 class PolicyAnswers(BaseModel):
+    """The trained policy's gains for each plant asked about, each verified."""
+
     answers: list[PolicyAnswer] = Field(description="One answer per grid point (the product of the values, in order).")
 
 
 class SimulateRequest(_In):
+    """Gains to simulate on a spec's scenarios."""
+
     spec: TuningSpec
     gains: GainsBody
     max_points: int = Field(2000, ge=2, le=1_000_000, description="Most points per trace (capped by the server).")
@@ -133,6 +149,8 @@ class SimulateRequest(_In):
 
 
 class ScenarioTrace(BaseModel):
+    """One scenario's decimated traces and metrics."""
+
     name: str
     dt: float
     n_steps: int
@@ -143,6 +161,8 @@ class ScenarioTrace(BaseModel):
 
 
 class SimulateResponse(BaseModel):
+    """Traces and metrics of the gains on each scenario run."""
+
     gains: Gains
     max_points: int
     scenarios: list[ScenarioTrace]
@@ -152,17 +172,23 @@ class SimulateResponse(BaseModel):
 
 
 class ParamPublic(BaseModel):
+    """A plant model parameter: nominal value, unit, meaning."""
+
     value: float
     unit: str
     description: str
 
 
 class SignalPublic(BaseModel):
+    """A plant input or output signal."""
+
     unit: str
     description: str
 
 
 class PlantPublic(BaseModel):
+    """A built-in plant model."""
+
     name: str
     title: str
     description: str
@@ -175,6 +201,8 @@ class PlantPublic(BaseModel):
 
 
 class PlantList(BaseModel):
+    """The built-in plant models."""
+
     items: list[PlantPublic]
 
 
@@ -182,10 +210,14 @@ class PlantList(BaseModel):
 
 
 class Health(BaseModel):
+    """Liveness answer."""
+
     status: Literal["ok"] = "ok"
 
 
 class Ready(BaseModel):
+    """Readiness answer: database, workers and queue."""
+
     status: Literal["ready", "not_ready"]
     database: bool
     workers_alive: int
@@ -272,4 +304,4 @@ def install_client_openapi(app: FastAPI) -> None:
             app.openapi_schema = request_defaults_optional(build())  # build() caches the raw one first
         return app.openapi_schema
 
-    app.openapi = openapi
+    app.openapi = openapi  # type: ignore[method-assign]  # FastAPI's documented way to customise the schema

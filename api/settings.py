@@ -40,15 +40,18 @@ class Settings(BaseSettings):
     data_dir: Path = Field(Path("gaintune-data"), description="Job artifacts: agents, reports (one folder per job).")
 
     # ---------------------------------------------------------- workers
-    workers: int = Field(1, ge=0, le=64, description="Job worker processes = max concurrent jobs (0: none in this server).")
-    max_queue: int = Field(64, ge=0, description="Most queued (not yet running) jobs; beyond this POST /v1/tune is 503.")
+    workers: int = Field(1, ge=0, le=64,
+                         description="Job worker processes = max concurrent jobs (0: none in this server).")
+    max_queue: int = Field(64, ge=0,
+                           description="Most queued (not yet running) jobs; beyond this POST /v1/tune is 503.")
     retry_after: int = Field(30, ge=1, description="Seconds advertised in Retry-After when the queue is full.")
     recover: Literal["requeue", "fail"] = Field(
         "requeue", description="What happens to jobs that were running when their server or worker died."
     )
     max_attempts: int = Field(3, ge=1, description="A job interrupted this many times is failed instead of re-queued.")
     job_wall_time: float = Field(3600.0, gt=0, description="Per-job wall-time limit in seconds (job fails beyond it).")
-    cancel_grace: float = Field(5.0, gt=0, description="Seconds a cancelled/over-time job may take to stop before its worker is killed.")
+    cancel_grace: float = Field(
+        5.0, gt=0, description="Seconds a cancelled/over-time job may take to stop before its worker is killed.")
     heartbeat_interval: float = Field(0.5, gt=0, description="Worker progress/heartbeat write period (s).")
     heartbeat_timeout: float = Field(
         30.0, gt=0, description="Lease of a running job: without a heartbeat this long (counted while the database "
@@ -80,8 +83,10 @@ class Settings(BaseSettings):
         "when compute_processes is 0 (GIL-bound: more threads add contention, not throughput)."
     )
     verify_cache_size: int = Field(256, ge=0, description="LRU entries of identical /v1/verify requests (0: off).")
-    max_policy_points: int = Field(256, ge=1, le=100_000, description="Most plants one /v1/jobs/{id}/policy request answers.")
-    policy_cache_size: int = Field(8, ge=1, le=1024, description="Trained tuners (agent + training problem) kept loaded.")
+    max_policy_points: int = Field(256, ge=1, le=100_000,
+                                   description="Most plants one /v1/jobs/{id}/policy request answers.")
+    policy_cache_size: int = Field(8, ge=1, le=1024,
+                                   description="Trained tuners (agent + training problem) kept loaded.")
 
     # ------------------------------------------------------- security
     api_keys: Annotated[list[str], NoDecode] = Field(
@@ -104,7 +109,8 @@ class Settings(BaseSettings):
     test_storage_fault_file: Path | None = Field(
         None, description="FOR TESTS ONLY (unset in production: no effect). While this file exists, the words in it "
         "(db:readonly, db:full, data:readonly, data:full) make the job store and the artefact layer fail writes as a "
-        "read-only or full disk would (see gaintune_api.storage_faults.FaultInjector): deterministic storage-fault tests, even as root.",
+        "read-only or full disk would (see gaintune_api.storage_faults.FaultInjector): deterministic storage-fault "
+        "tests, even as root.",
     )
 
     @field_validator("api_keys", "cors_origins", mode="before")
@@ -121,6 +127,7 @@ class Settings(BaseSettings):
 
     @property
     def jobs_dir(self) -> Path:
+        """The folder of the jobs' files (``data_dir/jobs``)."""
         return self.data_dir / "jobs"
 
 

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from gaintune_api.schemas import ScenarioTrace, SimulateResponse
+from gaintune_api.schemas import SimulateResponse
 
 __all__ = ["decimate", "simulate_payload", "simulate_response"]
 

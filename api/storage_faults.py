@@ -115,7 +115,8 @@ def classify(exc: BaseException, where: Where | None = None) -> StorageFault | N
         text = exc.strerror or str(exc)
         if exc.filename:
             text = f"{text}: {exc.filename}"
-        return StorageFault(where or "data", _ERRNO_KIND[exc.errno], f"{errno.errorcode.get(exc.errno, exc.errno)}, {text}"[:300])
+        name = errno.errorcode.get(exc.errno, exc.errno)
+        return StorageFault(where or "data", _ERRNO_KIND[exc.errno], f"{name}, {text}"[:300])
     return None
 
 
@@ -189,9 +190,10 @@ class FaultInjector:
     @staticmethod
     def _raise(where: Where, kind: str, target: str | Path) -> None:
         if where == "database":
-            msg, code = ("attempt to write a readonly database", 8) if kind == "readonly" else ("database or disk is full", 13)
+            msg, code = (("attempt to write a readonly database", 8) if kind == "readonly"
+                         else ("database or disk is full", 13))
             exc = sqlite3.OperationalError(msg)
-            exc.sqlite_errorcode = code  # type: ignore[attr-defined] - as sqlite3 sets it
+            exc.sqlite_errorcode = code  # as sqlite3 sets it on its own errors
             raise exc
         num = errno.EROFS if kind == "readonly" else errno.ENOSPC
         raise OSError(num, f"{'Read-only file system' if kind == 'readonly' else 'No space left on device'} (injected)",

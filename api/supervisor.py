@@ -33,12 +33,13 @@ import multiprocessing as mp
 import os
 import signal
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
+from gaintune_api.job_store import JobRow, JobStore, claim_tag
 from gaintune_api.settings import Settings
 from gaintune_api.storage_faults import StorageFault, wal_write_lock_holder
-from gaintune_api.job_store import JobRow, JobStore, claim_tag
 from gaintune_api.worker import PROCESS_NAME
 
 __all__ = ["Supervisor", "pid_alive", "pid_stopped"]
@@ -73,6 +74,12 @@ def pid_stopped(pid: int | None) -> bool:
             return f.read().rsplit(")", 1)[1].split()[0] in ("T", "t")
     except OSError:
         return False
+
+
+def _pid(p: mp.process.BaseProcess) -> int:
+    """The pid of a started worker process (multiprocessing types it Optional: None only before ``start()``)."""
+    assert p.pid is not None, "worker process not started"
+    return p.pid
 
 
 def _is_worker(pid: int) -> bool:
@@ -137,7 +144,7 @@ class Supervisor:
         p.start()
         self.procs[i] = p
         self.pulses[i] = pulse
-        self.holding[p.pid] = holding
+        self.holding[_pid(p)] = holding
         log.info("started worker %d (pid %s)", i, p.pid)
 
     def worker_state(self, i: int) -> str:
@@ -167,7 +174,7 @@ class Supervisor:
         log.warning("killing worker pid %s: %s", p.pid, why)
         p.kill()  # SIGKILL also ends a stopped (SIGSTOP) process
         p.join(5)
-        self.holding.pop(p.pid, None)
+        self.holding.pop(_pid(p), None)
 
     def kill_if_holding(self, p: mp.process.BaseProcess, job: JobRow, why: str) -> bool:
         """Kill our worker ``p`` for ``job`` only if it still runs that attempt; True when killed.
@@ -177,22 +184,23 @@ class Supervisor:
         runs another attempt now (it gave up on this one, e.g. after its final write failed) is
         resumed untouched: killing it would throw away an unrelated job.
         """
-        holding = self.holding.get(p.pid)
+        pid = _pid(p)
+        holding = self.holding.get(pid)
         if holding is None or not job.claim:
             log.warning("worker pid %s not killed for job %s: what it runs is unknown", p.pid, job.id)
             return False
-        stopped_before = pid_stopped(p.pid)
+        stopped_before = pid_stopped(pid)
         if not stopped_before:
             try:
-                os.kill(p.pid, signal.SIGSTOP)
+                os.kill(pid, signal.SIGSTOP)
             except ProcessLookupError:
                 return False
-            _until(lambda: pid_stopped(p.pid) or not pid_alive(p.pid), 2.0)
+            _until(lambda: pid_stopped(pid) or not pid_alive(pid), 2.0)
         if holding.value == claim_tag(job.claim):
             self._kill(p, why)
             return True
         if not stopped_before:
-            os.kill(p.pid, signal.SIGCONT)
+            os.kill(pid, signal.SIGCONT)
         log.warning("worker pid %s not killed for job %s (attempt %d): it runs another job now", p.pid, job.id,
                     job.attempts)
         return False
@@ -277,7 +285,8 @@ class Supervisor:
             _until(lambda: not pid_alive(pid), 5.0)
         self._lock_seen = None
         if job is not None:
-            reason = f"its lease expired while its worker (pid {pid}) held the database write lock; the worker was killed"
+            reason = (f"its lease expired while its worker (pid {pid}) held the database write lock; "
+                      "the worker was killed")
             end = time.monotonic() + self.store.gate.timeout
             while True:  # other writes of this server may be trying the freed lock too: take a turn
                 try:
@@ -303,7 +312,8 @@ class Supervisor:
                 expired.append(j)
         changed = self._recover(dead, reason) if dead else []
         if expired:
-            recovered = set(self._recover([j.id for j in expired], f"its lease expired (no heartbeat for {timeout:g} s)"))
+            recovered = set(self._recover([j.id for j in expired],
+                                          f"its lease expired (no heartbeat for {timeout:g} s)"))
             changed += list(recovered)
             for j in expired:
                 p = ours.get(j.worker_pid)
@@ -352,7 +362,7 @@ class Supervisor:
             if p is not None and not p.is_alive():
                 log.warning("worker %d (pid %s) exited with %s; restarting", i, p.pid, p.exitcode)
                 p.join(0)
-                self.holding.pop(p.pid, None)
+                self.holding.pop(_pid(p), None)
                 self.restarts += 1
                 self._spawn(i)
 
@@ -384,7 +394,7 @@ class Supervisor:
         try:
             self.kill_frozen()
             self.respawn()
-        except Exception:  # noqa: BLE001
+        except Exception:  # noqa: BLE001 - keep supervising; the next tick tries again
             log.exception("restarting workers failed")
 
     async def watch(self, period: float = 1.0) -> None:

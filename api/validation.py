@@ -13,14 +13,15 @@ import threading
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from fastapi import Request
 from pydantic import ValidationError
 
-from gaintune_api.deps import run_compute
-from gaintune_api.problem_details import ApiError
-from gaintune_api.settings import Settings
 from gaintune.cache import LRU
 from gaintune.errors import GaintuneError, problem_details
 from gaintune.spec import TuningSpec
+from gaintune_api.deps import run_compute
+from gaintune_api.problem_details import ApiError
+from gaintune_api.settings import Settings
 
 __all__ = ["Checked", "check_spec", "cached_check", "check_and_remember", "checked_spec", "nonfinite_paths", "invalid"]
 
@@ -39,12 +40,15 @@ _CHECK_LOCK = threading.Lock()
 
 @dataclass
 class Checked:
+    """A spec that passed :func:`check_spec`, with its built plant and gain layout."""
+
     spec: TuningSpec
     plant: Any
     layout: Any
 
 
 def invalid(errors: list[dict[str, Any]], detail: str = "The spec is invalid.") -> ApiError:
+    """A 422 problem listing ``errors`` (each ``{"loc", "msg"}``)."""
     return ApiError(422, detail, errors=errors)
 
 
@@ -69,19 +73,25 @@ def _limits(spec: TuningSpec, s: Settings, purpose: Purpose, prefix: str) -> lis
     for path in nonfinite_paths(spec.model_dump(mode="python"), prefix):
         errs.append({"loc": path, "msg": "must be a finite number (NaN and infinity are not accepted)"})
     if purpose == "tune" and spec.search.budget > s.max_budget:
-        errs.append({"loc": f"{p}search.budget", "msg": f"{spec.search.budget} exceeds this server's limit of {s.max_budget} simulations"})
+        errs.append({"loc": f"{p}search.budget",
+                     "msg": f"{spec.search.budget} exceeds this server's limit of {s.max_budget} simulations"})
     if len(spec.scenarios) > s.max_scenarios:
-        errs.append({"loc": f"{p}scenarios", "msg": f"{len(spec.scenarios)} scenarios exceed this server's limit of {s.max_scenarios}"})
+        errs.append({"loc": f"{p}scenarios",
+                     "msg": f"{len(spec.scenarios)} scenarios exceed this server's limit of {s.max_scenarios}"})
     for i, sc in enumerate(spec.scenarios):
         if sc.resolved and sc.n_steps > s.max_steps:  # derived dt/horizon are checked once chosen (check_spec)
             errs.append({"loc": f"{p}scenarios.{i}.horizon",
-                         "msg": f"horizon/dt = {sc.n_steps} steps exceeds this server's limit of {s.max_steps}; raise dt or shorten the horizon"})
+                         "msg": f"horizon/dt = {sc.n_steps} steps exceeds this server's limit of {s.max_steps}; "
+                                "raise dt or shorten the horizon"})
     if purpose == "verify":
         if spec.verify.n_freq > s.sync_max_n_freq:
-            errs.append({"loc": f"{p}verify.n_freq", "msg": f"{spec.verify.n_freq} exceeds the limit of {s.sync_max_n_freq} for synchronous verification"})
+            errs.append({"loc": f"{p}verify.n_freq",
+                         "msg": f"{spec.verify.n_freq} exceeds the limit of {s.sync_max_n_freq} "
+                                "for synchronous verification"})
         if spec.verify.robust_samples > s.sync_max_robust_samples:
             errs.append({"loc": f"{p}verify.robust_samples",
-                         "msg": f"{spec.verify.robust_samples} exceeds the limit of {s.sync_max_robust_samples} for synchronous verification"})
+                         "msg": f"{spec.verify.robust_samples} exceeds the limit of {s.sync_max_robust_samples} "
+                                "for synchronous verification"})
     return errs
 
 
@@ -106,7 +116,8 @@ def check_spec(spec: TuningSpec, settings: Settings, purpose: Purpose, *, prefix
             plant = build_plant(spec.plant)
             if plant.order > settings.max_order:
                 raise invalid([{"loc": f"{prefix + '.' if prefix else ''}plant",
-                                "msg": f"plant order {plant.order} exceeds this server's limit of {settings.max_order}"}])
+                                "msg": f"plant order {plant.order} exceeds this server's limit "
+                                       f"of {settings.max_order}"}])
             validate_against_plant(spec, plant)
         from gaintune.classical.timescale import resolve_scenarios
 
@@ -148,7 +159,8 @@ def _check_cache(request) -> LRU[tuple, Checked]:
     return c
 
 
-def cached_check(request, spec: TuningSpec, purpose: Purpose, prefix: str = "", spec_hash: str | None = None) -> Checked | None:
+def cached_check(request: Request, spec: TuningSpec, purpose: Purpose, prefix: str = "",
+                 spec_hash: str | None = None) -> Checked | None:
     """The result of an earlier successful :func:`check_spec` of the same spec content, or None.
 
     Only successes are kept (the limits are the app's settings, fixed for its lifetime).
@@ -159,14 +171,16 @@ def cached_check(request, spec: TuningSpec, purpose: Purpose, prefix: str = "", 
     return Checked(spec, hit.plant, hit.layout)
 
 
-def check_and_remember(request, spec: TuningSpec, purpose: Purpose, prefix: str = "", spec_hash: str | None = None) -> Checked:
+def check_and_remember(request: Request, spec: TuningSpec, purpose: Purpose, prefix: str = "",
+                       spec_hash: str | None = None) -> Checked:
     """:func:`check_spec` with the app's settings, remembering a success for :func:`cached_check`."""
     checked = check_spec(spec, request.app.state.settings, purpose, prefix=prefix)
     _check_cache(request).put((purpose, prefix, spec_hash or spec.content_hash()), checked)
     return checked
 
 
-async def checked_spec(request, spec: TuningSpec, purpose: Purpose, prefix: str = "spec", spec_hash: str | None = None) -> Checked:
+async def checked_spec(request: Request, spec: TuningSpec, purpose: Purpose, prefix: str = "spec",
+                       spec_hash: str | None = None) -> Checked:
     """The spec's semantic check: from the per-spec cache, else computed off the event loop and remembered."""
     checked = cached_check(request, spec, purpose, prefix, spec_hash)
     if checked is None:

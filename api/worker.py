@@ -3,7 +3,7 @@
 Run inside the server (``Settings.workers`` processes, started and restarted by
 :mod:`gaintune_api.supervisor`) or standalone next to it: ``python -m gaintune_api.worker``.
 
-While a job runs, a monitor thread writes progress and a heartbeat every
+While a job runs, a monitor thread (:class:`gaintune_api.attempt.Attempt`) writes progress and a heartbeat every
 ``heartbeat_interval`` seconds and polls the job's ``cancel_requested_at``
 flag and the wall-time limit. Either sets the ``cancel`` event that
 :func:`gaintune.search.tune` checks (and the progress callback returns
@@ -38,13 +38,18 @@ import sys
 import threading
 import time
 import traceback
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Protocol
 
+from gaintune_api.attempt import Attempt, final_status
+from gaintune_api.job_store import JobRow, JobStore, claim_tag
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.settings import Settings, warn_unknown_settings
 from gaintune_api.storage_faults import FaultInjector, StorageFault, classify
-from gaintune_api.job_store import JobRow, JobStore, claim_tag
+
+if TYPE_CHECKING:
+    from gaintune.spec import TuningSpec
 
 __all__ = ["worker_main", "run_job", "process_next", "PROCESS_NAME"]
 
@@ -52,6 +57,12 @@ log = logging.getLogger("gaintune.worker")
 
 #: The name workers give themselves (``/proc/<pid>/comm``, ``ps``): how operators and the chaos benchmark find them.
 PROCESS_NAME = "gaintune-worker"
+
+
+class SharedNumber(Protocol):
+    """A number shared with the supervisor (``multiprocessing.Value('d')`` or ``Value('q')``)."""
+
+    value: float
 
 
 def _prctl(option: int, arg: int | bytes) -> None:
@@ -71,8 +82,8 @@ def _die_with_parent(parent: int) -> None:
         os._exit(0)
 
 
-def _start_pulse(pulse: Any, interval: float) -> None:
-    """Beat ``pulse.value = time.time()`` every ``interval`` s from a daemon thread (stops when the process is frozen)."""
+def _start_pulse(pulse: SharedNumber, interval: float) -> None:
+    """Beat ``pulse.value = time.time()`` every ``interval`` s from a daemon thread (stops when the process freezes)."""
 
     def beat() -> None:
         while True:
@@ -115,6 +126,56 @@ def _once(promote: Callable[[], dict | None]) -> Callable[[], dict | None]:
     return run
 
 
+def _default_tune() -> Callable[..., Any]:
+    """:func:`gaintune.search.tune`, imported on first use: it is heavy (torch), and only workers need it."""
+    from gaintune.search import tune
+
+    return tune
+
+
+def _search(tune: Callable[..., Any], spec: TuningSpec, staging: Path, attempt: Attempt) -> tuple[Any, str | None]:
+    """Run the search with ``attempt``'s monitor beside it: (its result or None, the error text or None)."""
+    from gaintune.errors import GaintuneError
+
+    job_id = attempt.job.id
+    threading.Thread(target=attempt.watch, name=f"monitor-{job_id[:8]}", daemon=True).start()
+    result = None
+    error: str | None = None
+    try:
+        extra = {"command": f"POST /v1/tune (job {job_id})"} if _accepts(tune, "command") else {}
+        result = tune(spec, progress=attempt.on_progress, out_dir=staging, verify=True, cancel=attempt.cancel,
+                      **extra)
+    except BaseException as exc:  # noqa: BLE001 - a job failure must never kill the worker loop
+        if isinstance(exc, (KeyboardInterrupt, SystemExit)):
+            raise
+        error = _error_text(exc)
+        if not isinstance(exc, GaintuneError) and classify(exc, "data") is None:
+            log.error("job %s crashed:\n%s", job_id, traceback.format_exc())
+    finally:
+        attempt.done.set()
+    return result, error
+
+
+def _final_payload(result: Any, files: JobFiles, job: JobRow, staging: Path, spec: TuningSpec,
+                   progress: dict[str, Any] | None) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
+    """The result to store (its agent at its promoted path) and the final progress, from the search's result."""
+    if result is None:
+        return None, progress
+    payload = result.model_dump(mode="python")
+    payload["agent_path"] = files.final_path(job.id, payload.get("agent_path"), staging)
+    final = {**(progress or {}), "sims": result.sims, "elapsed": result.wall_time, "eta": 0.0,
+             "budget": spec.search.budget, "best_cost": result.cost, "phase": "done"}
+    return payload, final
+
+
+def _outcome(reason: str | None, error: str | None, settings: Settings) -> tuple[str, str | None]:
+    """The final status and error of an attempt the monitor stopped for ``reason`` (None: not stopped)."""
+    if reason is not None:
+        status, err = final_status(reason, settings)
+        return status, err if error is None else f"{err}; {error}"
+    return ("failed", error) if error is not None else ("succeeded", None)
+
+
 def run_job(store: JobStore, job: JobRow, settings: Settings, tune: Callable[..., Any] | None = None,
             *, hard_exit: bool = True, files: JobFiles | None = None) -> str:
     """Run one claimed job to a terminal state.
@@ -139,11 +200,9 @@ def run_job(store: JobStore, job: JobRow, settings: Settings, tune: Callable[...
     """
     from gaintune.spec import TuningSpec
 
-    if tune is None:
-        from gaintune.search import tune as tune  # noqa: PLW0127 - heavy import, only in workers
-
-    assert job.claim is not None
+    search = tune if tune is not None else _default_tune()
     claim = job.claim
+    assert claim is not None
     files = files or JobFiles(settings.jobs_dir, store.faults)
     spec = TuningSpec.model_validate_json(job.spec)
     try:
@@ -154,94 +213,15 @@ def run_job(store: JobStore, job: JobRow, settings: Settings, tune: Callable[...
         return _commit(store, files, job, None, "failed", result=None,
                        error=f"storage fault: {fault.detail} The job was not started.", progress=None,
                        settings=settings)
-    cancel = threading.Event()
-    done = threading.Event()
-    state: dict[str, Any] = {"progress": None, "reason": None, "since": None}
-    t0 = time.monotonic()
-
-    def stop(reason: str) -> None:
-        if not cancel.is_set():
-            state["reason"], state["since"] = reason, time.monotonic()
-            cancel.set()
-
-    def monitor() -> None:
-        outage: StorageFault | None = None
-        while not done.wait(settings.heartbeat_interval):
-            try:
-                owned, cancel_req = store.heartbeat(job.id, claim, state["progress"])
-            except StorageFault as fault:  # the supervisor extends leases while the database cannot be written
-                if outage is None:
-                    log.warning("job %s: heartbeat not written (%s); the search goes on, retrying", job.id, fault)
-                outage = fault
-                continue
-            except Exception:  # DB busy for 30 s: try again next tick
-                log.exception("heartbeat failed for job %s", job.id)
-                continue
-            if outage is not None:
-                log.info("job %s: heartbeats written again", job.id)
-                outage = None
-            if not owned:
-                stop("lost")
-            elif cancel_req:
-                stop("cancelled")
-            elif time.monotonic() - t0 > settings.job_wall_time:
-                stop("wall_time")
-            if cancel.is_set() and time.monotonic() - state["since"] > settings.cancel_grace and not done.is_set():
-                status, err = _final_status(state["reason"], settings)
-                if state["reason"] != "lost":
-                    try:
-                        store.finish(job.id, claim, status, error=f"{err}; the search did not stop within "
-                                     f"{settings.cancel_grace:g} s and its worker was restarted")
-                    except Exception:  # noqa: BLE001 - the supervisor's deadline check finishes it instead
-                        log.exception("job %s: final state not written", job.id)
-                log.warning("job %s did not stop within the grace period: exiting worker", job.id)
-                if hard_exit:
-                    os._exit(70)
-                return
-
-    def progress(p: Any) -> bool:
-        state["progress"] = p.model_dump() if hasattr(p, "model_dump") else dict(p)
-        if settings.test_hold_file is not None:  # tests only; None (off) unless GAINTUNE_TEST_HOLD_FILE is set
-            _hold_while_exists(settings.test_hold_file, cancel)
-        return not cancel.is_set()
-
-    th = threading.Thread(target=monitor, name=f"monitor-{job.id[:8]}", daemon=True)
-    th.start()
-    result = None
-    error: str | None = None
-    try:
-        extra = {"command": f"POST /v1/tune (job {job.id})"} if _accepts(tune, "command") else {}
-        result = tune(spec, progress=progress, out_dir=staging, verify=True, cancel=cancel, **extra)
-    except BaseException as exc:  # noqa: BLE001 - a job failure must never kill the worker loop
-        if isinstance(exc, (KeyboardInterrupt, SystemExit)):
-            raise
-        error = _error_text(exc)
-        from gaintune.errors import GaintuneError
-
-        if not isinstance(exc, GaintuneError) and classify(exc, "data") is None:
-            log.error("job %s crashed:\n%s", job.id, traceback.format_exc())
-    finally:
-        done.set()
-    reason = state["reason"]
-    if reason == "lost":
+    attempt = Attempt(store, job, claim, settings, hard_exit)
+    result, error = _search(search, spec, staging, attempt)
+    if attempt.reason == "lost":
         files.discard(staging)
         log.warning("job %s: attempt %d lost its claim (lease expired; the job was recovered): "
                     "stopped, and discarded its files", job.id, job.attempts)
         return "lost"
-    payload = None
-    final_progress = state["progress"]
-    if result is not None:
-        payload = result.model_dump(mode="python")
-        payload["agent_path"] = files.final_path(job.id, payload.get("agent_path"), staging)
-        final_progress = {**(final_progress or {}), "sims": result.sims, "elapsed": result.wall_time, "eta": 0.0,
-                          "budget": spec.search.budget, "best_cost": result.cost, "phase": "done"}
-    if reason is not None:
-        status, err = _final_status(reason, settings)
-        error = err if error is None else f"{err}; {error}"
-    elif error is not None:
-        status = "failed"
-    else:
-        status = "succeeded"
+    payload, final_progress = _final_payload(result, files, job, staging, spec, attempt.progress)
+    status, error = _outcome(attempt.reason, error, settings)
     return _commit(store, files, job, staging, status, result=payload, error=error, progress=final_progress,
                    settings=settings)
 
@@ -316,26 +296,6 @@ def _accepts(fn: Callable[..., Any], name: str) -> bool:
     return name in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
-def _hold_while_exists(path: Path, cancel: threading.Event, poll: float = 0.05) -> None:
-    """Test hook (``Settings.test_hold_file``): pause the search while *path* exists.
-
-    Integration tests kill a worker or its server "during a job"; a small job can finish before the test
-    even sees it running, so they hold it here, after its first progress report, instead of sleeping and
-    hoping. The monitor thread keeps heartbeating (the job stays ``running`` with progress); a cancel, a
-    wall-time stop or a lost claim ends the hold at once.
-    """
-    while not cancel.is_set() and path.exists():
-        cancel.wait(poll)
-
-
-def _final_status(reason: str | None, settings: Settings) -> tuple[str, str]:
-    if reason == "cancelled":
-        return "cancelled", "cancelled on request"
-    if reason == "wall_time":
-        return "failed", f"exceeded the per-job wall-time limit of {settings.job_wall_time:g} s"
-    return "failed", "worker lost the job"
-
-
 def process_next(store: JobStore, settings: Settings, tune: Callable[..., Any] | None = None) -> str | None:
     """Claim and run one queued job in this process (tests, single-process use). None if the queue is empty."""
     job = store.claim(os.getpid())
@@ -344,8 +304,75 @@ def process_next(store: JobStore, settings: Settings, tune: Callable[..., Any] |
     return run_job(store, job, settings, tune, hard_exit=False)
 
 
-def worker_main(settings_data: dict[str, Any], index: int = 0, parent: int | None = None, pulse: Any = None,
-                holding: Any = None) -> None:
+def _start_worker(settings_data: dict[str, Any], index: int, parent: int | None,
+                  pulse: SharedNumber | None) -> Settings:
+    """Set up the worker process (parent death signal, name, pulse, logging); returns its settings."""
+    if parent is not None:
+        _die_with_parent(parent)
+    _prctl(15, PROCESS_NAME.encode())  # PR_SET_NAME
+    settings = Settings.model_validate(settings_data)
+    if pulse is not None:
+        _start_pulse(pulse, settings.heartbeat_interval)
+    logging.basicConfig(level=settings.log_level.upper(), format=f"%(asctime)s worker{index} %(levelname)s %(message)s")
+    if parent is None:  # the server warns for its own workers
+        warn_unknown_settings()
+    return settings
+
+
+def _open_store(settings: Settings, index: int) -> JobStore:
+    """The job store, its schema created if the database can be written."""
+    store = JobStore(settings.db_path, FaultInjector(settings.test_storage_fault_file))
+    try:
+        store.init()
+    except StorageFault as fault:  # the schema is there already; claims retry until the disk is fixed
+        log.warning("worker %d: database not initialised (%s)", index, fault)
+    return store
+
+
+def _import_search() -> Callable[..., Any]:
+    """The search, or exit 3 (after a pause, so the supervisor does not restart it in a tight loop)."""
+    try:
+        return _default_tune()
+    except Exception as exc:  # noqa: BLE001 - any import failure: the worker cannot run jobs at all
+        log.error("gaintune.search.tune is not importable (%s); worker exits", exc)
+        time.sleep(5)
+        raise SystemExit(3) from exc
+
+
+def _claim(store: JobStore, index: int, outage: StorageFault | None) -> tuple[JobRow | None, StorageFault | None]:
+    """Claim the next queued job: (the job or None, the storage fault that prevented the claim or None)."""
+    try:
+        job = store.claim(os.getpid())
+    except StorageFault as fault:
+        if outage is None:
+            log.warning("worker %d cannot claim jobs: %s; retrying", index, fault)
+        return None, fault
+    if outage is not None:
+        log.info("worker %d: the database accepts writes again", index)
+    return job, None
+
+
+def _run_claimed(store: JobStore, job: JobRow, settings: Settings, tune: Callable[..., Any], index: int,
+                 holding: SharedNumber | None) -> None:
+    """Run a claimed job, publishing its claim in ``holding`` meanwhile; a failure around it fails the job."""
+    log.info("worker %d runs job %s (attempt %d)", index, job.id, job.attempts)
+    if holding is not None:
+        holding.value = claim_tag(job.claim)
+    try:
+        run_job(store, job, settings, tune)
+    except Exception:  # noqa: BLE001 - a bug around one job must not kill the worker
+        log.exception("worker %d: job %s failed outside the search", index, job.id)
+        try:
+            store.finish(job.id, job.claim, "failed", error="internal error in the job worker (logged)")
+        except Exception:  # noqa: BLE001 - logged; the supervisor's lease check finishes the job instead
+            log.exception("worker %d: job %s: final state not written", index, job.id)
+    finally:
+        if holding is not None:
+            holding.value = 0
+
+
+def worker_main(settings_data: dict[str, Any], index: int = 0, parent: int | None = None,
+                pulse: SharedNumber | None = None, holding: SharedNumber | None = None) -> None:
     """Worker process entry point: claim jobs until the parent dies or SIGTERM.
 
     Parameters
@@ -362,59 +389,19 @@ def worker_main(settings_data: dict[str, Any], index: int = 0, parent: int | Non
         A shared ``multiprocessing.Value('q')``: the :func:`gaintune_api.job_store.claim_tag` of the attempt
         this worker runs, 0 when idle (None: standalone).
     """
-    if parent is not None:
-        _die_with_parent(parent)
-    _prctl(15, PROCESS_NAME.encode())  # PR_SET_NAME
-    settings = Settings.model_validate(settings_data)
-    if pulse is not None:
-        _start_pulse(pulse, settings.heartbeat_interval)
-    logging.basicConfig(level=settings.log_level.upper(), format=f"%(asctime)s worker{index} %(levelname)s %(message)s")
-    if parent is None:  # the server warns for its own workers
-        warn_unknown_settings()
-    store = JobStore(settings.db_path, FaultInjector(settings.test_storage_fault_file))
-    try:
-        store.init()
-    except StorageFault as fault:  # the schema is there already; claims retry below until the disk is fixed
-        log.warning("worker %d: database not initialised (%s)", index, fault)
-    try:
-        from gaintune.search import tune
-    except Exception as exc:  # noqa: BLE001
-        log.error("gaintune.search.tune is not importable (%s); worker exits", exc)
-        time.sleep(5)
-        raise SystemExit(3)
+    settings = _start_worker(settings_data, index, parent, pulse)
+    store = _open_store(settings, index)
+    tune = _import_search()
     log.info("worker %d (pid %d) ready", index, os.getpid())
     outage: StorageFault | None = None
-    while True:
-        if parent is not None and os.getppid() != parent:
-            return
-        try:
-            job = store.claim(os.getpid())
-        except StorageFault as fault:  # a read-only or full database: wait, never crash-loop
-            if outage is None:
-                log.warning("worker %d cannot claim jobs: %s; retrying", index, fault)
-            outage = fault
+    while parent is None or os.getppid() == parent:
+        job, outage = _claim(store, index, outage)
+        if outage is not None:  # a read-only or full database: wait, never crash-loop
             time.sleep(min(4 * settings.poll_interval, 2.0))
-            continue
-        if outage is not None:
-            log.info("worker %d: the database accepts writes again", index)
-            outage = None
-        if job is None:
+        elif job is None:
             time.sleep(settings.poll_interval)
-            continue
-        log.info("worker %d runs job %s (attempt %d)", index, job.id, job.attempts)
-        if holding is not None:
-            holding.value = claim_tag(job.claim)
-        try:
-            run_job(store, job, settings, tune)
-        except Exception:  # noqa: BLE001 - a bug around one job must not kill the worker
-            log.exception("worker %d: job %s failed outside the search", index, job.id)
-            try:
-                store.finish(job.id, job.claim, "failed", error="internal error in the job worker (logged)")
-            except Exception:  # noqa: BLE001
-                log.exception("worker %d: job %s: final state not written", index, job.id)
-        finally:
-            if holding is not None:
-                holding.value = 0
+        else:
+            _run_claimed(store, job, settings, tune, index, holding)
 
 
 def main(argv: list[str] | None = None) -> None:

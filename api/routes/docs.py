@@ -32,6 +32,7 @@ def _assets_dir() -> Path:
 
 @router.get(DOCS_URL, response_class=HTMLResponse)
 def swagger_ui(request: Request) -> HTMLResponse:
+    """Swagger UI, served from local assets."""
     root = request.scope.get("root_path", "")
     app: FastAPI = request.app
     return get_swagger_ui_html(
@@ -44,11 +45,13 @@ def swagger_ui(request: Request) -> HTMLResponse:
 
 @router.get(OAUTH2_REDIRECT_URL, response_class=HTMLResponse)
 def swagger_ui_redirect() -> HTMLResponse:
+    """Swagger UI's OAuth2 redirect page."""
     return get_swagger_ui_oauth2_redirect_html()
 
 
 @router.get(REDOC_URL, response_class=HTMLResponse)
 def redoc(request: Request) -> HTMLResponse:
+    """ReDoc, served from local assets."""
     root = request.scope.get("root_path", "")
     app: FastAPI = request.app
     return get_redoc_html(openapi_url=f"{root}{app.openapi_url}", title=f"{app.title} - ReDoc",

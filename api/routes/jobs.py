@@ -2,36 +2,47 @@
 
 from __future__ import annotations
 
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Body, Header, Query, Request, Response
 from fastapi.responses import FileResponse, HTMLResponse
 
+from gaintune.cache import LRU
+from gaintune.spec import TuningSpec
 from gaintune_api.artifacts import EXPORT_MEDIA, export_gains, export_verdict, render_report, render_report_html
 from gaintune_api.compute import compute_policy
 from gaintune_api.deps import FilesDep, OwnerDep, SettingsDep, StoreDep, run_compute
+from gaintune_api.job_store import IdempotencyConflict, JobRow, QueueFull, loads
 from gaintune_api.jobfiles import ArtifactMismatch, ArtifactMissing
 from gaintune_api.jsonbody import StrictJSONRoute
 from gaintune_api.problem_details import ApiError, log
-from gaintune_api.schemas import ExportFormat, JobList, PolicyAnswers, PolicyRequest, JobPublic, JobResultPublic, JobStatus, JobSummary, ProgressPublic
-from gaintune_api.job_store import IdempotencyConflict, JobRow, QueueFull, loads
+from gaintune_api.schemas import (
+    ExportFormat,
+    JobList,
+    JobPublic,
+    JobResultPublic,
+    JobStatus,
+    JobSummary,
+    PolicyAnswers,
+    PolicyRequest,
+    ProgressPublic,
+)
 from gaintune_api.validation import check_spec
-from gaintune.cache import LRU
-from gaintune.spec import TuningSpec
 
 router = APIRouter(prefix="/v1", tags=["jobs"], route_class=StrictJSONRoute)
 
-_PROBLEM = {"content": {"application/problem+json": {}}}
-NOT_FOUND = {404: {"description": "No such job (for this API key).", **_PROBLEM}}
-STORAGE = {503: {"description": "Storage fault (read-only database or data directory; `cause` names it); "
-                                "retry after Retry-After seconds.", **_PROBLEM},
-           507: {"description": "Storage full (`cause` names which); retry after Retry-After seconds.", **_PROBLEM}}
+_PROBLEM: dict[str, Any] = {"content": {"application/problem+json": {}}}
+NOT_FOUND: dict[int | str, dict[str, Any]] = {404: {"description": "No such job (for this API key).", **_PROBLEM}}
+STORAGE: dict[int | str, dict[str, Any]] = {
+    503: {"description": "Storage fault (read-only database or data directory; `cause` names it); "
+                         "retry after Retry-After seconds.", **_PROBLEM},
+    507: {"description": "Storage full (`cause` names which); retry after Retry-After seconds.", **_PROBLEM}}
 
 
 def _ts(x: float | None) -> datetime | None:
-    return None if x is None else datetime.fromtimestamp(x, tz=timezone.utc)
+    return None if x is None else datetime.fromtimestamp(x, tz=UTC)
 
 
 def _progress(row: JobRow) -> ProgressPublic | None:
@@ -152,6 +163,7 @@ def list_jobs(
     limit: Annotated[int, Query(ge=1, le=200)] = 50,
     offset: Annotated[int, Query(ge=0, le=10_000_000)] = 0,
 ) -> JobList:
+    """Your jobs, newest first, optionally of one status; ``next_offset`` pages on."""
     rows, total = store.list(owner, status, limit, offset)
     items = [JobSummary(**_summary_fields(r)) for r in rows]
     nxt = offset + len(rows) if offset + len(rows) < total else None
@@ -290,7 +302,8 @@ def job_agent(job_id: str, store: StoreDep, files: FilesDep, owner: OwnerDep) ->
     return FileResponse(path, media_type="application/zip", filename=f"agent_{row.id}.zip", headers=headers)
 
 
-@router.get("/jobs/{job_id}/export", summary="Gains exported as json, yaml, C, MATLAB or Python, verified at the export dt",
+@router.get("/jobs/{job_id}/export",
+            summary="Gains exported as json, yaml, C, MATLAB or Python, verified at the export dt",
             responses={**NOT_FOUND,
                        409: {"description": "No result, or the gains' verdict at this dt is not pass.", **_PROBLEM},
                        422: {"description": "Bad format or dt (the field is named in `errors`).", **_PROBLEM},
@@ -305,7 +318,8 @@ def job_export(
         "Sample time (s) of the exported controller. Default: the dt the job's result was verified at (its largest "
         "scenario dt). At any other dt the gains are re-verified at that dt before they are exported."))] = None,
     allow_unverified: Annotated[bool, Query(description=(
-        "Export gains whose verdict at this dt is not pass; the file is then marked FAILED, with the reason."))] = False,
+        "Export gains whose verdict at this dt is not pass; the file is then marked FAILED, with the reason.")
+    )] = False,
 ) -> Response:
     """The file carries the verdict at ``dt``: the stored one at the verified dt, else a fresh verification."""
     from gaintune.errors import GaintuneError
@@ -318,7 +332,8 @@ def job_export(
     except GaintuneError as exc:
         if exc.field != "dt":
             raise
-        raise ApiError(422, f"Cannot export at dt = {dt:g} s.", errors=[{"loc": "query.dt", "msg": exc.message}]) from None
+        raise ApiError(422, f"Cannot export at dt = {dt:g} s.",
+                       errors=[{"loc": "query.dt", "msg": exc.message}]) from None
     verdict, report = checked
     if verdict != "pass" and not allow_unverified:
         reasons = (report or {}).get("reasons") if isinstance(report, dict) else None

@@ -30,6 +30,7 @@ class Readiness(Ready):
 
 @router.get("/healthz", response_model=Health, summary="Liveness")
 async def healthz() -> Health:
+    """The process answers (liveness only; readiness is /readyz)."""
     return Health()
 
 
@@ -45,7 +46,7 @@ def readyz(request: Request) -> JSONResponse:
     try:
         st.store.ping()
         depth = st.store.counts()["queued"]
-    except Exception as exc:  # noqa: BLE001
+    except Exception as exc:  # noqa: BLE001 - any failure means not ready, and says why
         db = False
         reasons.append(f"database unreadable: {exc}")
     checks = {}
@@ -56,7 +57,7 @@ def readyz(request: Request) -> JSONResponse:
         except StorageFault as fault:
             checks[name] = False
             reasons.append(f"{fault.cause}: {fault.detail}")
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:  # noqa: BLE001 - any failure means not ready, and says why
             checks[name] = False
             reasons.append(f"{name} not writable: {type(exc).__name__}: {exc}")
     sup = st.supervisor
@@ -64,7 +65,8 @@ def readyz(request: Request) -> JSONResponse:
     frozen = sup.unresponsive if sup is not None else 0
     configured = st.settings.workers
     if alive < configured:
-        reasons.append(f"{alive} of {configured} workers alive" + (f" ({frozen} unresponsive: frozen?)" if frozen else ""))
+        reasons.append(f"{alive} of {configured} workers alive"
+                       + (f" ({frozen} unresponsive: frozen?)" if frozen else ""))
     warm = st.warm.is_set()
     if not warm:
         reasons.append("warming up")
@@ -81,6 +83,7 @@ def readyz(request: Request) -> JSONResponse:
             responses={200: {"content": {"text/plain": {}}}})
 def metrics(request: Request, settings: SettingsDep,
             key: Annotated[str | None, Security(api_key_header)] = None) -> PlainTextResponse:
+    """Request, job, worker and compute-pool metrics in the Prometheus text format."""
     if not settings.metrics_public:
         check_key(settings, key)
     st = request.app.state

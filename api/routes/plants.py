@@ -25,7 +25,8 @@ def _public(name: str) -> PlantPublic:
         order = None
     return PlantPublic(
         name=m.name, title=m.title, description=m.description.strip(),
-        parameters={k: ParamPublic(value=p.value, unit=p.unit, description=p.description) for k, p in m.parameters.items()},
+        parameters={k: ParamPublic(value=p.value, unit=p.unit, description=p.description)
+                    for k, p in m.parameters.items()},
         input=SignalPublic(unit=m.input.unit, description=m.input.description),
         outputs={k: SignalPublic(unit=o.unit, description=o.description) for k, o in m.outputs.items()},
         order=order, plant=m.plant.model_dump(mode="json", exclude_none=True), example_spec=m.example_spec(),
@@ -34,6 +35,7 @@ def _public(name: str) -> PlantPublic:
 
 @router.get("/plants", response_model=PlantList, summary="Built-in plant models")
 def list_plants() -> PlantList:
+    """The built-in plant models, each with an example spec."""
     from gaintune.plants.library import list_models
 
     items = []
@@ -48,6 +50,7 @@ def list_plants() -> PlantList:
 @router.get("/plants/{name}", response_model=PlantPublic, summary="One built-in plant model",
             responses={404: {"description": "No such model.", "content": {"application/problem+json": {}}}})
 def get_plant(name: str) -> PlantPublic:
+    """The built-in plant model ``name``."""
     from gaintune.plants.library import list_models
 
     if name not in list_models():

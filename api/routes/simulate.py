@@ -21,7 +21,8 @@ log = logging.getLogger("gaintune.api")
     "/simulate",
     response_model=SimulateResponse,
     summary="Simulate gains on the spec's scenarios; traces decimated to max_points",
-    responses={422: {"description": "Invalid spec, gains or scenario names.", "content": {"application/problem+json": {}}}},
+    responses={422: {"description": "Invalid spec, gains or scenario names.",
+                     "content": {"application/problem+json": {}}}},
 )
 async def simulate(body: SimulateRequest, request: Request, settings: SettingsDep) -> Response:
     """Nominal-plant closed-loop traces (``y.<loop>``, ``sp.<loop>``, ``u``) and metrics per scenario."""

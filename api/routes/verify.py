@@ -1,4 +1,7 @@
-"""``POST /v1/verify``: synchronous verification of gains against a spec (in the compute pool, see :mod:`gaintune_api.compute`)."""
+"""``POST /v1/verify``: synchronous verification of gains against a spec.
+
+Computed in the compute pool (:mod:`gaintune_api.compute`).
+"""
 
 from __future__ import annotations
 
@@ -8,14 +11,14 @@ import logging
 
 from fastapi import APIRouter, Request, Response
 
+from gaintune.cache import LRU
+from gaintune.verification import VerificationReport
 from gaintune_api.compute import compute_verify
 from gaintune_api.deps import SettingsDep, require_key, run_compute, run_pooled
 from gaintune_api.jsonbody import StrictJSONRoute
 from gaintune_api.problem_details import ApiError
 from gaintune_api.schemas import VerifyRequest
 from gaintune_api.validation import checked_spec
-from gaintune.cache import LRU
-from gaintune.verification import VerificationReport
 
 router = APIRouter(prefix="/v1", tags=["verify"], route_class=StrictJSONRoute, dependencies=[require_key])
 log = logging.getLogger("gaintune.api")

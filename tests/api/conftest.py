@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_api_routes import client, make_client  # noqa: F401 - the in-process app fixtures, for every api test file
 
 
 @pytest.fixture(scope="session", autouse=True)

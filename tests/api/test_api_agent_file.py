@@ -10,7 +10,7 @@ import zipfile
 from pathlib import Path
 
 import cloudpickle
-from test_api_routes import client, make_client, make_fake_tune, run_next, submit  # noqa: F401 (fixtures)
+from test_api_routes import make_fake_tune, run_next, submit
 
 
 class _RunsCode:
@@ -30,7 +30,8 @@ def test_job_agent_with_pickled_code_is_422_and_runs_nothing(client, tmp_path):
         result = fake(spec, **kw)
         payload = base64.b64encode(cloudpickle.dumps(_RunsCode(marker))).decode()
         with zipfile.ZipFile(result.agent_path, "w") as z:
-            z.writestr("data", json.dumps({"policy_class": {":type:": "<class 'abc.ABCMeta'>", ":serialized:": payload}}))
+            z.writestr("data", json.dumps({"policy_class": {":type:": "<class 'abc.ABCMeta'>",
+                                                            ":serialized:": payload}}))
         return result
 
     job = submit(client)

@@ -64,7 +64,8 @@ def freeze(srv: Server, pid: int) -> None:
 
 
 class Worker:
-    """A standalone worker (``python -m gaintune_api.worker``) on a server's database: not supervised, not killed by it."""
+    """A standalone worker (``python -m gaintune_api.worker``) on a server's database, which neither supervises
+    nor kills it."""
 
     def __init__(self, srv: Server, index: int) -> None:
         self.path = srv.tmp / f"worker-{index}.log"
@@ -162,7 +163,7 @@ def test_readyz_counted_frozen_worker_alive_and_it_was_never_killed(tmp_path):
         assert body["workers_alive"] == 1 and body["workers_unresponsive"] == 1, body
         assert any("unresponsive" in x for x in body["reasons"]), body
         assert pid_gone(pid, 30), "the frozen worker was not killed"
-        j = srv.wait_job(job, {"running"}, cond=lambda j: j["attempts"] == 2 and j["progress"] is not None)
+        srv.wait_job(job, {"running"}, cond=lambda j: j["attempts"] == 2 and j["progress"] is not None)
         assert srv.worker_pid(job) != pid
         hold.unlink()
         done = srv.wait_job(job, {"succeeded", "failed"})

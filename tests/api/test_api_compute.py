@@ -6,6 +6,7 @@ import asyncio
 import os
 import signal
 import time
+from pathlib import Path
 
 import pytest
 
@@ -37,8 +38,30 @@ def _gone(pid: int) -> bool:
     return False
 
 
+def _hold(marks: str, release: str) -> int:
+    """In a pool worker: leave a mark in ``marks``, then wait until ``release`` exists (60 s at most); its pid."""
+    Path(marks, f"{os.getpid()}-{time.monotonic_ns()}").touch()
+    deadline = time.monotonic() + 60
+    while not os.path.exists(release) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return os.getpid()
+
+
+def _busy(pool: ComputePool) -> list:
+    """The pool's workers computing a request now."""
+    return [w for w in pool._workers if w.pending is not None and not w.pending.done()]
+
+
+async def _until(condition, backstop: float = 60.0) -> None:
+    """Poll ``condition`` until it holds (``backstop`` s at most: a failure, never a measure)."""
+    deadline = time.monotonic() + backstop
+    while not condition():
+        assert time.monotonic() < deadline, "condition not reached"
+        await asyncio.sleep(0.02)
+
+
 @pytest.mark.parametrize("loop", LOOPS)
-def test_pool_queues_recovers_and_shuts_down(loop: str):
+def test_pool_queues_recovers_and_shuts_down(loop: str, tmp_path):
     async def main():
         pool = ComputePool(2)
         pool.start()
@@ -47,12 +70,17 @@ def test_pool_queues_recovers_and_shuts_down(loop: str):
         # more requests than workers: queued, all answered, spread over both workers
         got = await asyncio.gather(*(pool.run(os.getpid) for _ in range(8)))
         assert set(got) <= set(pids) and len(got) == 8
-        t0 = time.perf_counter()
-        await asyncio.gather(*(pool.run(time.sleep, 0.3) for _ in range(4)))
-        assert 0.55 < time.perf_counter() - t0 < 3.0  # two at a time
+        # two at a time: while both workers are held, the other two requests wait for a worker
+        marks, release = tmp_path / "marks", tmp_path / "release"
+        marks.mkdir()
+        held = asyncio.gather(*(pool.run(_hold, str(marks), str(release)) for _ in range(4)))
+        await _until(lambda: len(list(marks.iterdir())) == 2)
+        assert len(pool._waiters) == 2 and len(list(marks.iterdir())) == 2
+        release.touch()
+        assert sorted(set(await held)) == pids and len(list(marks.iterdir())) == 4
         # a cancelled request frees its worker once the answer arrives
         task = asyncio.create_task(pool.run(time.sleep, 0.5))
-        await asyncio.sleep(0.1)
+        await _until(lambda: len(_busy(pool)) == 1)
         task.cancel()
         with pytest.raises(asyncio.CancelledError):
             await task
@@ -60,9 +88,8 @@ def test_pool_queues_recovers_and_shuts_down(loop: str):
         # a worker killed while computing: its request gets None (the caller computes in a thread),
         # and a new worker takes its place
         task = asyncio.create_task(pool.run(time.sleep, 5))
-        await asyncio.sleep(0.3)
-        busy = [w for w in pool._workers if w.pending is not None and not w.pending.done()]
-        assert len(busy) == 1
+        await _until(lambda: len(_busy(pool)) == 1)
+        busy = _busy(pool)
         victim = busy[0].proc.pid
         os.kill(victim, signal.SIGKILL)
         assert await asyncio.wait_for(task, 10) is None
@@ -89,11 +116,12 @@ def test_pool_queues_recovers_and_shuts_down(loop: str):
 
 
 def test_pool_verify_matches_in_process():
-    from gaintune_api.compute import compute_verify
     from gaintune.spec import load_spec
     from gaintune.verification import verify
+    from gaintune_api.compute import compute_verify
 
-    spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}], "scenario": {"dt": 0.01}})
+    spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+                      "scenario": {"dt": 0.01}})
     gains = {"loop0": {"Kp": 1.14, "Ki": 0.454}}
 
     async def main():

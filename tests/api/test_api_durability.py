@@ -28,9 +28,9 @@ from fastapi.testclient import TestClient
 from test_api_routes import GOOD, SPEC, make_fake_tune, settings_for
 
 from gaintune_api import supervisor as supervisor_mod
+from gaintune_api.job_store import JobStore, claim_tag, loads
 from gaintune_api.main import create_app
 from gaintune_api.storage_faults import FaultInjector, StorageFault, wal_write_lock_holder
-from gaintune_api.job_store import JobStore, claim_tag, loads
 from gaintune_api.supervisor import Supervisor, pid_alive, pid_stopped
 from gaintune_api.worker import run_job
 

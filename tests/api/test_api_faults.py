@@ -20,11 +20,11 @@ import pytest
 from fastapi.testclient import TestClient
 from test_api_routes import GOOD, SPEC, make_fake_tune, settings_for
 
+from gaintune_api.job_store import JobStore, loads
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.main import create_app
 from gaintune_api.settings import unknown_settings
 from gaintune_api.storage_faults import FaultInjector, StorageFault, classify
-from gaintune_api.job_store import JobStore, loads
 from gaintune_api.supervisor import Supervisor
 from gaintune_api.worker import process_next, run_job
 
@@ -129,7 +129,7 @@ def test_stale_worker_resuming_mid_search_writes_nothing(faulty):
     assert not list((files.job_dir(job_id) / ".attempts").glob("1-*"))  # the stale staging folder is discarded
 
 
-def test_agent_file_deleted_answered_409_saved_no_agent(client_and_job):
+def test_agent_file_tampered_is_500_mismatch_and_deleted_is_410_gone(client_and_job):
     c, job_id, path = client_and_job
     ok = c.get(f"/v1/jobs/{job_id}/agent")
     digest = hashlib.sha256(ok.content).hexdigest()
@@ -157,7 +157,7 @@ def client_and_job(tmp_path):
 
 @pytest.mark.parametrize("fault,cause", [("data:readonly", "data directory is read-only"),
                                          ("data:full", "data directory is full")])
-def test_read_only_data_dir_crash_looped_worker_with_wrong_cause(faulty, fault, cause):
+def test_read_only_or_full_data_dir_fails_the_job_once_naming_the_cause(faulty, fault, cause):
     c, faults = faulty
     job_id = _submit(c)
     faults.write_text(fault)
@@ -184,7 +184,7 @@ def test_disk_full_during_search_fails_job_naming_the_cause(faulty):
 
 @pytest.mark.parametrize("fault,status,cause", [("db:readonly", 503, "database-read-only"),
                                                 ("db:full", 507, "database-full")])
-def test_storage_fault_answered_generic_500(faulty, fault, status, cause):
+def test_storage_fault_is_answered_503_or_507_naming_the_cause(faulty, fault, status, cause):
     c, faults = faulty
     job_id = _submit(c)
     faults.write_text(fault)
@@ -205,7 +205,7 @@ def test_storage_fault_answered_generic_500(faulty, fault, status, cause):
 
 @pytest.mark.parametrize("fault,cause", [("db:readonly", "database-read-only"), ("db:full", "database-full"),
                                          ("data:readonly", "data-dir-read-only"), ("data:full", "data-dir-full")])
-def test_readyz_reported_ready_on_read_only_db(faulty, fault, cause):
+def test_readyz_is_not_ready_on_read_only_or_full_storage(faulty, fault, cause):
     c, faults = faulty
     assert c.get("/readyz").status_code == 200
     faults.write_text(fault)
@@ -219,7 +219,7 @@ def test_readyz_reported_ready_on_read_only_db(faulty, fault, cause):
 
 
 @pytest.mark.parametrize("fault", ["data:readonly", "data:full"])
-def test_report_rendering_on_full_or_read_only_disk_answered_500(client_and_job, tmp_path, fault):
+def test_report_on_full_or_read_only_disk_is_rendered_uncached_not_500(client_and_job, tmp_path, fault):
     c, job_id, _ = client_and_job
     c.app.state.files.faults = FaultInjector(tmp_path / "faults")
     (tmp_path / "faults").write_text(fault)
@@ -239,7 +239,8 @@ def test_real_sqlite_and_os_errors_are_classified(tmp_path):
     with pytest.raises(sqlite3.OperationalError) as exc:
         ro.execute("INSERT INTO t VALUES (1)")
     f = classify(exc.value)
-    assert f is not None and (f.where, f.kind, f.status, f.cause) == ("database", "read-only", 503, "database-read-only")
+    assert f is not None
+    assert (f.where, f.kind, f.status, f.cause) == ("database", "read-only", 503, "database-read-only")
     full = classify(OSError(28, "No space left on device", "/d/agent.zip"))
     assert (full.cause, full.status) == ("data-dir-full", 507) and "ENOSPC" in full.detail
     assert classify(ValueError("x")) is None and classify(OSError(2, "No such file")) is None
@@ -322,7 +323,7 @@ def test_expired_lease_is_recovered_once_the_database_is_back(tmp_path):
 # ----------------------------------------------------------------- lower severity (7)
 
 
-def test_misspelt_setting_silently_ignored(monkeypatch, tmp_path, caplog):
+def test_misspelt_setting_is_warned_with_the_likely_name(monkeypatch, tmp_path, caplog):
     msgs = unknown_settings({"GAINTUNE_DB": "x.db", "GAINTUNE_WORKERS": "2", "GAINTUNE_CHROMIUM": "/x",
                              "GAINTUNE_HEARTBEAT_TIMOUT": "3"}, None)
     assert msgs == ["unknown setting GAINTUNE_DB is ignored; did you mean GAINTUNE_DB_PATH?",
@@ -339,7 +340,7 @@ def test_misspelt_setting_silently_ignored(monkeypatch, tmp_path, caplog):
 
 
 @pytest.mark.parametrize("public", [False, True])
-def test_openapi_and_docs_open_when_api_keys_set(tmp_path, public):
+def test_openapi_and_docs_need_a_key_when_api_keys_set_unless_docs_public(tmp_path, public):
     app = create_app(settings_for(tmp_path, api_keys=["k1"], docs_public=public))
     with TestClient(app) as c:
         for path in ("/openapi.json", "/docs", "/redoc", "/docs/oauth2-redirect"):
@@ -353,7 +354,7 @@ def test_openapi_and_docs_open_when_api_keys_set(tmp_path, public):
         assert c.get("/openapi.json").status_code == 200
 
 
-def test_recovery_log_said_requeue_for_a_failed_job(tmp_path, caplog):
+def test_recovery_log_says_failed_not_requeue_after_the_last_attempt(tmp_path, caplog):
     s = settings_for(tmp_path, recover="requeue", max_attempts=1)
     store = JobStore(s.db_path)
     store.init()

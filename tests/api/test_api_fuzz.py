@@ -19,8 +19,9 @@ from gaintune_api.settings import Settings
 schemathesis = pytest.importorskip("schemathesis")
 
 _DIR = Path(tempfile.mkdtemp(prefix="gaintune-fuzz-"))
-APP = create_app(Settings(_env_file=None, db_path=_DIR / "jobs.db", data_dir=_DIR, workers=0, warmup=False, compute_processes=0,
-                          max_budget=2000, max_steps=20_000, sync_max_n_freq=2000, sync_max_robust_samples=4))
+APP = create_app(Settings(_env_file=None, db_path=_DIR / "jobs.db", data_dir=_DIR, workers=0, warmup=False,
+                          compute_processes=0, max_budget=2000, max_steps=20_000, sync_max_n_freq=2000,
+                          sync_max_robust_samples=4))
 SCHEMA = schemathesis.openapi.from_asgi("/openapi.json", APP)
 
 SPEC = {

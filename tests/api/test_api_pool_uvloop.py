@@ -34,7 +34,8 @@ def _spec(n_scenarios: int, sequence_points: int = 0) -> dict:
     for i in range(n_scenarios):
         sc: dict = {"name": f"s{i}", "dt": 0.01, "horizon": 20.0, "reference": {"kind": "step", "time": 0.1 * i}}
         if sequence_points:
-            sc["reference"] = {"kind": "sequence", "points": [[k * 0.004, 1.0 + 0.01 * i] for k in range(sequence_points)]}
+            sc["reference"] = {"kind": "sequence",
+                               "points": [[k * 0.004, 1.0 + 0.01 * i] for k in range(sequence_points)]}
         scenarios.append(sc)
     return {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}], "scenarios": scenarios}
 
@@ -91,7 +92,8 @@ def test_large_simulate_answer_needs_no_pool_respawn(uvloop_server: httpx.Client
         assert len(r.json()["scenarios"]) == 16 and len(r.json()["scenarios"][15]["t"]) == 2000
     # a large request: 5,000-point reference profiles in 4 scenarios (the spec is sent once, then by hash)
     for kp in (1.0, 1.1):
-        r = c.post("/v1/verify", json={"spec": _spec(4, sequence_points=5000), "gains": {"loop0": {"Kp": kp, "Ki": 0.5}}})
+        r = c.post("/v1/verify", json={"spec": _spec(4, sequence_points=5000),
+                                       "gains": {"loop0": {"Kp": kp, "Ki": 0.5}}})
         assert r.status_code == 200, r.text
     assert _counter(c, "gaintune_compute_restarts_total") == 0
     assert _counter(c, "gaintune_compute_fallbacks_total") == 0

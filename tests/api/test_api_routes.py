@@ -10,12 +10,12 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
+from gaintune.search.result import CurvePoint, Progress, Provenance, TuneResult
+from gaintune_api.job_store import JobStore
 from gaintune_api.main import create_app
 from gaintune_api.settings import Settings
-from gaintune_api.job_store import JobStore
 from gaintune_api.supervisor import Supervisor
 from gaintune_api.worker import process_next
-from gaintune.search.result import CurvePoint, Progress, Provenance, TuneResult
 
 SPEC = {
     "name": "lag3",
@@ -28,8 +28,17 @@ GOOD = {"loop0": {"Kp": 1.14, "Ki": 0.454}}
 BAD = {"loop0": {"Kp": 20.0, "Ki": 20.0}}  # unstable: verification fails
 
 
-def make_fake_tune(gains=GOOD, *, steps: int = 3, sleep: float = 0.0, honour_cancel: bool = True):
-    """A stand-in for gaintune.search.tune: reports progress, verifies fixed gains, saves a dummy agent."""
+#: Bounds every wait of a fake search, so that a broken test fails instead of hanging (never reached when it passes).
+BACKSTOP = 60.0
+
+
+def make_fake_tune(gains=GOOD, *, steps: int = 3, honour_cancel: bool = True, until_cancelled: bool = False,
+                   release: threading.Event | None = None):
+    """A stand-in for gaintune.search.tune: reports progress, verifies fixed gains, saves a dummy agent.
+
+    Durations are set by events, not by sleeps: with ``until_cancelled`` the search runs (after its first
+    progress report) until its ``cancel`` event is set; with ``release`` it waits for that event there.
+    """
 
     def fake_tune(spec, *, progress=None, out_dir=None, verify=True, cancel=None, **kw):
         from gaintune.verification import verify as do_verify
@@ -39,13 +48,16 @@ def make_fake_tune(gains=GOOD, *, steps: int = 3, sleep: float = 0.0, honour_can
         t0 = time.monotonic()
         sims = 0
         for k in range(steps):
-            time.sleep(sleep)
             sims = (k + 1) * budget // steps
-            keep = progress(Progress(sims=sims, budget=budget, best_cost=10.0 / (k + 1), elapsed=time.monotonic() - t0,
-                                     eta=1.0)) if progress else True
+            keep = progress(Progress(sims=sims, budget=budget, best_cost=10.0 / (k + 1),
+                                     elapsed=time.monotonic() - t0, eta=1.0)) if progress else True
             if honour_cancel and (keep is False or (cancel is not None and cancel.is_set())):
                 stopped = "cancelled"
                 break
+            if k == 0 and until_cancelled:
+                cancel.wait(BACKSTOP)
+            if k == 0 and release is not None:
+                release.wait(BACKSTOP)
         report = do_verify(spec, gains) if verify else None
         agent = None
         if out_dir is not None:
@@ -53,9 +65,10 @@ def make_fake_tune(gains=GOOD, *, steps: int = 3, sleep: float = 0.0, honour_can
             with zipfile.ZipFile(agent, "w") as z:
                 z.writestr("policy.txt", "fake")
         return TuneResult(
-            spec=spec.model_dump(mode="json"), algo=spec.search.algo, gains=gains, cost=1.5, metrics={"nominal": {"iae": 1.5}},
-            curve=[CurvePoint(sims=sims, best_cost=1.5, wall_time=0.1)], sims=sims, wall_time=time.monotonic() - t0,
-            stopped=stopped, agent_path=agent, verification=None if report is None else report.model_dump(mode="json"),
+            spec=spec.model_dump(mode="json"), algo=spec.search.algo, gains=gains, cost=1.5,
+            metrics={"nominal": {"iae": 1.5}}, curve=[CurvePoint(sims=sims, best_cost=1.5, wall_time=0.1)], sims=sims,
+            wall_time=time.monotonic() - t0, stopped=stopped, agent_path=agent,
+            verification=None if report is None else report.model_dump(mode="json"),
             provenance=Provenance(spec_hash=spec.content_hash(), seed=spec.search.seed, versions={"gaintune": "test"}),
         )
 
@@ -181,7 +194,8 @@ def test_api_export_dt_reverifies(client):
     assert client.get(f"/v1/jobs/{job['id']}").json()["result"]["verdict"] == "pass"  # at 1 ms
     r = client.get(url, params={"format": "c"})  # default: the verified dt, stored verdict
     assert r.status_code == 200, r.text
-    assert "#define GT_DT 0.001\n" in r.text and "#define GT_VERIFIED 1\n" in r.text and "#define GT_VERIFIED_DT 0.001 " in r.text
+    assert "#define GT_DT 0.001\n" in r.text and "#define GT_VERIFIED 1\n" in r.text
+    assert "#define GT_VERIFIED_DT 0.001 " in r.text
     r = client.get(url, params={"format": "c", "dt": 0.01})  # 10 ms: re-verified, unstable -> refused
     assert r.status_code == 409 and r.headers["content-type"] == "application/problem+json"
     detail = r.json()["detail"]
@@ -189,7 +203,8 @@ def test_api_export_dt_reverifies(client):
     assert "allow_unverified=true" in detail
     r = client.get(url, params={"format": "c", "dt": 0.01, "allow_unverified": "true"})
     assert r.status_code == 200, r.text
-    assert "#define GT_DT 0.01\n" in r.text and "#define GT_VERIFIED 0\n" in r.text and '#define GT_VERDICT "fail"' in r.text
+    assert "#define GT_DT 0.01\n" in r.text and "#define GT_VERIFIED 0\n" in r.text
+    assert '#define GT_VERDICT "fail"' in r.text
     assert "verification: FAILED at dt = 0.01 s - closed loop unstable" in r.text
     r = client.get(url, params={"format": "json", "dt": 0.0005})  # finer: re-verified, passes
     assert r.status_code == 200, r.text
@@ -217,7 +232,8 @@ def test_api_export_dt_over_server_step_limit_is_422(make_client):
     job = submit(client, _motor_spec())  # 2 s at 1 ms = 2000 steps
     run_next(client, make_fake_tune(FLIP_GAINS))
     r = client.get(f"/v1/jobs/{job['id']}/export", params={"format": "c", "dt": 0.0001})  # 20000 steps
-    assert r.status_code == 422 and r.json()["errors"][0]["loc"] == "query.dt" and "5000" in r.json()["errors"][0]["msg"]
+    assert r.status_code == 422
+    assert r.json()["errors"][0]["loc"] == "query.dt" and "5000" in r.json()["errors"][0]["msg"]
 
 
 def test_report_html(client):
@@ -315,9 +331,10 @@ def _run_in_thread(client, tune):
     return th, out
 
 
-def _wait_status(client, job_id, statuses, timeout=10.0):
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
+def _wait_status(client, job_id, statuses, backstop=BACKSTOP):
+    """Poll the job until its status is one of ``statuses`` (``backstop`` s at most: a failure, never a measure)."""
+    deadline = time.monotonic() + backstop
+    while time.monotonic() < deadline:
         j = client.get(f"/v1/jobs/{job_id}").json()
         if j["status"] in statuses:
             return j
@@ -326,36 +343,38 @@ def _wait_status(client, job_id, statuses, timeout=10.0):
 
 
 def test_cancel_running_job_stops_search(client):
+    """The search runs until it is cancelled: only the cancel request can have stopped it."""
     job = submit(client)
-    th, out = _run_in_thread(client, make_fake_tune(steps=400, sleep=0.02))
-    j = _wait_status(client, job["id"], {"running"})
-    t0 = time.monotonic()
+    th, out = _run_in_thread(client, make_fake_tune(until_cancelled=True))
+    _wait_status(client, job["id"], {"running"})
     r = client.delete(f"/v1/jobs/{job['id']}")
     assert r.status_code == 202 and r.json()["cancel_requested"]
     j = _wait_status(client, job["id"], {"cancelled"})
-    assert time.monotonic() - t0 < 3.0
-    th.join(5)
+    th.join(BACKSTOP)
     assert out["status"] == "cancelled"
     assert j["result"]["stopped"] == "cancelled" and j["error"] == "cancelled on request"
 
 
 def test_cancel_ignored_by_search_is_forced_after_grace(client):
+    """The search ignores the cancel and is held until the job is cancelled: the monitor must end it alone."""
     job = submit(client)
-    th, _ = _run_in_thread(client, make_fake_tune(steps=150, sleep=0.02, honour_cancel=False))
+    release = threading.Event()
+    th, _ = _run_in_thread(client, make_fake_tune(honour_cancel=False, release=release))
     _wait_status(client, job["id"], {"running"})
-    t0 = time.monotonic()
     client.delete(f"/v1/jobs/{job['id']}")
-    j = _wait_status(client, job["id"], {"cancelled"})
-    assert time.monotonic() - t0 < 3.0  # cancel_grace = 1 s
+    j = _wait_status(client, job["id"], {"cancelled"})  # cancel_grace = 1 s, then the monitor writes it
     assert "did not stop" in j["error"]
-    th.join(10)
+    release.set()
+    th.join(BACKSTOP)
+    assert not th.is_alive()
     assert client.get(f"/v1/jobs/{job['id']}").json()["status"] == "cancelled"  # late result does not overwrite
 
 
 def test_wall_time_limit_fails_job(make_client):
+    """The search runs until it is stopped: only the wall-time limit can stop it."""
     client = make_client(job_wall_time=0.3)
     job = submit(client)
-    assert run_next(client, make_fake_tune(steps=200, sleep=0.02)) == "failed"
+    assert run_next(client, make_fake_tune(until_cancelled=True)) == "failed"
     j = client.get(f"/v1/jobs/{job['id']}").json()
     assert j["status"] == "failed" and "wall-time limit" in j["error"]
 
@@ -372,15 +391,21 @@ def test_search_exception_fails_job_without_trace(client):
 
 
 def test_running_progress_is_visible(client):
+    """The search is held after its first progress report: the job is still running when the progress is read."""
     job = submit(client)
-    th, _ = _run_in_thread(client, make_fake_tune(steps=60, sleep=0.02))
-    t0 = time.monotonic()
-    prog = None
-    while time.monotonic() - t0 < 5 and prog is None:
-        prog = client.get(f"/v1/jobs/{job['id']}").json()["progress"]
+    release = threading.Event()
+    th, out = _run_in_thread(client, make_fake_tune(release=release))
+    deadline = time.monotonic() + BACKSTOP
+    j = client.get(f"/v1/jobs/{job['id']}").json()
+    while j["progress"] is None and time.monotonic() < deadline:
         time.sleep(0.05)
-    th.join(10)
-    assert prog is not None and prog["budget"] == 200 and 0 < prog["sims"] <= 200 and prog["best_cost"] > 0
+        j = client.get(f"/v1/jobs/{job['id']}").json()
+    release.set()
+    th.join(BACKSTOP)
+    prog = j["progress"]
+    assert j["status"] == "running" and prog is not None
+    assert prog["budget"] == 200 and prog["sims"] == 200 // 3 and prog["best_cost"] == 10.0
+    assert out["status"] == "succeeded"
 
 
 # -------------------------------------------------------------- recovery
@@ -582,7 +607,8 @@ def test_compute_pool_matches_in_process_and_leaves_no_process(make_client, tmp_
 
     local = make_client()
     (tmp_path / "pooled").mkdir()
-    with TestClient(create_app(settings_for(tmp_path / "pooled", compute_processes=1)), raise_server_exceptions=False) as pooled:
+    pooled_app = create_app(settings_for(tmp_path / "pooled", compute_processes=1))
+    with TestClient(pooled_app, raise_server_exceptions=False) as pooled:
         pool = pooled.app.state.compute_pool
         assert pool is not None and pool.warm[0].result(timeout=120) != os.getpid()
         pids = pool.pids

@@ -18,7 +18,7 @@ import httpx
 import pytest
 
 pytest.importorskip("gaintune.search", reason="needs gaintune.search.tune")
-from gaintune.search import tune  # noqa: E402,F401
+from gaintune.search import tune  # noqa: E402,F401 - after the skip on purpose; only its import matters
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -38,7 +38,7 @@ def free_port() -> int:
 
 
 class Server:
-    """A real server process (``python -m gaintune_api`` or ``uvicorn gaintune_api.main:app``) with its own data folder."""
+    """A real server process (``python -m gaintune_api`` or ``uvicorn gaintune_api.main:app``), own data folder."""
 
     def __init__(self, tmp: Path, *, use_uvicorn: bool = False, **env: str) -> None:
         self.tmp = tmp
@@ -51,7 +51,8 @@ class Server:
         e.update(env)
         self.env = e
         if use_uvicorn:
-            cmd = [sys.executable, "-m", "uvicorn", "gaintune_api.main:app", "--host", "127.0.0.1", "--port", str(self.port)]
+            cmd = [sys.executable, "-m", "uvicorn", "gaintune_api.main:app", "--host", "127.0.0.1",
+                   "--port", str(self.port)]
         else:
             cmd = [sys.executable, "-m", "gaintune_api", "--host", "127.0.0.1", "--port", str(self.port),
                    "--workers", e.get("GAINTUNE_WORKERS", "1"), "--log-level", "warning"]
@@ -160,7 +161,7 @@ def pid_gone(pid: int, timeout: float = 10) -> bool:
 
 
 def test_real_server_tiny_job_end_to_end_and_worker_crash(tmp_path):
-    hold = tmp_path / "hold"  # GAINTUNE_TEST_HOLD_FILE: see gaintune_api.worker._hold_while_exists (absent for the tiny job)
+    hold = tmp_path / "hold"  # GAINTUNE_TEST_HOLD_FILE (gaintune_api.attempt.hold_while_exists); absent: the tiny job
     srv = Server(tmp_path, use_uvicorn=True, GAINTUNE_WORKERS="1", GAINTUNE_RECOVER="fail",
                  GAINTUNE_TEST_HOLD_FILE=str(hold))
     try:
@@ -182,14 +183,14 @@ def test_real_server_tiny_job_end_to_end_and_worker_crash(tmp_path):
         agent = c.get(f"{loc}/agent")
         assert agent.status_code == 200 and agent.content[:2] == b"PK"
         try:
-            import gaintune.export  # noqa: F401
+            import gaintune.export  # noqa: F401 - installed? (the route needs it)
 
             exp = c.get(f"{loc}/export", params={"format": "json", "allow_unverified": "true"})
             assert exp.status_code == 200 and "loop0" in exp.text
         except ImportError:
             pass
         try:
-            import gaintune.report  # noqa: F401
+            import gaintune.report  # noqa: F401 - installed? (the route needs it)
 
             rep = c.get(f"{loc}/report")
             assert rep.status_code == 200 and "<html" in rep.text.lower()
@@ -218,7 +219,7 @@ def test_sigkill_server_during_job_then_restart_requeues_and_finishes(tmp_path):
     job_spec = {**TINY, "name": "durable", "search": {**TINY["search"], "budget": 300}}
     # The 300-simulation job takes ~2 s on a fast machine: without control it can succeed before this test sees
     # it running. While the hold file exists, workers pause a job after its first progress report (test hook
-    # GAINTUNE_TEST_HOLD_FILE, see gaintune_api.worker._hold_while_exists), so the server is killed while the job is
+    # GAINTUNE_TEST_HOLD_FILE, see gaintune_api.attempt.hold_while_exists), so the server is killed while the job is
     # provably mid-run, and after the restart it cannot finish (nor can "waiting" start, with one worker)
     # before the checks below; deleting the file lets it finish.
     hold = tmp_path / "hold"

@@ -21,8 +21,8 @@ SPEC = {
 @pytest.fixture(scope="module")
 def client(tmp_path_factory):
     d = tmp_path_factory.mktemp("api")
-    s = Settings(_env_file=None, db_path=d / "jobs.db", data_dir=d, workers=0, warmup=False, compute_processes=0, max_budget=5000,
-                 max_body_bytes=64_000, max_order=8)
+    s = Settings(_env_file=None, db_path=d / "jobs.db", data_dir=d, workers=0, warmup=False, compute_processes=0,
+                 max_budget=5000, max_body_bytes=64_000, max_order=8)
     with TestClient(create_app(s), raise_server_exceptions=False) as c:
         yield c
 
@@ -50,7 +50,7 @@ def assert_problem(r, status: int, loc: str | None = None):
     assert "Traceback" not in r.text
     if loc is not None:
         locs = [e["loc"] for e in body["errors"]]
-        assert any(l == loc or l.startswith(loc) for l in locs), locs
+        assert any(x == loc or x.startswith(loc) for x in locs), locs
     return body
 
 
@@ -89,7 +89,8 @@ SEMANTIC_ERRORS = [
     ({**SPEC, "plant": {"ss": {"A": [[0, 1], [2]], "B": [[0], [1]], "C": [[1, 0]]}}}, "plant.ss.A"),
     ({**SPEC, "plant": {"ss": {"A": [[0, 1], [-1, -1]], "B": [[0], [1], [2]], "C": [[1, 0]]}}}, "plant.ss.B"),
     ({**SPEC, "plant": {"ode": {"states": ["x"], "rhs": {"x": "-x + u + import_os"}, "outputs": {"y": "x"}}}}, "plant"),
-    ({**SPEC, "plant": {"ode": {"states": ["x"], "rhs": {"x": "__import__('os').system('true')"}, "outputs": {"y": "x"}}}}, "plant"),
+    ({**SPEC, "plant": {"ode": {"states": ["x"], "rhs": {"x": "__import__('os').system('true')"},
+                                "outputs": {"y": "x"}}}}, "plant"),
 ]
 
 
@@ -165,7 +166,8 @@ def test_wrong_types_and_methods(client):
     assert_problem(client.put("/v1/tune", json=SPEC), 405)
     assert_problem(client.get("/v1/nothing"), 404)
     assert_problem(client.post("/v1/verify", json={"spec": SPEC}), 422, "gains")
-    assert_problem(client.post("/v1/verify", json={"spec": SPEC, "gains": {"loop0": {"Kp": 1, "Ki": 1}}, "x": 1}), 422, "x")
+    assert_problem(client.post("/v1/verify", json={"spec": SPEC, "gains": {"loop0": {"Kp": 1, "Ki": 1}}, "x": 1}),
+                   422, "x")
     assert_problem(client.post("/v1/simulate", json={"spec": SPEC, "gains": {}, "max_points": 1}), 422, "max_points")
     assert_problem(client.get("/v1/jobs", params={"offset": -1}), 422, "query.offset")
     assert_problem(client.post("/v1/tune", json=SPEC, headers={"Idempotency-Key": "k" * 500}), 422)
@@ -221,9 +223,11 @@ def test_lone_surrogate_in_spec_is_422_not_500(client, path: str) -> None:
 
 def test_tune_with_every_gain_fixed_is_422_not_accepted_then_failed(client) -> None:
     """Fuzzing: /v1/tune took a spec with nothing to tune (202), then the job failed with an internal error."""
-    spec = {**SPEC, "loops": [{"type": "pi", "gains": {"Kp": {"value": 1, "tune": False}, "Ki": {"value": 0.5, "tune": False}}}]}
+    fixed = {"Kp": {"value": 1, "tune": False}, "Ki": {"value": 0.5, "tune": False}}
+    spec = {**SPEC, "loops": [{"type": "pi", "gains": fixed}]}
     problem = assert_problem(client.post("/v1/tune", json=spec), 422)
-    assert "every gain is fixed" in json.dumps(problem["errors"]) and '"loops"' in json.dumps(problem["errors"]), problem
+    errors = json.dumps(problem["errors"])
+    assert "every gain is fixed" in errors and '"loops"' in errors, problem
     # verifying those gains is what the spec is for, and stays allowed
     assert client.post("/v1/verify", json={"spec": spec, "gains": {}}).status_code == 200
 
