@@ -9,10 +9,10 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from gaintune.classical.tuning import CLASSICAL_METHODS, tune_classical
+from gaintune.baselines.optimizers import optimize
 from gaintune.classical.fotd import NoModelError
 from gaintune.classical.timescale import resolve_scenarios
-from gaintune.baselines.optimizers import optimize
+from gaintune.classical.tuning import CLASSICAL_METHODS, tune_classical
 from gaintune.evaluation.boundary_exact import onto_boundary_exact, violation_after
 from gaintune.evaluation.evaluator import DIVERGED_COST
 from gaintune.spec import Gains, TuningSpec

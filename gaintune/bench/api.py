@@ -30,9 +30,9 @@ no compute pool respawns, and simulate p50 with 16 scenarios <= 2 x the p50 with
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import json
-import argparse
 import os
 import re
 import signal

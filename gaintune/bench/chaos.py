@@ -37,10 +37,19 @@ import sqlite3
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
-from gaintune.bench.arguments import BenchParser, budget_int, fail, float_range, int_range, non_negative_int, positive_int
+from gaintune.bench.arguments import (
+    BenchParser,
+    budget_int,
+    fail,
+    float_range,
+    int_range,
+    non_negative_int,
+    positive_int,
+)
 from gaintune.bench.chaos_durable import diskfull, lock
 from gaintune.bench.chaos_procs import Server, _agent_ok, _proc_state, _serving, _wait, _Worker, job_spec
 

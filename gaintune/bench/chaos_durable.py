@@ -20,8 +20,8 @@ import statistics
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from gaintune.bench.chaos_procs import Server, _proc_state, _serving, _wait, job_spec
 
@@ -124,7 +124,6 @@ def lock(root: Path, writers: int, write: str, pause: float, lease: float, budge
     """Freeze a lock-holding 'worker'; time reads and refused writes; see when its lease is enforced."""
     import subprocess
 
-    import httpx
 
     hold = root / "hold"
     hold.parent.mkdir(parents=True, exist_ok=True)

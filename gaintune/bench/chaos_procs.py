@@ -5,6 +5,7 @@ Used by :mod:`gaintune.bench.chaos`. The server runs as ``python -m gaintune_api
 """
 
 from __future__ import annotations
+
 import hashlib
 import os
 import signal
@@ -13,9 +14,10 @@ import subprocess
 import sys
 import time
 from base64 import b64encode
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 __all__ = ["WORKER_NAME", "Server", "job_spec"]
 

@@ -28,17 +28,24 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gaintune.fmt import fmt
 from gaintune.bench.arguments import (
-    BenchParser, add_out_argument, budget_int, fail, non_negative_int, resolve_out, seed_int, select_problems,
+    BenchParser,
+    add_out_argument,
+    budget_int,
+    fail,
+    non_negative_int,
+    resolve_out,
+    seed_int,
+    select_problems,
 )
 from gaintune.bench.references import reference_for, reference_summary
 from gaintune.bench.suite import (
     BenchCase,
     describe_problems,
-    timed_row,
     suite_names,
+    timed_row,
 )
+from gaintune.fmt import fmt
 
 if TYPE_CHECKING:  # pragma: no cover
     from gaintune.spec import Gains

@@ -24,7 +24,14 @@ from typing import Any
 import numpy as np
 
 from gaintune.bench.arguments import (
-    MAX_BATCH, BenchParser, add_out_argument, float_range, int_range, resolve_out, seed_int, select_problems,
+    MAX_BATCH,
+    BenchParser,
+    add_out_argument,
+    float_range,
+    int_range,
+    resolve_out,
+    seed_int,
+    select_problems,
 )
 from gaintune.bench.compare import md_table, write_outputs
 from gaintune.bench.suite import suite_names

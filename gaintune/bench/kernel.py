@@ -44,7 +44,6 @@ from gaintune.bench import sim as bench_sim
 from gaintune.bench.arguments import MAX_BATCH, BenchParser, fail, int_range, positive_float, positive_int
 from gaintune.sim import kernel as new_kernel
 
-
 #: The checkout this package is imported from: its history holds the earlier kernels.
 REPO = Path(__file__).resolve().parents[2]
 #: Where the kernel lives (a package now; one module in early revisions).
@@ -78,7 +77,7 @@ def check_rev(rev: str | None) -> str:
     return rev
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _load_module(rev: str) -> types.ModuleType:
     """The kernel module as of git revision ``rev``, loaded under a private name beside the working tree's.
 

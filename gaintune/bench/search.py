@@ -32,15 +32,21 @@ from pathlib import Path
 from typing import Any
 
 from gaintune.bench.arguments import (
-    BenchParser, add_out_argument, budget_int, non_negative_int, resolve_out, seed_int, select_problems,
+    BenchParser,
+    add_out_argument,
+    budget_int,
+    non_negative_int,
+    resolve_out,
+    seed_int,
+    select_problems,
 )
 from gaintune.bench.compare import fmt, fmt_ratio, md_table, ratio, set_threads, stats, write_outputs
 from gaintune.bench.references import reference_for, reference_summary
 from gaintune.bench.suite import (
     BenchCase,
     describe_problems,
-    timed_row,
     suite_names,
+    timed_row,
 )
 
 __all__ = ["run_one", "run_search", "summarize", "per_problem", "render_markdown", "main"]

@@ -87,7 +87,7 @@ class Fotd:
     #: RMS step-response error of the FOTD model relative to |K| (step fits only).
     fit_error: float | None = None
 
-    def with_extra_delay(self, dl: float) -> "Fotd":
+    def with_extra_delay(self, dl: float) -> Fotd:
         """The same model with ``dl`` seconds more apparent delay (e.g. half a sample)."""
         d = asdict(self)
         d["L"] += dl

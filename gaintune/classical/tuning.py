@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gaintune.classical.fotd import Fotd, NoModelError, fit_fotd, siso_minreal
-from gaintune.classical.timescale import resolve_scenarios
 from gaintune.classical.rules import FOTD_RULES, IdealPid, to_loop_gains, ultimate_gain, with_direction, zn_ultimate
+from gaintune.classical.timescale import resolve_scenarios
 from gaintune.controllers.direction import loop_directions
 from gaintune.lti.statespace import StateSpace, with_input_delay
 from gaintune.spec import Gains, TuningSpec

@@ -47,8 +47,8 @@ from typing import Any
 import numpy as np
 
 from gaintune.errors import SpecError
-from gaintune.spec import TuningSpec
 from gaintune.lti.statespace import StateSpace
+from gaintune.spec import TuningSpec
 
 __all__ = ["LoopDirection", "PathGain", "path_gain", "resolve_directions", "loop_directions", "MAX_CORNER_PARAMS"]
 

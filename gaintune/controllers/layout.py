@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 
 from gaintune.controllers.direction import LoopDirection, loop_directions, resolve_directions
-from gaintune.errors import GainError, SpecError
 from gaintune.controllers.forms import to_form
+from gaintune.errors import GainError, SpecError
 from gaintune.spec import GAIN_NAMES, Gains, LoopSpec, TuningSpec
 
 __all__ = [

@@ -24,7 +24,7 @@ def _known(names: list[str]) -> str:
     return ", ".join(names) or "none"
 
 
-def validate_against_plant(spec: "TuningSpec", plant: "Plant") -> None:
+def validate_against_plant(spec: TuningSpec, plant: Plant) -> None:
     """Check the names and ranges a spec uses against the built plant.
 
     Checks that
