@@ -37,6 +37,7 @@ import os
 import re
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -135,6 +136,9 @@ async def _verify_phases(
     def repeat(i: int) -> Request:
         return "POST", "/v1/verify", {"spec": CASCADE_SPEC, "gains": NOMINAL_GAINS}
 
+    def distinct_from(base: int) -> Callable[[int], Request]:
+        return lambda i: distinct(base + i)
+
     await run_load(c, lambda i: distinct(args.requests + (i % 64)), 16, 30, args.concurrency)  # warm-up (httpx)
     out["verify_distinct"] = await run_load(lc, distinct, args.requests, args.seconds, args.concurrency)
     out["verify_repeat"] = await run_load(lc, repeat, args.requests, args.seconds, args.concurrency)
@@ -142,9 +146,7 @@ async def _verify_phases(
     for k, conc in enumerate(args.sweep):
         # fresh gains for every sweep point: every request is still a cache miss
         base = args.requests + 64 + k * args.sweep_requests
-        sweep[str(conc)] = await run_load(
-            lc, lambda i, b=base: distinct(b + i), args.sweep_requests, args.seconds, conc
-        )
+        sweep[str(conc)] = await run_load(lc, distinct_from(base), args.sweep_requests, args.seconds, conc)
     if sweep:
         out["verify_distinct_sweep"] = sweep
 
@@ -158,6 +160,11 @@ def simulate_spec(n_scenarios: int) -> dict[str, Any]:
                  for i in range(n_scenarios)]
     return {"name": f"simulate_{n_scenarios}", "plant": {"tf": {"num": [1], "den": "(s+1)^3"}},
             "loops": [{"type": "pi"}], "scenarios": scenarios}
+
+
+def _always(request: Request) -> Callable[[int], Request]:
+    """A request maker of :func:`run_load` that sends ``request`` every time."""
+    return lambda i: request
 
 
 async def _pool_counts(c: httpx.AsyncClient, tmp: Path) -> dict[str, int | None]:
@@ -187,7 +194,7 @@ async def _simulate_phases(
         r = await lc.request("POST", "/v1/simulate", json=body)  # also warms the spec's caches in a worker
         if r.status_code != 200:
             raise SystemExit(f"/v1/simulate with {n} scenarios answered {r.status_code}: {r.content[:500]!r}")
-        phase = await run_load(lc, lambda i, b=body: ("POST", "/v1/simulate", b), args.simulate_requests,
+        phase = await run_load(lc, _always(("POST", "/v1/simulate", body)), args.simulate_requests,
                                args.seconds, args.simulate_concurrency)
         after = await _pool_counts(c, tmp)
         phase["answer_kb"] = round(len(r.content) / 1024, 1)

@@ -16,6 +16,7 @@ job's finish. Used by :mod:`gaintune.bench.chaos` (``--phases lock,diskfull``); 
 
 from __future__ import annotations
 
+import functools
 import statistics
 import sys
 import threading
@@ -224,7 +225,11 @@ def _diskfull_round(
     faults.write_text("db:full")  # the whole database is full for longer than a lease
     time.sleep(2 * lease)
     faults.unlink()
-    ends = [_wait(lambda j=j: _job_when(srv, j, lambda x: x["status"] in TERMINAL or x["attempts"] > 1), 300,
+
+    def written_or_rerun(x: dict[str, Any]) -> bool:
+        return x["status"] in TERMINAL or x["attempts"] > 1
+
+    ends = [_wait(functools.partial(_job_when, srv, j, written_or_rerun), 300,
                   "the finished jobs to be written (or re-run)") for j in (a, b)]
     _wait(lambda: srv.job(c)["status"] == "running" and srv.job(c)["progress"], 300, "the third job to run")
     time.sleep(lease + 1)  # past the lease the finished jobs' attempts held: nothing may happen to it

@@ -95,9 +95,9 @@ def _load_module(rev: str) -> types.ModuleType:
     if listing:
         pkg = tmp / name
         pkg.mkdir()
-        for path in listing:
-            if path.endswith(".py"):
-                (pkg / Path(path).name).write_text(_git_show(rev, path))
+        for in_repo in listing:
+            if in_repo.endswith(".py"):
+                (pkg / Path(in_repo).name).write_text(_git_show(rev, in_repo))
         spec = importlib.util.spec_from_file_location(name, pkg / "__init__.py",
                                                       submodule_search_locations=[str(pkg)])
     else:  # the kernel as one module
