@@ -28,7 +28,7 @@ def load_cma() -> type[CMA]:
     if "cmaes" not in sys.modules and "scipy.stats" not in sys.modules and threading.active_count() == 1:
         sys.modules["scipy.stats"] = None  # type: ignore[assignment]  # `from scipy import stats` raises ImportError
         try:
-            import cmaes  # noqa: F401
+            import cmaes  # noqa: F401  # imported for its side effect: loaded while scipy.stats is blocked
         except ImportError:  # a cmaes that needs scipy.stats after all: imported as usual below
             pass
         finally:

@@ -34,14 +34,18 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from gaintune.baselines.cma import load_cma
 
-__all__ = ["OptResult", "BudgetExhausted", "Budgeted", "random_search", "cmaes_search", "de_search", "nelder_mead_search", "optimize", "OPTIMIZERS"]
+__all__ = [
+    "OptResult", "BudgetExhausted", "Budgeted", "random_search", "cmaes_search", "de_search", "nelder_mead_search",
+    "optimize", "OPTIMIZERS",
+]
 
 #: Cost substituted for non-finite costs inside the optimisers (ranks stay meaningful).
 BAD_COST = 1e12
@@ -93,17 +97,21 @@ class Budgeted:
 
     # coordinates
     def to_tuned(self, z: np.ndarray) -> np.ndarray:
+        """Unit-box coordinates (clipped to [0, 1]) -> tuned gain magnitudes, log-uniformly in the bounds."""
         return np.exp(self.lo + np.clip(z, 0.0, 1.0) * (self.hi - self.lo))
 
     def to_unit(self, tuned: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`to_tuned`, clipped to the unit box."""
         return np.clip((np.log(np.asarray(tuned, dtype=float)) - self.lo) / (self.hi - self.lo), 0.0, 1.0)
 
     def initial_z(self) -> np.ndarray:
+        """The layout's initial gains in unit-box coordinates."""
         return self.to_unit(self.ev.layout.initial_tuned())
 
     # accounting
     @property
     def used(self) -> int:
+        """Simulations spent so far (the evaluator's count, else the number of gain sets scored)."""
         now = _n_sims(self.ev)
         if now is None or self._start is None:
             return self.n_evals
@@ -111,6 +119,7 @@ class Budgeted:
 
     @property
     def remaining(self) -> int:
+        """Simulations left in the budget."""
         return self.budget - self.used
 
     def rows_left(self) -> int:
@@ -146,6 +155,7 @@ class Budgeted:
         return np.where(np.isfinite(c), c, BAD_COST)
 
     def result(self, method: str, t0: float, **details: Any) -> OptResult:
+        """The best candidate so far (the layout's initial gains if none was finite) as an :class:`OptResult`."""
         if self.best_z is None:
             tuned = self.ev.layout.initial_tuned()
         else:
@@ -215,7 +225,7 @@ def cmaes_search(
                     f(xs[:n, :d])
                     break
                 vals = f(xs[:, :d])
-                opt.tell(list(zip(xs, vals)))
+                opt.tell(list(zip(xs, vals, strict=True)))  # every row fitted the budget (above)
                 gens += 1
                 if opt.should_stop():
                     break

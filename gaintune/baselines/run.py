@@ -9,10 +9,10 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from gaintune.classical.tuning import CLASSICAL_METHODS, tune_classical
+from gaintune.baselines.optimizers import optimize
 from gaintune.classical.fotd import NoModelError
 from gaintune.classical.timescale import resolve_scenarios
-from gaintune.baselines.optimizers import optimize
+from gaintune.classical.tuning import CLASSICAL_METHODS, tune_classical
 from gaintune.evaluation.boundary_exact import onto_boundary_exact, violation_after
 from gaintune.evaluation.evaluator import DIVERGED_COST
 from gaintune.spec import Gains, TuningSpec
@@ -36,26 +36,33 @@ class BaselineResult(BaseModel):
     n_sims: int = Field(0, description="Simulations spent (search and scoring).")
     wall_time: float = 0.0
     cost: float | None = Field(None, description="Plain cost of the gains (lower is better); None without evaluator.")
-    feasible: bool | None = Field(None, description="The gains met every requirement (search estimate); None without evaluator.")
+    feasible: bool | None = Field(
+        None, description="The gains met every requirement (search estimate); None without evaluator."
+    )
     violation: float | None = Field(None, description="Requirement violation of the gains (0 = feasible).")
     settle: dict[str, Any] | None = Field(None, description="What the exact boundary step did (optimisers only).")
-    history: list[tuple[int, float]] = Field(default_factory=list, description="(simulations, best cost) for optimisers.")
+    history: list[tuple[int, float]] = Field(
+        default_factory=list, description="(simulations, best cost) for optimisers."
+    )
     details: dict[str, Any] = Field(default_factory=dict)
 
 
-def make_evaluator(spec: TuningSpec):
-    """The evaluator every baseline searches with: the problem's default search box (:mod:`gaintune.evaluation.search_box`)."""
+def make_evaluator(spec: TuningSpec) -> Any:
+    """The evaluator every baseline searches with: the problem's default search box.
+
+    See :mod:`gaintune.evaluation.search_box`.
+    """
     from gaintune.evaluation.search_box import make_evaluator as on_search_box
 
     return on_search_box(spec)
 
 
-def _tuned_from_gains(layout, gains: Gains) -> np.ndarray:
+def _tuned_from_gains(layout: Any, gains: Gains) -> np.ndarray:
     full = layout.from_dict(gains)
     return np.asarray(full)[layout.tuned_idx]
 
 
-def _finite(c: float) -> float | None:
+def _finite(c: float | None) -> float | None:
     return float(c) if c is not None and math.isfinite(c) else None
 
 
@@ -65,7 +72,7 @@ def run_baseline(
     *,
     budget: int | None = None,
     seed: int | None = None,
-    evaluator=None,
+    evaluator: Any = None,
     settle_answer: bool = True,
     **options: Any,
 ) -> BaselineResult:
@@ -95,41 +102,53 @@ def run_baseline(
     t0 = time.perf_counter()
     seed = spec.search.seed if seed is None else seed
     spec = resolve_scenarios(spec, getattr(evaluator, "plant", None))  # dt/horizon left out: from the plant
-    if method in CLASSICAL_METHODS:
-        from gaintune.plants import build_plant
-
-        ev = evaluator if evaluator is not None else make_evaluator(spec)
-        plant = getattr(ev, "plant", None) or build_plant(spec.plant)
-        try:
-            res = tune_classical(spec, plant, method)
-        except NoModelError as exc:
-            return BaselineResult(method=method, reason=str(exc), wall_time=time.perf_counter() - t0)
-        out = BaselineResult(
-            method=method,
-            gains=res.gains,
-            fotd={k: m.to_dict() for k, m in res.fotd.items()},
-            ultimate={k: {"Ku": v[0], "Pu": v[1]} for k, v in res.ultimate.items()},
-            details={"pid_ideal": {k: {"Kc": p.Kc, "Ti": p.Ti, "Td": p.Td} for k, p in res.pid.items()}},
-        )
-        if ev is not None:
-            before = int(getattr(ev, "n_sims", 0))
-            tuned = _tuned_from_gains(ev.layout, res.gains)
-            sc = ev.evaluate(tuned[None, :])
-            out.cost = _finite(float(sc.cost[0]))
-            out.violation, out.feasible = float(sc.violation[0]), bool(sc.feasible[0])
-            out.n_sims = int(getattr(ev, "n_sims", 0)) - before
-            if out.cost is None or out.cost >= DIVERGED_COST:
-                out.details["diverged"] = True
-        out.wall_time = time.perf_counter() - t0
-        return out
-
     ev = evaluator if evaluator is not None else make_evaluator(spec)
+    if method in CLASSICAL_METHODS:
+        out = _run_rule(spec, method, ev)
+    else:
+        out = _run_optimiser(spec, method, ev, budget or spec.search.budget, seed, settle_answer, options)
+    out.wall_time = time.perf_counter() - t0
+    return out
+
+
+def _run_rule(spec: TuningSpec, method: str, ev: Any) -> BaselineResult:
+    """A classical rule's gains, scored with ``ev`` (``gains=None`` and a reason when the rule does not apply)."""
+    from gaintune.plants import build_plant
+
+    plant = getattr(ev, "plant", None) or build_plant(spec.plant)
+    try:
+        res = tune_classical(spec, plant, method)
+    except NoModelError as exc:
+        return BaselineResult(method=method, reason=str(exc))
+    out = BaselineResult(
+        method=method,
+        gains=res.gains,
+        fotd={k: m.to_dict() for k, m in res.fotd.items()},
+        ultimate={k: {"Ku": v[0], "Pu": v[1]} for k, v in res.ultimate.items()},
+        details={"pid_ideal": {k: {"Kc": p.Kc, "Ti": p.Ti, "Td": p.Td} for k, p in res.pid.items()}},
+    )
+    if ev is not None:
+        before = int(getattr(ev, "n_sims", 0))
+        tuned = _tuned_from_gains(ev.layout, res.gains)
+        sc = ev.evaluate(tuned[None, :])
+        out.cost = _finite(float(sc.cost[0]))
+        out.violation, out.feasible = float(sc.violation[0]), bool(sc.feasible[0])
+        out.n_sims = int(getattr(ev, "n_sims", 0)) - before
+        if out.cost is None or out.cost >= DIVERGED_COST:
+            out.details["diverged"] = True
+    return out
+
+
+def _run_optimiser(
+    spec: TuningSpec, method: str, ev: Any, budget: int, seed: int, settle_answer: bool, options: dict[str, Any]
+) -> BaselineResult:
+    """An optimiser's (or the reference's) best gains, settled on the requirements when ``settle_answer``."""
     if method == "reference":
         from gaintune.baselines.reference import reference_optimum
 
         r = reference_optimum(spec, ev, seed=seed, **options)
     else:
-        r = optimize(ev, method, budget or spec.search.budget, seed, **options)
+        r = optimize(ev, method, budget, seed, **options)
     layout = ev.layout
     tuned, cost, violation, settled = r.tuned, r.cost, r.violation, None
     if settle_answer:
@@ -139,12 +158,10 @@ def run_baseline(
         if st.action in ("pulled_inside", "pushed_to_boundary"):
             sc = ev.evaluate(st.tuned[None, :])
             tuned, cost, violation = st.tuned, float(sc.cost[0]), violation_after(st, sc)
-    gains = layout.to_dict(layout.full(tuned))
     return BaselineResult(
         method=method,
-        gains=gains,
+        gains=layout.to_dict(layout.full(tuned)),
         n_sims=r.n_sims,
-        wall_time=time.perf_counter() - t0,
         cost=_finite(cost),
         violation=violation,
         feasible=violation <= 0,

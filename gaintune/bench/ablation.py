@@ -8,12 +8,16 @@ Prints RL-only and policy-mean cost ratios to the reference optimum (docs/search
 from __future__ import annotations
 
 import time
+from typing import Any
 
 from gaintune.bench.arguments import BenchParser, budget_int, positive_float, seed_int
 from gaintune.search import tune
 from gaintune.spec import load_spec
 
-CONFIGS = {
+__all__ = ["CONFIGS", "main"]
+
+#: name -> (algo, env, agent overrides)
+CONFIGS: dict[str, tuple[str, str, dict[str, Any]]] = {
     "ppo (default)": ("ppo", "oneshot", {}),
     "ppo lr=1e-3": ("ppo", "oneshot", {"learning_rate": 1e-3}),
     "ppo lr=1e-2": ("ppo", "oneshot", {"learning_rate": 1e-2}),
@@ -25,12 +29,14 @@ CONFIGS = {
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``gaintune bench ablation``: run each configuration on each seed and print a Markdown table row."""
     ap = BenchParser(prog="gaintune bench ablation", description=__doc__.splitlines()[0])
     ap.add_argument("--budget", type=budget_int, default=5000, help="simulations per run (default 5000)")
     ap.add_argument("--seeds", type=seed_int, nargs="+", default=[0])
     ap.add_argument("--reference", type=positive_float, default=1.602535, help="reference optimum cost (> 0)")
     ap.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS), metavar="CONFIG",
-                    help="configurations to run, quoted, from: " + ", ".join(f"'{c}'" for c in CONFIGS) + " (default: all)")
+                    help="configurations to run, quoted, from: " + ", ".join(f"'{c}'" for c in CONFIGS)
+                    + " (default: all)")
     a = ap.parse_args(argv)
     print("| config | seed | RL-only / optimum | policy / optimum | sims | wall s |")
     print("|---|---|---|---|---|---|")
@@ -47,3 +53,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| {name} | {seed} | {r.rl_cost / a.reference:.4f} | {r.policy_cost / a.reference:.4f} | "
                   f"{r.sims} | {time.perf_counter() - t0:.1f} |", flush=True)
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -30,23 +30,33 @@ no compute pool respawns, and simulate p50 with 16 scenarios <= 2 x the p50 with
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import json
-import argparse
 import os
 import re
-import signal
-import socket
-import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from gaintune.bench.api_load import (
+    LoadClient,
+    RawClient,
+    Request,
+    free_port,
+    run_load,
+    start_server,
+    stop_server,
+    wait_ready,
+)
 from gaintune.bench.arguments import BenchParser, int_list, int_range, non_negative_int, positive_float, positive_int
+
+if TYPE_CHECKING:  # pragma: no cover
+    import httpx
 
 __all__ = ["main", "CASCADE_SPEC", "NOMINAL_GAINS", "simulate_spec"]
 
@@ -65,8 +75,10 @@ CASCADE_SPEC = {
         }
     },
     "loops": [
-        {"name": "speed", "type": "pi", "measure": "w", "gains": {"Kp": {"bounds": [0.05, 20]}, "Ki": {"bounds": [0.5, 500]}}},
-        {"name": "current", "type": "pi", "measure": "i", "gains": {"Kp": {"bounds": [0.5, 50]}, "Ki": {"bounds": [10, 5000]}}},
+        {"name": "speed", "type": "pi", "measure": "w",
+         "gains": {"Kp": {"bounds": [0.05, 20]}, "Ki": {"bounds": [0.5, 500]}}},
+        {"name": "current", "type": "pi", "measure": "i",
+         "gains": {"Kp": {"bounds": [0.5, 50]}, "Ki": {"bounds": [10, 5000]}}},
     ],
     "scenario": {"dt": 1e-3, "horizon": 0.5},
 }
@@ -90,168 +102,6 @@ def _phase_list(text: str) -> list[str]:
     return names
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _pct(x: list[float], q: float) -> float:
-    return float(np.percentile(np.asarray(x) * 1e3, q)) if x else float("nan")
-
-
-class _Response:
-    __slots__ = ("status_code", "content")
-
-    def __init__(self, status_code: int, content: bytes) -> None:
-        self.status_code, self.content = status_code, content
-
-    def json(self):
-        return json.loads(self.content)
-
-
-class RawClient:
-    """A minimal HTTP/1.1 keep-alive client for the load phases (``--client raw``, the default).
-
-    The load generator shares the 2 CPUs with the server it measures; httpx spends about
-    2.5 ms of CPU per request here, which the server then does not get. This client writes
-    the request bytes and reads the status line, headers and ``Content-Length`` (or chunked)
-    body on a pool of persistent connections: a fraction of that cost. Same interface as
-    ``httpx.AsyncClient.request`` for what :func:`_load` uses.
-    """
-
-    def __init__(self, host: str, port: int) -> None:
-        self.host, self.port = host, port
-        self._idle: list[tuple[asyncio.StreamReader, asyncio.StreamWriter]] = []
-
-    async def request(self, method: str, url: str, json=None) -> _Response:  # noqa: A002 - httpx's name
-        import json as _json
-
-        body = b"" if json is None else _json.dumps(json).encode()
-        head = (f"{method} {url} HTTP/1.1\r\nHost: {self.host}:{self.port}\r\n"
-                + ("Content-Type: application/json\r\n" if json is not None else "")
-                + f"Content-Length: {len(body)}\r\n\r\n").encode()
-        while True:
-            reused = bool(self._idle)
-            conn = self._idle.pop() if reused else await asyncio.open_connection(self.host, self.port)
-            reader, writer = conn
-            try:
-                writer.write(head + body)
-                line = await reader.readline()
-            except (ConnectionError, OSError):
-                line = b""
-            if line:
-                break
-            writer.close()
-            if not reused:  # a fresh connection closed at once: a real error
-                raise ConnectionError("server closed the connection without a response")
-            # the server closed an idle keep-alive connection (uvicorn: after 5 s): retry on a new one
-        status = int(line.split(b" ", 2)[1])
-        length, chunked, close = None, False, False
-        while True:
-            line = await reader.readline()
-            if line in (b"\r\n", b"\n", b""):
-                break
-            k, _, v = line.partition(b":")
-            k = k.strip().lower()
-            if k == b"content-length":
-                length = int(v)
-            elif k == b"transfer-encoding" and b"chunked" in v.lower():
-                chunked = True
-            elif k == b"connection" and b"close" in v.lower():
-                close = True
-        if chunked:
-            parts = []
-            while True:
-                size = int((await reader.readline()).split(b";")[0], 16)
-                if size == 0:
-                    await reader.readline()
-                    break
-                parts.append(await reader.readexactly(size))
-                await reader.readline()
-            content = b"".join(parts)
-        else:
-            content = await reader.readexactly(length or 0)
-        if close:
-            writer.close()
-        else:
-            self._idle.append(conn)
-        return _Response(status, content)
-
-    async def aclose(self) -> None:
-        for _, w in self._idle:
-            w.close()
-        self._idle.clear()
-
-
-async def _load(client, make_request, n: int, seconds: float, concurrency: int) -> dict:
-    """Fire up to n requests (or for `seconds`) with `concurrency` in flight; latency per request."""
-    lat: list[float] = []
-    errors: dict[int, int] = {}
-    counter = iter(range(n))
-    t_end = time.perf_counter() + seconds
-
-    async def one_worker():
-        for i in counter:
-            if time.perf_counter() > t_end:
-                return
-            method, url, body = make_request(i)
-            t0 = time.perf_counter()
-            r = await client.request(method, url, json=body)
-            lat.append(time.perf_counter() - t0)
-            if r.status_code >= 300:
-                errors[r.status_code] = errors.get(r.status_code, 0) + 1
-
-    t0 = time.perf_counter()
-    await asyncio.gather(*(one_worker() for _ in range(concurrency)))
-    wall = time.perf_counter() - t0
-    return {"requests": len(lat), "seconds": round(wall, 2), "rps": round(len(lat) / wall, 1),
-            "p50_ms": round(_pct(lat, 50), 2), "p95_ms": round(_pct(lat, 95), 2), "p99_ms": round(_pct(lat, 99), 2),
-            "errors": errors}
-
-
-def _term_with_parent() -> Callable[[], None] | None:
-    """A ``preexec_fn`` that has Linux send the child SIGTERM when this process dies (None elsewhere).
-
-    The ``finally`` of :func:`_run` stops the server on every exception, but not when this
-    process is SIGKILLed (``timeout -s KILL``, the OOM killer): the server and its job workers
-    were left running. SIGTERM lets the server stop its workers itself. libc is loaded here,
-    in the parent: the child between fork and exec only calls it.
-    """
-    if not sys.platform.startswith("linux"):
-        return None
-    try:
-        import ctypes
-
-        prctl = ctypes.CDLL("libc.so.6", use_errno=True).prctl
-    except OSError:  # pragma: no cover - no glibc
-        return None
-    return lambda: prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
-
-
-def _start_server(tmp: Path, port: int, workers: int, compute_processes: int | None = None) -> subprocess.Popen:
-    env = dict(os.environ, GAINTUNE_DB_PATH=str(tmp / "jobs.db"), GAINTUNE_DATA_DIR=str(tmp / "data"))
-    if compute_processes is not None:
-        env["GAINTUNE_COMPUTE_PROCESSES"] = str(compute_processes)
-    cmd = [sys.executable, "-m", "gaintune_api", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers),
-           "--log-level", "warning"]
-    with open(tmp / "server.log", "w") as log:  # the child keeps its own copy of the descriptor
-        return subprocess.Popen(cmd, cwd=tmp, env=env, stdout=log, stderr=subprocess.STDOUT,
-                                preexec_fn=_term_with_parent())
-
-
-def _stop_server(proc: subprocess.Popen) -> None:
-    """SIGTERM, then SIGKILL after 15 s: the server must never outlive the benchmark."""
-    if proc.poll() is not None:
-        return
-    proc.send_signal(signal.SIGTERM)
-    try:
-        proc.wait(15)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-
-
 def _in_process_verify_ms(n: int = 20) -> float:
     """Median time of one direct verify() call with distinct gains: the compute floor of a verify request."""
     from gaintune.spec import load_spec
@@ -270,65 +120,60 @@ def _in_process_verify_ms(n: int = 20) -> float:
     return round(float(np.median(ts)) * 1e3, 2)
 
 
-async def _wait_ready(c, proc: subprocess.Popen, tmp: Path) -> float:
-    """Seconds until ``/readyz`` says ready (SystemExit when the server exits or takes over 120 s)."""
-    import httpx
-
-    t0 = time.perf_counter()
-    while True:
-        if proc.poll() is not None:
-            raise SystemExit("server exited:\n" + (tmp / "server.log").read_text()[-3000:])
-        try:
-            if (await c.get("/readyz")).status_code == 200:
-                return round(time.perf_counter() - t0, 1)
-        except httpx.TransportError:
-            pass
-        if time.perf_counter() - t0 > 120:
-            raise SystemExit("server not ready after 120 s")
-        await asyncio.sleep(0.2)
-
-
-async def _verify_phases(c, lc, args, out: dict) -> None:
+async def _verify_phases(
+    c: httpx.AsyncClient, lc: LoadClient, args: argparse.Namespace, out: dict[str, Any]
+) -> None:
     """``verify_distinct`` (every request a cache miss), ``verify_repeat`` (cached) and the ``--sweep``."""
     rng = np.random.default_rng(0)
     n_factors = args.requests + 64 + len(args.sweep) * args.sweep_requests
     factors = np.exp(rng.uniform(np.log(0.8), np.log(1.25), size=(n_factors, 4)))
 
-    def distinct(i):
+    def distinct(i: int) -> Request:
         f = factors[i]
         g = {"speed": {"Kp": 2.0 * f[0], "Ki": 40.0 * f[1]}, "current": {"Kp": 10.0 * f[2], "Ki": 1000.0 * f[3]}}
         return "POST", "/v1/verify", {"spec": CASCADE_SPEC, "gains": g}
 
-    def repeat(i):
+    def repeat(i: int) -> Request:
         return "POST", "/v1/verify", {"spec": CASCADE_SPEC, "gains": NOMINAL_GAINS}
 
-    await _load(c, lambda i: distinct(args.requests + (i % 64)), 16, 30, args.concurrency)  # warm-up (httpx)
-    out["verify_distinct"] = await _load(lc, distinct, args.requests, args.seconds, args.concurrency)
-    out["verify_repeat"] = await _load(lc, repeat, args.requests, args.seconds, args.concurrency)
-    sweep = {}
+    def distinct_from(base: int) -> Callable[[int], Request]:
+        return lambda i: distinct(base + i)
+
+    await run_load(c, lambda i: distinct(args.requests + (i % 64)), 16, 30, args.concurrency)  # warm-up (httpx)
+    out["verify_distinct"] = await run_load(lc, distinct, args.requests, args.seconds, args.concurrency)
+    out["verify_repeat"] = await run_load(lc, repeat, args.requests, args.seconds, args.concurrency)
+    sweep: dict[str, dict[str, Any]] = {}
     for k, conc in enumerate(args.sweep):
         # fresh gains for every sweep point: every request is still a cache miss
         base = args.requests + 64 + k * args.sweep_requests
-        sweep[str(conc)] = await _load(lc, lambda i, b=base: distinct(b + i), args.sweep_requests, args.seconds, conc)
+        sweep[str(conc)] = await run_load(lc, distinct_from(base), args.sweep_requests, args.seconds, conc)
     if sweep:
         out["verify_distinct_sweep"] = sweep
 
 
-def simulate_spec(n_scenarios: int) -> dict:
-    """1/(s+1)^3 with a PI and ``n_scenarios`` scenarios of 2,000 steps (reference steps at different times):
-    each scenario adds about 100 KB of traces to the ``/v1/simulate`` answer."""
+def simulate_spec(n_scenarios: int) -> dict[str, Any]:
+    """1/(s+1)^3 with a PI and ``n_scenarios`` scenarios of 2,000 steps (reference steps at different times).
+
+    Each scenario adds about 100 KB of traces to the ``/v1/simulate`` answer.
+    """
     scenarios = [{"name": f"step{i}", "dt": 0.01, "horizon": 20.0, "reference": {"kind": "step", "time": 0.25 * i}}
                  for i in range(n_scenarios)]
     return {"name": f"simulate_{n_scenarios}", "plant": {"tf": {"num": [1], "den": "(s+1)^3"}},
             "loops": [{"type": "pi"}], "scenarios": scenarios}
 
 
-async def _pool_counts(c, tmp: Path) -> dict[str, int | None]:
+def _always(request: Request) -> Callable[[int], Request]:
+    """A request maker of :func:`run_load` that sends ``request`` every time."""
+    return lambda i: request
+
+
+async def _pool_counts(c: httpx.AsyncClient, tmp: Path) -> dict[str, int | None]:
     """The compute pool's respawns and thread fallbacks so far, from ``/metrics``. A server without those
     series (older code): respawns from its log's "compute worker N died" warnings, fallbacks unknown (None)."""
     text = (await c.get("/metrics")).text
     counts: dict[str, int | None] = {}
-    for key, name in (("respawns", "gaintune_compute_restarts_total"), ("fallbacks", "gaintune_compute_fallbacks_total")):
+    series = (("respawns", "gaintune_compute_restarts_total"), ("fallbacks", "gaintune_compute_fallbacks_total"))
+    for key, name in series:
         m = re.search(rf"^{name} (\S+)$", text, re.M)
         counts[key] = int(float(m.group(1))) if m else None
     if counts["respawns"] is None:
@@ -336,35 +181,40 @@ async def _pool_counts(c, tmp: Path) -> dict[str, int | None]:
     return counts
 
 
-async def _simulate_phases(c, lc, args, tmp: Path, out: dict) -> None:
+async def _simulate_phases(
+    c: httpx.AsyncClient, lc: LoadClient, args: argparse.Namespace, tmp: Path, out: dict[str, Any]
+) -> None:
     """``POST /v1/simulate`` with each ``--simulate-scenarios`` count, the same request over and over
     (simulate has no cache), at ``--simulate-concurrency``; with the answer's size and the pool's
     respawns and thread fallbacks during the phase."""
-    res = {}
+    res: dict[str, dict[str, Any]] = {}
     for n in args.simulate_scenarios:
         body = {"spec": simulate_spec(n), "gains": SIMULATE_GAINS}
         before = await _pool_counts(c, tmp)
         r = await lc.request("POST", "/v1/simulate", json=body)  # also warms the spec's caches in a worker
         if r.status_code != 200:
             raise SystemExit(f"/v1/simulate with {n} scenarios answered {r.status_code}: {r.content[:500]!r}")
-        phase = await _load(lc, lambda i, b=body: ("POST", "/v1/simulate", b), args.simulate_requests, args.seconds,
-                            args.simulate_concurrency)
+        phase = await run_load(lc, _always(("POST", "/v1/simulate", body)), args.simulate_requests,
+                               args.seconds, args.simulate_concurrency)
         after = await _pool_counts(c, tmp)
         phase["answer_kb"] = round(len(r.content) / 1024, 1)
         for k in ("respawns", "fallbacks"):
-            phase[k] = None if after[k] is None or before[k] is None else after[k] - before[k]
+            a, b = after[k], before[k]
+            phase[k] = None if a is None or b is None else a - b
         res[str(n)] = phase
     out["simulate"] = res
     out["simulate_concurrency"] = args.simulate_concurrency
 
 
-async def _job_phases(c, lc, args, out: dict) -> None:
+async def _job_phases(
+    c: httpx.AsyncClient, lc: LoadClient, args: argparse.Namespace, out: dict[str, Any]
+) -> None:
     """GET a job with none running, then while 2 tuning jobs run; then cancel both and time it."""
     tune_spec = {**CASCADE_SPEC, "search": {"budget": 100_000, "n_envs": 32}}
     idle = (await c.post("/v1/tune", json={**tune_spec, "name": "probe"})).json()["id"]
     await c.delete(f"/v1/jobs/{idle}")
-    out["get_job_idle"] = await _load(lc, lambda i: ("GET", f"/v1/jobs/{idle}", None), args.requests,
-                                      args.seconds, args.concurrency)
+    out["get_job_idle"] = await run_load(lc, lambda i: ("GET", f"/v1/jobs/{idle}", None), args.requests,
+                                         args.seconds, args.concurrency)
     jobs = [(await c.post("/v1/tune", json={**tune_spec, "name": f"load{k}"})).json()["id"] for k in range(2)]
     t0 = time.perf_counter()
     started = True
@@ -374,14 +224,16 @@ async def _job_phases(c, lc, args, out: dict) -> None:
             break
         if time.perf_counter() - t0 > args.job_start_timeout:
             # e.g. a cold numba cache: report the other phases rather than nothing
-            out["jobs_error"] = f"jobs reported no progress within {args.job_start_timeout} s: {[s['status'] for s in st]}"
+            out["jobs_error"] = (
+                f"jobs reported no progress within {args.job_start_timeout} s: {[s['status'] for s in st]}"
+            )
             started = False
             break
         await asyncio.sleep(0.2)
     out["jobs_start_s"] = round(time.perf_counter() - t0, 1)
     if started:
-        out["get_job_2_jobs"] = await _load(lc, lambda i: ("GET", f"/v1/jobs/{jobs[i % 2]}", None), args.requests,
-                                            args.seconds, args.concurrency)
+        out["get_job_2_jobs"] = await run_load(lc, lambda i: ("GET", f"/v1/jobs/{jobs[i % 2]}", None),
+                                               args.requests, args.seconds, args.concurrency)
         out["sims_while_measuring"] = [(await c.get(f"/v1/jobs/{j}")).json()["progress"]["sims"] for j in jobs]
     t0 = time.perf_counter()
     for j in jobs:
@@ -395,26 +247,27 @@ async def _job_phases(c, lc, args, out: dict) -> None:
     out["cancel_s"] = round(time.perf_counter() - t0, 2)
 
 
-async def _run(args) -> dict:
+async def _run(args: argparse.Namespace) -> dict[str, Any]:
     import httpx
 
     tmp = Path(tempfile.mkdtemp(prefix="gaintune-bench-api-"))
-    port = _free_port()
+    port = free_port()
     load0 = [round(x, 2) for x in os.getloadavg()]
     in_process = _in_process_verify_ms()
-    out: dict = {"url": f"http://127.0.0.1:{port}", "cpus": os.cpu_count(), "concurrency": args.concurrency,
-                 "client": args.client, "phases": args.phases,
-                 "loadavg_start": load0, "verify_in_process_ms": in_process,
-                 "compute_processes": "default" if args.compute_processes is None else args.compute_processes}
-    proc = _start_server(tmp, port, workers=2, compute_processes=args.compute_processes)
+    out: dict[str, Any] = {
+        "url": f"http://127.0.0.1:{port}", "cpus": os.cpu_count(), "concurrency": args.concurrency,
+        "client": args.client, "phases": args.phases, "loadavg_start": load0, "verify_in_process_ms": in_process,
+        "compute_processes": "default" if args.compute_processes is None else args.compute_processes,
+    }
+    proc = start_server(tmp, port, workers=2, compute_processes=args.compute_processes)
     try:  # nothing between the start and this try may raise: the finally stops the server
         limits = httpx.Limits(max_connections=args.concurrency * 2)
         async with httpx.AsyncClient(base_url=out["url"], timeout=60, limits=limits) as c:
-            out["startup_s"] = await _wait_ready(c, proc, tmp)
+            out["startup_s"] = await wait_ready(c, proc, tmp)
             r = await c.post("/v1/verify", json={"spec": CASCADE_SPEC, "gains": NOMINAL_GAINS})
             r.raise_for_status()
             out["verdict_nominal"] = r.json()["verdict"]
-            lc = c if args.client == "httpx" else RawClient("127.0.0.1", port)  # the load phases' client
+            lc: LoadClient = c if args.client == "httpx" else RawClient("127.0.0.1", port)  # the load phases' client
             try:
                 if "verify" in args.phases:
                     await _verify_phases(c, lc, args, out)
@@ -423,14 +276,14 @@ async def _run(args) -> dict:
                 if "jobs" in args.phases:
                     await _job_phases(c, lc, args, out)
             finally:
-                if lc is not c:
+                if isinstance(lc, RawClient):
                     await lc.aclose()
     finally:
-        _stop_server(proc)
+        stop_server(proc)
     return out
 
 
-def _print_table(out: dict) -> None:
+def _print_table(out: dict[str, Any]) -> None:
     """The phases measured, as a Markdown table, and the targets they are held to."""
     print("| phase | requests | req/s | p50 ms | p95 ms | p99 ms | errors | pool respawns / thread fallbacks |")
     print("|---|---:|---:|---:|---:|---:|---|---|")
@@ -450,7 +303,8 @@ def _print_table(out: dict) -> None:
         print(f"get_job_2_jobs not measured: {out['jobs_error']}")
     elif "cancel_s" in out:
         print(f"2 jobs ran {out.get('sims_while_measuring')} simulations by the end of the GET phase "
-              f"(first progress {out['jobs_start_s']} s after submission); both cancelled within {out['cancel_s']} s of DELETE")
+              f"(first progress {out['jobs_start_s']} s after submission); "
+              f"both cancelled within {out['cancel_s']} s of DELETE")
     vd = out.get("verify_distinct")
     if vd is not None:
         print(f"targets: verify p95 <= 50 ms: {'met' if vd['p95_ms'] <= 50 else 'MISSED'} ({vd['p95_ms']} ms, distinct "
@@ -468,6 +322,13 @@ def _print_table(out: dict) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``gaintune bench api``: parse ``argv``, run the phases on a fresh server, print a table (or ``--json``).
+
+    Returns
+    -------
+    int
+        0; bad arguments exit 2 before a server starts.
+    """
     # every argument is checked here, before the server starts (concurrency 0 waited for ever on no requests)
     ap = BenchParser(prog="gaintune bench api", description="REST API latency/throughput on a real server.")
     ap.add_argument("--requests", type=positive_int, default=500, help="requests per phase (upper bound)")
@@ -480,7 +341,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--phases", type=_phase_list, default=list(PHASES),
                     help=f"which phases run, comma-separated from {','.join(PHASES)} (default: all)")
     ap.add_argument("--simulate-scenarios", type=int_list(1, MAX_SIMULATE_SCENARIOS), default=[1, 16],
-                    help=f"/v1/simulate phases with these scenario counts, 1 .. {MAX_SIMULATE_SCENARIOS} (default 1,16)")
+                    help=f"/v1/simulate phases with these scenario counts, 1 .. {MAX_SIMULATE_SCENARIOS} "
+                         "(default 1,16)")
     ap.add_argument("--simulate-requests", type=positive_int, default=100,
                     help="requests per simulate phase (upper bound)")
     ap.add_argument("--simulate-concurrency", type=int_range(1, MAX_CONCURRENCY), default=1,

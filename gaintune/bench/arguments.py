@@ -69,6 +69,7 @@ class BenchParser(argparse.ArgumentParser):
     """
 
     def error(self, message: str) -> NoReturn:
+        """Print ``error: --option: message`` (the option argparse blamed) and exit 2."""
         m = re.match(r"argument ([^:]+): (.*)", message, re.S)
         if m:
             option = m.group(1).split("/")[-1]  # "-n/--n" -> "--n": the long form

@@ -4,9 +4,9 @@ job's finish. Used by :mod:`gaintune.bench.chaos` (``--phases lock,diskfull``); 
 * lock: a process named like a worker claims a queued job, opens a write transaction (``BEGIN IMMEDIATE``) and
   stops itself (SIGSTOP). While it holds the lock, ``--writers`` threads keep writes coming (each cancels a
   queued job, or with ``--write post`` submits one; ``--write-pause`` s between a writer's answer and its next
-  write) and a reader times ``GET /v1/jobs/{id}``. Measured: GET p50/p95/max, how long a write takes to be refused (and with what),
-  and when the supervisor kills the frozen holder, compared with the end of its lease. A job whose supervised
-  worker was merely blocked must go on (attempt 1).
+  write) and a reader times ``GET /v1/jobs/{id}``. Measured: GET p50/p95/max, how long a write takes to be
+  refused (and with what), and when the supervisor kills the frozen holder, compared with the end of its lease.
+  A job whose supervised worker was merely blocked must go on (attempt 1).
 * diskfull: two jobs end their search while every finishing COMMIT fails with SQLITE_FULL (the tests-only
   fault ``db:full@finish``: the files are already renamed into place when the COMMIT fails), then the whole
   database is full for longer than a lease, then space is back. A third job, queued meanwhile, is taken by
@@ -16,12 +16,14 @@ job's finish. Used by :mod:`gaintune.bench.chaos` (``--phases lock,diskfull``); 
 
 from __future__ import annotations
 
+import functools
 import statistics
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
+from typing import Any
 
 from gaintune.bench.chaos_procs import Server, _proc_state, _serving, _wait, job_spec
 
@@ -124,8 +126,6 @@ def lock(root: Path, writers: int, write: str, pause: float, lease: float, budge
     """Freeze a lock-holding 'worker'; time reads and refused writes; see when its lease is enforced."""
     import subprocess
 
-    import httpx
-
     hold = root / "hold"
     hold.parent.mkdir(parents=True, exist_ok=True)
     hold.touch()
@@ -137,10 +137,13 @@ def lock(root: Path, writers: int, write: str, pause: float, lease: float, budge
         target = srv.submit(job_spec(499, 50)) if write == "delete" else None  # never cancelled while locked
         holder = subprocess.Popen([sys.executable, "-c", _HOLDER, str(srv.db), victim], stdout=subprocess.PIPE,
                                   text=True)
+        assert holder.stdout is not None  # stdout=PIPE
         claimed_at = float(holder.stdout.readline())
         _wait(lambda: _proc_state(holder.pid) in ("T", "t"), 30, "the lock holder to freeze", 0.01)
         lease_end = claimed_at + lease
-        stop, writes, reads = threading.Event(), [], []
+        stop = threading.Event()
+        writes: list[tuple[Any, ...]] = []
+        reads: list[float] = []
         ths = _hammer(srv, writers, pause, target, stop, writes)
         time.sleep(0.5)  # let the writers fill the queue before the first timed read
         reads_from = time.time()
@@ -174,43 +177,63 @@ def _logged(srv: Server, text: str) -> int:
     return srv.log.read_text(errors="replace").count(text)
 
 
-def diskfull(root: Path, rounds: int, lease: float, budget: int, log: Callable) -> dict:
+def diskfull(root: Path, rounds: int, lease: float, budget: int, log: Callable[[str], None]) -> dict[str, Any]:
     """Finishing COMMITs fail with SQLITE_FULL, then the whole database is full past a lease: count the damage."""
     hold, faults = root / "hold", root / "faults"
-    out = {"rounds": rounds, "finished_jobs": 0, "lost": 0, "recomputed": 0, "unrelated_disturbed": 0,
-           "worker_restarts": 0, "attempts": []}
+    out: dict[str, Any] = {"rounds": rounds, "finished_jobs": 0, "lost": 0, "recomputed": 0,
+                           "unrelated_disturbed": 0, "worker_restarts": 0, "attempts": []}
     root.mkdir(parents=True, exist_ok=True)
     with _serving(root, 2, GAINTUNE_HEARTBEAT_TIMEOUT=f"{lease:g}", GAINTUNE_TEST_HOLD_FILE=str(hold),
                   GAINTUNE_TEST_STORAGE_FAULT_FILE=str(faults), GAINTUNE_LOG_LEVEL="warning") as srv:
         for r in range(rounds):
-            hold.touch()
-            a, b = srv.submit(job_spec(600 + 3 * r, budget)), srv.submit(job_spec(601 + 3 * r, budget))
-            _wait(lambda: all(srv.job(j)["progress"] for j in (a, b)), 300, "both jobs to run")
-            kept = _logged(srv, "result kept")
-            faults.write_text("db:full@finish")  # the disk fills as the searches end
-            hold.unlink()
-            _wait(lambda: _logged(srv, "result kept") >= kept + 2 or any(
-                srv.job(j)["status"] != "running" for j in (a, b)), 300, "both finishing writes to fail")
-            hold.touch()
-            c = srv.submit(job_spec(602 + 3 * r, budget))  # unrelated: queued while the disk is full
-            faults.write_text("db:full")  # the whole database is full for longer than a lease
-            time.sleep(2 * lease)
-            faults.unlink()
-            ends = {j: _wait(lambda j=j: (lambda x: x if x["status"] in TERMINAL or x["attempts"] > 1 else None)(
-                srv.job(j)), 300, "the finished jobs to be written (or re-run)") for j in (a, b)}
-            _wait(lambda: srv.job(c)["status"] == "running" and srv.job(c)["progress"], 300, "the third job to run")
-            time.sleep(lease + 1)  # past the lease the finished jobs' attempts held: nothing may happen to it
-            mid = srv.job(c)
-            hold.unlink()
-            last = _wait(lambda: (lambda x: x if x["status"] in TERMINAL else None)(srv.job(c)), 300,
-                         "the third job to finish")
-            for j in ends.values():
+            ends, mid, last = _diskfull_round(srv, hold, faults, r, lease, budget)
+            for j in ends:
                 out["finished_jobs"] += 1
                 out["lost"] += j["status"] != "succeeded"
                 out["recomputed"] += j["attempts"] > 1
                 out["attempts"].append(j["attempts"])
             out["unrelated_disturbed"] += mid["attempts"] > 1 or last["attempts"] > 1 or last["status"] != "succeeded"
-            log(f"  diskfull: round {r + 1}: finished jobs {[(j['status'], j['attempts']) for j in ends.values()]}, "
+            log(f"  diskfull: round {r + 1}: finished jobs {[(j['status'], j['attempts']) for j in ends]}, "
                 f"unrelated job {last['status']} after {last['attempts']} attempt(s)")
         out["worker_restarts"] = _restarts(srv)
     return out
+
+
+def _job_when(srv: Server, job_id: str, ok: Callable[[dict[str, Any]], bool]) -> dict[str, Any] | None:
+    """Job ``job_id`` when ``ok(job)``, else None (a condition for :func:`_wait`)."""
+    j = srv.job(job_id)
+    return j if ok(j) else None
+
+
+def _diskfull_round(
+    srv: Server, hold: Path, faults: Path, r: int, lease: float, budget: int
+) -> tuple[list[dict[str, Any]], dict[str, Any], dict[str, Any]]:
+    """One round: 2 jobs whose finishing writes fail, then a full database while a third job waits.
+
+    Returns the 2 finished jobs, the third job past a lease after it started, and the third job at its end.
+    """
+    hold.touch()
+    a, b = srv.submit(job_spec(600 + 3 * r, budget)), srv.submit(job_spec(601 + 3 * r, budget))
+    _wait(lambda: all(srv.job(j)["progress"] for j in (a, b)), 300, "both jobs to run")
+    kept = _logged(srv, "result kept")
+    faults.write_text("db:full@finish")  # the disk fills as the searches end
+    hold.unlink()
+    _wait(lambda: _logged(srv, "result kept") >= kept + 2 or any(
+        srv.job(j)["status"] != "running" for j in (a, b)), 300, "both finishing writes to fail")
+    hold.touch()
+    c = srv.submit(job_spec(602 + 3 * r, budget))  # unrelated: queued while the disk is full
+    faults.write_text("db:full")  # the whole database is full for longer than a lease
+    time.sleep(2 * lease)
+    faults.unlink()
+
+    def written_or_rerun(x: dict[str, Any]) -> bool:
+        return x["status"] in TERMINAL or x["attempts"] > 1
+
+    ends = [_wait(functools.partial(_job_when, srv, j, written_or_rerun), 300,
+                  "the finished jobs to be written (or re-run)") for j in (a, b)]
+    _wait(lambda: srv.job(c)["status"] == "running" and srv.job(c)["progress"], 300, "the third job to run")
+    time.sleep(lease + 1)  # past the lease the finished jobs' attempts held: nothing may happen to it
+    mid = srv.job(c)
+    hold.unlink()
+    last = _wait(lambda: _job_when(srv, c, lambda x: x["status"] in TERMINAL), 300, "the third job to finish")
+    return ends, mid, last

@@ -5,6 +5,7 @@ Used by :mod:`gaintune.bench.chaos`. The server runs as ``python -m gaintune_api
 """
 
 from __future__ import annotations
+
 import hashlib
 import os
 import signal
@@ -13,9 +14,10 @@ import subprocess
 import sys
 import time
 from base64 import b64encode
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 __all__ = ["WORKER_NAME", "Server", "job_spec"]
 
@@ -85,12 +87,14 @@ class Server:
         self.log = root / "server.log"
 
     def start(self) -> None:
+        """Start the server process (output appended to ``server.log``); see :meth:`wait_ready`."""
         cmd = [sys.executable, "-m", "gaintune_api", "--host", "127.0.0.1", "--port", str(self.port),
                "--workers", str(self.workers), "--log-level", "warning"]
         self.proc = subprocess.Popen(cmd, cwd=self.root, env=self.env, stdout=open(self.log, "a"),
                                      stderr=subprocess.STDOUT)
 
     def ready(self) -> bool:
+        """``/readyz`` answers 200 (RuntimeError with the log's tail when the server has exited)."""
         import httpx
 
         assert self.proc is not None
@@ -102,17 +106,23 @@ class Server:
             return False
 
     def wait_ready(self, timeout: float = 180) -> None:
+        """Wait until :meth:`ready` (TimeoutError after ``timeout`` s)."""
         _wait(self.ready, timeout, "the server to be ready", 0.2)
 
     def worker_pids(self) -> list[int]:
+        """Live job workers: the server's child processes named :data:`WORKER_NAME`."""
         return _children(self.proc.pid) if self.proc else []
 
-    def job(self, job_id: str) -> dict:
+    def job(self, job_id: str) -> dict[str, Any]:
+        """``GET /v1/jobs/{job_id}`` as a dict."""
         return self.client.get(f"/v1/jobs/{job_id}").json()
 
     def submit(self, spec: dict[str, Any]) -> str:
-        """``POST /v1/tune``: the new job's id. A refused job raises naming the status and the body
-        (a 422 problem body read as a job was a bare ``KeyError: 'id'``)."""
+        """``POST /v1/tune``: the new job's id.
+
+        A refused job raises naming the status and the body (a 422 problem body read as a job was a
+        bare ``KeyError: 'id'``).
+        """
         r = self.client.post("/v1/tune", json=spec)
         if r.status_code != 202:
             raise RuntimeError(f"POST /v1/tune answered {r.status_code}, not 202: {r.text[:500]}")
@@ -127,6 +137,7 @@ class Server:
         _wait(lambda: all(_proc_state(p) in ("gone", "Z") for p in workers), 30, "the workers to die with the server")
 
     def stop(self) -> None:
+        """Resume any stopped worker, SIGTERM the server (SIGKILL after 20 s) and close the client."""
         if self.proc is not None and self.proc.poll() is None:
             for pid in self.worker_pids():
                 try:

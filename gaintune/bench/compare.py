@@ -18,6 +18,7 @@ The helpers below (ratios, statistics, Markdown) are shared with
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import sys
@@ -28,17 +29,24 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gaintune.fmt import fmt
 from gaintune.bench.arguments import (
-    BenchParser, add_out_argument, budget_int, fail, non_negative_int, resolve_out, seed_int, select_problems,
+    BenchParser,
+    add_out_argument,
+    budget_int,
+    fail,
+    non_negative_int,
+    resolve_out,
+    seed_int,
+    select_problems,
 )
 from gaintune.bench.references import reference_for, reference_summary
 from gaintune.bench.suite import (
     BenchCase,
     describe_problems,
-    timed_row,
     suite_names,
+    timed_row,
 )
+from gaintune.fmt import fmt
 
 if TYPE_CHECKING:  # pragma: no cover
     from gaintune.spec import Gains
@@ -128,9 +136,10 @@ def _jsonable(x: Any) -> Any:
 def _verification_figures(report: VerificationReport) -> dict[str, Any]:
     """Binding GM (dB, min), PM (deg, min), Ms (max) over loops/break points, verdict and reasons."""
     loops = report.loops
-    return {"gm_db": min((f.gm_db for f in loops), default=None), "pm_deg": min((f.pm_deg for f in loops), default=None),
-            "ms": max((f.ms for f in loops), default=None), "stable": report.stability.stable, "verdict": report.verdict,
-            "reasons": list(report.reasons)}
+    return {"gm_db": min((f.gm_db for f in loops), default=None),
+            "pm_deg": min((f.pm_deg for f in loops), default=None),
+            "ms": max((f.ms for f in loops), default=None), "stable": report.stability.stable,
+            "verdict": report.verdict, "reasons": list(report.reasons)}
 
 
 def gain_figures(problem_obj, gains: Gains, report: VerificationReport | None = None) -> dict[str, Any]:
@@ -153,7 +162,7 @@ def gain_figures(problem_obj, gains: Gains, report: VerificationReport | None = 
     measure = spec.objective.measure
     over: list[float] = []
     diverged = False
-    for sc, r in zip(spec.scenarios, results):
+    for sc, r in zip(spec.scenarios, results, strict=True):  # one result per scenario
         m = r.metrics
         iae += sc.weight * float(m["iae"][0])
         perf += sc.weight * float(m[measure][0])
@@ -188,8 +197,10 @@ def gain_figures(problem_obj, gains: Gains, report: VerificationReport | None = 
 # ------------------------------------------------------------------ running
 
 
-def run_method(problem: BenchCase, method: str, *, seed: int = 0, budget: int | None = None,
-               reference: dict[str, Any] | None = None, agent_overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+def run_method(
+    problem: BenchCase, method: str, *, seed: int = 0, budget: int | None = None,
+    reference: dict[str, Any] | None = None, agent_overrides: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     """One (problem, method) row: applicability, gains, cost, metrics, verification, sims, wall time."""
     from gaintune.baselines import run_baseline
     from gaintune.envs.problem import GainProblem
@@ -207,15 +218,15 @@ def run_method(problem: BenchCase, method: str, *, seed: int = 0, budget: int | 
     elif method == "rl":
         from gaintune.search import tune
 
-        res = tune(spec, verify=True, agent_overrides=agent_overrides)
-        gains, sims, wall, report = res.gains, res.sims, res.wall_time, res.verification
-        extra = {"rl_cost": res.rl_cost, "policy_cost": res.policy_cost, "gains_source": res.gains_source,
-                 "rl_sims": res.rl_sims}
+        tr = tune(spec, verify=True, agent_overrides=agent_overrides)
+        gains, sims, wall, report = tr.gains, tr.sims, tr.wall_time, tr.verification
+        extra = {"rl_cost": tr.rl_cost, "policy_cost": tr.policy_cost, "gains_source": tr.gains_source,
+                 "rl_sims": tr.rl_sims}
     else:
-        res = run_baseline(spec, method, budget=spec.search.budget, seed=seed, evaluator=gp.evaluator)
-        if res.gains is None:
-            return {**row, "applicable": False, "reason": res.reason, "wall_time": res.wall_time}
-        gains, sims, wall = res.gains, res.n_sims, res.wall_time
+        br = run_baseline(spec, method, budget=spec.search.budget, seed=seed, evaluator=gp.evaluator)
+        if br.gains is None:
+            return {**row, "applicable": False, "reason": br.reason, "wall_time": br.wall_time}
+        gains, sims, wall = br.gains, br.n_sims, br.wall_time
     row.update(gains=gains, sims=int(sims), wall_time=float(wall), **extra)
     row.update(gain_figures(gp, gains, report))
     return row
@@ -245,7 +256,7 @@ def run_compare(
         refs[p.name] = reference_summary(ref, "exact")
         for m in methods:
             row, elapsed = timed_row(
-                lambda: runner(p, m, seed=seed, budget=budget, reference=ref),
+                functools.partial(runner, p, m, seed=seed, budget=budget, reference=ref),
                 {"problem": p.name, "method": m, "applicable": True, "cost": None},
             )
             row["ratio"] = ratio(row.get("cost"), ref.get("cost")) if row.get("applicable") else None
@@ -300,83 +311,101 @@ def _cost_cell(r: dict[str, Any]) -> Any:
     return r.get("cost")
 
 
+#: What the comparison's figures mean (the report's opening paragraph).
+_LEGEND = (
+    "Ratio = cost / reference optimum (1 = optimal). GM (dB) and PM (deg) are the smallest, Ms the largest "
+    "over loops and break points (loop-at-a-time, from `verify()`); the verdict checks the problem's "
+    "requirements. perf = the objective's performance measure (IAE, or ISE for the LQ problem) and effort = "
+    "int u^2, both summed over scenarios; overshoot is the largest over scenarios. Sims = closed-loop "
+    "simulations spent (rules: 1; reference: its own multistart budget, cached)."
+)
+
+
 def render_markdown(result: dict[str, Any], command: str = "") -> str:
     """The comparison as Markdown: one table per problem, a ratio matrix, the per-method summary."""
-    methods = result["methods"]
-    rows = result["rows"]
     lines = [f"# gaintune bench compare: suite `{result['suite']}`", ""]
     if command:
         lines += [f"Command: `{command}`", ""]
-    lines += [
-        "Ratio = cost / reference optimum (1 = optimal). GM (dB) and PM (deg) are the smallest, Ms the largest "
-        "over loops and break points (loop-at-a-time, from `verify()`); the verdict checks the problem's "
-        "requirements. perf = the objective's performance measure (IAE, or ISE for the LQ problem) and effort = "
-        "int u^2, both summed over scenarios; overshoot is the largest over scenarios. Sims = closed-loop "
-        "simulations spent (rules: 1; reference: its own multistart budget, cached).",
-        "",
-        "## Summary per method",
-        "",
-    ]
-    head = ["method", "applied", "n/a", "median ratio", "worst ratio", "pass rate", "diverged", "median sims", "max wall s"]
-    body = []
-    for m in methods:
-        s = result["summary"][m]
-        pr = None if s["pass_rate"] is None else f"{s['pass']}/{s['applied']}"
-        body.append([m, s["applied"], s["n_a"], fmt_ratio(s["median_ratio"]), fmt_ratio(s["worst_ratio"]), pr, s["diverged"],
-                     s["median_sims"], s["max_wall_time"]])
-    lines += [md_table(head, body), "", "## Ratio to the reference optimum", ""]
-    probs = [p["name"] for p in result["problems"]]
-    by = {(r["problem"], r["method"]): r for r in rows}
-    mat = []
-    for pn in probs:
-        cells: list[Any] = [pn]
-        for m in methods:
-            r = by.get((pn, m))
-            if r is None:
-                cells.append("-")
-            elif not r.get("applicable"):
-                cells.append("n/a")
-            elif r.get("error"):
-                cells.append("error")
-            else:
-                v = r.get("ratio")
-                mark = "" if r.get("verdict") == "pass" else "*"
-                cells.append(fmt_ratio(v) + mark)
-        mat.append(cells)
-    lines += [md_table(["problem", *methods], mat), "", "`*` = verification verdict fail; n/a = method does not apply.", ""]
+    lines += [_LEGEND, "", "## Summary per method", ""]
+    lines += [_summary_table(result), "", "## Ratio to the reference optimum", ""]
+    by = {(r["problem"], r["method"]): r for r in result["rows"]}
+    lines += [_ratio_matrix(result, by), "", "`*` = verification verdict fail; n/a = method does not apply.", ""]
     lines += ["## Per problem", ""]
-    head = ["method", "cost", "ratio", "perf", "effort", "overshoot %", "GM dB", "PM deg", "Ms", "verdict", "sims", "wall s"]
     for p in result["problems"]:
-        ref = result["references"].get(p["name"], {})
-        lines += [
-            f"### {p['name']}: {p['title']}",
-            "",
-            f"Objective {p['objective']}; requirements {p['requirements']}; budget {p['budget']} simulations; "
-            f"reference cost {fmt(ref.get('cost'), 7)} ({ref.get('source')}).",
-            "",
-        ]
-        body = []
-        notes = []
-        for m in methods:
-            r = by.get((p["name"], m))
-            if r is None:
-                continue
-            if not r.get("applicable"):
-                body.append([m, "n/a", "-", "-", "-", "-", "-", "-", "-", "-", "-", r.get("wall_time")])
-                notes.append(f"- {m}: n/a - {r.get('reason')}")
-                continue
-            body.append([m, _cost_cell(r), fmt_ratio(r.get("ratio")), r.get("perf"), r.get("effort"), r.get("overshoot"),
-                         r.get("gm_db"), r.get("pm_deg"), r.get("ms"), r.get("verdict"), r.get("sims"), r.get("wall_time")])
-            if r.get("error"):
-                notes.append(f"- {m}: error - {r['error']}")
-        lines += [md_table(head, body), ""]
-        if notes:
-            lines += notes + [""]
+        lines += _problem_section(result, p, by)
     return "\n".join(lines).rstrip() + "\n"
 
 
+def _summary_table(result: dict[str, Any]) -> str:
+    """One row per method: applicability, median and worst ratio, pass rate, divergences, spend."""
+    head = ["method", "applied", "n/a", "median ratio", "worst ratio", "pass rate", "diverged", "median sims",
+            "max wall s"]
+    body = []
+    for m in result["methods"]:
+        s = result["summary"][m]
+        pr = None if s["pass_rate"] is None else f"{s['pass']}/{s['applied']}"
+        body.append([m, s["applied"], s["n_a"], fmt_ratio(s["median_ratio"]), fmt_ratio(s["worst_ratio"]), pr,
+                     s["diverged"], s["median_sims"], s["max_wall_time"]])
+    return md_table(head, body)
+
+
+def _ratio_cell(r: dict[str, Any] | None) -> str:
+    """A ratio-matrix cell: the ratio (``*`` when verification fails), or -, n/a, error."""
+    if r is None:
+        return "-"
+    if not r.get("applicable"):
+        return "n/a"
+    if r.get("error"):
+        return "error"
+    mark = "" if r.get("verdict") == "pass" else "*"
+    return fmt_ratio(r.get("ratio")) + mark
+
+
+def _ratio_matrix(result: dict[str, Any], by: dict[tuple[str, str], dict[str, Any]]) -> str:
+    """Problems down, methods across: every row's ratio to the reference optimum."""
+    methods = result["methods"]
+    mat = [[p["name"], *(_ratio_cell(by.get((p["name"], m))) for m in methods)] for p in result["problems"]]
+    return md_table(["problem", *methods], mat)
+
+
+def _problem_section(result: dict[str, Any], p: dict[str, Any], by: dict[tuple[str, str], dict[str, Any]]) -> list[str]:
+    """One problem's heading, objective and reference, its table of methods and the n/a or error notes."""
+    head = ["method", "cost", "ratio", "perf", "effort", "overshoot %", "GM dB", "PM deg", "Ms", "verdict", "sims",
+            "wall s"]
+    ref = result["references"].get(p["name"], {})
+    lines = [
+        f"### {p['name']}: {p['title']}",
+        "",
+        f"Objective {p['objective']}; requirements {p['requirements']}; budget {p['budget']} simulations; "
+        f"reference cost {fmt(ref.get('cost'), 7)} ({ref.get('source')}).",
+        "",
+    ]
+    body: list[list[Any]] = []
+    notes = []
+    for m in result["methods"]:
+        r = by.get((p["name"], m))
+        if r is None:
+            continue
+        if not r.get("applicable"):
+            body.append([m, "n/a", "-", "-", "-", "-", "-", "-", "-", "-", "-", r.get("wall_time")])
+            notes.append(f"- {m}: n/a - {r.get('reason')}")
+            continue
+        body.append([m, _cost_cell(r), fmt_ratio(r.get("ratio")), r.get("perf"), r.get("effort"), r.get("overshoot"),
+                     r.get("gm_db"), r.get("pm_deg"), r.get("ms"), r.get("verdict"), r.get("sims"),
+                     r.get("wall_time")])
+        if r.get("error"):
+            notes.append(f"- {m}: error - {r['error']}")
+    lines += [md_table(head, body), ""]
+    if notes:
+        lines += notes + [""]
+    return lines
+
+
 def write_outputs(result: dict[str, Any], out_dir: Path, stem: str, markdown: str) -> tuple[Path, Path]:
-    """Write ``<stem>.json`` and ``<stem>.md`` to ``out_dir`` (created if missing); exit 2 naming ``--out`` if it cannot."""
+    """Write ``<stem>.json`` and ``<stem>.md`` to ``out_dir`` (created if missing).
+
+    Exits 2 naming ``--out`` when they cannot be written.
+    """
     out_dir = Path(out_dir)
     jp, mp = out_dir / f"{stem}.json", out_dir / f"{stem}.md"
     try:  # --out was checked at parse time; this catches a folder removed or filled since
@@ -404,18 +433,22 @@ def set_threads(n: int | None) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The options of ``gaintune bench compare``."""
     from gaintune.baselines import METHODS
 
     ap = BenchParser(
         prog="gaintune bench compare",
-        description="Compare classical rules, black-box optimisers, the RL search and the reference optimum on a benchmark suite.",
+        description="Compare classical rules, black-box optimisers, the RL search and the reference optimum on a "
+        "benchmark suite.",
     )
     ap.add_argument("--suite", default="default", choices=suite_names(), help="benchmark suite (default: default)")
     ap.add_argument("--problems", nargs="+", metavar="NAME", help="only these problems of the suite")
     ap.add_argument("--methods", nargs="+", metavar="METHOD", default=list(DEFAULT_METHODS), choices=[*METHODS, "rl"],
-                    help=f"methods in table order, from {' '.join([*METHODS, 'rl'])} (default: {' '.join(DEFAULT_METHODS)})")
+                    help=f"methods in table order, from {' '.join([*METHODS, 'rl'])} "
+                    f"(default: {' '.join(DEFAULT_METHODS)})")
     ap.add_argument("--seed", type=seed_int, default=0, help="seed of the stochastic methods (default 0)")
-    ap.add_argument("--budget", type=budget_int, help="simulation budget of every problem (default: each problem's own)")
+    ap.add_argument("--budget", type=budget_int,
+                    help="simulation budget of every problem (default: each problem's own)")
     add_out_argument(ap)
     ap.add_argument("--refresh-reference", action="store_true", help="recompute the cached reference optima")
     ap.add_argument("--threads", type=non_negative_int, default=0,

@@ -24,15 +24,22 @@ from typing import Any
 import numpy as np
 
 from gaintune.bench.arguments import (
-    MAX_BATCH, BenchParser, add_out_argument, float_range, int_range, resolve_out, seed_int, select_problems,
+    MAX_BATCH,
+    BenchParser,
+    add_out_argument,
+    float_range,
+    int_range,
+    resolve_out,
+    seed_int,
+    select_problems,
 )
 from gaintune.bench.compare import md_table, write_outputs
-from gaintune.bench.suite import suite_names
+from gaintune.bench.suite import BenchCase, suite_names
 
 __all__ = ["agreement", "main"]
 
 
-def _boundary_point(ev) -> np.ndarray | None:
+def _boundary_point(ev: Any) -> np.ndarray | None:
     """The start gains scaled (every tuned gain by one factor) onto the exact requirement boundary, or None."""
     from gaintune.evaluation.boundary_exact import normalised_margin
     from gaintune.verification import verify
@@ -59,7 +66,7 @@ def _boundary_point(ev) -> np.ndarray | None:
     return t0 * good
 
 
-def agreement(problem, n: int = 200, spread: float = 0.03, seed: int = 0) -> dict[str, Any]:
+def agreement(problem: BenchCase, n: int = 200, spread: float = 0.03, seed: int = 0) -> dict[str, Any]:
     """Agreement of the searched constraint with the verdict on ``n`` candidates near the boundary."""
     from gaintune.evaluation.boundary_exact import normalised_margin
     from gaintune.evaluation.search_box import make_evaluator
@@ -96,6 +103,7 @@ def agreement(problem, n: int = 200, spread: float = 0.03, seed: int = 0) -> dic
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The options of ``gaintune bench constraints``."""
     ap = BenchParser(prog="gaintune bench constraints", description=__doc__.splitlines()[0])
     ap.add_argument("--suite", default="standard", choices=suite_names())
     ap.add_argument("--problems", nargs="+", metavar="NAME")
@@ -109,6 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """``gaintune bench constraints``: the agreement on every problem of the suite, printed and written to ``--out``."""
     args = build_parser().parse_args(argv)
     problems = select_problems(args.suite, args.problems)
     out = resolve_out(args.out)
@@ -126,10 +135,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         [[r["problem"], r["n"], r.get("agree_pct"), r.get("feasible_exact"), r.get("search_says_feasible_exact_fails"),
           r.get("search_says_infeasible_exact_passes"), r.get("max_abs_margin_of_disagreement")] for r in rows],
     )
-    summary = f"overall: {agree}/{total} candidates agree ({100.0 * agree / max(total, 1):.2f} %), spread {args.spread:g}"
+    summary = (f"overall: {agree}/{total} candidates agree ({100.0 * agree / max(total, 1):.2f} %), "
+               f"spread {args.spread:g}")
     print(table)
     print(summary)
     write_outputs({"rows": rows, "summary": summary, "spread": args.spread, "n": args.n},
                   out, f"constraints_{args.suite}",
                   f"# gaintune bench constraints --suite {args.suite}\n\n{table}\n\n{summary}\n")
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

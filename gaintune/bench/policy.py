@@ -15,6 +15,7 @@ from __future__ import annotations
 import tempfile
 import time
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -33,7 +34,7 @@ FAMILY = {
 }
 
 
-def measure(budget: int, points: int, seed: int) -> tuple[list[list], dict]:
+def measure(budget: int, points: int, seed: int) -> tuple[list[list[Any]], dict[str, Any]]:
     """Rows ``[what, figure, unit]`` and the raw figures."""
     from gaintune.search.policy import PolicyTuner
     from gaintune.search.tune import tune
@@ -53,12 +54,15 @@ def measure(budget: int, points: int, seed: int) -> tuple[list[list], dict]:
     answers = tuner.schedule(grid)
     ms = np.array([a.elapsed_ms for a in answers])
     passed = sum(a.verdict == "pass" for a in answers)
-    raw = {"budget": budget, "seed": seed, "search_s": search_s, "search_verdict": result.verdict, "load_s": load_s,
-           "answers": len(answers), "passed": passed, "median_ms": float(np.median(ms)),
-           "p95_ms": float(np.percentile(ms, 95)), "max_ms": float(ms.max())}
+    raw: dict[str, Any] = {
+        "budget": budget, "seed": seed, "search_s": search_s, "search_verdict": result.verdict, "load_s": load_s,
+        "answers": len(answers), "passed": passed, "median_ms": float(np.median(ms)),
+        "p95_ms": float(np.percentile(ms, 95)), "max_ms": float(ms.max()),
+    }
     rows = [
         [f"search that trained the policy ({budget:,} sims, verdict {result.verdict})", f"{search_s:.2f}", "s"],
-        ["load the tuner here (torch loaded, search box cached; a fresh process adds the ~2 s import)", f"{load_s:.2f}", "s"],
+        ["load the tuner here (torch loaded, search box cached; a fresh process adds the ~2 s import)",
+         f"{load_s:.2f}", "s"],
         [f"answer one plant, median of {len(answers)}", f"{raw['median_ms']:.1f}", "ms"],
         ["answer one plant, p95", f"{raw['p95_ms']:.1f}", "ms"],
         ["answer one plant, max", f"{raw['max_ms']:.1f}", "ms"],
@@ -69,9 +73,12 @@ def measure(budget: int, points: int, seed: int) -> tuple[list[list], dict]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """``gaintune bench policy``: train, load and answer; print the table and write it to ``--out``."""
     ap = BenchParser(prog="gaintune bench policy", description=__doc__.splitlines()[0])
-    ap.add_argument("--budget", type=budget_int, default=3000, help="simulations of the training search (default 3000)")
-    ap.add_argument("--points", type=int_range(1, 10_000), default=25, help="plants answered (a K x T grid, default 25)")
+    ap.add_argument("--budget", type=budget_int, default=3000,
+                    help="simulations of the training search (default 3000)")
+    ap.add_argument("--points", type=int_range(1, 10_000), default=25,
+                    help="plants answered (a K x T grid, default 25)")
     ap.add_argument("--seed", type=seed_int, default=0, help="seed of the training search (default 0)")
     add_out_argument(ap)
     args = ap.parse_args(argv)
@@ -79,7 +86,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows, raw = measure(args.budget, args.points, args.seed)
     table = md_table(["what", "figure", "unit"], rows)
     print(table)
-    _, md = write_outputs(raw, out, "policy",
-                          f"# gaintune bench policy --budget {args.budget} --points {args.points} --seed {args.seed}\n\n{table}\n")
+    title = f"# gaintune bench policy --budget {args.budget} --points {args.points} --seed {args.seed}"
+    _, md = write_outputs(raw, out, "policy", f"{title}\n\n{table}\n")
     print(f"wrote {md}")
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -16,6 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -69,7 +70,7 @@ def _search_box(spec: TuningSpec) -> list[list[float]]:
     return [[float(f"{lo:.9g}"), float(f"{hi:.9g}")] for lo, hi in (s.bounds for s in layout.tuned_slots)]
 
 
-def exact_optimum(problem: BenchCase, evaluator) -> dict[str, Any] | None:
+def exact_optimum(problem: BenchCase, evaluator: Any) -> dict[str, Any] | None:
     """Known exact optimum of ``problem`` as ``{"gains", "cost", "method"}``, or None.
 
     ``dlqr``: the discrete Riccati gain for Q = C'C dt, R = effort_weight dt on
@@ -87,27 +88,28 @@ def exact_optimum(problem: BenchCase, evaluator) -> dict[str, Any] | None:
 
     spec = problem.tuning_spec()
     loop = spec.loops[-1]
-    sc = spec.scenarios[0]
+    dt = spec.scenarios[0].dt
+    assert dt is not None  # the dlqr problems give their scenario's dt
     lin = evaluator.plant.linearize()
     n = lin.A.shape[0]
     m = lin.output_index(loop.measure) if loop.measure else 0
     M = np.zeros((n + 1, n + 1))
-    M[:n, :n] = lin.A * sc.dt
-    M[:n, n:] = lin.B * sc.dt
+    M[:n, :n] = lin.A * dt
+    M[:n, n:] = lin.B * dt
     E = expm(M)
     Ad, Bd = E[:n, :n], E[:n, n:]
     C = lin.C[m : m + 1]
     w = spec.objective.effort_weight
-    Q = C.T @ C * sc.dt
-    R = np.array([[w * sc.dt]])
+    Q = C.T @ C * dt
+    R = np.array([[w * dt]])
     P = solve_discrete_are(Ad, Bd, Q, R)
     K = np.linalg.solve(R + Bd.T @ P @ Bd, Bd.T @ P @ Ad).ravel()
-    gains = {loop.name: {f"k_{s}": float(k) for s, k in zip(lin.states, K)}}
+    gains = {loop.name: {f"k_{s}": float(k) for s, k in zip(lin.states, K, strict=True)}}
     layout = evaluator.layout
     tuned = np.asarray(layout.from_dict(gains))[layout.tuned_idx]
     scores = evaluator.evaluate(tuned[None, :])
     cost = float(scores.cost[0])
-    x1 = Bd[:, 0] / sc.dt
+    x1 = Bd[:, 0] / dt
     return {
         "gains": gains,
         "cost": cost if math.isfinite(cost) else None,
@@ -125,7 +127,7 @@ def default_out_dir() -> Path:
     return Path("bench") / "results"
 
 
-def _read_cache(path) -> dict[str, Any]:
+def _read_cache(path: Path) -> dict[str, Any]:
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError):
@@ -134,7 +136,8 @@ def _read_cache(path) -> dict[str, Any]:
 
 
 def reference_for(
-    problem: BenchCase, suite: str, out_dir=None, *, refresh: bool = False, evaluator=None, log=None
+    problem: BenchCase, suite: str, out_dir: str | Path | None = None, *, refresh: bool = False,
+    evaluator: Any = None, log: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Reference optimum of ``problem``, from ``reference_<suite>.json`` in ``out_dir`` or computed and cached.
 
@@ -144,8 +147,6 @@ def reference_for(
     ``cost`` is the best of the multistart search (``run_baseline(spec, "reference")``)
     and, when known, the exact optimum.
     """
-    from pathlib import Path
-
     out = Path(out_dir) if out_dir is not None else default_out_dir()
     key = reference_key(problem)
     path = out / f"reference_{suite}.json"
@@ -190,11 +191,12 @@ def _still_valid(problem: BenchCase, entry: dict[str, Any], evaluator=None) -> b
     return math.isfinite(now) and abs(now - cost) <= RESCORE_RTOL * max(abs(cost), 1e-300)
 
 
-def _write_entry(path, key: str, entry: dict[str, Any]) -> None:
+def _write_entry(path: Path, key: str, entry: dict[str, Any]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     data = _read_cache(path)
     # one entry per problem and suite file: an older key of the same problem is stale
-    data = {k: v for k, v in data.items() if k == key or not isinstance(v, dict) or v.get("problem") != entry.get("problem")}
+    data = {k: v for k, v in data.items()
+            if k == key or not isinstance(v, dict) or v.get("problem") != entry.get("problem")}
     data[key] = entry
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
@@ -213,9 +215,13 @@ def _passes(spec: TuningSpec, gains: Gains | None) -> bool:
         return False
 
 
-def compute_reference(problem: BenchCase, *, evaluator=None, log=None) -> dict[str, Any]:
-    """Run the reference optimum (and the exact optimum when known) for ``problem``, on the exact limits
-    (no ``requirements.backoff``: the searches aim inside them, the reference is the exact-limit optimum)."""
+def compute_reference(
+    problem: BenchCase, *, evaluator: Any = None, log: Callable[[str], None] | None = None
+) -> dict[str, Any]:
+    """Run the reference optimum (and the exact optimum when known) for ``problem``, on the exact limits.
+
+    No ``requirements.backoff``: the searches aim inside the limits, the reference is the exact-limit optimum.
+    """
     import time
 
     from gaintune.baselines import run_baseline
@@ -231,8 +237,8 @@ def compute_reference(problem: BenchCase, *, evaluator=None, log=None) -> dict[s
     ex = exact_optimum(problem, ev)
     entry: dict[str, Any] = {
         "problem": problem.name,
-        "search": {"cost": r.cost, "feasible": r.feasible, "gains": r.gains, "n_sims": r.n_sims, "wall_time": r.wall_time,
-                   "winner": r.details.get("winner"), "options": problem.reference},
+        "search": {"cost": r.cost, "feasible": r.feasible, "gains": r.gains, "n_sims": r.n_sims,
+                   "wall_time": r.wall_time, "winner": r.details.get("winner"), "options": problem.reference},
         "exact": ex,
     }
     cands = [("search", r.cost, _passes(spec, r.gains), r.gains)]

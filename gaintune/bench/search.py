@@ -32,15 +32,21 @@ from pathlib import Path
 from typing import Any
 
 from gaintune.bench.arguments import (
-    BenchParser, add_out_argument, budget_int, non_negative_int, resolve_out, seed_int, select_problems,
+    BenchParser,
+    add_out_argument,
+    budget_int,
+    non_negative_int,
+    resolve_out,
+    seed_int,
+    select_problems,
 )
 from gaintune.bench.compare import fmt, fmt_ratio, md_table, ratio, set_threads, stats, write_outputs
 from gaintune.bench.references import reference_for, reference_summary
 from gaintune.bench.suite import (
     BenchCase,
     describe_problems,
-    timed_row,
     suite_names,
+    timed_row,
 )
 
 __all__ = ["run_one", "run_search", "summarize", "per_problem", "render_markdown", "main"]
@@ -116,13 +122,14 @@ def run_search(
         refs[p.name] = reference_summary(ref, "gains")
         for seed in seeds:
             row, elapsed = timed_row(
-                lambda: runner(p, seed, algo=algo, budget=budget, reference=ref),
+                functools.partial(runner, p, seed, algo=algo, budget=budget, reference=ref),
                 {"problem": p.name, "seed": seed, "algo": algo},
             )
             rows.append(_add_ratios(row, ref.get("cost")))
             if log:
                 log(f"  {p.name:<20} seed {seed}: RL/ref {fmt_ratio(row['rl_ratio'])} refined/ref "
-                    f"{fmt_ratio(row['refined_ratio'])} RL/CMA-ES {fmt_ratio(row['rl_vs_cmaes'])} sims {fmt(row.get('sims'))} {row.get('verdict')} "
+                    f"{fmt_ratio(row['refined_ratio'])} RL/CMA-ES {fmt_ratio(row['rl_vs_cmaes'])} "
+                    f"sims {fmt(row.get('sims'))} {row.get('verdict')} "
                     f"({elapsed:.1f} s)" + (f" ERROR {row['error']}" if row.get("error") else ""))
     return {
         "suite": suite,
@@ -173,21 +180,36 @@ def summarize(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+#: What the search report's ratios mean (its opening paragraph).
+_LEGEND = (
+    "RL/ref = `rl_cost` (RL agent alone: best of deterministic policy and best gains seen) / reference optimum; "
+    "refined/ref = final cost after tune()'s local polish / reference; RL/CMA-ES = `rl_cost` / CMA-ES cost at "
+    "the same number of simulations (`result.sims`). Verdict = `verify()` of the frozen gains against the "
+    "problem's requirements."
+)
+
+
 def render_markdown(result: dict[str, Any], command: str = "") -> str:
     """Runs table, per-problem table and summary as Markdown."""
     lines = [f"# gaintune bench search: suite `{result['suite']}`, algo `{result['algo']}`", ""]
     if command:
         lines += [f"Command: `{command}`", ""]
-    lines += [
-        "RL/ref = `rl_cost` (RL agent alone: best of deterministic policy and best gains seen) / reference optimum; "
-        "refined/ref = final cost after tune()'s local polish / reference; RL/CMA-ES = `rl_cost` / CMA-ES cost at "
-        "the same number of simulations (`result.sims`). Verdict = `verify()` of the frozen gains against the "
-        "problem's requirements.",
-        "",
-        "## Summary",
-        "",
-    ]
-    s = result["summary"]
+    lines += [_LEGEND, "", "## Summary", ""]
+    lines += _summary_section(result["summary"])
+    lines += ["## Per problem (over seeds: median, worst in brackets)", ""]
+    lines += [_per_problem_table(result), "", "## Runs", ""]
+    lines += [_runs_table(result["rows"]), ""]
+    fails = [(r["problem"], r["seed"], r.get("error") or "; ".join(r.get("reasons") or []))
+             for r in result["rows"] if r.get("error") or r.get("verdict") == "fail"]
+    if fails:
+        lines += ["Verification failures and errors:", ""]
+        lines += [f"- {p} seed {s}: {why}" for p, s, why in fails]
+        lines.append("")
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def _summary_section(s: dict[str, Any]) -> list[str]:
+    """Median and worst of each ratio over all runs, then one line of counts, spend and pass rate."""
 
     def mw(st: dict[str, Any]) -> list[Any]:
         return [fmt_ratio(st["median"]), fmt_ratio(st["worst"])]
@@ -198,49 +220,51 @@ def render_markdown(result: dict[str, Any], command: str = "") -> str:
         ["RL/CMA-ES (same sims)", *mw(s["rl_vs_cmaes"])],
         ["CMA-ES/ref (same sims)", *mw(s["cmaes_ratio"])],
     ]
-    lines += [md_table(["ratio", "median", "worst"], body), ""]
     pr = f"{s['pass']}/{s['runs']}" if s["runs"] else "-"
-    lines += [
+    return [
+        md_table(["ratio", "median", "worst"], body),
+        "",
         f"Runs: {s['runs']} (errors: {s['errors']}); max simulations {fmt(s['max_sims'])}; wall time median "
         f"{fmt(s['median_wall_time'], 3)} s, max {fmt(s['max_wall_time'], 3)} s; verification pass rate {pr}.",
         "",
-        "## Per problem (over seeds: median, worst in brackets)",
-        "",
     ]
 
-    def mwcell(st: dict[str, Any]) -> str:
-        if not st["n"]:
-            return "-"
-        return fmt_ratio(st["median"]) if st["n"] == 1 else f"{fmt_ratio(st['median'])} ({fmt_ratio(st['worst'])})"
 
+def _median_worst_cell(st: dict[str, Any]) -> str:
+    """``median (worst)`` of a ratio over seeds; the median alone for one seed, - for none."""
+    if not st["n"]:
+        return "-"
+    return fmt_ratio(st["median"]) if st["n"] == 1 else f"{fmt_ratio(st['median'])} ({fmt_ratio(st['worst'])})"
+
+
+def _per_problem_table(result: dict[str, Any]) -> str:
+    """One row per problem: reference cost, each ratio over its seeds, passes, spend and requirements."""
     titles = {p["name"]: p for p in result["problems"]}
     body = []
     for name, pp in result["per_problem"].items():
         ref = result["references"].get(name, {})
-        body.append([name, ref.get("cost"), mwcell(pp["rl_ratio"]), mwcell(pp["refined_ratio"]),
-                     mwcell(pp["rl_vs_cmaes"]), f"{pp['pass']}/{pp['runs']}", pp["max_sims"], pp["max_wall_time"],
+        body.append([name, ref.get("cost"), _median_worst_cell(pp["rl_ratio"]),
+                     _median_worst_cell(pp["refined_ratio"]), _median_worst_cell(pp["rl_vs_cmaes"]),
+                     f"{pp['pass']}/{pp['runs']}", pp["max_sims"], pp["max_wall_time"],
                      titles.get(name, {}).get("requirements", "")])
-    lines += [md_table(["problem", "reference", "RL/ref", "refined/ref", "RL/CMA-ES", "pass", "max sims", "max wall s",
-                        "requirements"], body), "", "## Runs", ""]
+    return md_table(["problem", "reference", "RL/ref", "refined/ref", "RL/CMA-ES", "pass", "max sims", "max wall s",
+                     "requirements"], body)
+
+
+def _runs_table(rows: list[dict[str, Any]]) -> str:
+    """One row per (problem, seed) run: costs, ratios, spend, where the answer came from and the verdict."""
     body = []
-    for r in result["rows"]:
+    for r in rows:
         body.append([r["problem"], r["seed"], r.get("reference_cost"), r.get("rl_cost"), fmt_ratio(r.get("rl_ratio")),
-                     r.get("cost"), fmt_ratio(r.get("refined_ratio")), r.get("cmaes_cost"), fmt_ratio(r.get("rl_vs_cmaes")),
-                     r.get("sims"),
-                     r.get("rl_sims"), r.get("wall_time"), r.get("gains_source"),
-                     "error" if r.get("error") else r.get("verdict")])
-    lines += [md_table(["problem", "seed", "reference", "RL cost", "RL/ref", "refined", "refined/ref", "CMA-ES",
-                        "RL/CMA-ES", "sims", "RL sims", "wall s", "answer", "verdict"], body), ""]
-    fails = [(r["problem"], r["seed"], r.get("error") or "; ".join(r.get("reasons") or []))
-             for r in result["rows"] if r.get("error") or r.get("verdict") == "fail"]
-    if fails:
-        lines += ["Verification failures and errors:", ""]
-        lines += [f"- {p} seed {s}: {why}" for p, s, why in fails]
-        lines.append("")
-    return "\n".join(lines).rstrip() + "\n"
+                     r.get("cost"), fmt_ratio(r.get("refined_ratio")), r.get("cmaes_cost"),
+                     fmt_ratio(r.get("rl_vs_cmaes")), r.get("sims"), r.get("rl_sims"), r.get("wall_time"),
+                     r.get("gains_source"), "error" if r.get("error") else r.get("verdict")])
+    return md_table(["problem", "seed", "reference", "RL cost", "RL/ref", "refined", "refined/ref", "CMA-ES",
+                     "RL/CMA-ES", "sims", "RL sims", "wall s", "answer", "verdict"], body)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The options of ``gaintune bench search``."""
     from gaintune.search.algos import ALGO_NAMES
 
     ap = BenchParser(
@@ -250,7 +274,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--suite", default="default", choices=suite_names(), help="benchmark suite (default: default)")
     ap.add_argument("--problems", nargs="+", metavar="NAME", help="only these problems of the suite")
     ap.add_argument("--algo", default="ppo", choices=sorted(ALGO_NAMES), help="RL algorithm (default ppo)")
-    ap.add_argument("--budget", type=budget_int, help="simulation budget of every problem (default: each problem's own)")
+    ap.add_argument("--budget", type=budget_int,
+                    help="simulation budget of every problem (default: each problem's own)")
     ap.add_argument("--seeds", nargs="+", type=seed_int, default=[0, 1, 2], help="seeds (default 0 1 2)")
     add_out_argument(ap)
     ap.add_argument("--refresh-reference", action="store_true", help="recompute the cached reference optima")

@@ -23,11 +23,15 @@ runs as well and the better of the two (feasibility first) is the reference.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-__all__ = ["standard_problems", "cascade_problems", "six_lag_cascade", "migo_reference", "STANDARD_MS", "STANDARD_MS_UNSTABLE"]
+__all__ = [
+    "standard_problems", "cascade_problems", "six_lag_cascade", "migo_reference", "STANDARD_MS",
+    "STANDARD_MS_UNSTABLE",
+]
 
 #: The sensitivity limit of the load set (MIGO / AMIGO).
 STANDARD_MS = 1.4
@@ -38,15 +42,18 @@ STANDARD_MS_UNSTABLE = 2.0
 _PROCESSES: list[tuple[str, str, Any, Any, float, float, float, str]] = [
     ("lag3", "1/(s+1)^3", [1], "(s+1)^3", 0.0, 0.05, 40.0, "lag"),
     ("lag8", "1/(s+1)^8", [1], "(s+1)^8", 0.0, 0.1, 120.0, "lag"),
-    ("lags02", "1/((1+s)(1+0.2s)(1+0.04s)(1+0.008s))", [1], "(s+1)*(0.2*s+1)*(0.04*s+1)*(0.008*s+1)", 0.0, 0.004, 12.0, "lag"),
+    ("lags02", "1/((1+s)(1+0.2s)(1+0.04s)(1+0.008s))", [1], "(s+1)*(0.2*s+1)*(0.04*s+1)*(0.008*s+1)", 0.0, 0.004,
+     12.0, "lag"),
     ("nmp05", "(1-0.5s)/(s+1)^3", [-0.5, 1], "(s+1)^3", 0.0, 0.05, 40.0, "nmp"),
     ("fotd01", "e^{-s}/(1+10s) (L/T = 0.1)", [1], [10, 1], 1.0, 0.05, 60.0, "delay"),
     ("fotd1", "e^{-s}/(1+s) (L/T = 1)", [1], [1, 1], 1.0, 0.02, 30.0, "delay"),
     ("fotd10", "e^{-s}/(1+0.1s) (L/T = 10)", [1], [0.1, 1], 1.0, 0.01, 30.0, "delay"),
-    ("osc2", "4/((s+1)(s^2+0.4s+4)) (w0 = 2, zeta = 0.1)", [4], "(s+1)*(s^2+0.4*s+4)", 0.0, 0.02, 60.0, "oscillatory"),
+    ("osc2", "4/((s+1)(s^2+0.4s+4)) (w0 = 2, zeta = 0.1)", [4], "(s+1)*(s^2+0.4*s+4)", 0.0, 0.02, 60.0,
+     "oscillatory"),
     ("integ", "e^{-s}/(s(1+0.5s))", [1], "s*(0.5*s+1)", 1.0, 0.02, 60.0, "integrating"),
     ("unstable", "e^{-0.1s}/(s-1)", [1], [1, -1], 0.1, 0.005, 15.0, "unstable"),
-    ("fastslow", "(100(s+0.05)+50(s+1))/((s+10)^2(s+1)(s+0.05))", [150, 55], "(s+10)^2*(s+1)*(s+0.05)", 0.0, 0.02, 60.0, "lag"),
+    ("fastslow", "(100(s+0.05)+50(s+1))/((s+10)^2(s+1)(s+0.05))", [150, 55], "(s+10)^2*(s+1)*(s+0.05)", 0.0, 0.02,
+     60.0, "lag"),
     ("thermal", "2e^{-10s}/(60s+1)", [2], [60, 1], 10.0, 0.5, 600.0, "delay"),
 ]
 
@@ -61,9 +68,9 @@ def _plant(num: Any, den: Any, delay: float) -> dict[str, Any]:
     return p
 
 
-def standard_problems(problem_cls) -> list:
+def standard_problems(problem_cls: Callable[..., Any]) -> list[Any]:
     """The suite's problems as ``problem_cls(name, title, spec, family, reference=..., exact=..., note=...)``."""
-    out = []
+    out: list[Any] = []
     ref_opts = {"restarts": 3, "sims_per_restart": 4000, "polish": False}
     for name, title, num, den, delay, dt, horizon, family in _PROCESSES:
         ms = STANDARD_MS_UNSTABLE if family == "unstable" else STANDARD_MS
@@ -123,7 +130,7 @@ def six_lag_cascade(budget: int = 20000) -> dict[str, Any]:
     }
 
 
-def cascade_problems(problem_cls, model_spec) -> list:
+def cascade_problems(problem_cls: Callable[..., Any], model_spec: Callable[[str, int], dict[str, Any]]) -> list[Any]:
     """The ``cascades`` suite: the six-lag cascade (20,000 simulations), the DC-motor and quadrotor cascades."""
     ref = {"restarts": 2, "sims_per_restart": 5000, "polish": False}
     return [
@@ -136,7 +143,55 @@ def cascade_problems(problem_cls, model_spec) -> list:
     ]
 
 
-def migo_reference(problem, evaluator) -> dict[str, Any] | None:
+class _SampledResponse:
+    """The sampled loop verification analyses (ZOH plant, backward-Euler integral) as a frequency response.
+
+    ``integrator(w)`` is the integral law's response (:mod:`gaintune.classical.migo` uses it when present).
+    """
+
+    def __init__(self, sp: Any, m: int, dt: float) -> None:
+        self.sp, self.m, self.dt = sp, m, dt
+
+    def __call__(self, w: np.ndarray) -> np.ndarray:
+        w = np.asarray(w, dtype=float)
+        return self.sp.responses(np.exp(1j * w.ravel() * self.dt))[1][:, self.m].reshape(w.shape)
+
+    def integrator(self, w: np.ndarray) -> np.ndarray:
+        """dt / (1 - e^{-jw dt}): the backward-Euler integral."""
+        return self.dt / (1.0 - np.exp(-1j * np.asarray(w, dtype=float) * self.dt))
+
+
+def _migo_loop(spec: Any, plant: Any, lin: Any, m: int, dt: float) -> tuple[Callable[[np.ndarray], np.ndarray], float]:
+    """The loop's frequency response as verification sees it, and the top of its frequency range (rad/s)."""
+    from gaintune.lti.modes import plant_state_response
+    from gaintune.verification.analysis import sampling_delay
+    from gaintune.verification.sampled import sample_plant
+
+    if spec.verify.sampled:
+        sp = sample_plant(lin, dt, spec.verify.compute_delay, plant.kind == "nonlinear")
+        return _SampledResponse(sp, m, dt), np.pi / dt
+    T = lin.delay + sampling_delay(spec)
+
+    def G(w: np.ndarray) -> np.ndarray:
+        w = np.asarray(w, dtype=float)
+        s = 1j * w.ravel()
+        y = plant_state_response(lin, s) @ lin.C[m] + lin.D[m, 0]
+        return (y * np.exp(-s * T)).reshape(w.shape)
+
+    return G, 10 * np.pi / dt
+
+
+def _migo_grid(lin: Any, dt: float, w_top: float, sampled: bool) -> np.ndarray:
+    """2,000 log-spaced frequencies from 1/1000 of the slowest pole (or 1/(delay + dt)) to the top."""
+    poles = np.linalg.eigvals(lin.A) if lin.A.size else np.zeros(0)
+    T_all = lin.delay + dt
+    fast = max([abs(p) for p in poles if abs(p) > 1e-9] + [1.0 / T_all] + [1e-3])
+    slow = min([abs(p) for p in poles if abs(p) > 1e-9] + [fast])
+    top = w_top * (1 - 1e-9) if sampled else min(fast * 100.0, w_top)  # sampled: up to pi/dt
+    return np.geomspace(slow / 1000.0, top, 2000)
+
+
+def migo_reference(problem: Any, evaluator: Any) -> dict[str, Any] | None:
     """The MIGO boundary optimum of a PI problem with an Ms limit, scored by ``evaluator``.
 
     The loop is the one verification analyses: the plant's linearisation, its delay plus
@@ -145,9 +200,6 @@ def migo_reference(problem, evaluator) -> dict[str, Any] | None:
     with an Ms limit.
     """
     from gaintune.classical.migo import boundary_optimum
-    from gaintune.lti.modes import plant_state_response
-    from gaintune.verification.analysis import sampling_delay
-    from gaintune.verification.sampled import sample_plant
 
     spec = evaluator.spec
     loop = spec.loops[0]
@@ -157,38 +209,8 @@ def migo_reference(problem, evaluator) -> dict[str, Any] | None:
     lin = evaluator.plant.linearize()
     m = lin.output_index(loop.measure) if loop.measure else 0
     dt = max(sc.dt for sc in spec.scenarios)
-
-    if spec.verify.sampled:  # the loop verification analyses: ZOH plant, backward-Euler integral
-        sp = sample_plant(lin, dt, spec.verify.compute_delay, evaluator.plant.kind == "nonlinear")
-
-        class G:  # noqa: N801 - a frequency response with its integral law (gaintune.classical.migo)
-            def __call__(self, w: np.ndarray) -> np.ndarray:
-                w = np.asarray(w, dtype=float)
-                return sp.responses(np.exp(1j * w.ravel() * dt))[1][:, m].reshape(w.shape)
-
-            @staticmethod
-            def integrator(w: np.ndarray) -> np.ndarray:
-                return dt / (1.0 - np.exp(-1j * np.asarray(w, dtype=float) * dt))
-
-        G = G()
-        w_top = np.pi / dt
-    else:
-        T = lin.delay + sampling_delay(spec)
-
-        def G(w: np.ndarray) -> np.ndarray:
-            w = np.asarray(w, dtype=float)
-            s = 1j * w.ravel()
-            y = plant_state_response(lin, s) @ lin.C[m] + lin.D[m, 0]
-            return (y * np.exp(-s * T)).reshape(w.shape)
-
-        w_top = 10 * np.pi / dt
-    poles = np.linalg.eigvals(lin.A) if lin.A.size else np.zeros(0)
-    T_all = lin.delay + dt
-    fast = max([abs(p) for p in poles if abs(p) > 1e-9] + [1.0 / T_all] + [1e-3])
-    slow = min([abs(p) for p in poles if abs(p) > 1e-9] + [fast])
-    top = w_top * (1 - 1e-9) if spec.verify.sampled else min(fast * 100.0, w_top)  # sampled: up to pi/dt
-    w = np.geomspace(slow / 1000.0, top, 2000)
-    layout = evaluator.layout
+    G, w_top = _migo_loop(spec, evaluator.plant, lin, m, dt)
+    w = _migo_grid(lin, dt, w_top, spec.verify.sampled)
 
     def cost(kp: np.ndarray, ki: np.ndarray) -> np.ndarray:
         tuned = np.column_stack([kp, ki])
@@ -197,8 +219,7 @@ def migo_reference(problem, evaluator) -> dict[str, Any] | None:
         evaluator.n_sims = n0  # the reference's own scoring is not a search budget
         return np.where(s.diverged, np.nan, s.cost)
 
-    names = [sl.name for sl in layout.tuned_slots]
-    if names != ["Kp", "Ki"]:
+    if [sl.name for sl in evaluator.layout.tuned_slots] != ["Kp", "Ki"]:
         return None
     migo, best = boundary_optimum(G, ms, w, cost)
     gains = {loop.name: {"Kp": float(best.kp), "Ki": float(best.ki)}}

@@ -104,6 +104,7 @@ class BenchCase:
 
     @property
     def budget(self) -> int:
+        """The problem's own search budget (simulations; 3,000 when its spec gives none)."""
         return int(self.spec.get("search", {}).get("budget", 3000))
 
     @property
@@ -113,6 +114,7 @@ class BenchCase:
         return {k: v for k, v in req.items() if v is not None}
 
     def requirements_text(self) -> str:
+        """The set requirements in words, e.g. ``GM >= 6 dB, PM >= 45 deg, Mks auto``."""
         names = {"gm_min_db": "GM >= {:g} dB", "pm_min_deg": "PM >= {:g} deg", "ms_max": "Ms <= {:g}",
                  "mt_max": "Mt <= {:g}", "dm_min": "DM >= {:g} s", "wc_min": "wc >= {:g} rad/s",
                  "wc_max": "wc <= {:g} rad/s"}
@@ -125,6 +127,7 @@ class BenchCase:
         return ", ".join(out)
 
     def objective_text(self) -> str:
+        """The objective in words, e.g. ``IAE + 0.01 int u^2``."""
         ob = self.tuning_spec().objective
         txt = f"{ob.measure.upper()} + {ob.effort_weight:g} int u^2"
         return txt
@@ -207,12 +210,14 @@ _REF_QUICK = {"restarts": 1, "sims_per_restart": 400, "polish": False}
 
 def _default() -> list[BenchCase]:
     return [
-        BenchCase("lag3_pid", "1/(s+1)^3, PID", _spec(_tf([1], "(s+1)^3"), _pid(), _step(0.01, 20.0), _ms(2.0)), "lag"),
+        BenchCase("lag3_pid", "1/(s+1)^3, PID", _spec(_tf([1], "(s+1)^3"), _pid(), _step(0.01, 20.0), _ms(2.0)),
+                  "lag"),
         BenchCase(
             "lags4_pid", "1/((1+s)(1+0.2s)(1+0.04s)(1+0.008s)), PID",
             _spec(_tf([1], "(s+1)*(0.2*s+1)*(0.04*s+1)*(0.008*s+1)"), _pid(), _step(0.005, 10.0), _ms(2.0)), "lag",
         ),
-        BenchCase("nmp_pid", "(1-2s)/(s+1)^3, PID", _spec(_tf([-2, 1], "(s+1)^3"), _pid(), _step(0.02, 40.0), GM_PM), "nmp"),
+        BenchCase("nmp_pid", "(1-2s)/(s+1)^3, PID", _spec(_tf([-2, 1], "(s+1)^3"), _pid(), _step(0.02, 40.0), GM_PM),
+                  "nmp"),
         BenchCase(
             "delay_pi", "e^{-s}/(1+0.1s), PI",
             _spec(_tf([1], [0.1, 1], delay=1.0), _pid("pi"), _step(0.01, 20.0), _ms(1.6)), "delay",
@@ -232,7 +237,8 @@ def _default() -> list[BenchCase]:
         ),
         BenchCase(
             "unstable_pid", "1/(s^2-1), PID",
-            _spec(_tf([1], [1, 0, -1]), _pid(Kp=(1.2, 200.0), Ki=(0.01, 200.0), Kd=(0.05, 50.0)), _step(0.01, 10.0), GM_PM),
+            _spec(_tf([1], [1, 0, -1]), _pid(Kp=(1.2, 200.0), Ki=(0.01, 200.0), Kd=(0.05, 50.0)), _step(0.01, 10.0),
+                  GM_PM),
             "unstable", note="Unstable plant: no rule applies; explicit bounds keep Kp > 1.",
         ),
         BenchCase(
@@ -253,14 +259,18 @@ def _default() -> list[BenchCase]:
 def _extra() -> list[BenchCase]:
     """More Astrom & Hagglund processes and the 3-loop cascade (``full`` suite only)."""
     return [
-        BenchCase("lag4_pid", "1/(s+1)^4, PID", _spec(_tf([1], "(s+1)^4"), _pid(), _step(0.01, 30.0), _ms(2.0)), "lag"),
-        BenchCase("lag8_pid", "1/(s+1)^8, PID", _spec(_tf([1], "(s+1)^8"), _pid(), _step(0.02, 60.0), _ms(2.0)), "lag"),
+        BenchCase("lag4_pid", "1/(s+1)^4, PID", _spec(_tf([1], "(s+1)^4"), _pid(), _step(0.01, 30.0), _ms(2.0)),
+                  "lag"),
+        BenchCase("lag8_pid", "1/(s+1)^8, PID", _spec(_tf([1], "(s+1)^8"), _pid(), _step(0.02, 60.0), _ms(2.0)),
+                  "lag"),
         BenchCase(
             "lags_a05_pid", "1/((1+s)(1+0.5s)(1+0.25s)(1+0.125s)), PID",
             _spec(_tf([1], "(s+1)*(0.5*s+1)*(0.25*s+1)*(0.125*s+1)"), _pid(), _step(0.01, 20.0), _ms(2.0)), "lag",
         ),
-        BenchCase("nmp05_pid", "(1-0.5s)/(s+1)^3, PID", _spec(_tf([-0.5, 1], "(s+1)^3"), _pid(), _step(0.01, 30.0), GM_PM), "nmp"),
-        BenchCase("nmp2_pi", "(1-2s)/(s+1)^3, PI", _spec(_tf([-2, 1], "(s+1)^3"), _pid("pi"), _step(0.02, 60.0), GM_PM), "nmp"),
+        BenchCase("nmp05_pid", "(1-0.5s)/(s+1)^3, PID",
+                  _spec(_tf([-0.5, 1], "(s+1)^3"), _pid(), _step(0.01, 30.0), GM_PM), "nmp"),
+        BenchCase("nmp2_pi", "(1-2s)/(s+1)^3, PI",
+                  _spec(_tf([-2, 1], "(s+1)^3"), _pid("pi"), _step(0.02, 60.0), GM_PM), "nmp"),
         BenchCase(
             "delay_fotd5_pi", "e^{-5s}/(s+1), PI",
             _spec(_tf([1], [1, 1], delay=5.0), _pid("pi"), _step(0.05, 100.0), _ms(1.6)), "delay",
@@ -275,7 +285,8 @@ def _extra() -> list[BenchCase]:
         ),
         BenchCase(
             "unstable_delay_pid", "e^{-0.2s}/(s-1), PID",
-            _spec(_tf([1], [1, -1], delay=0.2), _pid(Kp=(1.05, 50.0), Ki=(0.01, 50.0), Kd=(0.001, 5.0)), _step(0.01, 15.0), GM_PM),
+            _spec(_tf([1], [1, -1], delay=0.2), _pid(Kp=(1.05, 50.0), Ki=(0.01, 50.0), Kd=(0.001, 5.0)),
+                  _step(0.01, 15.0), GM_PM),
             "unstable",
         ),
         BenchCase(
@@ -324,6 +335,7 @@ SUITES: dict[str, Any] = {
 
 
 def suite_names() -> list[str]:
+    """Names of the benchmark suites."""
     return list(SUITES)
 
 

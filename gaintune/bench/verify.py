@@ -19,16 +19,20 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from gaintune.bench.arguments import BenchParser, add_out_argument, positive_int, resolve_out
 from gaintune.bench.compare import md_table, write_outputs
 
+if TYPE_CHECKING:  # pragma: no cover
+    from gaintune.spec import Gains
+
 __all__ = ["CASES", "main"]
 
 #: name -> (spec dict, gains)
-CASES: dict[str, tuple[dict, dict]] = {
+CASES: dict[str, tuple[dict[str, Any], Gains]] = {
     "3-loop DC-motor cascade": (
         {
             "name": "dc_motor_cascade",
@@ -61,29 +65,37 @@ def _time(fn: Callable[[], object], repeat: int) -> tuple[float, float]:
     return float(ms.mean()), float(np.percentile(ms, 95))
 
 
-def measure(repeat: int) -> list[list]:
-    """Rows ``[case, what, mean ms, p95 ms, verdict]``."""
-    from gaintune.bench.api import CASCADE_SPEC, NOMINAL_GAINS
+def _case_rows(name: str, spec_d: dict[str, Any], gains: Gains, repeat: int) -> list[list[Any]]:
+    """One case's rows: verify nominal (plant reused, then built per call) and the batched search estimate."""
     from gaintune.controllers.layout import GainLayout
     from gaintune.plants import build_plant
     from gaintune.spec import load_spec
     from gaintune.verification import requirement_violation, verify
 
-    rows = []
-    for name, (spec_d, gains) in CASES.items():
-        spec = load_spec(spec_d)
-        plant = build_plant(spec.plant)
-        layout = GainLayout(spec, plant.states, plant=plant)
-        rep = verify(spec, gains, robust=False, nonlinear=False, plant=plant, layout=layout)
-        m, p = _time(lambda: verify(spec, gains, robust=False, nonlinear=False, plant=plant, layout=layout), repeat)
-        rows.append([name, "verify, nominal", m, p, rep.verdict])
-        m, p = _time(lambda: verify(spec, gains, robust=False, nonlinear=False, cache=False), repeat)
-        rows.append([name, "verify, nominal, plant built per call", m, p, rep.verdict])
-        rng = np.random.default_rng(0)
-        full = np.tile(layout.from_dict(gains), (64, 1)) * np.exp(rng.normal(0, 0.3, (64, layout.n_gains)))
-        lin = plant.linearize()
-        m, p = _time(lambda: requirement_violation(spec, plant, layout, full, lin), repeat)
-        rows.append([name, "search estimate, batch of 64", m, p, "-"])
+    spec = load_spec(spec_d)
+    plant = build_plant(spec.plant)
+    layout = GainLayout(spec, plant.states, plant=plant)
+    rep = verify(spec, gains, robust=False, nonlinear=False, plant=plant, layout=layout)
+    rows: list[list[Any]] = []
+    m, p = _time(lambda: verify(spec, gains, robust=False, nonlinear=False, plant=plant, layout=layout), repeat)
+    rows.append([name, "verify, nominal", m, p, rep.verdict])
+    m, p = _time(lambda: verify(spec, gains, robust=False, nonlinear=False, cache=False), repeat)
+    rows.append([name, "verify, nominal, plant built per call", m, p, rep.verdict])
+    rng = np.random.default_rng(0)
+    full = np.tile(layout.from_dict(gains), (64, 1)) * np.exp(rng.normal(0, 0.3, (64, layout.n_gains)))
+    lin = plant.linearize()
+    m, p = _time(lambda: requirement_violation(spec, plant, layout, full, lin), repeat)
+    rows.append([name, "search estimate, batch of 64", m, p, "-"])
+    return rows
+
+
+def measure(repeat: int) -> list[list[Any]]:
+    """Rows ``[case, what, mean ms, p95 ms, verdict]``."""
+    from gaintune.bench.api import CASCADE_SPEC, NOMINAL_GAINS
+    from gaintune.spec import load_spec
+    from gaintune.verification import verify
+
+    rows = [row for name, (spec_d, gains) in CASES.items() for row in _case_rows(name, spec_d, gains, repeat)]
     spec = load_spec(CASCADE_SPEC)
     rng = np.random.default_rng(1)
 
@@ -99,7 +111,8 @@ def measure(repeat: int) -> list[list]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = BenchParser(prog="gaintune bench verify", description=__doc__.splitlines()[0])
+    """``gaintune bench verify``: time every case, print the table and write it to ``--out``."""
+    ap = BenchParser(prog="gaintune bench verify", description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--repeat", type=positive_int, default=50, help="timed calls per figure (default 50)")
     add_out_argument(ap)
     args = ap.parse_args(argv)
@@ -111,3 +124,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                           f"# gaintune bench verify --repeat {args.repeat}\n\n{table}\n")
     print(f"wrote {md}")
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -51,7 +51,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import asdict, dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -87,14 +87,15 @@ class Fotd:
     #: RMS step-response error of the FOTD model relative to |K| (step fits only).
     fit_error: float | None = None
 
-    def with_extra_delay(self, dl: float) -> "Fotd":
+    def with_extra_delay(self, dl: float) -> Fotd:
         """The same model with ``dl`` seconds more apparent delay (e.g. half a sample)."""
         d = asdict(self)
         d["L"] += dl
         d["L2"] += dl
         return Fotd(**d)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
+        """The model's fields as a plain dict (JSON-serialisable)."""
         return asdict(self)
 
     def tf(self, pade: int | None = None):
@@ -205,7 +206,7 @@ def _remove_integrator(sys: StateSpace) -> tuple[float, StateSpace]:
     num = np.where(np.abs(num) <= 1e-12 * np.max(np.abs(num), initial=0.0), 0.0, num)
     num = np.trim_zeros(num, "f") if np.any(num) else np.zeros(1)
     if rest_den.size == 1:
-        rest = StateSpace(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), [[num[-1] / rest_den[0]]])
+        rest = StateSpace(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[num[-1] / rest_den[0]]]))
         return float(num[-1] / rest_den[-1]), rest
     return float(num[-1] / rest_den[-1]), tf_to_ss(num, rest_den)
 

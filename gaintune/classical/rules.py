@@ -25,13 +25,14 @@ the loop's direction.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any
 
 import numpy as np
 
 from gaintune.classical.fotd import Fotd, NoModelError
-from gaintune.lti.statespace import as_state_space
+from gaintune.lti.statespace import StateSpace, as_state_space
 from gaintune.spec import GAIN_NAMES, LoopSpec
 
 __all__ = [
@@ -79,7 +80,9 @@ def _check(m: Fotd, ctype: str, rule: str, need_delay: bool = True) -> None:
     if not (math.isfinite(m.K) and m.K != 0):
         raise NoModelError(rule, f"the loop's plant gain is {m.K:.3g}: a rule needs a finite, nonzero gain")
     if need_delay and not m.L > 0:
-        raise NoModelError(rule, f"{rule} needs a positive apparent delay L (got {m.L:g}); give the plant's delay or sample time")
+        raise NoModelError(
+            rule, f"{rule} needs a positive apparent delay L (got {m.L:g}); give the plant's delay or sample time"
+        )
     if not m.integrating and not m.T > 0:
         raise NoModelError(rule, f"{rule} needs a positive time constant T (got {m.T:g})")
 
@@ -259,7 +262,7 @@ ZOOM_PASSES = 3
 ZOOM_POINTS = 33
 
 
-def ultimate_gain(sys, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, float]:
+def ultimate_gain(sys: Any, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, float]:
     """Ultimate gain Ku and period Pu of a SISO path with an exact delay e^{-j w delay}.
 
     The phase of G(jw) e^{-jw delay} is unwrapped on a log grid from low
@@ -280,28 +283,49 @@ def ultimate_gain(sys, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, f
         When the phase never reaches -180 degrees (Ku infinite) or the low-frequency gain
         is negative after that (open-loop unstable paths).
     """
+    sys = as_state_space(sys)
+    sgn = _path_sign(sys)
+
+    def resp(x: Any) -> np.ndarray:
+        return sgn * sys.freqresp(1j * np.atleast_1d(x)).reshape(-1)
+
+    w = _frequency_grid(sys, delay, n_grid)
+    g = resp(w)
+    ph = np.unwrap(np.angle(g)) - w * delay
+    k = _first_crossing(g, ph)
+    wu = _zoom_crossing(resp, w, g, ph, k, delay)
+    Ku = 1.0 / abs(resp(wu)[0])
+    return float(Ku), float(2.0 * np.pi / wu)
+
+
+def _path_sign(sys: StateSpace) -> float:
+    """-1 for a stable-sign path with a negative (static or velocity) gain, else +1."""
     from gaintune.controllers.direction import path_gain
 
-    sys = as_state_space(sys)
-    sgn = 1.0
     if sys.nstates:
-        pg = path_gain(np.asarray(sys.A), np.asarray(sys.B)[:, 0], np.asarray(sys.C)[0], float(np.asarray(sys.D)[0, 0]))
+        d = float(np.asarray(sys.D)[0, 0])
+        pg = path_gain(np.asarray(sys.A), np.asarray(sys.B)[:, 0], np.asarray(sys.C)[0], d)
         if pg is not None and pg.coef < 0 and pg.rhp_real == 0:
-            sgn = -1.0
+            return -1.0
+    return 1.0
+
+
+def _frequency_grid(sys: StateSpace, delay: float, n_grid: int) -> np.ndarray:
+    """Log grid three decades either side of the path's pole magnitudes and 1/delay."""
     p = np.linalg.eigvals(sys.A) if sys.nstates else np.zeros(0)
     mags = np.abs(p[np.abs(p) > 1e-12])
     lo = min([*(mags.tolist()), 1.0 / delay if delay > 0 else np.inf, 1.0])
     hi = max([*(mags.tolist()), 1.0 / delay if delay > 0 else 0.0, 1.0])
-    w = np.logspace(np.log10(lo) - 3, np.log10(hi) + 3, n_grid)
+    return np.logspace(np.log10(lo) - 3, np.log10(hi) + 3, n_grid)
 
-    def resp(x):
-        return sgn * sys.freqresp(1j * np.atleast_1d(x)).reshape(-1)
 
-    g = resp(w)
+def _first_crossing(g: np.ndarray, ph: np.ndarray) -> int:
+    """Index of the first grid point at or below -180 degrees; NoModelError when there is none to bracket."""
     g0 = g[0]
     if g0.real <= 0 and abs(g0.imag) < abs(g0.real):
-        raise NoModelError("zn_ultimate", "the path's low-frequency gain is negative: needs a reverse-acting controller")
-    ph = np.unwrap(np.angle(g)) - w * delay
+        raise NoModelError(
+            "zn_ultimate", "the path's low-frequency gain is negative: needs a reverse-acting controller"
+        )
     below = np.nonzero(ph <= -np.pi)[0]
     if below.size == 0:
         raise NoModelError(
@@ -310,6 +334,13 @@ def ultimate_gain(sys, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, f
     k = int(below[0])
     if k == 0:
         raise NoModelError("zn_ultimate", "phase is below -180 degrees at the lowest frequency: cannot find Ku")
+    return k
+
+
+def _zoom_crossing(
+    resp: Callable[[Any], np.ndarray], w: np.ndarray, g: np.ndarray, ph: np.ndarray, k: int, delay: float
+) -> float:
+    """The -180 degree frequency inside ``w[k-1] .. w[k]``: :data:`ZOOM_PASSES` finer grids, then interpolation."""
     w1 = w[k - 1]
     g1 = g[k - 1]
 
@@ -325,9 +356,7 @@ def ultimate_gain(sys, delay: float = 0.0, n_grid: int = 4000) -> tuple[float, f
         f[0], f[-1] = f_lo, f_hi  # the bracket's ends keep their values: the crossing stays inside
         j = int(np.argmax(f <= 0.0))
         lo_w, hi_w, f_lo, f_hi = float(x[j - 1]), float(x[j]), float(f[j - 1]), float(f[j])
-    wu = lo_w + f_lo * (hi_w - lo_w) / (f_lo - f_hi) if f_lo != f_hi else hi_w
-    Ku = 1.0 / abs(resp(wu)[0])
-    return float(Ku), float(2.0 * np.pi / wu)
+    return lo_w + f_lo * (hi_w - lo_w) / (f_lo - f_hi) if f_lo != f_hi else hi_w
 
 
 # ------------------------------------------------------------ conversion

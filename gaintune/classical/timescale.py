@@ -39,9 +39,9 @@ import numpy as np
 from gaintune.classical.fotd import NoModelError, fit_fotd, path_poles_zeros, siso_minreal
 from gaintune.controllers.direction import measured_indices
 from gaintune.errors import SpecError
+from gaintune.lti.statespace import StateSpace
 from gaintune.plants.plant import Plant, build_plant
 from gaintune.spec import MAX_STEPS, ScenarioDefault, ScenarioSpec, TuningSpec
-from gaintune.lti.statespace import StateSpace
 
 __all__ = ["LoopScale", "PlantScale", "plant_scale", "resolve_scenarios", "scenario_defaults",
            "HORIZON_FACTOR", "DELAY_SAMPLES", "MIN_STEPS", "STEP_CAP", "RK4_SPAN", "FALLBACK_DT", "FALLBACK_HORIZON"]

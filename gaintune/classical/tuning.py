@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gaintune.classical.fotd import Fotd, NoModelError, fit_fotd, siso_minreal
-from gaintune.classical.timescale import resolve_scenarios
 from gaintune.classical.rules import FOTD_RULES, IdealPid, to_loop_gains, ultimate_gain, with_direction, zn_ultimate
+from gaintune.classical.timescale import resolve_scenarios
 from gaintune.controllers.direction import loop_directions
 from gaintune.lti.statespace import StateSpace, with_input_delay
 from gaintune.spec import Gains, TuningSpec
@@ -115,7 +115,17 @@ def _fixed_overrides(loop, gains: dict[str, float]) -> dict[str, float]:
 
 
 def sample_time(spec: TuningSpec) -> float:
-    return min(sc.dt for sc in spec.scenarios)
+    """The shortest scenario sample time of a spec whose ``dt`` are resolved (:func:`resolve_scenarios`).
+
+    Raises
+    ------
+    ValueError
+        When a scenario's ``dt`` is still unset.
+    """
+    dts = [sc.dt for sc in spec.scenarios]
+    if any(dt is None for dt in dts):
+        raise ValueError("sample_time needs resolved scenarios (resolve_scenarios): a dt is unset")
+    return min(dt for dt in dts if dt is not None)
 
 
 def tune_classical(spec: TuningSpec, plant, method: str, params: dict[str, float] | None = None) -> ClassicalResult:
@@ -136,7 +146,9 @@ def tune_classical(spec: TuningSpec, plant, method: str, params: dict[str, float
     if any(lp.is_lq for lp in spec.loops):
         j = next(i for i, lp in enumerate(spec.loops) if lp.is_lq)
         lp = spec.loops[j]
-        raise NoModelError(f"loops[{j}]", f"{lp.type} loop {lp.name!r}: no classical rule (LQ loops are tuned by Riccati)")
+        raise NoModelError(
+            f"loops[{j}]", f"{lp.type} loop {lp.name!r}: no classical rule (LQ loops are tuned by Riccati)"
+        )
     directions = loop_directions(spec, plant)
     lin = plant.linearize(params)
     h2 = 0.5 * sample_time(resolve_scenarios(spec, plant))
@@ -147,7 +159,9 @@ def tune_classical(spec: TuningSpec, plant, method: str, params: dict[str, float
         loop = spec.loops[j]
         name = loop.name or f"loop{j}"
         if loop.is_lq:
-            raise NoModelError(f"loops[{j}]", f"{loop.type} loop {name!r}: no classical rule (LQ loops are tuned by Riccati)")
+            raise NoModelError(
+                f"loops[{j}]", f"{loop.type} loop {name!r}: no classical rule (LQ loops are tuned by Riccati)"
+            )
         m = lin.output_index(loop.measure) if loop.measure else 0
         siso = siso_minreal(StateSpace(sys.A, sys.B, sys.C[m : m + 1, :], sys.D[m : m + 1, :]))
         if method == "zn_ultimate":
@@ -202,6 +216,8 @@ def auto_bounds(spec: TuningSpec, centre: Gains, factor: float = BOUNDS_FACTOR
     """
     out: dict[tuple[str, str], tuple[float, float]] = {}
     for loop in spec.loops:
+        if loop.name is None:  # the centre's keys are loop names: an unnamed loop has none
+            continue
         for gname, v in centre.get(loop.name, {}).items():
             g = loop.gains.get(gname)
             if g is not None and not g.tune:

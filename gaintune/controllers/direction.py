@@ -47,8 +47,8 @@ from typing import Any
 import numpy as np
 
 from gaintune.errors import SpecError
-from gaintune.spec import TuningSpec
 from gaintune.lti.statespace import StateSpace
+from gaintune.spec import TuningSpec
 
 __all__ = ["LoopDirection", "PathGain", "path_gain", "resolve_directions", "loop_directions", "MAX_CORNER_PARAMS"]
 
@@ -87,10 +87,12 @@ class LoopDirection:
 
     @property
     def word(self) -> str:
+        """``direct-acting`` or ``reverse-acting``."""
         return "direct-acting" if self.sign > 0 else "reverse-acting"
 
     @property
     def other(self) -> str:
+        """The opposite direction's spec word (``direct`` or ``reverse``)."""
         return "reverse" if self.sign > 0 else "direct"
 
 
@@ -124,7 +126,7 @@ def path_gain(A: np.ndarray, b: np.ndarray, c: np.ndarray, d: float) -> PathGain
     n = A.shape[0]
     if n == 0:
         return PathGain(0, d, 0) if d != 0 else None
-    path = StateSpace(A, b[:, None], c[None, :], [[d]])
+    path = StateSpace(A, b[:, None], c[None, :], np.array([[d]]))
     poles = path.poles()
     with np.errstate(all="ignore"):
         zeros = path.zeros()  # the Rosenbrock pencil's finite generalized eigenvalues
@@ -218,7 +220,9 @@ def _loop_rule(spec: TuningSpec, lin: Any, meas: list[int], i: int) -> tuple[int
     order, coef = gi.order - gn.order, gi.coef / gn.coef
     sign = 1 if coef > 0 else -1
     if order > 0:
-        raise _Undecided(f"the static gain from the inner setpoint ({inner}) to {out!r} with the inner loop closed is zero")
+        raise _Undecided(
+            f"the static gain from the inner setpoint ({inner}) to {out!r} with the inner loop closed is zero"
+        )
     if order == 0:
         return sign, "static_gain", coef, (
             f"static gain {_g(coef)} from the inner setpoint to {out!r} with the inner loop closed "
@@ -237,7 +241,7 @@ def _corners(spec: TuningSpec, plant: Any) -> list[dict[str, float]]:
         return []
     names = list(box)
     if len(names) <= MAX_CORNER_PARAMS:
-        return [dict(zip(names, vals)) for vals in itertools.product(*(box[k] for k in names))]
+        return [dict(zip(names, vals, strict=True)) for vals in itertools.product(*(box[k] for k in names))]
     return [{k: v} for k in names for v in box[k]]
 
 

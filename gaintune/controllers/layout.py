@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 
 from gaintune.controllers.direction import LoopDirection, loop_directions, resolve_directions
-from gaintune.errors import GainError, SpecError
 from gaintune.controllers.forms import to_form
+from gaintune.errors import GainError, SpecError
 from gaintune.spec import GAIN_NAMES, Gains, LoopSpec, TuningSpec
 
 __all__ = [
@@ -170,8 +170,10 @@ class GainLayout:
                 mag = abs(value) if value is not None and sign != 0 else value
                 if mag is not None and tuned and not bounds[0] <= mag <= bounds[1]:
                     what = "initial value" if sign >= 0 or mag == value else f"initial value {value}: its magnitude"
-                    raise SpecError(f"loops[{i}].gains.{name}.value", f"{what} {mag} lies outside bounds {list(bounds)}")
-                slots.append(GainSlot(i, loop.name or f"loop{i}", name, tuned, value, tuple(bounds), sign))
+                    raise SpecError(
+                        f"loops[{i}].gains.{name}.value", f"{what} {mag} lies outside bounds {list(bounds)}"
+                    )
+                slots.append(GainSlot(i, loop.name or f"loop{i}", name, tuned, value, (bounds[0], bounds[1]), sign))
         self.slots = slots
         self.tuned_idx = np.array([k for k, s in enumerate(slots) if s.tuned], dtype=int)
         self.log_lo = np.log(np.array([slots[k].bounds[0] for k in self.tuned_idx], dtype=float))
@@ -198,21 +200,27 @@ class GainLayout:
     def require_tuned(self) -> None:
         """Raise a SpecError (field ``loops``) when no gain is left to tune: a search needs one."""
         if not self.n_tuned:
-            raise SpecError("loops", "every gain is fixed (tune: false), so there is nothing to tune; check these gains "
-                            "with 'gaintune verify SPEC --gains ...' (the POST /v1/verify route), or set tune: true on "
-                            "the gains to search")
+            raise SpecError(
+                "loops",
+                "every gain is fixed (tune: false), so there is nothing to tune; check these gains "
+                "with 'gaintune verify SPEC --gains ...' (the POST /v1/verify route), or set tune: true on "
+                "the gains to search",
+            )
 
     # ---------------------------------------------------------------- sizes
     @property
     def n_gains(self) -> int:
+        """Number of gains, tuned and fixed."""
         return len(self.slots)
 
     @property
     def n_tuned(self) -> int:
+        """Number of tuned gains (the search dimension)."""
         return len(self.tuned_idx)
 
     @property
     def tuned_slots(self) -> list[GainSlot]:
+        """The tuned gains' slots, in search-vector order."""
         return [self.slots[k] for k in self.tuned_idx]
 
     # ------------------------------------------------------- action mapping
@@ -258,14 +266,14 @@ class GainLayout:
         """Initial guesses (magnitudes): spec values where given, else the geometric centre of the bounds."""
         centre = np.exp(0.5 * (self.log_lo + self.log_hi))
         given = [self.slots[k].value for k in self.tuned_idx]
-        out = np.array([v if v is not None else c for v, c in zip(given, centre)], dtype=float)
+        out = np.array([v if v is not None else c for v, c in zip(given, centre, strict=True)], dtype=float)
         return self._magnitudes(out)
 
     # ----------------------------------------------------------- dict forms
     def to_dict(self, full: np.ndarray) -> Gains:
         """Signed full gain vector -> ``{loop: {gain: value}}``."""
         out: Gains = {}
-        for slot, v in zip(self.slots, np.asarray(full, dtype=float)):
+        for slot, v in zip(self.slots, np.asarray(full, dtype=float), strict=True):
             out.setdefault(slot.loop_name, {})[slot.name] = float(v)
         return out
 

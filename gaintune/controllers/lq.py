@@ -27,6 +27,8 @@ __all__ = ["LqGains", "lq_gains"]
 
 @dataclass(frozen=True)
 class LqGains:
+    """State-feedback gains of one LQ loop: ``u = u0 - K x~ + Nr (r - y0) + Kint z`` (module docstring)."""
+
     K: np.ndarray  # (n,) state feedback on x - x0
     Kint: float  # gain on the integral of r - y (0 for LQR)
     Nr: float  # reference feedforward (0 for LQI)

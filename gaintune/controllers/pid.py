@@ -96,7 +96,8 @@ def pid_params(loop: LoopSpec, gains: Mapping[str, Any]) -> PidParams:
 def pid_tf_coeffs(p: PidParams) -> tuple[np.ndarray, np.ndarray]:
     """Feedback-path transfer function C(s) = Kp + Ki/s + Kd*s/(Tf*s+1) as (num, den)."""
     # Common denominator s*(Tf*s + 1).
-    num = np.polyadd(np.polyadd(p.Kp * np.array([p.Tf, 1.0, 0.0]), p.Ki * np.array([0.0, p.Tf, 1.0])), p.Kd * np.array([1.0, 0.0, 0.0]))
+    kp_ki = np.polyadd(p.Kp * np.array([p.Tf, 1.0, 0.0]), p.Ki * np.array([0.0, p.Tf, 1.0]))
+    num = np.polyadd(kp_ki, p.Kd * np.array([1.0, 0.0, 0.0]))
     den = np.array([p.Tf, 1.0, 0.0])
     if p.Ki == 0:  # drop the pole at the origin: C = (Kp*(Tf s+1) + Kd s)/(Tf s + 1)
         num = np.polyadd(p.Kp * np.array([p.Tf, 1.0]), p.Kd * np.array([1.0, 0.0]))

@@ -29,8 +29,8 @@ __all__ = ["pade_coeffs", "pade_response", "pade_poles", "pade_ss", "pade_tf", "
 @lru_cache(maxsize=32)
 def _pade_unit(order: int) -> tuple[np.ndarray, np.ndarray, tuple]:
     """Padé (order, order) of e^{-p} (unit delay) and a state-space realisation of it."""
-    num, den = pade_monic(1.0, order)
-    num, den = np.asarray(num, dtype=float), np.asarray(den, dtype=float)
+    num_l, den_l = pade_monic(1.0, order)
+    num, den = np.asarray(num_l, dtype=float), np.asarray(den_l, dtype=float)
     Ad, Bd, Cd, Dd = canonical_form(num, den)
     return num, den, (Ad, Bd, Cd, float(Dd[0, 0]))
 

@@ -62,7 +62,7 @@ class StateSpace:
                       ((A, (n, n)), (B, (n, m)), (C, (p, n)), (D, (p, m))))
         if A.shape != (n, n) or B.shape != (n, m) or C.shape != (p, n) or D.shape != (p, m):
             raise ValueError(f"inconsistent state-space shapes A{A.shape} B{B.shape} C{C.shape} D{D.shape}")
-        for name, x in zip("ABCD", (A, B, C, D)):
+        for name, x in zip("ABCD", (A, B, C, D), strict=True):
             x.flags.writeable = False
             object.__setattr__(self, name, x)
 
@@ -163,7 +163,7 @@ def tf_to_ss(num: Any, den: Any) -> StateSpace:
     if num.size > den.size:
         raise ValueError("transfer function is non-proper; can't convert to StateSpace system")
     if num.size == 1 and den.size == 1:
-        return StateSpace(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), [[num[0] / den[0]]])
+        return StateSpace(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[num[0] / den[0]]]))
     return StateSpace(*canonical_form(num, den))
 
 

@@ -24,7 +24,7 @@ def _known(names: list[str]) -> str:
     return ", ".join(names) or "none"
 
 
-def validate_against_plant(spec: "TuningSpec", plant: "Plant") -> None:
+def validate_against_plant(spec: TuningSpec, plant: Plant) -> None:
     """Check the names and ranges a spec uses against the built plant.
 
     Checks that
@@ -68,7 +68,9 @@ def validate_against_plant(spec: "TuningSpec", plant: "Plant") -> None:
 
     for name in spec.safety.state_bounds:
         if name not in plant.states:
-            raise SpecError(f"safety.state_bounds.{name}", f"plant has no state {name!r}; states: {_known(plant.states)}")
+            raise SpecError(
+                f"safety.state_bounds.{name}", f"plant has no state {name!r}; states: {_known(plant.states)}"
+            )
 
     loop_names = [lp.name or f"loop{i}" for i, lp in enumerate(spec.loops)]
     for name in spec.safety.fallback_gains or {}:

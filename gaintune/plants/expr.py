@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import ast
 import math
+import operator
 import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
@@ -96,6 +97,13 @@ _FLOAT_FUNCS = {k: v[1] for k, v in FUNCTIONS.items()}
 
 _BINOPS = (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow, ast.BitXor)
 _CMPOPS = (ast.Lt, ast.LtE, ast.Gt, ast.GtE)
+# what _evaluate applies for each; any other whitelisted binary operator (**, ^) is a power
+_ARITH: dict[type[ast.operator], Callable[[Any, Any], Any]] = {
+    ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
+}
+_COMPARE: dict[type[ast.cmpop], Callable[[Any, Any], Any]] = {
+    ast.Lt: operator.lt, ast.LtE: operator.le, ast.Gt: operator.gt, ast.GtE: operator.ge,
+}
 
 
 @lru_cache(maxsize=4096)
@@ -246,6 +254,7 @@ def _check_budget(field: str) -> None:
 def _evaluate(node: ast.expr, env: Mapping[str, Any], funcs: Mapping[str, Callable[..., Any]], field: str) -> Any:
     _check_budget(field)
     if isinstance(node, ast.Constant):
+        assert isinstance(node.value, (int, float))  # _check let only numbers through
         return float(node.value)
     if isinstance(node, ast.Name):
         if node.id in env:
@@ -259,27 +268,12 @@ def _evaluate(node: ast.expr, env: Mapping[str, Any], funcs: Mapping[str, Callab
     if isinstance(node, ast.BinOp):
         a = _evaluate(node.left, env, funcs, field)
         b = _evaluate(node.right, env, funcs, field)
-        op = node.op
-        if isinstance(op, ast.Add):
-            return a + b
-        if isinstance(op, ast.Sub):
-            return a - b
-        if isinstance(op, ast.Mult):
-            return a * b
-        if isinstance(op, ast.Div):
-            return a / b
-        return _power(a, b, field)
+        arith = _ARITH.get(type(node.op))
+        return arith(a, b) if arith is not None else _power(a, b, field)
     if isinstance(node, ast.Compare):
         a = _evaluate(node.left, env, funcs, field)
         b = _evaluate(node.comparators[0], env, funcs, field)
-        op = node.ops[0]
-        if isinstance(op, ast.Lt):
-            return a < b
-        if isinstance(op, ast.LtE):
-            return a <= b
-        if isinstance(op, ast.Gt):
-            return a > b
-        return a >= b
+        return _COMPARE[type(node.ops[0])](a, b)
     assert isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
     args = [_evaluate(a, env, funcs, field) for a in node.args]
     try:
@@ -295,7 +289,8 @@ def _power(a: Any, b: Any, field: str) -> Any:
     # Python turns a negative float to a fractional power into a complex number; models are real.
     if isinstance(out, complex):
         raise SpecError(
-            field, f"value is complex, not real: ({a:g})^{b:g} is a negative number to a fractional power; give a real value"
+            field,
+            f"value is complex, not real: ({a:g})^{b:g} is a negative number to a fractional power; give a real value",
         )
     return out
 
@@ -325,7 +320,7 @@ def to_float(value: float | str, env: Mapping[str, float], field: str = "express
 
 def to_polynomial(text: str, env: Mapping[str, float], field: str = "expression") -> np.ndarray:
     """Evaluate a polynomial expression in ``s``; return coefficients in descending powers."""
-    scope = dict(env)
+    scope: dict[str, Any] = dict(env)
     scope["s"] = np.polynomial.Polynomial([0.0, 1.0])
     try:
         tree = parse(text, field)

@@ -24,6 +24,8 @@ __all__ = ["ParamDoc", "ModelDef", "models_dir", "list_models", "load_model"]
 
 
 class ParamDoc(BaseModel):
+    """One documented model parameter: its nominal value, unit and meaning."""
+
     model_config = ConfigDict(extra="forbid")
     value: float
     unit: str = "-"
@@ -31,6 +33,8 @@ class ParamDoc(BaseModel):
 
 
 class SignalDoc(BaseModel):
+    """One documented model signal (the input or an output): unit and meaning."""
+
     model_config = ConfigDict(extra="forbid")
     unit: str = "-"
     description: str = ""
@@ -51,7 +55,7 @@ class ModelDef(BaseModel):
 
     def example_spec(self) -> dict[str, Any]:
         """A complete spec dict using this model with its example loops."""
-        spec = {"name": self.name, "plant": {"model": {"name": self.name}}}
+        spec: dict[str, Any] = {"name": self.name, "plant": {"model": {"name": self.name}}}
         spec.update(self.example)
         spec.setdefault("loops", [{"type": "pid"}])
         return spec
@@ -64,6 +68,7 @@ def models_dir() -> Path:
 
 
 def list_models() -> list[str]:
+    """Names (file stems) of the built-in models in :func:`models_dir`, sorted."""
     return sorted(p.stem for p in models_dir().glob("*.yaml"))
 
 

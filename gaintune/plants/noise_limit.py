@@ -84,7 +84,9 @@ def _auto(lin: LinearModel, out: int) -> NoiseLimit:
     K = d - float(c @ np.linalg.solve(A, B[:, 0])) if A.size else d
     if not np.isfinite(K) or K == 0.0:
         return NoiseLimit(None, "auto: none (the path has no static gain)")
-    return NoiseLimit(AUTO_SPEEDUP / abs(K), f"auto: {AUTO_SPEEDUP:g}/|K|, K = {K:.4g} (delay-free path of relative degree <= 1)")
+    return NoiseLimit(
+        AUTO_SPEEDUP / abs(K), f"auto: {AUTO_SPEEDUP:g}/|K|, K = {K:.4g} (delay-free path of relative degree <= 1)"
+    )
 
 
 def noise_limits(spec: TuningSpec, lin: LinearModel) -> list[NoiseLimit]:
@@ -102,7 +104,7 @@ def noise_limits(spec: TuningSpec, lin: LinearModel) -> list[NoiseLimit]:
         elif req is None:
             out.append(NoiseLimit(None, "none (requirements.mks_max is null)"))
         elif isinstance(req, dict):
-            v = req.get(loop.name)
+            v = req.get(loop.name) if loop.name is not None else None
             out.append(NoiseLimit(float(v), "spec") if v is not None else NoiseLimit(None, "none for this loop"))
         elif req == "auto":
             out.append(_auto(lin, lin.outputs.index(loop.measure) if loop.measure in lin.outputs else 0))

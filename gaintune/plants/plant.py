@@ -51,6 +51,7 @@ class LinearModel:
         return control.ss(self.A, self.B, self.C, self.D, states=self.states, outputs=self.outputs, inputs=["u"])
 
     def output_index(self, name: str) -> int:
+        """Row of output ``name`` in C and D (ValueError when there is no such output)."""
         return self.outputs.index(name)
 
 
@@ -70,10 +71,12 @@ class Plant:
 
     @property
     def order(self) -> int:
+        """Number of states."""
         return len(self.states)
 
     @property
     def param_names(self) -> list[str]:
+        """Parameter names, in :meth:`param_vector` order."""
         return list(self.params)
 
     def with_params(self, values: dict[str, float] | None) -> dict[str, float]:
@@ -86,6 +89,7 @@ class Plant:
         return out
 
     def delay(self, values: dict[str, float] | None = None) -> float:
+        """Input delay in seconds for these parameters (SpecError unless finite and >= 0)."""
         p = self.with_params(values)
         d = expr.to_float(self.spec.delay if self.spec.delay is not None else 0.0, p, "plant.delay")
         if not np.isfinite(d) or d < 0:
@@ -110,6 +114,7 @@ class Plant:
         return lin
 
     def param_vector(self, values: dict[str, float] | None = None) -> np.ndarray:
+        """Nominal parameters updated by ``values``, as a float vector in :attr:`param_names` order."""
         p = self.with_params(values)
         return np.array([p[k] for k in self.params], dtype=float)
 
@@ -227,8 +232,11 @@ def _solve_u0(plant: Plant, ode: OdeSpec, x0: np.ndarray, pv: np.ndarray) -> flo
     """Solve f(x0, u, p) = 0 for u in the least-squares sense (the operating input)."""
     from scipy.optimize import least_squares  # deferred: only ODE plants without u0 need it (~0.15 s)
 
+    f = plant.f
+    assert f is not None  # an ODE plant always has its right-hand side
+
     def residual(u: float) -> np.ndarray:
-        return np.asarray(plant.f(x0, u, pv), dtype=float).ravel()
+        return np.asarray(f(x0, u, pv), dtype=float).ravel()
 
     # least_squares starts from u = 0 and raises a bare ValueError if the model is not finite there
     # (log(0), sqrt(-1), overflow): name the state and the fix instead.
@@ -237,7 +245,7 @@ def _solve_u0(plant: Plant, ode: OdeSpec, x0: np.ndarray, pv: np.ndarray) -> flo
         i = int(np.flatnonzero(~np.isfinite(start))[0])
         raise SpecError(
             "plant.ode.x0",
-            f"the model is not finite at x0 = {dict(zip(ode.states, x0.tolist()))} with u = 0 "
+            f"the model is not finite at x0 = {dict(zip(ode.states, x0.tolist(), strict=True))} with u = 0 "
             f"(d{ode.states[i]}/dt = {start[i]}); give an x0 inside the model's domain, or set u0",
         )
     with np.errstate(invalid="ignore", over="ignore"):  # finite-difference steps may leave the domain
@@ -257,7 +265,7 @@ def _linearize_ode(plant: Plant, p: dict[str, float]) -> LinearModel:
     pv = plant.param_vector(p)
     n = plant.order
     x0 = np.array([expr.to_float(ode.x0.get(s, 0.0), p, f"plant.ode.x0.{s}") for s in ode.states])
-    for s, v in zip(ode.states, x0):
+    for s, v in zip(ode.states, x0, strict=True):
         if not np.isfinite(v):
             raise SpecError(f"plant.ode.x0.{s}", f"must be a finite number, got {v}")
     if ode.u0 is not None:
@@ -271,12 +279,17 @@ def _linearize_ode(plant: Plant, p: dict[str, float]) -> LinearModel:
     xs, us, ps = ca.SX.sym("x", n), ca.SX.sym("u"), ca.SX.sym("p", len(pv))
     fx = plant.f(xs, us, ps)
     hx = plant.h(xs, us, ps)
-    jac = ca.Function("linearization", [xs, us, ps], [ca.jacobian(fx, xs), ca.jacobian(fx, us), ca.jacobian(hx, xs), ca.jacobian(hx, us), hx])
+    jacobians = [ca.jacobian(fx, xs), ca.jacobian(fx, us), ca.jacobian(hx, xs), ca.jacobian(hx, us), hx]
+    jac = ca.Function("linearization", [xs, us, ps], jacobians)
     A, B, C, D, y0 = (np.array(m, dtype=float) for m in jac(x0, u0, pv))
     for name, m in (("A", A), ("B", B), ("C", C), ("D", D), ("y0", y0)):
         if not np.all(np.isfinite(m)):
-            raise SpecError("plant.ode", f"linearisation gives non-finite {name} at the operating point; check x0 and params")
-    return LinearModel(A, B.reshape(n, 1), C, D.reshape(-1, 1), plant.delay(p), plant.states, plant.outputs, x0, u0, y0.ravel())
+            raise SpecError(
+                "plant.ode", f"linearisation gives non-finite {name} at the operating point; check x0 and params"
+            )
+    return LinearModel(
+        A, B.reshape(n, 1), C, D.reshape(-1, 1), plant.delay(p), plant.states, plant.outputs, x0, u0, y0.ravel()
+    )
 
 
 # ------------------------------------------------------------------ build
@@ -294,7 +307,9 @@ def _resolve_model(spec: PlantSpec) -> PlantSpec:
     params.update(spec.params)
     for k, v in ref.params.items():
         if k not in params:
-            raise SpecError(f"plant.model.params.{k}", f"model {ref.name!r} has no parameter {k!r}; known: {', '.join(params)}")
+            raise SpecError(
+                f"plant.model.params.{k}", f"model {ref.name!r} has no parameter {k!r}; known: {', '.join(params)}"
+            )
         params[k] = v
     delay = spec.delay if spec.delay is not None else base.delay
     return base.model_copy(update={"params": params, "delay": delay})
@@ -326,7 +341,8 @@ def build_plant(spec: PlantSpec) -> Plant:
             outputs = spec.ss.outputs or [f"y{i}" for i in range(C.shape[0])]
             if len(outputs) != C.shape[0]:
                 raise SpecError("plant.ss.outputs", f"names {len(outputs)} outputs but C has {C.shape[0]} rows")
-        states = (spec.ss.states if spec.ss is not None and spec.ss.states else None) or [f"x{i}" for i in range(A.shape[0])]
+        named = spec.ss.states if spec.ss is not None and spec.ss.states else None
+        states = named or [f"x{i}" for i in range(A.shape[0])]
         if len(states) != A.shape[0]:
             raise SpecError("plant.ss.states", f"names {len(states)} states but A is {A.shape[0]}x{A.shape[0]}")
         plant = Plant("lti", states, outputs, params, spec)

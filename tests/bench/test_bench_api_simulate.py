@@ -14,7 +14,7 @@ def test_bench_api_simulate_options_exit_2_before_starting_a_server(argv, capsys
     def no_server(*a, **k):
         raise AssertionError("the API server was started before the arguments were checked")
 
-    monkeypatch.setattr(api, "_start_server", no_server)
+    monkeypatch.setattr(api, "start_server", no_server)
     monkeypatch.setattr(api, "_in_process_verify_ms", lambda *a, **k: 0.0)
     with pytest.raises(SystemExit) as exc:
         api.main(["--phases", "simulate", *argv])

@@ -162,7 +162,7 @@ def test_f12_api_concurrency_0_exits_2_before_starting_a_server(capsys, monkeypa
     def no_server(*a, **k):
         raise AssertionError("the API server was started before the arguments were checked")
 
-    monkeypatch.setattr(api, "_start_server", no_server)
+    monkeypatch.setattr(api, "start_server", no_server)
     monkeypatch.setattr(api, "_in_process_verify_ms", lambda *a, **k: 0.0)
     for argv in (["--concurrency", "0"], ["--concurrency", "-1"], ["--sweep", "1,0"], ["--seconds", "nan"]):
         _assert_bad_input(capsys, "api", ["--requests", "1", *argv], argv[0])
@@ -182,7 +182,7 @@ def test_f12_api_server_is_stopped_when_the_run_fails(monkeypatch):
     def broken_client(*a, **k):
         raise RuntimeError("client failed")
 
-    monkeypatch.setattr(api, "_start_server", fake_server)
+    monkeypatch.setattr(api, "start_server", fake_server)
     monkeypatch.setattr(api, "_in_process_verify_ms", lambda *a, **k: 0.0)
     monkeypatch.setattr(httpx, "AsyncClient", broken_client)
     with pytest.raises(RuntimeError, match="client failed"):
@@ -194,8 +194,8 @@ def test_f12_api_server_is_stopped_when_the_run_fails(monkeypatch):
 def test_f12_api_server_dies_when_the_benchmark_is_killed():
     """SIGKILL skips every finally: the server must still get SIGTERM from the kernel (it was orphaned)."""
     code = ("import subprocess, sys, time\n"
-            "from gaintune.bench.api import _term_with_parent\n"
-            "p = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'], preexec_fn=_term_with_parent())\n"
+            "from gaintune.bench.api_load import term_with_parent\n"
+            "p = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'], preexec_fn=term_with_parent())\n"
             "print(p.pid, flush=True)\n"
             "time.sleep(60)\n")
     parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
