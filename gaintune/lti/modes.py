@@ -21,10 +21,16 @@ __all__ = ["StateMatrices", "plant_eigvals", "complex_schur", "plant_state_respo
 
 
 class StateMatrices(Protocol):
-    """What the cached helpers need of a model: its state matrices A (n, n) and B (n, 1)."""
+    """What the cached helpers need of a model: its state matrices A (n, n) and B (n, 1).
 
-    A: np.ndarray
-    B: np.ndarray
+    Read-only properties, so a frozen model (``LinearModel``) satisfies it.
+    """
+
+    @property
+    def A(self) -> np.ndarray: ...
+
+    @property
+    def B(self) -> np.ndarray: ...
 
 
 # ------------------------------------------------------------------ state responses
