@@ -45,6 +45,11 @@ class IterativeGainTuningEnv(gym.Env):
         self._ctx = np.zeros(c, dtype=np.float32)
         self._margin = 0.0
 
+    @property
+    def action(self) -> np.ndarray:
+        """The current gains as an action in [-1, 1] (a copy): where the steps so far have moved them."""
+        return self._a.copy()
+
     def _obs(self) -> np.ndarray:
         return np.clip(np.concatenate([self._a, [-self._value / COST_CAP, self._margin / COST_CAP], self._ctx]), -5, 5).astype(np.float32)
 
