@@ -18,7 +18,7 @@ import os
 import subprocess
 import tempfile
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -75,7 +75,7 @@ def render_html(result: Any, *, command: str | None = None) -> str:
         loader=jinja2.FileSystemLoader(str(Path(__file__).parent / "templates")),
         autoescape=jinja2.select_autoescape(["html", "j2"]),
     )
-    ctx.update(generated=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), version=_version())
+    ctx.update(generated=datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), version=_version())
     return env.get_template("report.html.j2").render(**ctx)
 
 

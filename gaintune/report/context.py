@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
 
 from gaintune.fmt import fmt
+from gaintune.provenance import versions as all_versions
 from gaintune.report import plots
 from gaintune.spec import DisturbanceSpec, Gains, ProfileSpec, ScenarioSpec, TuningSpec
-from gaintune.provenance import versions as all_versions
+
+if TYPE_CHECKING:  # the result model, for annotations only (the report reads any TuneResult)
+    from gaintune.search.result import TuneResult
 
 __all__ = ["build_context"]
 
@@ -406,9 +409,51 @@ def _baselines_section(result, rep0, spec, plant, sim, full, nominal_res, units)
 
 # -------------------------------------------------------------------- main
 
+#: The nominal metrics the report tabulates per scenario.
+METRIC_KEYS = ("iae", "ise", "effort", "overshoot", "rise_time", "settling_time", "sse", "peak_u", "sat_frac")
 
-def build_context(result, *, command: str | None = None) -> dict[str, Any]:
-    """All data of the report for one TuneResult (re-simulates with traces, computes frequency responses)."""
+
+def _metric_rows(spec: TuningSpec, nominal_res: dict[int, Any]) -> list[dict[str, Any]]:
+    """One row of :data:`METRIC_KEYS` per scenario, from the nominal runs."""
+    rows = []
+    for i, sc in enumerate(spec.scenarios):
+        m = nominal_res[i].metrics
+        rows.append({"scenario": sc.name, **{k: _fmt(float(m[k][0])) for k in METRIC_KEYS},
+                     "diverged": bool(m["diverged"][0])})
+    return rows
+
+
+def _repro(result: TuneResult, command: str | None) -> dict[str, Any]:
+    """What reproduces the result: the spec as YAML, seed, spec hash, package versions and the command."""
+    prov = result.provenance
+    versions = dict(prov.versions) if prov.versions else {}
+    if not versions:
+        versions = all_versions()
+    return {
+        "spec_yaml": yaml.safe_dump(result.spec, sort_keys=False),
+        "seed": prov.seed,
+        "spec_hash": prov.spec_hash,
+        "versions": versions,
+        "command": command or prov.command or f"gaintune tune spec.yaml --seed {prov.seed}",
+    }
+
+
+
+def build_context(result: TuneResult, *, command: str | None = None) -> dict[str, Any]:
+    """All data of the report for one TuneResult (re-simulates with traces, computes frequency responses).
+
+    Parameters
+    ----------
+    result
+        The result to report; it is verified here when it carries no verification.
+    command
+        The command shown as the way to reproduce it (default: the one in its provenance).
+
+    Returns
+    -------
+    dict
+        The template's context: sections of tables, SVG figures and facts.
+    """
     from gaintune.plants.plant import build_plant
     from gaintune.sim import Simulator
     from gaintune.verification import verify
@@ -419,27 +464,15 @@ def build_context(result, *, command: str | None = None) -> dict[str, Any]:
     full = sim.layout.from_dict(result.gains)
     verified_now = result.verification is None
     rep = verify(spec, result.gains, plant=plant, layout=sim.layout) if verified_now else result.verification
-    passed = rep.verdict == "pass"
     ps = _plant_summary(spec, plant)
     units = ps["units"]
-    gains_rows = _gain_rows(spec, plant, result.gains, ps)
     time_figs, nominal_res = _time_section(spec, plant, sim, full, ps)
-    metric_keys = ("iae", "ise", "effort", "overshoot", "rise_time", "settling_time", "sse", "peak_u", "sat_frac")
-    metrics = []
-    for i, sc in enumerate(spec.scenarios):
-        m = nominal_res[i].metrics
-        metrics.append({"scenario": sc.name, **{k: _fmt(float(m[k][0])) for k in metric_keys}, "diverged": bool(m["diverged"][0])})
-    prov = result.provenance
-    versions = dict(prov.versions) if prov.versions else {}
-    if not versions:
-        versions = all_versions()
-    cmd = command or prov.command or f"gaintune tune spec.yaml --seed {prov.seed}"
     return {
         "title": f"gaintune report: {spec.name}",
         "spec": spec,
         "spec_name": spec.name,
         "description": spec.description,
-        "passed": passed,
+        "passed": rep.verdict == "pass",
         "diagnosis": result.diagnosis.model_dump() if result.diagnosis is not None else None,
         "verdict": rep.verdict,
         "verified_now": verified_now,
@@ -449,24 +482,18 @@ def build_context(result, *, command: str | None = None) -> dict[str, Any]:
         "plant": ps,
         "loops": _loop_rows(spec, plant),
         "actuator": {"limits": spec.actuator.limits, "rate_limit": spec.actuator.rate_limit},
-        "gains": gains_rows,
+        "gains": _gain_rows(spec, plant, result.gains, ps),
         "gains_source": result.gains_source,
         "requirements": _requirements(rep),
         "margins": _margin_rows(rep),
         "stability": rep.stability,
-        "metric_keys": metric_keys,
-        "metrics": metrics,
+        "metric_keys": METRIC_KEYS,
+        "metrics": _metric_rows(spec, nominal_res),
         "time": time_figs,
         "freq": _freq_section(spec, plant, sim.layout, full, rep),
         "robust": _robust_section(spec, plant, sim, full, rep, nominal_res, units),
         "search": _search_section(result, spec),
         "baselines": _baselines_section(result, rep, spec, plant, sim, full, nominal_res, units),
-        "repro": {
-            "spec_yaml": yaml.safe_dump(result.spec, sort_keys=False),
-            "seed": prov.seed,
-            "spec_hash": prov.spec_hash,
-            "versions": versions,
-            "command": cmd,
-        },
+        "repro": _repro(result, command),
         "fmt": _fmt,
     }
