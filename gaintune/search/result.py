@@ -10,8 +10,34 @@ from pydantic import BaseModel, Field, computed_field, field_serializer, field_v
 from gaintune.spec import Gains, ScenarioDefault
 from gaintune.verification.report import VerificationReport, load_report
 
-__all__ = ["CurvePoint", "Progress", "Provenance", "SettleInfo", "Diagnosis", "TuneResult", "PolicyAnswer"]
+__all__ = ["CurvePoint", "Progress", "Provenance", "SettleInfo", "Diagnosis", "TuneResult", "PolicyAnswer",
+           "accepted", "report_json"]
 
+
+def accepted(gains: Gains, verdict: str | None) -> Gains | None:
+    """The one rule of acceptance: ``gains`` when their verification verdict is ``pass``, else None.
+
+    Parameters
+    ----------
+    gains
+        The gains that were verified.
+    verdict
+        Their verdict: "pass", "fail", or None when they were not verified.
+
+    Returns
+    -------
+    Gains or None
+        ``gains`` on a pass; None otherwise.
+
+    Examples
+    --------
+    >>> g = {"main": {"Kp": 1.0}}
+    >>> accepted(g, "pass")
+    {'main': {'Kp': 1.0}}
+    >>> accepted(g, "fail") is None, accepted(g, None) is None
+    (True, True)
+    """
+    return gains if verdict == "pass" else None
 
 
 def report_json(v: VerificationReport | None) -> dict[str, Any] | None:
@@ -147,8 +173,8 @@ class TuneResult(BaseModel):
 
     @property
     def accepted_gains(self) -> Gains | None:
-        """The gains, only when verification passed; otherwise None."""
-        return self.gains if self.verdict == "pass" else None
+        """The gains, only when verification passed; otherwise None (:func:`accepted`)."""
+        return accepted(self.gains, self.verdict)
 
 
 
@@ -173,8 +199,8 @@ class PolicyAnswer(BaseModel):
     @computed_field(description="The gains when the verdict is pass, else null.")
     @property
     def accepted_gains(self) -> Gains | None:
-        """The gains, only when their verification passed; otherwise None."""
-        return self.gains if self.verdict == "pass" else None
+        """The gains, only when their verification passed; otherwise None (:func:`accepted`)."""
+        return accepted(self.gains, self.verdict)
 
 
 def _verification_mismatch(spec: dict[str, Any], gains: Gains, report: VerificationReport | None) -> str | None:
