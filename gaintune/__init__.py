@@ -6,6 +6,28 @@ The public API in one import::
 
 Names are imported on first use (PEP 562), so ``import gaintune`` stays fast and the heavy
 search stack (torch, stable-baselines3) loads only when ``tune`` is touched.
+
+Examples
+--------
+A spec (:class:`TuningSpec`, read by :func:`load_spec`), hand-picked gains checked by :func:`verify`
+(a :class:`VerificationReport`), and the package versions a result records (:func:`versions`):
+
+>>> from gaintune import TuningSpec, VerificationReport, load_spec, verify, versions
+>>> spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+...                   "scenario": {"dt": 0.05, "horizon": 20.0}})
+>>> isinstance(spec, TuningSpec), [lp.name for lp in spec.loops]
+(True, ['loop0'])
+>>> report = verify(spec, {"loop0": {"Kp": 1.14, "Ki": 0.454}})
+>>> isinstance(report, VerificationReport), report.verdict
+(True, 'pass')
+>>> report.accepted_gains
+{'loop0': {'Kp': 1.14, 'Ki': 0.454}}
+>>> verify(spec, {"loop0": {"Kp": 20.0, "Ki": 20.0}}).accepted_gains is None  # unstable: not accepted
+True
+>>> "gaintune" in versions()
+True
+
+:func:`tune` searches the gains and returns a :class:`TuneResult` (see its own example).
 """
 
 from __future__ import annotations

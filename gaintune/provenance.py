@@ -12,7 +12,14 @@ PACKAGES = ("gaintune", "numpy", "scipy", "numba", "control", "casadi", "torch",
 
 
 def versions() -> dict[str, str]:
-    """``{"python": ..., package: version}``; a package that is not installed reads "not installed"."""
+    """``{"python": ..., package: version}``; a package that is not installed reads "not installed".
+
+    Examples
+    --------
+    >>> v = versions()
+    >>> {"python", "gaintune", "numpy"} <= set(v)
+    True
+    """
     out = {"python": platform.python_version()}
     for pkg in PACKAGES:
         try:

@@ -4,10 +4,19 @@ Sections: 1 Summary, 2 Time responses, 3 Frequency, 4 Robustness, 5 Search,
 6 Baselines, 7 Reproducibility. Plots are inline SVG (matplotlib, Agg), so the
 page is one file that works offline.
 
-Example
--------
->>> from gaintune.report import render_report, result_from_gains   # doctest: +SKIP
->>> render_report(result, "out/report.html")                        # doctest: +SKIP
+Examples
+--------
+>>> import pathlib, tempfile
+>>> from gaintune.spec import load_spec
+>>> spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+...                   "scenario": {"dt": 0.05, "horizon": 20.0}})
+>>> result = result_from_gains(spec, {"loop0": {"Kp": 1.14, "Ki": 0.454}})
+>>> result.verdict
+'pass'
+>>> with tempfile.TemporaryDirectory() as d:
+...     path = render_report(result, pathlib.Path(d) / "report.html")
+...     print(path.name, path.read_text().startswith("<!DOCTYPE html>"))
+report.html True
 """
 
 from __future__ import annotations

@@ -108,6 +108,17 @@ class TuneResult(BaseModel):
     read as plain dicts keep their form. A dict is read back into a report, tolerant of
     older files (:func:`gaintune.verification.report.load_report`: infinities stored as
     ``null``, fields added since).
+
+    Examples
+    --------
+    Unverified gains are not accepted; :func:`gaintune.search.tune.tune` returns verified ones.
+
+    >>> r = TuneResult(spec={}, algo="manual", gains={"loop0": {"Kp": 1.0}}, cost=1.0,
+    ...                provenance=Provenance(spec_hash="-", seed=0, versions={}))
+    >>> r.verdict is None, r.accepted_gains is None
+    (True, True)
+    >>> TuneResult.model_validate_json(r.model_dump_json()).gains
+    {'loop0': {'Kp': 1.0}}
     """
 
     spec: dict[str, Any] = Field(description="The spec as validated (JSON form), every scenario's dt and horizon filled in.")

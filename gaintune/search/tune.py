@@ -153,6 +153,19 @@ def tune(
     -------
     TuneResult
         The frozen gains, their cost and metrics, the verification (when ``verify``) and how they were found.
+
+    Examples
+    --------
+    A short search (200 simulations) on a third-order lag; the gains are accepted only when they pass:
+
+    >>> from gaintune import load_spec, tune
+    >>> spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+    ...                   "scenario": {"dt": 0.05, "horizon": 20.0}, "search": {"budget": 200, "seed": 0}})
+    >>> result = tune(spec)
+    >>> sorted(result.gains["loop0"]), result.sims <= 200, result.stopped
+    (['Ki', 'Kp'], True, 'budget')
+    >>> result.verdict, result.accepted_gains == result.gains
+    ('pass', True)
     """
     options = TuneOptions(progress=progress, out_dir=out_dir, verify=verify, baselines=baselines, cancel=cancel,
                           warm_start=warm_start, agent_overrides=agent_overrides, command=command)

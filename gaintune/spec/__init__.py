@@ -27,6 +27,20 @@ is the one import path:
 * :mod:`gaintune.spec.yamlload`: YAML loading with a bound on alias expansion (:data:`MAX_YAML_NODES`);
 * :mod:`gaintune.spec.design`: the pidtune-style ``design`` shortcut, expanded into requirements and scenarios;
 * :mod:`gaintune.spec.doc`: renders ``docs/spec.md`` from this schema (``python -m gaintune.spec.doc``).
+
+Examples
+--------
+A :class:`TuningSpec` fills every default; a bad field is named in the error:
+
+>>> spec = TuningSpec.model_validate({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pid"}]})
+>>> spec.loops[0].name, spec.search.algo
+('loop0', 'ppo')
+>>> from pydantic import ValidationError
+>>> try:
+...     TuningSpec.model_validate({"plant": {"tf": {"num": [1], "den": [1, 1]}}, "loops": [{"type": "pq"}]})
+... except ValidationError as exc:
+...     print(exc.errors()[0]["loc"], exc.errors()[0]["msg"])
+('loops', 0, 'type') Input should be 'p', 'pi', 'pd', 'pid', 'lqr' or 'lqi'
 """
 
 from __future__ import annotations
@@ -317,12 +331,33 @@ def parse_json_or_yaml(text: str) -> Any:
 def load_spec(source: str | Path | dict[str, Any]) -> TuningSpec:
     """Load and validate a spec from a YAML/JSON file path, a YAML/JSON string or a dict.
 
+    Parameters
+    ----------
+    source
+        A path ending in ``.yaml``, ``.yml`` or ``.json`` (a regular file of at most 10 MB), the
+        YAML/JSON text itself, or the spec as a dict.
+
+    Returns
+    -------
+    TuningSpec
+        The validated spec.
+
     Raises
     ------
     SpecError
         When the file cannot be read or parsed, or the content is not a mapping.
     pydantic.ValidationError
         When a field is invalid (the message names the field).
+
+    Examples
+    --------
+    >>> spec = load_spec("plant: {tf: {num: [1], den: '(s+1)^3'}}\\nloops: [{type: pi}]\\n")
+    >>> spec.loops[0].type, spec.plant.tf.den
+    ('pi', '(s+1)^3')
+    >>> load_spec("- not\\n- a mapping\\n")
+    Traceback (most recent call last):
+        ...
+    gaintune.errors.SpecError: spec: must be a mapping with at least 'plant' and 'loops'
     """
     if isinstance(source, dict):
         data = source
