@@ -3,7 +3,14 @@ decides the accepted gains, for the API as for the report and the exports."""
 
 from __future__ import annotations
 
-from test_api_routes import BAD, GOOD, client, make_client, make_fake_tune, run_next, submit  # noqa: F401 (fixtures)
+import pytest
+from fastapi.testclient import TestClient
+from test_api_routes import BAD, GOOD, make_client, make_fake_tune, run_next, submit  # noqa: F401 (make_client: fixture)
+
+
+@pytest.fixture
+def client(make_client) -> TestClient:  # noqa: F811 (pytest passes the fixture imported above)
+    return make_client()
 
 
 def test_job_answer_does_not_accept_gains_whose_stored_verification_is_for_other_gains(client):
