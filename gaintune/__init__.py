@@ -50,18 +50,20 @@ _EXPORTS = {
     "versions": "gaintune.provenance",
 }
 
-__all__ = ["__version__", *_EXPORTS]
+# spelled out, so linters and type checkers see the names (tests/test_public_api.py compares it with _EXPORTS)
+__all__ = ["__version__", "load_spec", "TuningSpec", "tune", "TuneResult", "verify", "VerificationReport", "versions"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
+    from gaintune.provenance import versions
     from gaintune.search.result import TuneResult
     from gaintune.search.tune import tune
     from gaintune.spec import TuningSpec, load_spec
     from gaintune.verification import verify
     from gaintune.verification.report import VerificationReport
-    from gaintune.provenance import versions
 
 
 def __getattr__(name: str) -> Any:
+    """Import a public name on first use (PEP 562)."""
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'gaintune' has no attribute {name!r}")
@@ -72,4 +74,5 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
+    """The public names, for ``dir(gaintune)`` and completion."""
     return sorted(__all__)

@@ -8,7 +8,7 @@ with the arguments unchanged, so ``--help`` shows the benchmark's own options.
 from __future__ import annotations
 
 import importlib
-from typing import Callable
+from collections.abc import Callable
 
 import typer
 

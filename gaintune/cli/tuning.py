@@ -14,8 +14,9 @@ Names with a leading underscore are internal to :mod:`gaintune.cli`.
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import typer
 

@@ -28,11 +28,11 @@ import numpy as np
 
 from gaintune.classical.timescale import scenario_defaults
 from gaintune.controllers.layout import GainLayout
-from gaintune.evaluation.search_box import search_box
+from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.evaluation.evaluator import DIVERGED_COST, Evaluator, Scores
+from gaintune.evaluation.search_box import search_box
 from gaintune.plants import build_plant
 from gaintune.plants.checks import validate_against_plant
-from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.sim import Simulator
 from gaintune.sim import draws as draws_mod
 from gaintune.sim.draws import Draws

@@ -40,10 +40,10 @@ import numpy as np
 from gaintune.cache import LRU
 from gaintune.classical import BOUNDS_FACTOR, auto_bounds, rule_candidates
 from gaintune.controllers.layout import GainLayout
+from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.evaluation.evaluator import Evaluator
 from gaintune.plants import build_plant
 from gaintune.plants.plant import Plant
-from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.sim import Simulator
 from gaintune.spec import Gains, TuningSpec
 from gaintune.spec.backoff import BackoffSpec

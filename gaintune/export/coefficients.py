@@ -25,11 +25,11 @@ def loop_coefficients(spec: TuningSpec, gains: Gains) -> list[dict[str, Any]]:
     limits, anti-windup mode and ``Tt``; LQ loops give ``K, Kint, Nr`` and the
     operating point. Every loop also gets ``i0`` (integrator start) and ``y0``.
     """
+    from gaintune.controllers.direction import measured_indices
     from gaintune.controllers.layout import GainLayout
     from gaintune.controllers.lq import lq_gains
     from gaintune.controllers.pid import pid_params
     from gaintune.plants.plant import build_plant
-    from gaintune.controllers.direction import measured_indices
 
     plant = build_plant(spec.plant)
     layout = GainLayout(spec, plant.states)

@@ -27,9 +27,9 @@ import numpy as np
 from gaintune.envs.problem import GainProblem
 from gaintune.envs.vec import BatchedGainVecEnv
 from gaintune.errors import SpecError
+from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.evaluation.evaluator import Evaluator
 from gaintune.plants import build_plant
-from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.search.agents import load_agent
 from gaintune.search.result import PolicyAnswer
 from gaintune.sim import Simulator

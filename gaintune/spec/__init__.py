@@ -64,6 +64,7 @@ from gaintune.spec.base import (
     _Model,
     check_delay_samples,
 )
+from gaintune.spec.design import DesignSpec, expand_design
 from gaintune.spec.loops import GAIN_NAMES, ActuatorSpec, DerivativeFilterSpec, Gains, GainSpec, LoopSpec
 from gaintune.spec.names import ident_key, name_problem
 from gaintune.spec.plant import (
@@ -85,7 +86,6 @@ from gaintune.spec.scenarios import (
 )
 from gaintune.spec.settings import DistSpec, RandomizeSpec, RobustSpec, SafetySpec, SearchSpec, VerifySpec
 from gaintune.spec.yamlload import MAX_YAML_NODES, load_yaml
-from gaintune.spec.design import DesignSpec, expand_design
 
 __all__ = [
     "parse_json_or_yaml",
@@ -187,7 +187,7 @@ class TuningSpec(_Model):
         return data
 
     @model_validator(mode="after")
-    def _loop_names(self) -> "TuningSpec":
+    def _loop_names(self) -> TuningSpec:
         for i, loop in enumerate(self.loops):
             if loop.name is None:
                 loop.name = f"loop{i}"

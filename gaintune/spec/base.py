@@ -10,7 +10,7 @@ modules can enforce them without importing the package that re-exports them.
 from __future__ import annotations
 
 import math
-from functools import lru_cache
+from functools import cache
 from typing import Annotated, Any, Literal, get_args
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
@@ -95,7 +95,7 @@ def check_delay_samples(delay: float, dt: float, field: str = "plant.delay") -> 
                                f"of {MAX_DELAY_STEPS}; give a delay <= {MAX_DELAY_STEPS * dt:g} s or a larger dt")
 
 
-@lru_cache(maxsize=None)
+@cache
 def _bool_policy(model: type, field: str) -> Literal["allow", "top", "deep"]:
     """How :class:`_Model` checks ``field`` for booleans: "allow" unless its type holds numbers and no
     bool; then "deep" (every value inside lists, tuples and dicts, e.g. ``bounds`` or ``params``), or

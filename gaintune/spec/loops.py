@@ -44,7 +44,7 @@ class GainSpec(_Model):
     )
 
     @model_validator(mode="after")
-    def _check(self) -> "GainSpec":
+    def _check(self) -> GainSpec:
         if self.value is not None:
             _finite(self.value, "gain value")
         if not self.tune and self.value is None:
@@ -125,7 +125,7 @@ class LoopSpec(_Model):
         return _finite(v, info.field_name)
 
     @model_validator(mode="after")
-    def _lq_direction(self) -> "LoopSpec":
+    def _lq_direction(self) -> LoopSpec:
         if self.type in ("lqr", "lqi") and self.direction == "reverse":
             raise ValueError(
                 f"direction: reverse does not apply to an {self.type} loop (state feedback has no controller sign; "

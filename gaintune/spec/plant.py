@@ -103,7 +103,7 @@ class OdeSpec(_Model):
     u0: Coef | None = Field(None, description="Operating-point input; solved from x0 for equilibrium if omitted.")
 
     @model_validator(mode="after")
-    def _rhs_matches_states(self) -> "OdeSpec":
+    def _rhs_matches_states(self) -> OdeSpec:
         if len(set(self.states)) != len(self.states):
             raise ValueError(f"states names must be unique, {sorted({n for n in self.states if self.states.count(n) > 1})} repeat")
         if self.input in self.states:
@@ -152,7 +152,7 @@ class PlantSpec(_Model):
         return v
 
     @model_validator(mode="after")
-    def _exactly_one(self) -> "PlantSpec":
+    def _exactly_one(self) -> PlantSpec:
         given = [k for k in ("tf", "ss", "ode", "model") if getattr(self, k) is not None]
         if len(given) != 1:
             raise ValueError(

@@ -42,7 +42,7 @@ class ProfileSpec(_Model):
         return v
 
     @model_validator(mode="after")
-    def _check(self) -> "ProfileSpec":
+    def _check(self) -> ProfileSpec:
         for x in (self.amplitude, self.time, self.slope):
             _finite(x, "profile value")
         if self.kind == "sequence":
@@ -84,7 +84,7 @@ class ScenarioSpec(_Model):
     weight: float = Field(1.0, ge=0, description="Weight of this scenario in the combined cost.")
 
     @model_validator(mode="after")
-    def _check(self) -> "ScenarioSpec":
+    def _check(self) -> ScenarioSpec:
         for name in ("dt", "horizon"):
             v = getattr(self, name)
             if v is None:
@@ -197,7 +197,7 @@ class RequirementsSpec(_Model):
         description="How far inside each limit the search aims (the verdict judges the exact limits): "
         "{peaks, pm_deg, gm_db, dm}; 0 for none (the answer lands on the limit itself). See docs/search.md.")
 
-    def aimed(self) -> "RequirementsSpec":
+    def aimed(self) -> RequirementsSpec:
         """These requirements with every limit moved to the search's aim (:meth:`BackoffSpec.aim`) and no
         back-off left; themselves when the back-off is 0. ``mks_max: auto`` stays ``auto``: a caller that
         resolves it aims the resolved limit with ``backoff.aim("mks_max", limit)``."""

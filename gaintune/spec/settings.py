@@ -48,7 +48,7 @@ class DistSpec(_Model):
                 "anyOf": [obj, pair]}
 
     @model_validator(mode="after")
-    def _check(self) -> "DistSpec":
+    def _check(self) -> DistSpec:
         for name in ("low", "high", "mean", "std"):
             v = getattr(self, name)
             if v is not None:
@@ -129,7 +129,7 @@ class SafetySpec(_Model):
     divergence_bound: float = Field(1e6, gt=0, description="|state| beyond this, or NaN/inf, marks divergence.")
 
     @model_validator(mode="after")
-    def _finite_numbers(self) -> "SafetySpec":
+    def _finite_numbers(self) -> SafetySpec:
         for k, v in self.state_bounds.items():
             _finite(v, f"state bound {k!r}")
             if v <= 0:
