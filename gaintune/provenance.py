@@ -8,7 +8,8 @@ from importlib.metadata import PackageNotFoundError, version
 __all__ = ["PACKAGES", "versions"]
 
 #: Packages whose versions can change a result.
-PACKAGES = ("gaintune", "numpy", "scipy", "numba", "control", "casadi", "torch", "stable-baselines3", "gymnasium", "pydantic")
+PACKAGES = ("gaintune", "numpy", "scipy", "numba", "control", "casadi", "torch", "stable-baselines3", "gymnasium",
+            "pydantic")
 
 
 def versions() -> dict[str, str]:

@@ -247,7 +247,8 @@ def reverify_result(result, path: Path) -> None:
                   f"{result.verdict!r}; the stored verdict is not used", markup=False, highlight=False)
 
 
-def apply_overrides(spec, *, algo: str | None = None, budget: int | None = None, seed: int | None = None, workers: int | None = None):
+def apply_overrides(spec, *, algo: str | None = None, budget: int | None = None, seed: int | None = None,
+                    workers: int | None = None):
     """Override ``search`` settings and re-validate the whole spec."""
     from gaintune.spec import TuningSpec
 

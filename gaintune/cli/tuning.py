@@ -54,7 +54,8 @@ _PHASES = {"search": "searching", "settle": "settling onto the requirements", "r
 
 def _run_tune(tune: Callable, spec, *, out_dir: Path | None, json_out: bool, baselines: bool, command: str,
               warm_start: Path | None = None) -> Any:
-    """Run ``tune`` (from :func:`_get_tune`) on ``spec``: quietly with ``json_out``, else with a progress bar on stderr."""
+    """Run ``tune`` (from :func:`_get_tune`) on ``spec``: quietly with ``json_out``, else with a progress bar on
+    stderr."""
     kwargs: dict[str, Any] = dict(out_dir=str(out_dir) if out_dir else None, verify=True, baselines=baselines)
     if warm_start is not None:
         kwargs["warm_start"] = str(warm_start)
@@ -77,7 +78,8 @@ def _run_tune(tune: Callable, spec, *, out_dir: Path | None, json_out: bool, bas
         task = bar.add_task(f"tuning {spec.name} ({spec.search.algo})", total=spec.search.budget, best="-", eta="-")
 
         def progress(p) -> bool:
-            bar.update(task, completed=min(p.sims, p.budget), total=p.budget, description=f"{_PHASES.get(p.phase, p.phase)} ({spec.search.algo})",
+            bar.update(task, completed=min(p.sims, p.budget), total=p.budget,
+                       description=f"{_PHASES.get(p.phase, p.phase)} ({spec.search.algo})",
                        best=_f(p.best_cost), eta="-" if p.eta is None else f"{max(p.eta, 0.0):.0f}s")
             return True
 

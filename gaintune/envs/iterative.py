@@ -51,7 +51,8 @@ class IterativeGainTuningEnv(gym.Env):
         return self._a.copy()
 
     def _obs(self) -> np.ndarray:
-        return np.clip(np.concatenate([self._a, [-self._value / COST_CAP, self._margin / COST_CAP], self._ctx]), -5, 5).astype(np.float32)
+        obs = np.concatenate([self._a, [-self._value / COST_CAP, self._margin / COST_CAP], self._ctx])
+        return np.clip(obs, -5, 5).astype(np.float32)
 
     def _evaluate(self, a: np.ndarray) -> tuple[float, dict[str, Any]]:
         tuned = self.problem.layout.action_to_tuned(a[None])

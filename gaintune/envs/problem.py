@@ -85,7 +85,8 @@ class GainProblem:
         self.randomized = spec.randomize.active
         self.obs_size = draws_mod.context_size(spec)
         self.cost_scale = self._cost_scale()
-        #: Project stable, infeasible samples onto the requirement boundary before scoring (gaintune.evaluation.boundary_estimate).
+        #: Project stable, infeasible samples onto the requirement boundary before scoring
+        #: (gaintune.evaluation.boundary_estimate).
         self.repair = spec.search.repair
         #: Optional hook called as ``on_score(tuned, scored)`` after every env scoring (search monitor).
         self.on_score = None

@@ -68,8 +68,8 @@ class BatchedGainVecEnv(VecEnv):
         last_obs = self._obs
         new_obs = self._new_episodes()
         infos: list[dict[str, Any]] = [
-            {"cost": float(s.cost[i]), "violation": float(s.violation[i]), "diverged": bool(s.diverged[i]), "tripped": bool(s.tripped[i]),
-             "terminal_observation": last_obs[i], "TimeLimit.truncated": False}
+            {"cost": float(s.cost[i]), "violation": float(s.violation[i]), "diverged": bool(s.diverged[i]),
+             "tripped": bool(s.tripped[i]), "terminal_observation": last_obs[i], "TimeLimit.truncated": False}
             for i in range(self.num_envs)
         ]
         return new_obs, s.reward.astype(np.float32), np.ones(self.num_envs, dtype=bool), infos

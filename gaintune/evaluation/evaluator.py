@@ -117,7 +117,8 @@ class Scores:
 def scenario_cost(m: dict[str, np.ndarray], obj: ObjectiveSpec, sc: ScenarioSpec) -> np.ndarray:
     """Cost of one scenario's metrics (each (B,)); diverged runs get DIVERGED_COST."""
     settle = np.where(np.isnan(m["settling_time"]), sc.horizon, m["settling_time"])
-    with np.errstate(invalid="ignore", over="ignore"):  # inf * 0 weight on diverged rows, or a weight of 1e300: replaced below
+    # inf * 0 weight on diverged rows, or a weight of 1e300: replaced below
+    with np.errstate(invalid="ignore", over="ignore"):
         cost = (
             m[obj.measure]
             + obj.effort_weight * m["effort"]
@@ -165,7 +166,8 @@ class Evaluator:
             sim = Simulator(spec, plant, GainLayout(spec, plant.states, plant=plant))
         self.sim = sim
         if not all(sc.resolved for sc in spec.scenarios):
-            spec = sim.spec  # the simulator's: scenario dt/horizon derived from the plant (gaintune.classical.timescale)
+            # the simulator's: scenario dt/horizon derived from the plant (gaintune.classical.timescale)
+            spec = sim.spec
         self.spec = spec
         self.plant: Plant = self.sim.plant
         self.layout = self.sim.layout
@@ -200,7 +202,7 @@ class Evaluator:
             if spec.randomize.params or spec.randomize.delay:
                 c = draws_mod.corners(spec, plant, max_corners=MAX_PENALTY_CORNERS)
                 for i in range(len(c)):
-                    lin = plant.linearize(dict(zip(plant.param_names, c.params[i])))
+                    lin = plant.linearize(dict(zip(plant.param_names, c.params[i], strict=True)))
                     models.append(dataclasses.replace(lin, delay=float(c.delay[i])))
             self._constraint_models = models
         return self._constraint_models

@@ -53,8 +53,9 @@ def spec_at_dt(spec: TuningSpec, dt: float, *, max_steps: int | None = None) -> 
                 f"{_fmt_dt(sc.horizon / limit)} s, or shorten scenarios.{i}.horizon and re-tune")
         if steps < 2:
             raise ExportError(
-                "dt", f"dt = {_fmt_dt(dt)} s leaves fewer than 2 samples in the {_fmt_dt(sc.horizon)} s horizon of scenario "
-                f"{sc.name!r}; export at dt <= {_fmt_dt(sc.horizon / 2)} s, or lengthen scenarios.{i}.horizon and re-tune")
+                "dt", f"dt = {_fmt_dt(dt)} s leaves fewer than 2 samples in the {_fmt_dt(sc.horizon)} s horizon of "
+                f"scenario {sc.name!r}; export at dt <= {_fmt_dt(sc.horizon / 2)} s, or lengthen "
+                f"scenarios.{i}.horizon and re-tune")
     if all(_same_dt(sc.dt, dt) for sc in spec.scenarios):
         return spec
     from pydantic import ValidationError
@@ -67,7 +68,8 @@ def spec_at_dt(spec: TuningSpec, dt: float, *, max_steps: int | None = None) -> 
     except ValidationError as exc:
         e = exc.errors(include_url=False, include_input=False)[0]
         loc = ".".join(str(p) for p in e["loc"])
-        raise ExportError("dt", f"the spec is not valid at dt = {_fmt_dt(dt)} s ({loc}: {e['msg']}); choose another dt") from None
+        raise ExportError("dt", f"the spec is not valid at dt = {_fmt_dt(dt)} s ({loc}: {e['msg']}); "
+                                "choose another dt") from None
 
 
 def first_reason(report: Any) -> str | None:
@@ -136,7 +138,8 @@ def verdict_at_dt(
     return report.verdict, json.loads(report.model_dump_json())
 
 
-def result_verdict_at_dt(result: Any, dt: float | None = None, *, max_steps: int | None = None) -> tuple[str, dict[str, Any] | None]:
+def result_verdict_at_dt(result: Any, dt: float | None = None, *,
+                         max_steps: int | None = None) -> tuple[str, dict[str, Any] | None]:
     """:func:`verdict_at_dt` for a :class:`~gaintune.search.result.TuneResult` (its stored verification included)."""
     spec = TuningSpec.model_validate(result.spec)
     return verdict_at_dt(spec, result.gains, dt, stored=result.verification, max_steps=max_steps)

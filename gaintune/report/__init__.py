@@ -37,7 +37,8 @@ from gaintune.files import write_atomic
 if TYPE_CHECKING:  # pragma: no cover
     from gaintune.spec import Gains
 
-__all__ = ["SECTIONS", "ReportError", "load_verification", "render_html", "render_report", "render_pdf", "find_chromium", "result_from_gains"]
+__all__ = ["SECTIONS", "ReportError", "load_verification", "render_html", "render_report", "render_pdf",
+           "find_chromium", "result_from_gains"]
 
 #: Section ids in page order (the HTML element ids).
 SECTIONS: tuple[str, ...] = ("summary", "time", "frequency", "robustness", "search", "baselines", "reproducibility")
@@ -143,14 +144,16 @@ def render_pdf(html_path: str | os.PathLike, pdf_path: str | os.PathLike, *, tim
         except subprocess.TimeoutExpired:
             raise ReportError("pdf", f"Chromium did not finish printing within {timeout:.0f} s") from None
         if proc.returncode != 0 or not printed.is_file() or printed.stat().st_size == 0:
-            raise ReportError("pdf", f"Chromium failed to print the PDF (exit {proc.returncode}): {proc.stderr.strip()[-500:]}")
+            raise ReportError("pdf", f"Chromium failed to print the PDF (exit {proc.returncode}): "
+                                     f"{proc.stderr.strip()[-500:]}")
         write_atomic(pdf_path, printed.read_bytes())
     return pdf_path
 
 
 def result_from_gains(spec: Any, gains: Gains, *, algo: str = "manual", verify: bool = True,
                       baselines: list[dict[str, Any]] | None = None, command: str = "") -> Any:
-    """Wrap hand-picked (or baseline) gains in a :class:`TuneResult`, verified and scored, so they can be reported and exported."""
+    """Wrap hand-picked (or baseline) gains in a :class:`TuneResult`, verified and scored, so they can be reported and
+    exported."""
     from gaintune.evaluation.evaluator import Evaluator
     from gaintune.provenance import versions
     from gaintune.search.result import Provenance, TuneResult
@@ -167,11 +170,13 @@ def result_from_gains(spec: Any, gains: Gains, *, algo: str = "manual", verify: 
     }
     rep = run_verify(spec, named) if verify else None
     return TuneResult(
-        spec=json.loads(spec.model_dump_json()), algo=algo, gains=named, gains_source="best_seen", cost=float(scores.cost[0]),
+        spec=json.loads(spec.model_dump_json()), algo=algo, gains=named, gains_source="best_seen",
+        cost=float(scores.cost[0]),
         violation=float(scores.violation[0]),
         metrics=metrics, sims=ev.n_sims, wall_time=time.perf_counter() - t0, stopped="budget", verification=rep,
         baselines=baselines or [],
-        provenance=Provenance(spec_hash=spec.content_hash(), seed=spec.search.seed, versions=versions(), command=command),
+        provenance=Provenance(spec_hash=spec.content_hash(), seed=spec.search.seed, versions=versions(),
+                              command=command),
     )
 
 

@@ -122,7 +122,8 @@ def _gain_rows(spec: TuningSpec, plant, gains: Gains, ps: dict[str, Any]) -> lis
         alt = [f"{k} {_fmt(v, 4)}" + (f" {gain_unit(k, u_unit, y_unit)}" if gain_unit(k, u_unit, y_unit) else "")
                for k, v in other.items() if k not in g]
         for k, v in g.items():
-            rows.append({"loop": loop, "gain": k, "value": _fmt(v, 6), "unit": gain_unit(k, u_unit, y_unit) if pid else "",
+            rows.append({"loop": loop, "gain": k, "value": _fmt(v, 6),
+                         "unit": gain_unit(k, u_unit, y_unit) if pid else "",
                          "other": ", ".join(alt) if k == next(iter(g)) else ""})
     return rows
 
@@ -191,7 +192,8 @@ def _time_section(spec, plant, sim, full, ps) -> tuple[list[dict], dict]:
     lim = spec.actuator.limits
 
     def figure(res, title: str) -> str:
-        return plots.time_figure(res.t, _loop_traces(res, spec, plant, units), res.traces["u"][0], lim, title, u_unit=u_unit)
+        return plots.time_figure(res.t, _loop_traces(res, spec, plant, units), res.traces["u"][0], lim, title,
+                                 u_unit=u_unit)
 
     figs = []
     nominal_runs = {}
@@ -199,7 +201,8 @@ def _time_section(spec, plant, sim, full, ps) -> tuple[list[dict], dict]:
         res = sim.run(full[None], scenario=i, traces=True)
         nominal_runs[i] = res
         kind = sc.reference.kind if sc.reference.kind != "none" else "no reference change"
-        dist = "" if sc.disturbance.kind == "none" else f", {sc.disturbance.kind} load disturbance at the {sc.disturbance.entry}"
+        dist = ("" if sc.disturbance.kind == "none"
+                else f", {sc.disturbance.kind} load disturbance at the {sc.disturbance.entry}")
         title = f"Scenario '{sc.name}': reference {kind}{dist}"
         figs.append({"title": title, "svg": figure(res, title)})
     lin = plant.linearize()
@@ -209,14 +212,16 @@ def _time_section(spec, plant, sim, full, ps) -> tuple[list[dict], dict]:
         res = sim.run(full[None], scenario=load, traces=True)
         title = (f"Load disturbance: input step of {load.disturbance.amplitude:.3g} at t = {load.disturbance.time:g} s "
                  "(derived from the first scenario, reference held)")
-        figs.append({"title": title, "svg": figure(res, title), "note": f"load IAE {_fmt(float(res.metrics['load_iae'][0]))}"})
+        figs.append({"title": title, "svg": figure(res, title),
+                     "note": f"load IAE {_fmt(float(res.metrics['load_iae'][0]))}"})
     step = _setpoint_scenario(spec)
     if step is not None:
         res = sim.run(full[None], scenario=step, traces=True)
         title = "Setpoint step of 1, for information (the spec tunes for its load scenarios only)"
         m = res.metrics
         figs.append({"title": title, "svg": figure(res, title),
-                     "note": f"overshoot {_fmt(float(m['overshoot'][0]))}, settling time {_fmt(float(m['settling_time'][0]))} s"})
+                     "note": f"overshoot {_fmt(float(m['overshoot'][0]))}, "
+                             f"settling time {_fmt(float(m['settling_time'][0]))} s"})
     return figs, nominal_runs
 
 
@@ -250,15 +255,17 @@ def _freq_section(spec, plant, layout, full, rep) -> dict[str, Any]:
     L = loop_frequency_responses(spec, plant, layout, full, w, lin)
     figs_by_break = {(f.loop, f.break_point): f for f in rep.loops}
     bodes, curves = [], []
-    breaks = list(zip(cas.break_names, L))
+    breaks = list(zip(cas.break_names, L, strict=True))
     if len(spec.loops) == 1:  # the controller output is the plant input: one curve is enough
         breaks = breaks[:1]
     for (loop, brk), Lr in breaks:
         f = figs_by_break.get((loop, brk))
-        label = f"{loop} (broken at its controller output)" if brk == "controller_output" else "plant input (all loops closed)"
+        label = (f"{loop} (broken at its controller output)" if brk == "controller_output"
+                 else "plant input (all loops closed)")
         gm = {"db": f.gm_db, "freq": f.gm_freq} if f else None
         pm = {"deg": f.pm_deg, "freq": f.pm_freq} if f else None
-        bodes.append({"title": f"Bode: loop transfer at {label}", "svg": plots.bode_figure(w, Lr, f"L at {label}", gm, pm)})
+        bodes.append({"title": f"Bode: loop transfer at {label}",
+                      "svg": plots.bode_figure(w, Lr, f"L at {label}", gm, pm)})
         curves.append((loop if brk == "controller_output" else "plant input", Lr))
     req = spec.requirements
     ms_vals = [f.ms for f in rep.loops]
@@ -269,8 +276,9 @@ def _freq_section(spec, plant, layout, full, rep) -> dict[str, Any]:
         "sensitivity": plots.sensitivity_figure(w, curves, req.ms_max, req.mt_max),
         "delay_note": (
             f"Sampled loop at dt = {analysis_dt(spec):.4g} s: zero-order-hold plant with its delay {lin.delay:.4g} s "
-            f"(exact), the controllers' discrete laws" + (f", {spec.verify.compute_delay} sample(s) of computation delay"
-                                                          if spec.verify.compute_delay else "") + "."
+            f"(exact), the controllers' discrete laws"
+            + (f", {spec.verify.compute_delay} sample(s) of computation delay" if spec.verify.compute_delay else "")
+            + "."
             if spec.verify.sampled else
             f"Continuous loop: delay {delay_T:.4g} s = plant delay {lin.delay:.4g} s + sampling delay dt/2 = "
             f"{sampling_delay(spec):.4g} s, " + ("exact e^(-jwT)." if spec.verify.pade_order is None
@@ -303,12 +311,13 @@ def _robust_section(spec, plant, sim, full, rep, nominal_res, units) -> dict[str
     out: dict[str, Any] = {"active": spec.randomize.active, "worst": [], "svg": None}
     if rep.robust is not None:
         r = rep.robust
-        out["summary"] = (f"{r.n_samples} sampled plants ({r.n_corners} box corners + {r.n_monte_carlo} random draws, seed {r.seed}); "
-                          f"{r.n_unstable} unstable")
+        out["summary"] = (f"{r.n_samples} sampled plants ({r.n_corners} box corners + {r.n_monte_carlo} random draws, "
+                          f"seed {r.seed}); {r.n_unstable} unstable")
         out["n_unstable"] = r.n_unstable
         for wc in r.worst:
             out["worst"].append({
-                "loop": wc.loop, "break": "controller output" if wc.break_point == "controller_output" else "plant input",
+                "loop": wc.loop,
+                "break": "controller output" if wc.break_point == "controller_output" else "plant input",
                 "gm": _fmt(wc.gm_db, 3), "pm": _fmt(wc.pm_deg, 3), "dm": _fmt(wc.delay_margin, 3), "ms": _fmt(wc.ms, 3),
                 "mt": _fmt(wc.mt, 3), "disk": _fmt(wc.disk_alpha, 3),
                 "where": ", ".join(f"{k}={_fmt(v, 3)}" for k, v in wc.where.get("pm_deg", {}).items()),
@@ -327,8 +336,9 @@ def _robust_section(spec, plant, sim, full, rep, nominal_res, units) -> dict[str
     out["n_draws"] = n
     out["n_diverged"] = int((~ok).sum())
     if ok.any():
-        out["svg"] = plots.envelope_figure(res.t, ys[ok], nom.traces[f"y.{lp0.name}"][0], nom.traces[f"sp.{lp0.name}"][0],
-                                           res.traces["u"][ok], nom.traces["u"][0], meas)
+        out["svg"] = plots.envelope_figure(res.t, ys[ok], nom.traces[f"y.{lp0.name}"][0],
+                                           nom.traces[f"sp.{lp0.name}"][0], res.traces["u"][ok], nom.traces["u"][0],
+                                           meas)
         iae = res.metrics["iae"][ok]
         out["iae"] = {"min": _fmt(float(iae.min())), "mean": _fmt(float(iae.mean())), "max": _fmt(float(iae.max()))}
     return out
@@ -337,7 +347,8 @@ def _robust_section(spec, plant, sim, full, rep, nominal_res, units) -> dict[str
 def _search_section(result, spec: TuningSpec) -> dict[str, Any]:
     series = []
     if result.curve:
-        series.append((f"{result.algo} (gaintune)", [c.sims for c in result.curve], [c.best_cost for c in result.curve]))
+        series.append((f"{result.algo} (gaintune)", [c.sims for c in result.curve],
+                       [c.best_cost for c in result.curve]))
     for b in result.baselines or []:
         h = b.get("history") or []
         if h:
@@ -346,8 +357,9 @@ def _search_section(result, spec: TuningSpec) -> dict[str, Any]:
         ("algorithm", result.algo), ("environment", spec.search.env), ("budget (simulations)", spec.search.budget),
         ("simulations used", result.sims), ("RL simulations", result.rl_sims), ("parallel envs", spec.search.n_envs),
         ("robust samples / aggregate", f"{spec.search.robust.samples} / {spec.search.robust.aggregate}"),
-        ("wall time", f"{result.wall_time:.1f} s"), ("stopped by", result.stopped), ("gains source", result.gains_source),
-        ("final cost", _fmt(result.cost)), ("RL-only cost", _fmt(result.rl_cost)), ("policy cost", _fmt(result.policy_cost)),
+        ("wall time", f"{result.wall_time:.1f} s"), ("stopped by", result.stopped),
+        ("gains source", result.gains_source), ("final cost", _fmt(result.cost)),
+        ("RL-only cost", _fmt(result.rl_cost)), ("policy cost", _fmt(result.policy_cost)),
         ("seed", spec.search.seed), ("agent", result.agent_path or "-"),
     ]
     return {"facts": [(k, _fmt(v) if not isinstance(v, str) else v) for k, v in facts],
@@ -375,8 +387,9 @@ def _baselines_section(result, rep0, spec, plant, sim, full, nominal_res, units)
                 entries.append(run_baseline(spec, m).model_dump())
             except Exception as exc:  # a baseline that cannot run is reported, never fatal
                 entries.append({"method": m, "gains": None, "reason": str(exc)})
-    rows = [{"method": f"gaintune ({result.algo})", "gains": _gains_text(result.gains), "cost": _fmt(result.cost), "sims": _fmt(result.sims),
-             "verdict": rep0.verdict, "gm": "", "pm": "", "ms": "", "note": "this result", "self": True}]
+    rows = [{"method": f"gaintune ({result.algo})", "gains": _gains_text(result.gains), "cost": _fmt(result.cost),
+             "sims": _fmt(result.sims), "verdict": rep0.verdict, "gm": "", "pm": "", "ms": "", "note": "this result",
+             "self": True}]
     if rep0.loops:
         rows[0].update(gm=_fmt(min(f.gm_db for f in rep0.loops), 3), pm=_fmt(min(f.pm_deg for f in rep0.loops), 3),
                        ms=_fmt(max(f.ms for f in rep0.loops), 3))
@@ -385,8 +398,9 @@ def _baselines_section(result, rep0, spec, plant, sim, full, nominal_res, units)
     runs = [(f"gaintune ({result.algo})", nom.traces[f"y.{lp0.name}"][0], nom.traces["u"][0])]
     for b in entries:
         g = b.get("gains")
-        row = {"method": b.get("method", "?"), "gains": _gains_text(g), "cost": _fmt(b.get("cost")), "sims": _fmt(b.get("n_sims")),
-               "verdict": "-", "gm": "-", "pm": "-", "ms": "-", "note": b.get("reason") or "", "self": False}
+        row = {"method": b.get("method", "?"), "gains": _gains_text(g), "cost": _fmt(b.get("cost")),
+               "sims": _fmt(b.get("n_sims")), "verdict": "-", "gm": "-", "pm": "-", "ms": "-",
+               "note": b.get("reason") or "", "self": False}
         if g:
             try:
                 vec = sim.layout.from_dict(g)

@@ -89,7 +89,8 @@ def read_agent_file(path: str | Path, field: str, limit: int = MAX_INPUT_BYTES) 
 def _read_archive(archive: zipfile.ZipFile, path: Path, field: str, limit: int) -> SavedAgent:
     members = {info.filename: info for info in archive.infolist()}
     if "policy.pth" not in members:
-        raise SpecError(field, f"{path} holds no policy weights (policy.pth); give the agent.zip a tune wrote with --out")
+        raise SpecError(field, f"{path} holds no policy weights (policy.pth); give the agent.zip a tune wrote "
+                               "with --out")
     inflate = _Inflater(archive, path, field, limit)
     saved = SavedAgent(path)
     for name, info in members.items():
@@ -167,9 +168,8 @@ def load_module_state(module: torch.nn.Module, state: Any) -> str | None:
     missing = [k for k in own if k not in state]
     unexpected = [k for k in state if k not in own]
     other = [k for k in own if k in state and not _same_kind(state[k], own[k])]
-    problems = [f"{len(keys)} {what} (e.g. {keys[0]!r})"
-                for keys, what in ((missing, "missing"), (unexpected, "unexpected"), (other, "of another shape or type"))
-                if keys]
+    kinds = ((missing, "missing"), (unexpected, "unexpected"), (other, "of another shape or type"))
+    problems = [f"{len(keys)} {what} (e.g. {keys[0]!r})" for keys, what in kinds if keys]
     if problems:
         return ", ".join(problems)
     if not all(bool(torch.isfinite(t).all()) for t in state.values()):
@@ -192,12 +192,14 @@ def load_optimizer_state(optimizer: torch.optim.Optimizer, state: Any) -> str | 
     shape would fail at the first step: every tensor is checked here against its parameter first.
     Returns None when loaded, else what does not fit (and ``optimizer`` is unchanged)."""
     own = optimizer.state_dict()
-    if not (isinstance(state, dict) and isinstance(state.get("state"), dict) and isinstance(state.get("param_groups"), list)):
+    if not (isinstance(state, dict) and isinstance(state.get("state"), dict)
+            and isinstance(state.get("param_groups"), list)):
         return "is no optimizer state"
-    if [g.get("params") if isinstance(g, dict) else None for g in state["param_groups"]] != [g["params"] for g in own["param_groups"]]:
+    theirs = [g.get("params") if isinstance(g, dict) else None for g in state["param_groups"]]
+    if theirs != [g["params"] for g in own["param_groups"]]:
         return "holds other parameters"
     params = dict(zip((i for g in own["param_groups"] for i in g["params"]),
-                      (p for g in optimizer.param_groups for p in g["params"])))
+                      (p for g in optimizer.param_groups for p in g["params"]), strict=True))
     needed = next((keys for cls, keys in _STATE_KEYS if isinstance(optimizer, cls)), frozenset())
     for index, moments in state["state"].items():
         param = params.get(index) if type(index) is int else None
@@ -205,7 +207,8 @@ def load_optimizer_state(optimizer: torch.optim.Optimizer, state: Any) -> str | 
             return "holds no moments of this optimizer"
         for key, value in moments.items():
             # the shape first: a forged tensor can be a huge zero-stride view of a few bytes
-            if not (isinstance(value, torch.Tensor) and (value.shape == param.shape or (key == "step" and value.numel() == 1))
+            if not (isinstance(value, torch.Tensor)
+                    and (value.shape == param.shape or (key == "step" and value.numel() == 1))
                     and value.is_floating_point() and bool(torch.isfinite(value).all())):
                 return f"has a {key!r} that is no finite tensor of its parameter's shape"
     # the file's moments, the spec's hyper-parameters (learning rate, betas, ...)

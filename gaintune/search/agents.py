@@ -60,8 +60,8 @@ def agent_defaults(algo: str, n_envs: int, dim: int, budget_steps: int) -> dict[
         # one rollout = one step of every env; SB3's PPO needs a minibatch of 2 or more, so a single
         # env collects 2 steps per update
         return dict(
-            n_steps=1 if n_envs > 1 else 2, batch_size=max(n_envs, 2), n_epochs=10, learning_rate=3e-3, gamma=0.0, gae_lambda=1.0,
-            clip_range=0.2, ent_coef=0.0, vf_coef=0.5, max_grad_norm=0.5, normalize_advantage=True,
+            n_steps=1 if n_envs > 1 else 2, batch_size=max(n_envs, 2), n_epochs=10, learning_rate=3e-3, gamma=0.0,
+            gae_lambda=1.0, clip_range=0.2, ent_coef=0.0, vf_coef=0.5, max_grad_norm=0.5, normalize_advantage=True,
             policy_kwargs=dict(net_arch=dict(pi=net, vf=net), log_std_init=-1.0, ortho_init=True),
         )
     if algo == "a2c":
@@ -170,8 +170,9 @@ def load_weights(agent: BaseAlgorithm, path: str | Path, *, field: str = "warm_s
     saved = read_agent_file(path, field)
     want = (tuple(agent.action_space.shape), tuple(agent.observation_space.shape))
     if saved.shapes is not None and saved.shapes != want:
-        raise SpecError(field, f"the agent at {path} was trained on {_count(saved.shapes)}; this spec has {_count(want)}. "
-                        "A trained agent serves only the same loops, tuned gains and randomised parameters")
+        raise SpecError(field, f"the agent at {path} was trained on {_count(saved.shapes)}; this spec has "
+                        f"{_count(want)}. A trained agent serves only the same loops, tuned gains and randomised "
+                        "parameters")
     misfit = f"the weights in {path} do not fit the {agent.__class__.__name__} agent this spec builds"
     modules, variables = agent._get_torch_save_params()
     _install_eager_optim()  # loading an optimizer state: keep torch._dynamo unloaded

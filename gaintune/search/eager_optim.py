@@ -69,7 +69,8 @@ def _plain_adam_step() -> Callable[..., Any] | None:
 
 
 def _wanted() -> bool:
-    return os.environ.get("GAINTUNE_TORCH_DYNAMO", "") not in ("1", "true", "yes") and "torch._dynamo" not in sys.modules
+    wanted = os.environ.get("GAINTUNE_TORCH_DYNAMO", "") in ("1", "true", "yes")
+    return not wanted and "torch._dynamo" not in sys.modules
 
 
 def install() -> bool:
@@ -148,7 +149,7 @@ class EagerAdam(torch.optim.Adam):
             step_size = lr / bias_correction1
             bias_correction2_sqrt = bias_correction2**0.5
             torch.sqrt(v, out=denom).div_(bias_correction2_sqrt).add_(eps)  # (v.sqrt() / c).add_(eps), in place
-            for p, mp, dp in zip(params, m_views, d_views):
+            for p, mp, dp in zip(params, m_views, d_views, strict=True):
                 p.addcdiv_(mp, dp, value=-step_size)
         return True
 
@@ -159,7 +160,7 @@ class EagerAdam(torch.optim.Adam):
         torch's own step then runs)."""
         flat = self._flat
         if flat is not None and flat[0] == [id(p) for p in params] and all(
-                self.state[p].get("exp_avg") is mp for p, mp in zip(params, flat[4])):
+                self.state[p].get("exp_avg") is mp for p, mp in zip(params, flat[4], strict=True)):
             return flat[1:]
         states = [self.state[p] for p in params]
         if all(len(st) == 0 for st in states):
@@ -176,7 +177,7 @@ class EagerAdam(torch.optim.Adam):
             return None
         denom = torch.empty_like(m)
         offset, m_views, d_views = 0, [], []
-        for i, (p, st) in enumerate(zip(params, states)):
+        for i, (p, st) in enumerate(zip(params, states, strict=True)):
             n = p.numel()
             st["step"] = steps[i]
             st["exp_avg"] = m[offset:offset + n].view_as(p)

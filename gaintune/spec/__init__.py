@@ -132,8 +132,8 @@ class TuningSpec(_Model):
 
     name: str = Field(
         "untitled",
-        description="Label of the spec, written into the exported files (gains.h, gains.m): printable text on one line, "
-        "no control characters and no '/*' or '*/'.",
+        description="Label of the spec, written into the exported files (gains.h, gains.m): printable text on one "
+        "line, no control characters and no '/*' or '*/'.",
     )
     description: str = ""
     plant: PlantSpec
@@ -157,8 +157,8 @@ class TuningSpec(_Model):
         # accepts, so the spec's hash and every dump of it would fail far from the input.
         bad = _lone_surrogate(data, "")
         if bad is not None:
-            raise ValueError(f"{bad or 'spec'}: the text is not valid Unicode (a lone surrogate escape such as \\ud800); "
-                             "use plain UTF-8 text")
+            raise ValueError(f"{bad or 'spec'}: the text is not valid Unicode (a lone surrogate escape such as "
+                             "\\ud800); use plain UTF-8 text")
         return data
 
     @field_validator("name")

@@ -18,7 +18,8 @@ from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from gaintune.errors import SpecError
 
-__all__ = ["MAX_STEPS", "MAX_DELAY_STEPS", "MAX_ORDER", "MAX_LOOPS", "MAX_BUDGET", "check_delay_samples", "FiniteNumber"]
+__all__ = ["MAX_STEPS", "MAX_DELAY_STEPS", "MAX_ORDER", "MAX_LOOPS", "MAX_BUDGET", "check_delay_samples",
+           "FiniteNumber"]
 
 #: Largest number of simulation steps (horizon / dt) in one scenario.
 MAX_STEPS = 200_000

@@ -80,7 +80,8 @@ class LoopSpec(_Model):
     form: Literal["parallel", "ideal"] = "parallel"
     gains: dict[str, GainSpec] = Field(
         default_factory=dict,
-        description="Per-gain settings keyed by gain name (Kp, Ki, Kd / Ti, Td; LQ: q_<state>, r, q_int or k_<state>, k_int).",
+        description="Per-gain settings keyed by gain name (Kp, Ki, Kd / Ti, Td; LQ: q_<state>, r, q_int or "
+        "k_<state>, k_int).",
     )
     filter: DerivativeFilterSpec = Field(default_factory=DerivativeFilterSpec)
     b: float = Field(1.0, ge=0, description="Setpoint weight on the proportional term.")

@@ -7,7 +7,7 @@ randomised LTI plants are expressed.
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Union
+from typing import Annotated, Any
 
 from pydantic import AfterValidator, Field, field_validator, model_validator
 
@@ -24,7 +24,7 @@ __all__ = [
 ]
 
 #: A plant coefficient: a number, or an expression over ``plant.params``.
-Coef = Union[float, str]
+Coef = float | str
 
 
 def _check_coefs(values: Any, what: str) -> Any:
@@ -105,7 +105,8 @@ class OdeSpec(_Model):
     @model_validator(mode="after")
     def _rhs_matches_states(self) -> OdeSpec:
         if len(set(self.states)) != len(self.states):
-            raise ValueError(f"states names must be unique, {sorted({n for n in self.states if self.states.count(n) > 1})} repeat")
+            repeated = sorted({n for n in self.states if self.states.count(n) > 1})
+            raise ValueError(f"states names must be unique, {repeated} repeat")
         if self.input in self.states:
             # the expressions would read the name as the input: the state would vanish from the model
             i = self.states.index(self.input)
@@ -138,7 +139,8 @@ class PlantSpec(_Model):
     ode: OdeSpec | None = None
     model: ModelRefSpec | str | None = None
     delay: Coef | None = Field(
-        None, description="Input/output time delay in seconds (number or parameter expression); default 0, or the model's."
+        None, description="Input/output time delay in seconds (number or parameter expression); default 0, or the "
+        "model's."
     )
     params: FiniteParams = Field(default_factory=dict, description="Nominal parameter values.")
 
@@ -174,4 +176,5 @@ class PlantSpec(_Model):
         for name in self.params:
             if name in taken:
                 raise _error_at(("params", name), f"parameter {name!r} clashes with {taken[name]} (the same name); "
-                                "in the expressions one would hide the other, so rename the parameter", self.params[name])
+                                "in the expressions one would hide the other, so rename the parameter",
+                                self.params[name])

@@ -59,8 +59,10 @@ class DistSpec(_Model):
         else:
             missing = [k for k in ("low", "high") if getattr(self, k) is None]
             if missing:
-                other = " (mean and std describe a normal one: set dist: normal)" if self.mean is not None or self.std is not None else ""
-                raise ValueError(f"a {self.dist} distribution needs low and high; {' and '.join(missing)} missing{other}")
+                normal = self.mean is not None or self.std is not None
+                other = " (mean and std describe a normal one: set dist: normal)" if normal else ""
+                raise ValueError(f"a {self.dist} distribution needs low and high; {' and '.join(missing)} "
+                                 f"missing{other}")
             if not self.low <= self.high:
                 raise ValueError(f"a {self.dist} distribution needs low <= high, got low {self.low} > high {self.high}")
             if self.dist == "loguniform" and self.low <= 0:
@@ -154,13 +156,15 @@ class SearchSpec(_Model):
     """RL gain search settings."""
 
     algo: Literal["ppo", "sac", "td3", "a2c", "ddpg"] = "ppo"
-    env: Literal["oneshot", "iterative"] = Field("oneshot", description="Gains chosen in one action, or refined in steps.")
+    env: Literal["oneshot", "iterative"] = Field(
+        "oneshot", description="Gains chosen in one action, or refined in steps.")
     budget: int = Field(
         3000, ge=10, le=MAX_BUDGET,
         description=f"Hard limit on closed-loop simulations (10 .. {MAX_BUDGET:,}; use wall_time for a time limit).",
     )
     wall_time: float | None = Field(None, gt=0, description="Wall-time limit in seconds.")
-    seed: int = Field(0, ge=0, le=2**32 - 1, description="Random seed of the search and the draws (0 .. 2^32 - 1, numpy's range).")
+    seed: int = Field(
+        0, ge=0, le=2**32 - 1, description="Random seed of the search and the draws (0 .. 2^32 - 1, numpy's range).")
     n_envs: int = Field(32, ge=1, le=4096, description="Parallel environments, simulated in one batched call.")
     robust: RobustSpec = Field(default_factory=RobustSpec)
     early_stop_patience: int | None = Field(
