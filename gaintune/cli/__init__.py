@@ -311,4 +311,5 @@ def serve(
 
 
 def main() -> None:  # pragma: no cover - console entry
+    """The ``gaintune`` console command."""
     app()

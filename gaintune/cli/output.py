@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gaintune.cli.common import InputError, _f, _json_num, out, output_errors
+from gaintune.cli.common import InputError, _Console, _f, _json_num, out, output_errors
 
 if TYPE_CHECKING:  # pragma: no cover
     from rich.console import Console
@@ -30,7 +30,8 @@ __all__ = ["_print_summary", "_write_outputs", "_print_simulation", "_simulation
 # ------------------------------------------------------------ tuning result
 
 
-def _print_summary(result, console: Console = out) -> None:
+def _print_summary(result, console: Console | _Console = out) -> None:
+    """The tune's summary: gains table (titled by the verdict), cost, margins and metrics."""
     from rich.table import Table  # deferred on purpose: `gaintune verify` prints no rich table
 
     verdict = result.verdict
@@ -96,7 +97,7 @@ def _other_form(form: str | None, gains: dict[str, float]) -> str:
     return ", ".join(f"{k} {_f(v, 4)}" + (" s" if k in ("Ti", "Td") else "") for k, v in alt.items())
 
 
-def _print_margins(rep, console: Console) -> None:
+def _print_margins(rep, console: Console | _Console) -> None:
     """Margins per loop and the requirement lines; an unstable loop's are 'not applicable', never pass."""
     from rich.table import Table
 
@@ -123,7 +124,7 @@ def _print_margins(rep, console: Console) -> None:
         console.print(q)
 
 
-def _print_baselines(result, console: Console) -> None:
+def _print_baselines(result, console: Console | _Console) -> None:
     """The baselines of ``tune --baselines`` beside this result: gains, cost, simulations, feasibility."""
     from rich.table import Table
 
@@ -148,7 +149,7 @@ def _gains_line(gains: dict[str, dict[str, float]] | None) -> str:
                      f"{loop}: " + ", ".join(f"{k} {_f(v, 4)}" for k, v in g.items()) for loop, g in gains.items())
 
 
-def _write_outputs(result, out_dir: Path, console: Console = out) -> None:
+def _write_outputs(result, out_dir: Path, console: Console | _Console = out) -> None:
     """result.json, report.html and the gain exports in ``out_dir``, each written atomically.
 
     A file-level symlink planted in the folder is replaced, never written through
@@ -216,6 +217,7 @@ def _print_simulation(spec, results, switches) -> None:
 
 
 def _plot_runs(spec, sim, results, path: Path) -> None:
+    """Save the time responses of every scenario to ``path`` (PNG, SVG or PDF)."""
     import matplotlib
 
     matplotlib.use("Agg")

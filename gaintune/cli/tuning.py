@@ -37,6 +37,7 @@ def demo_spec(budget: int | None = None, seed: int | None = None):
 
 
 def _get_tune() -> Callable:
+    """:func:`gaintune.search.tune`, or exit 1 when the search stack (torch, stable-baselines3) is missing."""
     try:
         # from the module itself: once anything imported the submodule gaintune.search.tune (as
         # gaintune.__getattr__ does), the package attribute gaintune.search.tune is that module
@@ -73,7 +74,7 @@ def _run_tune(tune: Callable, spec, *, out_dir: Path | None, json_out: bool, bas
     with Progress(
         TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("sims"),
         TextColumn("best cost {task.fields[best]}"), TextColumn("ETA {task.fields[eta]}"), TimeElapsedColumn(),
-        console=err, transient=False,
+        console=err.real(), transient=False,
     ) as bar:
         task = bar.add_task(f"tuning {spec.name} ({spec.search.algo})", total=spec.search.budget, best="-", eta="-")
 
@@ -87,6 +88,7 @@ def _run_tune(tune: Callable, spec, *, out_dir: Path | None, json_out: bool, bas
 
 
 def _finish(result, *, out_dir: Path | None, json_out: bool, command: str) -> None:
+    """Write the outputs, print the result (JSON or summary), and exit 3 when verification failed."""
     if not result.provenance.command:
         result.provenance.command = command
     if out_dir is not None:

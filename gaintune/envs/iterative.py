@@ -17,6 +17,7 @@ import gymnasium as gym
 import numpy as np
 
 from gaintune.envs.problem import COST_CAP, VIOLATION_CAP, GainProblem
+from gaintune.sim.draws import Draws
 from gaintune.spec import TuningSpec
 
 __all__ = ["IterativeGainTuningEnv"]
@@ -41,7 +42,7 @@ class IterativeGainTuningEnv(gym.Env):
         self._a = np.zeros(d)
         self._t = 0
         self._value = 0.0
-        self._draw = None
+        self._draw: Draws | None = None
         self._ctx = np.zeros(c, dtype=np.float32)
         self._margin = 0.0
 
@@ -56,6 +57,8 @@ class IterativeGainTuningEnv(gym.Env):
 
     def _evaluate(self, a: np.ndarray) -> tuple[float, dict[str, Any]]:
         tuned = self.problem.layout.action_to_tuned(a[None])
+        if self._draw is None:
+            raise RuntimeError("call reset() before step()")
         s = self.problem.score(tuned, self._draw)
         self._margin = float(min(s.violation[0], VIOLATION_CAP))
         info = {"cost": float(s.cost[0]), "diverged": bool(s.diverged[0]), "tripped": bool(s.tripped[0]),
@@ -63,6 +66,7 @@ class IterativeGainTuningEnv(gym.Env):
         return float(s.reward[0]), info
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Draw a new episode (plant and scenario) and start from the centre of the bounds."""
         super().reset(seed=seed)
         self._draw = self.problem.draws_for(self.problem.draw(self.np_random, 1))
         self._ctx = self.problem.context(self._draw)[0]
@@ -72,6 +76,7 @@ class IterativeGainTuningEnv(gym.Env):
         return self._obs(), info
 
     def step(self, action: np.ndarray):
+        """Move the gains by ``action`` (bounded), score them and reward the improvement."""
         if self._draw is None:
             raise RuntimeError("call reset() before step()")
         step = self.max_step * np.clip(np.asarray(action, dtype=float), -1.0, 1.0)

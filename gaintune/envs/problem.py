@@ -22,6 +22,7 @@ the feasible region first and the cost inside it.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,7 +90,7 @@ class GainProblem:
         #: (gaintune.evaluation.boundary_estimate).
         self.repair = spec.search.repair
         #: Optional hook called as ``on_score(tuned, scored)`` after every env scoring (search monitor).
-        self.on_score = None
+        self.on_score: Callable[[np.ndarray, Scored], None] | None = None
 
     @property
     def n_sims(self) -> int:
@@ -99,6 +100,7 @@ class GainProblem:
 
     @property
     def dim(self) -> int:
+        """Number of tuned gains (the action size)."""
         return self.layout.n_tuned
 
     def _cost_scale(self) -> float:

@@ -90,7 +90,7 @@ def onto_boundary_estimate(ev: Evaluator, tuned: np.ndarray) -> EstimateMove:
         return EstimateMove(out, v_out, alpha, mask)
     br = _ladder(ev, tuned[rows], d, g0[rows])
     rows = rows[br.found]
-    br = _Bracket(*(x[br.found] for x in (br.t, br.xg, br.gg, br.xb, br.gb)), found=br.found[br.found])
+    br = br.subset(br.found)
     _regula_falsi(ev, br, d)
     moved = br.t * np.exp(br.xg)[:, None] ** d
     fv = ev.requirement_scores(moved)[0]  # the full estimate, stability included, decides
@@ -115,6 +115,10 @@ class _Bracket:
     gb: np.ndarray
     found: np.ndarray
 
+    def subset(self, rows: np.ndarray) -> _Bracket:
+        """The brackets of ``rows`` only (a boolean mask or indices; copies)."""
+        return _Bracket(self.t[rows], self.xg[rows], self.gg[rows], self.xb[rows], self.gb[rows], self.found[rows])
+
 
 def _ladder(ev: Evaluator, t: np.ndarray, d: np.ndarray, g0: np.ndarray) -> _Bracket:
     """Bracket the boundary of each candidate in ``t`` with the :data:`LADDER` of scales, all in one estimate."""
@@ -130,7 +134,7 @@ def _ladder(ev: Evaluator, t: np.ndarray, d: np.ndarray, g0: np.ndarray) -> _Bra
     i = np.arange(n)
     prev = np.maximum(first - 1, 0)
     return _Bracket(t=t, xg=xs[i, first], gg=lg[i, first], xb=np.where(first > 0, xs[i, prev], 0.0),
-                    gb=np.where(first > 0, lg[i, prev], g0), found=ok.any(axis=1))
+                    gb=np.where(first > 0, lg[i, prev], g0), found=np.asarray(ok.any(axis=1)))
 
 
 def _regula_falsi(ev: Evaluator, br: _Bracket, d: np.ndarray) -> None:

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gaintune.controllers.layout import GainLayout
 from gaintune.evaluation.boundary import alpha_floor, loop_gain_exponents
 from gaintune.evaluation.evaluator import Evaluator
 from gaintune.spec.backoff import BackoffSpec
@@ -109,7 +110,7 @@ def _directions(ev: Evaluator, loop: str | None) -> tuple[str, list[np.ndarray]]
     gain up. Empty for LQ loops and loops with nothing tuned.
     """
     layout = ev.layout
-    names = [lp.name for lp in ev.spec.loops]
+    names = ev.spec.loop_names
     if loop is None or loop not in names:
         loop = names[-1]  # the plant-input break point: the innermost loop drives the plant
     spec_loop = ev.spec.loops[names.index(loop)]
@@ -126,7 +127,7 @@ def _directions(ev: Evaluator, loop: str | None) -> tuple[str, list[np.ndarray]]
     return loop, out
 
 
-def _alpha_min(layout, tuned: np.ndarray, d: np.ndarray) -> float:
+def _alpha_min(layout: GainLayout, tuned: np.ndarray, d: np.ndarray) -> float:
     """Smallest alpha < 1 that keeps ``tuned * alpha**d`` inside the search box (0 when d moves nothing)."""
     return float(alpha_floor(layout, tuned, d)[0])
 
@@ -251,7 +252,7 @@ def violation_after(settled: ExactMove | None, scores) -> float:
     >= 0) while the estimate, which aims :data:`~gaintune.verification.quick.FEASIBILITY_MARGIN`
     inside, may call it a hair short; its run must still neither diverge nor trip.
     """
-    moved = settled is not None and settled.action in ("pulled_inside", "pushed_to_boundary")
-    if moved and settled.margin >= 0 and not (scores.diverged[0] or scores.tripped[0]):
+    if (settled is not None and settled.action in ("pulled_inside", "pushed_to_boundary") and settled.margin >= 0
+            and not (scores.diverged[0] or scores.tripped[0])):
         return 0.0
     return float(scores.violation[0])

@@ -116,7 +116,7 @@ class Scores:
 
 def scenario_cost(m: dict[str, np.ndarray], obj: ObjectiveSpec, sc: ScenarioSpec) -> np.ndarray:
     """Cost of one scenario's metrics (each (B,)); diverged runs get DIVERGED_COST."""
-    settle = np.where(np.isnan(m["settling_time"]), sc.horizon, m["settling_time"])
+    settle = np.where(np.isnan(m["settling_time"]), sc.resolved_horizon, m["settling_time"])
     # inf * 0 weight on diverged rows, or a weight of 1e300: replaced below
     with np.errstate(invalid="ignore", over="ignore"):
         cost = (
@@ -187,6 +187,7 @@ class Evaluator:
 
     @property
     def dim(self) -> int:
+        """Number of tuned gains."""
         return self.layout.n_tuned
 
     @property
@@ -232,8 +233,8 @@ class Evaluator:
               for lin in self.constraint_models]
         v = np.max([x[0] for x in vs], axis=0)
         short = np.max([x[1] for x in vs], axis=0)
-        fix = dict(nan=DIVERGED_VIOLATION, posinf=DIVERGED_VIOLATION)
-        return np.nan_to_num(v, **fix), np.nan_to_num(short, **fix)
+        return (np.nan_to_num(v, nan=DIVERGED_VIOLATION, posinf=DIVERGED_VIOLATION),
+                np.nan_to_num(short, nan=DIVERGED_VIOLATION, posinf=DIVERGED_VIOLATION))
 
     def evaluate(
         self, tuned: np.ndarray, draws: Draws | None = None, traces: bool = False, violation: np.ndarray | None = None
@@ -275,8 +276,8 @@ class Evaluator:
         total = np.where(diverged, DIVERGED_COST, np.minimum(total, DIVERGED_COST))
         rob = self.spec.search.robust
         cost = aggregate(total.reshape(B, K), rob.aggregate, rob.alpha)
-        div = diverged.reshape(B, K).any(axis=1)
-        trip = tripped.reshape(B, K).any(axis=1)
+        div = np.asarray(diverged.reshape(B, K).any(axis=1))
+        trip = np.asarray(tripped.reshape(B, K).any(axis=1))
         violation = self.requirement_violation(tuned) if violation is None else np.asarray(violation, dtype=float)
         violation = np.where(div, np.maximum(violation, DIVERGED_VIOLATION), violation)
         violation = violation + TRIP_VIOLATION * trip

@@ -99,10 +99,9 @@ class SearchBox:
 def _scale(gains: Gains, a: float, spec: TuningSpec) -> Gains:
     """Every loop's controller gains times ``a`` (ideal form: Kp only; Ti, Td are times)."""
     out = {}
-    for loop in spec.loops:
-        g = gains[loop.name]
+    for name, loop in zip(spec.loop_names, spec.loops, strict=True):
         keep = {"Ti", "Td"} if loop.form == "ideal" else set()
-        out[loop.name] = {k: (v if k in keep else v * a) for k, v in g.items()}
+        out[name] = {k: (v if k in keep else v * a) for k, v in gains[name].items()}
     return out
 
 
@@ -174,7 +173,8 @@ def _search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
 def _distinct_starts(layout: GainLayout, scored: list, n: int) -> list:
     """The ``n`` best-ranked scored designs that lie in different regions (every pair differs by more
     than BOUNDS_FACTOR in some gain), so the zoom walks explore different valleys."""
-    out, logs = [], []
+    out: list = []
+    logs: list[np.ndarray] = []
     for r in sorted(scored, key=lambda r: r[0]):
         x = np.log(np.abs(layout.from_dict(r[2])[layout.tuned_idx]) + 1e-300)
         if all(np.max(np.abs(x - y)) > np.log(BOUNDS_FACTOR) for y in logs):

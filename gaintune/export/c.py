@@ -104,7 +104,7 @@ def to_c(spec: TuningSpec, gains: Gains, st: _Stamp, dt: float, prefix: str = "g
     if not isinstance(prefix, str) or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", prefix):
         raise ExportError("prefix",
                           f"must be a C identifier (letters, digits, _; not starting with a digit), got {prefix!r}")
-    _unique_idents([lp.name for lp in spec.loops], "c")
+    _unique_idents(spec.loop_names, "c")
     coefs = loop_coefficients(spec, gains)
     h = _Header(P=prefix.lower(), U=prefix.upper(), dt=dt, coefs=coefs,
                 pid=[c for c in coefs if c["type"] not in ("lqr", "lqi")],

@@ -44,7 +44,7 @@ def to_matlab(spec: TuningSpec, gains: Gains, st: _Stamp, dt: float) -> str:
     (``IFormula``) and for the filtered derivative (``DFormula``), so
     ``Ci = Ki*Ts*z/(z-1)`` and ``Cd = Kd*(z-1)/((Tf+Ts)*z - Tf)``.
     """
-    _unique_idents([lp.name for lp in spec.loops], "matlab")
+    _unique_idents(spec.loop_names, "matlab")
     out = _m_header(spec, st, dt)
     for c in loop_coefficients(spec, gains):
         # a % comment ends at the line break: _one_line keeps free text on its line

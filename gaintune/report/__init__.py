@@ -105,6 +105,7 @@ def render_report(result: Any, path: str | os.PathLike, *, pdf: bool = False, co
 
 
 def find_chromium() -> str | None:
+    """The Chromium that prints PDFs: ``$GAINTUNE_CHROMIUM``, else the first of ``CHROMIUM_PATHS``; None if none."""
     env = os.environ.get("GAINTUNE_CHROMIUM")
     if env:
         return env if Path(env).exists() else None

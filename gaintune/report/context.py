@@ -40,7 +40,7 @@ def _plant_summary(spec: TuningSpec, plant) -> dict[str, Any]:
     if p.model is not None:
         from gaintune.plants.library import load_model
 
-        m = load_model(p.model.name)
+        m = load_model(p.model if isinstance(p.model, str) else p.model.name)
         out["title"] = f"{m.title} (built-in model '{m.name}')"
         out["description"] = m.description
         units = {k: v.unit for k, v in m.outputs.items() if v.unit and v.unit != "-"}
@@ -108,9 +108,9 @@ def _gain_rows(spec: TuningSpec, plant, gains: Gains, ps: dict[str, Any]) -> lis
     units, rows = ps["units"], []
     loops = {lp.name: (i, lp) for i, lp in enumerate(spec.loops)}
     for loop, g in gains.items():
-        i, lp = loops.get(loop, (None, None))
+        i, lp = loops.get(loop, (-1, None))
         pid = lp is not None and not lp.is_lq
-        other: dict[str, float] = equivalent(lp.form, g) if pid else {}
+        other: dict[str, float] = equivalent(lp.form, g) if lp is not None and not lp.is_lq else {}
         y_unit = units.get((lp.measure or plant.outputs[0]) if lp is not None else "", "")
         if lp is None:
             u_unit = ""
@@ -168,7 +168,7 @@ def _load_scenario(spec: TuningSpec, u_final: float, u0: float) -> ScenarioSpec 
     amp = 0.1 * (lim[1] - lim[0]) if lim else abs(u_final - u0)
     if not math.isfinite(amp) or amp < 1e-9:
         amp = 1.0
-    t_d = round(0.1 * sc.horizon / sc.dt) * sc.dt
+    t_d = round(0.1 * sc.resolved_horizon / sc.resolved_dt) * sc.resolved_dt
     return sc.model_copy(update={
         "name": "load_disturbance",
         "reference": ProfileSpec(kind="none"),
@@ -476,8 +476,10 @@ def build_context(result: TuneResult, *, command: str | None = None) -> dict[str
     plant = build_plant(spec.plant)
     sim = Simulator(spec, plant)
     full = sim.layout.from_dict(result.gains)
-    verified_now = result.verification is None
-    rep = verify(spec, result.gains, plant=plant, layout=sim.layout) if verified_now else result.verification
+    rep = result.verification
+    verified_now = rep is None
+    if rep is None:
+        rep = verify(spec, result.gains, plant=plant, layout=sim.layout)
     ps = _plant_summary(spec, plant)
     units = ps["units"]
     time_figs, nominal_res = _time_section(spec, plant, sim, full, ps)

@@ -29,7 +29,7 @@ import zipfile
 from dataclasses import dataclass
 from dataclasses import field as dc_field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -142,9 +142,9 @@ def _read_plain_data(saved: SavedAgent, raw: bytes) -> None:
         return
     if not isinstance(data, dict):
         return
-    shapes = tuple(_shape(data.get(key)) for key in ("action_space", "observation_space"))
-    if all(s is not None for s in shapes):
-        saved.shapes = shapes  # type: ignore[assignment]
+    action, observation = _shape(data.get("action_space")), _shape(data.get("observation_space"))
+    if action is not None and observation is not None:
+        saved.shapes = (action, observation)
     steps = data.get("num_timesteps")
     if type(steps) is int and 0 <= steps < 2**53:
         saved.num_timesteps = steps
@@ -230,7 +230,7 @@ def load_variables(agent: BaseAlgorithm, names: list[str], saved: Any) -> None:
                 current.copy_(value)
 
 
-def _same_kind(value: Any, like: torch.Tensor) -> bool:
+def _same_kind(value: Any, like: torch.Tensor) -> TypeGuard[torch.Tensor]:
     """``value`` is a tensor of the shape and type of ``like``."""
     return isinstance(value, torch.Tensor) and value.shape == like.shape and value.dtype == like.dtype
 

@@ -28,6 +28,7 @@ import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.preprocessing import get_action_dim
 from stable_baselines3.common.save_util import recursive_getattr
 from stable_baselines3.common.vec_env import VecEnv
 
@@ -99,7 +100,7 @@ def make_agent(
 ) -> BaseAlgorithm:
     """Build an SB3 agent on the batched env with gain-search defaults (plus ``overrides``)."""
     cls = ALGOS[algo]
-    kw = agent_defaults(algo, env.num_envs, env.action_space.shape[0], budget_steps)
+    kw = agent_defaults(algo, env.num_envs, get_action_dim(env.action_space), budget_steps)
     if horizon > 1:
         kw.update(iterative_defaults(algo, env.num_envs, horizon))
     kw.update(overrides or {})
@@ -168,7 +169,7 @@ def load_weights(agent: BaseAlgorithm, path: str | Path, *, field: str = "warm_s
         network than ``agent`` has.
     """
     saved = read_agent_file(path, field)
-    want = (tuple(agent.action_space.shape), tuple(agent.observation_space.shape))
+    want = (tuple(agent.action_space.shape or ()), tuple(agent.observation_space.shape or ()))
     if saved.shapes is not None and saved.shapes != want:
         raise SpecError(field, f"the agent at {path} was trained on {_count(saved.shapes)}; this spec has "
                         f"{_count(want)}. A trained agent serves only the same loops, tuned gains and randomised "

@@ -121,7 +121,7 @@ def slow_integral_loops(spec: TuningSpec, gains: Gains) -> list[tuple[int, float
     """``(loop index, Ti)`` of every loop whose integral time Ti = Kp/Ki is longer than the longest scenario horizon."""
     from gaintune.controllers.pid import pid_params
 
-    horizon = max(sc.horizon for sc in spec.scenarios)
+    horizon = max(sc.resolved_horizon for sc in spec.scenarios)
     out = []
     for i, loop in enumerate(spec.loops):
         if loop.is_lq or "i" not in loop.type[1:] or loop.name not in gains:
@@ -135,7 +135,7 @@ def slow_integral_loops(spec: TuningSpec, gains: Gains) -> list[tuple[int, float
 
 def integral_time_hints(spec: TuningSpec, gains: Gains) -> list[str]:
     """A warning per loop whose integral time Ti = Kp/Ki is longer than the longest scenario horizon."""
-    horizon = max(sc.horizon for sc in spec.scenarios)
+    horizon = max(sc.resolved_horizon for sc in spec.scenarios)
     return [f"loops[{i}] ({spec.loops[i].name}): the integral time Ti = Kp/Ki = {ti:.4g} s is longer than the longest "
             f"scenario horizon ({horizon:.4g} s), so the scenarios cannot see the integral action work: lengthen the "
             "horizon (or leave dt/horizon out and let gaintune derive them from the plant) before widening the gain "
@@ -153,7 +153,8 @@ def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray, plant: P
     horizon, not the bound, is what to change.
     """
     spec = TuningSpec.model_validate(result.spec)
-    timing, skip = scenario_hints(result), frozenset()
+    timing = scenario_hints(result)
+    skip: frozenset[tuple[int, str, str]] = frozenset()
     if all(sc.resolved for sc in spec.scenarios):  # a tune stores the spec with its scenarios resolved
         timing += integral_time_hints(spec, result.gains)
         if plant is not None:

@@ -47,8 +47,8 @@ def _disabled_wrappers(fn: Callable[..., Any]) -> list[Callable[..., Any]]:
     return [c.cell_contents for c in cells if getattr(c.cell_contents, "__code__", None) is _DISABLE_INNER]
 
 
-def _targets() -> list[Callable[..., Any]] | None:
-    """The wrapped functions Adam calls, or None when torch is not laid out as expected."""
+def _targets() -> list[Any] | None:
+    """The wrapped functions Adam calls (each with ``__wrapped__``), or None when torch is not laid out as expected."""
     found = []
     for name in _METHODS:
         found += _disabled_wrappers(getattr(Optimizer, name))
@@ -60,7 +60,7 @@ def _targets() -> list[Callable[..., Any]] | None:
 
 def _plain_adam_step() -> Callable[..., Any] | None:
     """``Adam.step`` without the grad-mode wrapper (``_use_grad``) that imports dynamo at every step."""
-    fn = torch.optim.Adam.step  # possibly under torch's profiling hook, which keeps __wrapped__
+    fn: Any = torch.optim.Adam.step  # possibly under torch's profiling hook, which keeps __wrapped__
     while fn is not None:
         if getattr(getattr(fn, "__code__", None), "co_name", "") == "_use_grad":
             return getattr(fn, "__wrapped__", None)
@@ -94,7 +94,8 @@ class EagerAdam(torch.optim.Adam):
     #: (parameter ids, then what :meth:`_flat_state` returns)
     _flat: tuple | None = None
 
-    def step(self, closure=None):  # type: ignore[override]
+    def step(self, closure=None):
+        """One Adam step over every parameter (flat when possible, else torch's own step)."""
         if _ADAM_STEP is None:  # a torch laid out differently (e.g. an agent saved here, loaded elsewhere)
             return super().step(closure)
         if closure is None and self._flat_step():

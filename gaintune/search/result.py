@@ -187,6 +187,7 @@ class TuneResult(BaseModel):
 
     @property
     def verdict(self) -> str | None:
+        """The verification's verdict ("pass" or "fail"), or None when the gains are unverified."""
         return None if self.verification is None else self.verification.verdict
 
     @property
@@ -212,12 +213,13 @@ class PolicyAnswer(BaseModel):
     def _verification_json(self, v: VerificationReport) -> dict[str, Any] | None:
         return report_json(v)
 
-    @computed_field(description="pass or fail: the verification's verdict.")
+    @computed_field(description="pass or fail: the verification's verdict.")  # type: ignore[prop-decorator]  # mypy: computed_field on a property
     @property
     def verdict(self) -> str:
+        """The verification's verdict: pass or fail."""
         return self.verification.verdict
 
-    @computed_field(description="The gains when the verdict is pass, else null.")
+    @computed_field(description="The gains when the verdict is pass, else null.")  # type: ignore[prop-decorator]  # as above
     @property
     def accepted_gains(self) -> Gains | None:
         """The gains, only when their verification passed; otherwise None (:func:`accepted`)."""

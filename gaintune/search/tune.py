@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from stable_baselines3.common.preprocessing import get_action_dim
 from stable_baselines3.common.vec_env import VecEnv
 
 from gaintune.baselines.cma import load_cma
@@ -401,7 +402,7 @@ def policy_gains(agent_path: str | Path, spec: TuningSpec, context: np.ndarray |
         from gaintune.errors import SpecError
 
         raise SpecError("warm_start",
-                        f"agent expects {agent.action_space.shape[0]} gains; this spec tunes {problem.dim}")
+                        f"agent expects {get_action_dim(agent.action_space)} gains; this spec tunes {problem.dim}")
     action = np.asarray(agent.predict(obs, deterministic=True)[0], dtype=float).reshape(-1)
     tuned = problem.repaired(problem.layout.action_to_tuned(action))[0]
     return problem.layout.to_dict(problem.layout.full(tuned))

@@ -205,11 +205,16 @@ class TuningSpec(_Model):
                             f"are {names}", mks)
         return self
 
+    @property
+    def loop_names(self) -> list[str]:
+        """The loops' names, outer first (a validated spec names every loop: ``loop0``, ``loop1``, ... by default)."""
+        return [lp.name or f"loop{i}" for i, lp in enumerate(self.loops)]
+
     def _check_identifiers(self) -> None:
         """Two loops whose names give one C/MATLAB identifier would redefine each other's gains in the exports."""
         seen: dict[str, int] = {}
         for i, loop in enumerate(self.loops):
-            key = ident_key(loop.name)
+            key = ident_key(loop.name or f"loop{i}")  # named by _loop_names already
             j = seen.setdefault(key, i)
             if j != i:
                 msg = (f"loop name {loop.name!r} collides with loops[{j}].name {self.loops[j].name!r}: both become the "
@@ -226,8 +231,9 @@ class TuningSpec(_Model):
         delays = []
         try:  # a number, or an expression that is a plain number ("1e300"); parameter expressions are
             # bounded where the plant is built (gaintune.sim.simulator)
-            delays.append(("plant.delay", float(self.plant.delay)))
-        except (TypeError, ValueError):
+            if self.plant.delay is not None:
+                delays.append(("plant.delay", float(self.plant.delay)))
+        except ValueError:
             pass
         if self.randomize.delay is not None:
             delays.append(("randomize.delay", float(self.randomize.delay.box[1])))

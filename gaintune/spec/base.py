@@ -64,10 +64,11 @@ class _Model(BaseModel):
     @classmethod
     def _no_boolean_numbers(cls, v: Any, info: ValidationInfo) -> Any:
         # pydantic's lax mode reads true as 1.0 (or 1): a boolean where a number belongs is a mistake
-        policy = _bool_policy(cls, info.field_name)
+        field = info.field_name or ""  # always set for a field validator
+        policy = _bool_policy(cls, field)
         if policy == "allow" or (policy == "top" and not isinstance(v, bool)):
             return v
-        found = _boolean_in(v, info.field_name)
+        found = _boolean_in(v, field)
         if found is not None:
             where, value = found
             raise _boolean_error(f"{where} must be a number", value)
@@ -97,7 +98,7 @@ def check_delay_samples(delay: float, dt: float, field: str = "plant.delay") -> 
 
 
 @cache
-def _bool_policy(model: type, field: str) -> Literal["allow", "top", "deep"]:
+def _bool_policy(model: type[BaseModel], field: str) -> Literal["allow", "top", "deep"]:
     """How :class:`_Model` checks ``field`` for booleans: "allow" unless its type holds numbers and no
     bool; then "deep" (every value inside lists, tuples and dicts, e.g. ``bounds`` or ``params``), or
     "top" (the value itself) when the type may also be a model, which checks its own fields."""

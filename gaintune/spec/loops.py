@@ -143,6 +143,7 @@ class LoopSpec(_Model):
 
     @property
     def is_lq(self) -> bool:
+        """Whether this is a state-feedback (LQR/LQI) loop."""
         return self.type in ("lqr", "lqi")
 
 

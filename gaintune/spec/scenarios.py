@@ -92,7 +92,7 @@ class ScenarioSpec(_Model):
             _finite(v, name)
             if v <= 0:
                 raise ValueError(f"{name} must be > 0 seconds, got {v}")
-        if not self.resolved:
+        if self.dt is None or self.horizon is None:  # not resolved yet: checked once derived from the plant
             return self
         steps = self.horizon / self.dt
         if steps > MAX_STEPS:
@@ -109,8 +109,25 @@ class ScenarioSpec(_Model):
         return self.dt is not None and self.horizon is not None
 
     @property
+    def resolved_dt(self) -> float:
+        """``dt`` once resolved (given, or derived from the plant); ValueError before."""
+        if self.dt is None:
+            raise ValueError(f"scenario {self.name!r} has no dt yet: derive it from the plant first "
+                             "(gaintune.classical.timescale.resolve_scenarios)")
+        return self.dt
+
+    @property
+    def resolved_horizon(self) -> float:
+        """``horizon`` once resolved (given, or derived from the plant); ValueError before."""
+        if self.horizon is None:
+            raise ValueError(f"scenario {self.name!r} has no horizon yet: derive it from the plant first "
+                             "(gaintune.classical.timescale.resolve_scenarios)")
+        return self.horizon
+
+    @property
     def n_steps(self) -> int:
-        if not self.resolved:
+        """Simulated samples, ``horizon / dt`` (ValueError before both are resolved)."""
+        if self.dt is None or self.horizon is None:
             raise ValueError(f"scenario {self.name!r} has no dt/horizon yet: derive them from the plant first "
                              "(gaintune.classical.timescale.resolve_scenarios)")
         return int(round(self.horizon / self.dt))

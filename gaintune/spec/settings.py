@@ -57,24 +57,28 @@ class DistSpec(_Model):
             if self.mean is None or self.std is None:
                 raise ValueError("a normal distribution needs mean and std")
         else:
-            missing = [k for k in ("low", "high") if getattr(self, k) is None]
-            if missing:
+            low, high = self.low, self.high
+            if low is None or high is None:
+                missing = [k for k, v in (("low", low), ("high", high)) if v is None]
                 normal = self.mean is not None or self.std is not None
                 other = " (mean and std describe a normal one: set dist: normal)" if normal else ""
                 raise ValueError(f"a {self.dist} distribution needs low and high; {' and '.join(missing)} "
                                  f"missing{other}")
-            if not self.low <= self.high:
-                raise ValueError(f"a {self.dist} distribution needs low <= high, got low {self.low} > high {self.high}")
-            if self.dist == "loguniform" and self.low <= 0:
+            if not low <= high:
+                raise ValueError(f"a {self.dist} distribution needs low <= high, got low {low} > high {high}")
+            if self.dist == "loguniform" and low <= 0:
                 raise ValueError("a loguniform distribution needs low > 0")
         return self
 
     @property
     def box(self) -> tuple[float, float]:
         """Range used for corners and normalisation (mean +/- 2 std for normal)."""
-        if self.dist == "normal":
-            return (self.mean - 2 * self.std, self.mean + 2 * self.std)  # type: ignore[operator]
-        return (self.low, self.high)  # type: ignore[return-value]
+        # the validator above made sure the numbers of this kind of distribution are there
+        if self.dist == "normal" and self.mean is not None and self.std is not None:
+            return (self.mean - 2 * self.std, self.mean + 2 * self.std)
+        if self.low is None or self.high is None:
+            raise ValueError(f"a {self.dist} distribution without low and high has no range")
+        return (self.low, self.high)
 
 
 class RandomizeSpec(_Model):
@@ -99,12 +103,15 @@ class RandomizeSpec(_Model):
             return d
         strict = info.field_name == "actuator_scale"
         what, lowest = ("mean", d.mean) if d.dist == "normal" else ("low", d.low)
+        if lowest is None:  # not reached: DistSpec requires mean (normal) or low (the others)
+            return d
         if lowest < 0 or (strict and lowest == 0):
             raise ValueError(f"{what} must be {'> 0' if strict else '>= 0 s'}, got {lowest}")
         return d
 
     @property
     def active(self) -> bool:
+        """Whether anything is randomised."""
         return bool(
             self.params
             or self.delay
