@@ -12,6 +12,7 @@ import yaml
 from gaintune.fmt import fmt
 from gaintune.provenance import versions as all_versions
 from gaintune.report import plots
+from gaintune.report.plant_summary import plant_summary as _plant_summary
 from gaintune.spec import DisturbanceSpec, Gains, ProfileSpec, ScenarioSpec, TuningSpec
 
 if TYPE_CHECKING:  # the result model, for annotations only (the report reads any TuneResult)
@@ -30,57 +31,6 @@ _fmt = fmt  # one formatter for every table (gaintune.fmt)
 
 
 # ------------------------------------------------------------------ summary
-
-
-def _plant_summary(spec: TuningSpec, plant) -> dict[str, Any]:
-    p = spec.plant
-    units: dict[str, str] = {}
-    out: dict[str, Any] = {"kind": plant.kind, "states": plant.states, "outputs": plant.outputs,
-                           "params": dict(plant.with_params(None)) if plant.param_names else {}}
-    if p.model is not None:
-        from gaintune.plants.library import load_model
-
-        m = load_model(p.model if isinstance(p.model, str) else p.model.name)
-        out["title"] = f"{m.title} (built-in model '{m.name}')"
-        out["description"] = m.description
-        units = {k: v.unit for k, v in m.outputs.items() if v.unit and v.unit != "-"}
-        if m.input.unit and m.input.unit != "-":
-            out["input_unit"] = m.input.unit
-        out["param_units"] = {k: v.unit for k, v in m.parameters.items()}
-        if m.plant.tf is not None:
-            out["structure"] = f"G(s) = {_wrap(_poly(m.plant.tf.num))} / {_wrap(_poly(m.plant.tf.den))}"
-        elif m.plant.ss is not None:
-            out["structure"] = f"state space, states {plant.states}, outputs {plant.outputs}"
-        else:
-            out["structure"] = f"nonlinear ODE, states {plant.states}, outputs {plant.outputs}"
-    elif p.tf is not None:
-        out["title"] = "Transfer function"
-        out["structure"] = f"G(s) = {_wrap(_poly(p.tf.num))} / {_wrap(_poly(p.tf.den))}"
-    elif p.ss is not None:
-        out["title"] = "State space"
-        out["structure"] = f"states {plant.states}, outputs {plant.outputs}"
-    else:
-        out["title"] = "Nonlinear ODE"
-        out["structure"] = f"states {plant.states}, outputs {plant.outputs} (margins from the linearisation)"
-    out["delay"] = plant.delay()
-    out["units"] = units
-    return out
-
-
-def _wrap(text: str) -> str:
-    return text if text.replace("_", "").replace(".", "").isalnum() else f"({text})"
-
-
-def _poly(v: Any) -> str:
-    if isinstance(v, str):
-        return v
-    n = len(v) - 1
-    terms = []
-    for i, c in enumerate(v):
-        k = n - i
-        cs = _fmt(c) if not isinstance(c, str) else (c if c.replace("_", "").isalnum() or len(v) == 1 else f"({c})")
-        terms.append(cs if k == 0 else f"{cs} s" + (f"^{k}" if k > 1 else ""))
-    return " + ".join(terms)
 
 
 def _loop_rows(spec: TuningSpec, plant) -> list[dict[str, Any]]:
