@@ -6,6 +6,28 @@ The public API in one import::
 
 Names are imported on first use (PEP 562), so ``import gaintune`` stays fast and the heavy
 search stack (torch, stable-baselines3) loads only when ``tune`` is touched.
+
+Examples
+--------
+A spec (:class:`TuningSpec`, read by :func:`load_spec`), hand-picked gains checked by :func:`verify`
+(a :class:`VerificationReport`), and the package versions a result records (:func:`versions`):
+
+>>> from gaintune import TuningSpec, VerificationReport, load_spec, verify, versions
+>>> spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+...                   "scenario": {"dt": 0.05, "horizon": 20.0}})
+>>> isinstance(spec, TuningSpec), [lp.name for lp in spec.loops]
+(True, ['loop0'])
+>>> report = verify(spec, {"loop0": {"Kp": 1.14, "Ki": 0.454}})
+>>> isinstance(report, VerificationReport), report.verdict
+(True, 'pass')
+>>> report.accepted_gains
+{'loop0': {'Kp': 1.14, 'Ki': 0.454}}
+>>> verify(spec, {"loop0": {"Kp": 20.0, "Ki": 20.0}}).accepted_gains is None  # unstable: not accepted
+True
+>>> "gaintune" in versions()
+True
+
+:func:`tune` searches the gains and returns a :class:`TuneResult` (see its own example).
 """
 
 from __future__ import annotations
@@ -28,18 +50,20 @@ _EXPORTS = {
     "versions": "gaintune.provenance",
 }
 
-__all__ = ["__version__", *_EXPORTS]
+# spelled out, so linters and type checkers see the names (tests/test_public_api.py compares it with _EXPORTS)
+__all__ = ["__version__", "load_spec", "TuningSpec", "tune", "TuneResult", "verify", "VerificationReport", "versions"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
+    from gaintune.provenance import versions
     from gaintune.search.result import TuneResult
     from gaintune.search.tune import tune
     from gaintune.spec import TuningSpec, load_spec
     from gaintune.verification import verify
     from gaintune.verification.report import VerificationReport
-    from gaintune.provenance import versions
 
 
 def __getattr__(name: str) -> Any:
+    """Import a public name on first use (PEP 562)."""
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'gaintune' has no attribute {name!r}")
@@ -50,4 +74,5 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
+    """The public names, for ``dir(gaintune)`` and completion."""
     return sorted(__all__)

@@ -16,6 +16,7 @@ class GaintuneError(Exception):
         self.message = message
 
     def to_dict(self) -> dict[str, str]:
+        """``{"loc": field, "msg": message}``, as an API error entry."""
         return {"loc": self.field, "msg": self.message}
 
 

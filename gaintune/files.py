@@ -80,7 +80,8 @@ def _check_destination(path: Path) -> None:
     except OSError:
         return  # e.g. a link loop, or no access: the rename replaces the link or reports the error
     if not stat.S_ISREG(mode):
-        raise OSError(errno.EINVAL, "not a regular file (a device, pipe, socket or folder); give a file path", str(path))
+        raise OSError(errno.EINVAL, "not a regular file (a device, pipe, socket or folder); give a file path",
+                      str(path))
 
 
 def read_bytes_bounded(path: str | Path, field: str, limit: int = MAX_INPUT_BYTES) -> bytes:

@@ -10,7 +10,8 @@ __all__ = ["fmt"]
 
 
 def fmt(x: Any, digits: int = 4) -> str:
-    """Compact table cell: None/NaN -> '-', bools -> yes/no, +-inf -> 'inf'/'-inf', floats to ``digits`` significant figures."""
+    """Compact table cell: None/NaN -> '-', bools -> yes/no, +-inf -> 'inf'/'-inf', floats to ``digits`` significant
+    figures."""
     if x is None:
         return "-"
     if isinstance(x, bool):

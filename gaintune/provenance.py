@@ -8,11 +8,19 @@ from importlib.metadata import PackageNotFoundError, version
 __all__ = ["PACKAGES", "versions"]
 
 #: Packages whose versions can change a result.
-PACKAGES = ("gaintune", "numpy", "scipy", "numba", "control", "casadi", "torch", "stable-baselines3", "gymnasium", "pydantic")
+PACKAGES = ("gaintune", "numpy", "scipy", "numba", "control", "casadi", "torch", "stable-baselines3", "gymnasium",
+            "pydantic")
 
 
 def versions() -> dict[str, str]:
-    """``{"python": ..., package: version}``; a package that is not installed reads "not installed"."""
+    """``{"python": ..., package: version}``; a package that is not installed reads "not installed".
+
+    Examples
+    --------
+    >>> v = versions()
+    >>> {"python", "gaintune", "numpy"} <= set(v)
+    True
+    """
     out = {"python": platform.python_version()}
     for pkg in PACKAGES:
         try:

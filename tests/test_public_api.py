@@ -29,3 +29,10 @@ def test_verify_is_the_function_and_verification_the_package():
 
     assert inspect.isfunction(gaintune.verify) and gaintune.verify is gaintune.verification.verify
     assert inspect.ismodule(gaintune.verification) and not callable(gaintune.verification)
+
+
+def test_all_lists_every_lazily_imported_name():
+    """``__all__`` is spelled out for linters; it names exactly the names ``__getattr__`` imports."""
+    import gaintune
+
+    assert set(gaintune.__all__) == {"__version__", *gaintune._EXPORTS}

@@ -10,6 +10,7 @@ from fastapi import APIRouter, Body, Header, Query, Request, Response
 from fastapi.responses import FileResponse, HTMLResponse
 
 from gaintune.cache import LRU
+from gaintune.search.result import TuneResult
 from gaintune.spec import TuningSpec
 from gaintune_api.artifacts import EXPORT_MEDIA, export_gains, export_verdict, render_report, render_report_html
 from gaintune_api.compute import compute_policy
@@ -83,17 +84,8 @@ def to_public(row: JobRow, jobs_dir: Path) -> JobPublic:
     result = None
     r = loads(row.result)
     if r is not None:
-        verification = r.get("verification")
-        verdict = verification.get("verdict") if isinstance(verification, dict) else None
         agent = _agent_file(row, r, jobs_dir) is not None
-        result = JobResultPublic(
-            verdict=verdict, accepted_gains=r.get("gains") if verdict == "pass" else None, algo=r.get("algo", ""),
-            cost=r.get("cost"), rl_cost=r.get("rl_cost"), policy_cost=r.get("policy_cost"),
-            gains_source=str(r.get("gains_source", "")), sims=int(r.get("sims", 0)), rl_sims=int(r.get("rl_sims", 0)),
-            wall_time=float(r.get("wall_time", 0.0)), stopped=str(r.get("stopped", "")), metrics=r.get("metrics") or {},
-            curve=r.get("curve") or [], verification=verification, baselines=r.get("baselines") or [],
-            provenance=r.get("provenance") or {}, agent_available=agent,
-        )
+        result = _result_public(_tune_result(r), agent)
         links.update(report=f"{base}/report", export=f"{base}/export?format=json")
         if agent:
             links["agent"] = f"{base}/agent"
@@ -210,10 +202,15 @@ def _finished_result(row: JobRow) -> dict[str, Any]:
     return r
 
 
-def _tune_result(r: dict[str, Any]):
-    from gaintune.search.result import TuneResult
-
+def _tune_result(r: dict[str, Any]) -> TuneResult:
     return TuneResult.model_validate(r)
+
+
+def _result_public(result: TuneResult, agent_available: bool) -> JobResultPublic:
+    """The job's answer, read from the result model: its verdict and accepted gains are the model's."""
+    fields = result.model_dump(include=set(JobResultPublic.model_fields))
+    return JobResultPublic.model_validate({**fields, "verdict": result.verdict, "accepted_gains": result.accepted_gains,
+                                          "agent_available": agent_available})
 
 
 @router.get("/jobs/{job_id}/report", response_class=HTMLResponse, summary="HTML report of a finished job",

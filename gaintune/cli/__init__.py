@@ -24,21 +24,41 @@ import importlib  # noqa: F401 - gaintune.cli.importlib: tests replace importlib
 import json
 import sys
 from pathlib import Path
-from typing import Optional
+from typing import Annotated
 
 import typer
 
 from gaintune.cli.bench import BENCH, bench_app  # noqa: F401 - BENCH: gaintune.cli.BENCH (tests)
 from gaintune.cli.common import (
-    EPILOG, EXIT_INPUT, EXIT_OK, EXIT_VERIFY, InputError, _command_line, apply_overrides, check_out_dir, err, handle_errors,
-    load_gains, output_errors,
-    load_result, load_spec_file, out, reverify_result,
+    EPILOG,
+    EXIT_INPUT,
+    EXIT_OK,
+    EXIT_VERIFY,
+    InputError,
+    _command_line,
+    apply_overrides,
+    check_out_dir,
+    err,
+    handle_errors,
+    load_gains,
+    load_result,
+    load_spec_file,
+    out,
+    output_errors,
+    reverify_result,
 )
 from gaintune.cli.entry import GaintuneTyper
 from gaintune.cli.exporting import _checked_at_dt
-from gaintune.cli.output import _plot_runs, _print_plant, _print_plants, _print_simulation, _simulation_json
+from gaintune.cli.output import (
+    _plot_runs,
+    _print_plant,
+    _print_plants,
+    _print_simulation,
+    _simulation_json,
+    _write_outputs,  # noqa: F401 - gaintune.cli._write_outputs, used by tests
+)
 from gaintune.cli.policy import run_policy
-from gaintune.cli.output import _write_outputs  # noqa: F401 - gaintune.cli._write_outputs, used by tests
+
 # the commands call _get_tune through this module, so gaintune.cli._get_tune can be replaced (tests do)
 from gaintune.cli.tuning import _finish, _get_tune, _run_tune, demo_spec
 from gaintune.search.algos import ALGO_NAMES
@@ -54,7 +74,8 @@ app = GaintuneTyper(
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
 )
-plants_app = typer.Typer(help="Built-in plant models: list them, or show one.", invoke_without_command=True, epilog=EPILOG)
+plants_app = typer.Typer(help="Built-in plant models: list them, or show one.", invoke_without_command=True,
+                         epilog=EPILOG)
 app.add_typer(plants_app, name="plants")
 app.add_typer(bench_app, name="bench")
 
@@ -64,17 +85,22 @@ app.add_typer(bench_app, name="bench")
 @app.command()
 @handle_errors
 def tune(
-    spec_path: Path = typer.Argument(..., metavar="SPEC", help="Tuning spec (YAML or JSON)."),
-    out_dir: Optional[Path] = typer.Option(None, "--out", "-o", help="Write result.json, report.html, gains.{json,yaml,h,m} and the agent here."),
-    json_out: bool = typer.Option(False, "--json", help="Print the result JSON on stdout (no progress bar)."),
-    algo: Optional[str] = typer.Option(None, "--algo", help=f"Override search.algo ({', '.join(ALGO_NAMES)})."),
-    budget: Optional[int] = typer.Option(None, "--budget", help="Override search.budget (simulations)."),
-    seed: Optional[int] = typer.Option(None, "--seed", help="Override search.seed."),
-    workers: Optional[int] = typer.Option(None, "--workers", help="Override search.n_envs (parallel environments)."),
-    baselines: bool = typer.Option(False, "--baselines", help="Also run the baselines for comparison (in the result and report)."),
-    warm_start: Optional[Path] = typer.Option(
-        None, "--warm-start", metavar="AGENT.zip",
-        help="Continue training a saved agent (a tune's agent.zip) on this spec: same loops and randomised parameters."),
+    spec_path: Annotated[Path, typer.Argument(metavar="SPEC", help="Tuning spec (YAML or JSON).")],
+    out_dir: Annotated[Path | None, typer.Option(
+        "--out", "-o", help="Write result.json, report.html, gains.{json,yaml,h,m} and the agent here.")] = None,
+    json_out: Annotated[bool, typer.Option(
+        "--json", help="Print the result JSON on stdout (no progress bar).")] = False,
+    algo: Annotated[str | None, typer.Option("--algo", help=f"Override search.algo ({', '.join(ALGO_NAMES)}).")] = None,
+    budget: Annotated[int | None, typer.Option("--budget", help="Override search.budget (simulations).")] = None,
+    seed: Annotated[int | None, typer.Option("--seed", help="Override search.seed.")] = None,
+    workers: Annotated[int | None, typer.Option(
+        "--workers", help="Override search.n_envs (parallel environments).")] = None,
+    baselines: Annotated[bool, typer.Option(
+        "--baselines", help="Also run the baselines for comparison (in the result and report).")] = False,
+    warm_start: Annotated[Path | None, typer.Option(
+        "--warm-start", metavar="AGENT.zip",
+        help="Continue training a saved agent (a tune's agent.zip) on this spec: same loops and randomised "
+             "parameters.")] = None,
 ) -> None:
     """Tune the gains of SPEC with RL, verify them and print a summary. Exit 3 if verification fails."""
     spec = apply_overrides(load_spec_file(spec_path), algo=algo, budget=budget, seed=seed, workers=workers)
@@ -90,10 +116,10 @@ def tune(
 @app.command()
 @handle_errors
 def demo(
-    out_dir: Path = typer.Option(Path("out/demo"), "--out", "-o", help="Output folder."),
-    budget: Optional[int] = typer.Option(None, "--budget", help="Override the search budget (simulations)."),
-    seed: Optional[int] = typer.Option(None, "--seed"),
-    json_out: bool = typer.Option(False, "--json", help="Print the result JSON on stdout."),
+    out_dir: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("out/demo"),
+    budget: Annotated[int | None, typer.Option("--budget", help="Override the search budget (simulations).")] = None,
+    seed: Annotated[int | None, typer.Option("--seed")] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the result JSON on stdout.")] = False,
 ) -> None:
     """Tune the built-in demo loop (PID on 1/(s+1)^3), verify it and write result, report and exports to --out."""
     spec = demo_spec(budget, seed)
@@ -108,10 +134,14 @@ def demo(
 @app.command()
 @handle_errors
 def verify(
-    spec_path: Path = typer.Argument(..., metavar="SPEC", help="Tuning spec (YAML or JSON)."),
-    gains: str = typer.Option(..., "--gains", "-g", help="Gains: a JSON/YAML file (or result.json), or inline JSON '{\"loop0\": {\"Kp\": 1}}'."),
-    json_out: bool = typer.Option(False, "--json", help="Print the VerificationReport JSON instead of the table."),
-    robust: Optional[bool] = typer.Option(None, "--robust/--no-robust", help="Force the robust check on/off (default: when the spec randomises the plant)."),
+    spec_path: Annotated[Path, typer.Argument(metavar="SPEC", help="Tuning spec (YAML or JSON).")],
+    gains: Annotated[str, typer.Option(
+        "--gains", "-g", help="Gains: a JSON/YAML file (or result.json), or inline JSON '{\"loop0\": {\"Kp\": 1}}'.")],
+    json_out: Annotated[bool, typer.Option(
+        "--json", help="Print the VerificationReport JSON instead of the table.")] = False,
+    robust: Annotated[bool | None, typer.Option(
+        "--robust/--no-robust",
+        help="Force the robust check on/off (default: when the spec randomises the plant).")] = None,
 ) -> None:
     """Verify GAINS against SPEC's requirements and print the table. Exit 3 if they fail."""
     from gaintune.verification import format_table
@@ -130,11 +160,12 @@ def verify(
 @app.command()
 @handle_errors
 def simulate(
-    spec_path: Path = typer.Argument(..., metavar="SPEC", help="Tuning spec (YAML or JSON)."),
-    gains: str = typer.Option(..., "--gains", "-g", help="Gains file or inline JSON."),
-    plot: Optional[Path] = typer.Option(None, "--plot", help="Save the time responses of every scenario to this PNG/SVG/PDF."),
-    json_out: bool = typer.Option(False, "--json", help="Print the metrics as JSON."),
-    traces: bool = typer.Option(False, "--traces", help="With --json: include the time traces."),
+    spec_path: Annotated[Path, typer.Argument(metavar="SPEC", help="Tuning spec (YAML or JSON).")],
+    gains: Annotated[str, typer.Option("--gains", "-g", help="Gains file or inline JSON.")],
+    plot: Annotated[Path | None, typer.Option(
+        "--plot", help="Save the time responses of every scenario to this PNG/SVG/PDF.")] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON.")] = False,
+    traces: Annotated[bool, typer.Option("--traces", help="With --json: include the time traces.")] = False,
 ) -> None:
     """Simulate GAINS on every scenario of SPEC (nominal plant) and print the metrics."""
     from gaintune.sim import Simulator
@@ -157,9 +188,10 @@ def simulate(
 @app.command()
 @handle_errors
 def report(
-    result_path: Path = typer.Argument(..., metavar="RESULT.json", help="A result.json written by 'gaintune tune --out'."),
-    output: Path = typer.Option(Path("report.html"), "--output", "-o", help="HTML file to write."),
-    pdf: bool = typer.Option(False, "--pdf", help="Also print it to PDF (needs /usr/bin/chromium)."),
+    result_path: Annotated[Path, typer.Argument(
+        metavar="RESULT.json", help="A result.json written by 'gaintune tune --out'.")],
+    output: Annotated[Path, typer.Option("--output", "-o", help="HTML file to write.")] = Path("report.html"),
+    pdf: Annotated[bool, typer.Option("--pdf", help="Also print it to PDF (needs /usr/bin/chromium).")] = False,
 ) -> None:
     """Render the self-contained HTML report of a result (and a PDF with --pdf). The gains are verified again first."""
     from gaintune.report import ReportError, render_pdf, render_report
@@ -188,7 +220,7 @@ def plants(ctx: typer.Context) -> None:
 
 @plants_app.command("show")
 @handle_errors
-def plants_show(name: str = typer.Argument(..., help="Model name, e.g. dc_motor.")) -> None:
+def plants_show(name: Annotated[str, typer.Argument(help="Model name, e.g. dc_motor.")]) -> None:
     """Show one model: parameters with units, outputs and a ready-to-run example spec."""
     from gaintune.plants.library import load_model
 
@@ -198,17 +230,17 @@ def plants_show(name: str = typer.Argument(..., help="Model name, e.g. dc_motor.
 @app.command()
 @handle_errors
 def export(
-    result_path: Path = typer.Argument(..., metavar="RESULT.json", help="A result.json written by 'gaintune tune --out'."),
-    fmt: str = typer.Option("json", "--format", "-f", help="json | yaml | c | matlab | python"),
-    dt: Optional[float] = typer.Option(
-        None, "--dt",
+    result_path: Annotated[Path, typer.Argument(
+        metavar="RESULT.json", help="A result.json written by 'gaintune tune --out'.")],
+    fmt: Annotated[str, typer.Option("--format", "-f", help="json | yaml | c | matlab | python")] = "json",
+    dt: Annotated[float | None, typer.Option("--dt",
         help="Sample time (s) of the exported discrete controller. Default: the dt the result was verified at "
-             "(its largest scenario dt). The gains are verified again at this dt before anything is written."),
-    output: Optional[Path] = typer.Option(None, "--output", "-o", help="File to write (default: stdout)."),
-    allow_unverified: bool = typer.Option(
-        False, "--allow-unverified",
-        help="Export gains whose verdict at this dt is not PASS (the file is then marked FAILED, with the reason)."),
-    force: bool = typer.Option(False, "--force", hidden=True, help="Old name of --allow-unverified."),
+             "(its largest scenario dt). The gains are verified again at this dt before anything is written.")] = None,
+    output: Annotated[Path | None, typer.Option("--output", "-o", help="File to write (default: stdout).")] = None,
+    allow_unverified: Annotated[bool, typer.Option("--allow-unverified",
+        help="Export gains whose verdict at this dt is not PASS (the file is then marked FAILED, with the "
+             "reason).")] = False,
+    force: Annotated[bool, typer.Option("--force", hidden=True, help="Old name of --allow-unverified.")] = False,
 ) -> None:
     """Export the gains of a result as JSON, YAML, a C header, a MATLAB/Octave snippet or a Python dict.
 
@@ -238,22 +270,25 @@ def export(
 @app.command()
 @handle_errors
 def policy(
-    run: Path = typer.Argument(..., metavar="RUN", help="A folder 'gaintune tune --out' wrote (result.json + agent.zip)."),
-    param: list[str] = typer.Option([], "--param", "-p", metavar="NAME=V[,V...]",
-                                    help="Plant parameter value(s); several values or several --param give a grid (a gain schedule)."),
-    json_out: bool = typer.Option(False, "--json", help="Print the answers as JSON."),
+    run: Annotated[Path, typer.Argument(
+        metavar="RUN", help="A folder 'gaintune tune --out' wrote (result.json + agent.zip).")],
+    param: Annotated[list[str] | None, typer.Option(
+        "--param", "-p", metavar="NAME=V[,V...]",
+        help="Plant parameter value(s); several values or several --param give a grid (a gain schedule).")] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the answers as JSON.")] = False,
 ) -> None:
     """Gains of RUN's trained policy for plants of its family (parameters in its randomize ranges), each verified.
 
     Exit 3 if any answer fails verification."""
-    run_policy(run, param, json_out)
+    run_policy(run, param or [], json_out)
 
 
 @app.command()
 def serve(
-    host: str = typer.Option("127.0.0.1", "--host"),
-    port: int = typer.Option(8000, "--port", min=0, max=65535),
-    workers: int = typer.Option(1, "--workers", min=0, max=64, help="Worker processes for tuning jobs (0: none)."),
+    host: Annotated[str, typer.Option("--host")] = "127.0.0.1",
+    port: Annotated[int, typer.Option("--port", min=0, max=65535)] = 8000,
+    workers: Annotated[int, typer.Option(
+        "--workers", min=0, max=64, help="Worker processes for tuning jobs (0: none).")] = 1,
 ) -> None:
     """Run the REST API (FastAPI app in api/)."""
     import socket
@@ -276,4 +311,5 @@ def serve(
 
 
 def main() -> None:  # pragma: no cover - console entry
+    """The ``gaintune`` console command."""
     app()

@@ -8,7 +8,7 @@ with the arguments unchanged, so ``--help`` shows the benchmark's own options.
 from __future__ import annotations
 
 import importlib
-from typing import Callable
+from collections.abc import Callable
 
 import typer
 
@@ -16,7 +16,8 @@ from gaintune.cli.common import EPILOG, err
 
 __all__ = ["BENCH", "bench_app"]
 
-bench_app = typer.Typer(help="Benchmarks (arguments after the command are passed through; --help shows each benchmark's own options).",
+bench_app = typer.Typer(help="Benchmarks (arguments after the command are passed through; --help shows each "
+                             "benchmark's own options).",
                         no_args_is_help=True, epilog=EPILOG)
 
 BENCH = {
@@ -28,9 +29,11 @@ BENCH = {
     "kernel": "The simulator kernel side by side with an earlier git revision of it.",
     "ablation": "RL agents and PPO settings side by side on 1/(s+1)^3 PID.",
     "startup": "End-to-end wall time of --help, import, verify and a 3,000-simulation tune, beside python -c pass.",
-    "policy": "A trained tuner's answer time (policy, repair, verification per plant) beside the search that trained it.",
+    "policy": "A trained tuner's answer time (policy, repair, verification per plant) beside the search that "
+              "trained it.",
     "api": "REST API load test.",
-    "chaos": "Chaos campaign against a real API server: worker/server kills, freezes, storage faults, reused connections.",
+    "chaos": "Chaos campaign against a real API server: worker/server kills, freezes, storage faults, reused "
+             "connections.",
 }
 
 
@@ -39,7 +42,8 @@ def _bench_runner(name: str) -> Callable:
         try:
             mod = importlib.import_module(f"gaintune.bench.{name}")
         except ModuleNotFoundError as exc:
-            err.print(f"error: benchmark '{name}' is not available (module gaintune.bench.{name} is missing: {exc})", markup=False)
+            err.print(f"error: benchmark '{name}' is not available (module gaintune.bench.{name} is missing: {exc})",
+                      markup=False)
             raise typer.Exit(1) from None
         main = getattr(mod, "main", None)
         if main is None:

@@ -23,15 +23,19 @@ import json
 import math
 import os
 import shlex
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterator
+from typing import TYPE_CHECKING, Any
 
 import typer
 
 from gaintune.fmt import fmt
 
 if TYPE_CHECKING:  # pragma: no cover
-    from gaintune.spec import Gains
+    from rich.console import Console
+
+    from gaintune.search.result import TuneResult
+    from gaintune.spec import Gains, TuningSpec
 
 __all__ = [
     "EXIT_OK", "EXIT_INPUT", "EXIT_VERIFY", "EPILOG", "out", "err", "InputError", "handle_errors",
@@ -57,6 +61,10 @@ class _Console:
     def __init__(self, **kwargs: Any) -> None:
         self._kwargs = kwargs
         self._console: Any = None
+
+    def real(self) -> Console:
+        """The console itself, made now if not yet (for APIs that want a real Console, e.g. a progress bar)."""
+        return self._real()
 
     def _real(self) -> Any:
         if self._console is None:
@@ -87,7 +95,7 @@ class InputError(Exception):
         self.field, self.message = field, message
 
 
-def _problem_lines(exc: BaseException) -> list[str]:
+def _problem_lines(exc: Exception) -> list[str]:
     from gaintune.errors import problem_details
 
     if isinstance(exc, InputError):
@@ -103,7 +111,7 @@ def _problem_lines(exc: BaseException) -> list[str]:
     return [f"{d['loc']}: {d['msg']}" if d["loc"] else d["msg"] for d in details]
 
 
-def _input_errors() -> tuple[type[BaseException], ...]:
+def _input_errors() -> tuple[type[Exception], ...]:
     import yaml
     from pydantic import ValidationError
 
@@ -183,7 +191,8 @@ def _parse_mapping(text: str, field: str) -> Any:
         raise InputError(field, f"not valid JSON/YAML: {exc}") from None
 
 
-def load_spec_file(path: Path):
+def load_spec_file(path: Path) -> TuningSpec:
+    """The spec at ``path``, validated (bad input: an error naming the field, exit 2)."""
     from gaintune.spec import load_spec
 
     data = _parse_mapping(_read_file(path, "spec"), "spec")
@@ -205,7 +214,8 @@ def load_gains(value: str) -> Gains:
     return data
 
 
-def load_result(path: Path):
+def load_result(path: Path) -> TuneResult:
+    """The result.json at ``path`` as a :class:`~gaintune.search.result.TuneResult` (bad input: exit 2)."""
     from pydantic import ValidationError
 
     from gaintune.search.result import TuneResult
@@ -246,7 +256,8 @@ def reverify_result(result, path: Path) -> None:
                   f"{result.verdict!r}; the stored verdict is not used", markup=False, highlight=False)
 
 
-def apply_overrides(spec, *, algo: str | None = None, budget: int | None = None, seed: int | None = None, workers: int | None = None):
+def apply_overrides(spec, *, algo: str | None = None, budget: int | None = None, seed: int | None = None,
+                    workers: int | None = None):
     """Override ``search`` settings and re-validate the whole spec."""
     from gaintune.spec import TuningSpec
 
@@ -285,6 +296,7 @@ def _command_line(*parts: Any, **options: Any) -> str:
 
 
 def _json_num(x: Any) -> Any:
+    """``x`` for JSON: a numpy scalar as a Python number, a non-finite float as None."""
     x = x.item() if hasattr(x, "item") else x
     if isinstance(x, float) and not math.isfinite(x):
         return None
@@ -292,4 +304,5 @@ def _json_num(x: Any) -> Any:
 
 
 def _close(a: float, b: float) -> bool:
+    """Whether two floats agree to 1e-9 relative."""
     return math.isclose(a, b, rel_tol=1e-9, abs_tol=0.0)

@@ -18,23 +18,28 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gaintune.cli.common import InputError, _f, _json_num, out, output_errors
+from gaintune.cli.common import InputError, _Console, _f, _json_num, out, output_errors
 
 if TYPE_CHECKING:  # pragma: no cover
     from rich.console import Console
 
-__all__ = ["_print_summary", "_write_outputs", "_print_simulation", "_simulation_json", "_plot_runs", "_print_plants", "_print_plant"]
+__all__ = ["_print_summary", "_write_outputs", "_print_simulation", "_simulation_json", "_plot_runs", "_print_plants",
+           "_print_plant"]
 
 
 # ------------------------------------------------------------ tuning result
 
 
-def _print_summary(result, console: Console = out) -> None:
+def _print_summary(result, console: Console | _Console = out) -> None:
+    """The tune's summary: gains table (titled by the verdict), cost, margins and metrics."""
     from rich.table import Table  # deferred on purpose: `gaintune verify` prints no rich table
 
     verdict = result.verdict
     passed = verdict == "pass"
-    title = "Accepted gains" if passed else ("Gains - FAILED verification, NOT accepted" if verdict == "fail" else "Gains (unverified)")
+    if passed:
+        title = "Accepted gains"
+    else:
+        title = "Gains - FAILED verification, NOT accepted" if verdict == "fail" else "Gains (unverified)"
     t = Table(title=title, title_style="bold green" if passed else "bold red")
     t.add_column("loop")
     t.add_column("gain")
@@ -60,8 +65,8 @@ def _print_summary(result, console: Console = out) -> None:
         for sc, vals in result.metrics.items():
             mt.add_row(sc, *[_f(vals.get(k)) for k in keys])
         console.print(mt)
-    console.print(f"cost {_f(result.cost)} (plain objective) after {result.sims} simulations in {result.wall_time:.1f} s "
-                  f"({result.algo}, stopped: {result.stopped})")
+    console.print(f"cost {_f(result.cost)} (plain objective) after {result.sims} simulations in "
+                  f"{result.wall_time:.1f} s ({result.algo}, stopped: {result.stopped})")
     if verdict == "pass":
         console.print("[bold green]verdict: PASS[/]")
     elif verdict == "fail":
@@ -92,7 +97,7 @@ def _other_form(form: str | None, gains: dict[str, float]) -> str:
     return ", ".join(f"{k} {_f(v, 4)}" + (" s" if k in ("Ti", "Td") else "") for k, v in alt.items())
 
 
-def _print_margins(rep, console: Console) -> None:
+def _print_margins(rep, console: Console | _Console) -> None:
     """Margins per loop and the requirement lines; an unstable loop's are 'not applicable', never pass."""
     from rich.table import Table
 
@@ -114,11 +119,12 @@ def _print_margins(rep, console: Console) -> None:
         for r in rep.requirements:
             status = {"pass": "[green]pass[/]", "fail": "[red]FAIL[/]", "n/a": NOT_APPLICABLE}[r.status]
             value = "-" if r.status == "n/a" else _f(r.value)
-            q.add_row(r.requirement, value, _f(r.limit), status, f"{r.loop}/{r.break_point}/{r.case}" if r.loop else r.case)
+            where = f"{r.loop}/{r.break_point}/{r.case}" if r.loop else r.case
+            q.add_row(r.requirement, value, _f(r.limit), status, where)
         console.print(q)
 
 
-def _print_baselines(result, console: Console) -> None:
+def _print_baselines(result, console: Console | _Console) -> None:
     """The baselines of ``tune --baselines`` beside this result: gains, cost, simulations, feasibility."""
     from rich.table import Table
 
@@ -143,7 +149,7 @@ def _gains_line(gains: dict[str, dict[str, float]] | None) -> str:
                      f"{loop}: " + ", ".join(f"{k} {_f(v, 4)}" for k, v in g.items()) for loop, g in gains.items())
 
 
-def _write_outputs(result, out_dir: Path, console: Console = out) -> None:
+def _write_outputs(result, out_dir: Path, console: Console | _Console = out) -> None:
     """result.json, report.html and the gain exports in ``out_dir``, each written atomically.
 
     A file-level symlink planted in the folder is replaced, never written through
@@ -176,7 +182,7 @@ def _simulation_json(results, switches, *, traces: bool) -> dict[str, Any]:
     from gaintune.sim.chatter import CHATTER_SWITCHES
 
     doc = {}
-    for r, n in zip(results, switches):
+    for r, n in zip(results, switches, strict=True):
         d: dict[str, Any] = {"metrics": {k: _json_num(v[0]) for k, v in r.metrics.items()}}
         d["metrics"].update(saturation_switches=n, chattering=n >= CHATTER_SWITCHES)
         if traces:
@@ -192,24 +198,26 @@ def _print_simulation(spec, results, switches) -> None:
 
     from gaintune.sim.chatter import CHATTER_SWITCHES
 
-    keys = ("iae", "ise", "itae", "effort", "tv", "overshoot", "rise_time", "settling_time", "sse", "peak_u", "sat_frac",
-            "load_iae", "diverged", "tripped")
+    keys = ("iae", "ise", "itae", "effort", "tv", "overshoot", "rise_time", "settling_time", "sse", "peak_u",
+            "sat_frac", "load_iae", "diverged", "tripped")
     t = Table(title=f"Simulation of {spec.name!r} (nominal plant)")
     t.add_column("metric")
     for r in results:
         t.add_column(r.scenario, justify="right")
     for k in keys:
-        t.add_row(k, *[str(bool(r.metrics[k][0])) if r.metrics[k].dtype == bool else _f(float(r.metrics[k][0])) for r in results])
+        t.add_row(k, *[str(bool(r.metrics[k][0])) if r.metrics[k].dtype == bool else _f(float(r.metrics[k][0]))
+                       for r in results])
     t.add_row("saturation_switches", *[str(n) for n in switches])
     t.add_row("chattering", *[str(n >= CHATTER_SWITCHES) for n in switches])
     out.print(t)
-    for r, n in zip(results, switches):
+    for r, n in zip(results, switches, strict=True):
         if n >= CHATTER_SWITCHES:
             out.print(f"warning: scenario {r.scenario!r}: the actuator chatters between its limits ({n} limit-to-limit "
                       "switches); the run is bounded but this is not a working loop", markup=False)
 
 
 def _plot_runs(spec, sim, results, path: Path) -> None:
+    """Save the time responses of every scenario to ``path`` (PNG, SVG or PDF)."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -86,5 +86,6 @@ def _print_answers(answers) -> None:
         out.print("* outside the range the policy was trained over: it extrapolates there")
     for a in answers:
         if a.verdict != "pass":
-            out.print(f"FAIL at {a.params}: {a.verification.reasons[0] if a.verification.reasons else 'verification failed'}",
+            why = a.verification.reasons[0] if a.verification.reasons else "verification failed"
+            out.print(f"FAIL at {a.params}: {why}",
                       markup=False)

@@ -14,8 +14,9 @@ Names with a leading underscore are internal to :mod:`gaintune.cli`.
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import typer
 
@@ -36,6 +37,7 @@ def demo_spec(budget: int | None = None, seed: int | None = None):
 
 
 def _get_tune() -> Callable:
+    """:func:`gaintune.search.tune`, or exit 1 when the search stack (torch, stable-baselines3) is missing."""
     try:
         # from the module itself: once anything imported the submodule gaintune.search.tune (as
         # gaintune.__getattr__ does), the package attribute gaintune.search.tune is that module
@@ -53,7 +55,8 @@ _PHASES = {"search": "searching", "settle": "settling onto the requirements", "r
 
 def _run_tune(tune: Callable, spec, *, out_dir: Path | None, json_out: bool, baselines: bool, command: str,
               warm_start: Path | None = None) -> Any:
-    """Run ``tune`` (from :func:`_get_tune`) on ``spec``: quietly with ``json_out``, else with a progress bar on stderr."""
+    """Run ``tune`` (from :func:`_get_tune`) on ``spec``: quietly with ``json_out``, else with a progress bar on
+    stderr."""
     kwargs: dict[str, Any] = dict(out_dir=str(out_dir) if out_dir else None, verify=True, baselines=baselines)
     if warm_start is not None:
         kwargs["warm_start"] = str(warm_start)
@@ -71,12 +74,13 @@ def _run_tune(tune: Callable, spec, *, out_dir: Path | None, json_out: bool, bas
     with Progress(
         TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("sims"),
         TextColumn("best cost {task.fields[best]}"), TextColumn("ETA {task.fields[eta]}"), TimeElapsedColumn(),
-        console=err, transient=False,
+        console=err.real(), transient=False,
     ) as bar:
         task = bar.add_task(f"tuning {spec.name} ({spec.search.algo})", total=spec.search.budget, best="-", eta="-")
 
         def progress(p) -> bool:
-            bar.update(task, completed=min(p.sims, p.budget), total=p.budget, description=f"{_PHASES.get(p.phase, p.phase)} ({spec.search.algo})",
+            bar.update(task, completed=min(p.sims, p.budget), total=p.budget,
+                       description=f"{_PHASES.get(p.phase, p.phase)} ({spec.search.algo})",
                        best=_f(p.best_cost), eta="-" if p.eta is None else f"{max(p.eta, 0.0):.0f}s")
             return True
 
@@ -84,6 +88,7 @@ def _run_tune(tune: Callable, spec, *, out_dir: Path | None, json_out: bool, bas
 
 
 def _finish(result, *, out_dir: Path | None, json_out: bool, command: str) -> None:
+    """Write the outputs, print the result (JSON or summary), and exit 3 when verification failed."""
     if not result.provenance.command:
         result.provenance.command = command
     if out_dir is not None:

@@ -17,6 +17,7 @@ import gymnasium as gym
 import numpy as np
 
 from gaintune.envs.problem import COST_CAP, VIOLATION_CAP, GainProblem
+from gaintune.sim.draws import Draws
 from gaintune.spec import TuningSpec
 
 __all__ = ["IterativeGainTuningEnv"]
@@ -41,15 +42,23 @@ class IterativeGainTuningEnv(gym.Env):
         self._a = np.zeros(d)
         self._t = 0
         self._value = 0.0
-        self._draw = None
+        self._draw: Draws | None = None
         self._ctx = np.zeros(c, dtype=np.float32)
         self._margin = 0.0
 
+    @property
+    def action(self) -> np.ndarray:
+        """The current gains as an action in [-1, 1] (a copy): where the steps so far have moved them."""
+        return self._a.copy()
+
     def _obs(self) -> np.ndarray:
-        return np.clip(np.concatenate([self._a, [-self._value / COST_CAP, self._margin / COST_CAP], self._ctx]), -5, 5).astype(np.float32)
+        obs = np.concatenate([self._a, [-self._value / COST_CAP, self._margin / COST_CAP], self._ctx])
+        return np.clip(obs, -5, 5).astype(np.float32)
 
     def _evaluate(self, a: np.ndarray) -> tuple[float, dict[str, Any]]:
         tuned = self.problem.layout.action_to_tuned(a[None])
+        if self._draw is None:
+            raise RuntimeError("call reset() before step()")
         s = self.problem.score(tuned, self._draw)
         self._margin = float(min(s.violation[0], VIOLATION_CAP))
         info = {"cost": float(s.cost[0]), "diverged": bool(s.diverged[0]), "tripped": bool(s.tripped[0]),
@@ -57,6 +66,7 @@ class IterativeGainTuningEnv(gym.Env):
         return float(s.reward[0]), info
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Draw a new episode (plant and scenario) and start from the centre of the bounds."""
         super().reset(seed=seed)
         self._draw = self.problem.draws_for(self.problem.draw(self.np_random, 1))
         self._ctx = self.problem.context(self._draw)[0]
@@ -66,6 +76,7 @@ class IterativeGainTuningEnv(gym.Env):
         return self._obs(), info
 
     def step(self, action: np.ndarray):
+        """Move the gains by ``action`` (bounded), score them and reward the improvement."""
         if self._draw is None:
             raise RuntimeError("call reset() before step()")
         step = self.max_step * np.clip(np.asarray(action, dtype=float), -1.0, 1.0)

@@ -8,6 +8,7 @@ import gymnasium as gym
 import numpy as np
 
 from gaintune.envs.problem import GainProblem
+from gaintune.sim.draws import Draws
 from gaintune.spec import TuningSpec
 
 __all__ = ["GainTuningEnv"]
@@ -44,16 +45,18 @@ class GainTuningEnv(gym.Env):
         d, c = self.problem.dim, self.problem.obs_size
         self.action_space = gym.spaces.Box(-1.0, 1.0, (d,), dtype=np.float32)
         self.observation_space = gym.spaces.Box(-5.0, 5.0, (c,), dtype=np.float32)
-        self._draw = None
+        self._draw: Draws | None = None
         self._obs = np.zeros(c, dtype=np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Draw a new episode (plant and scenario); the observation is its context."""
         super().reset(seed=seed)
         self._draw = self.problem.draws_for(self.problem.draw(self.np_random, 1))
         self._obs = self.problem.context(self._draw)[0]
         return self._obs.copy(), {}
 
     def step(self, action: np.ndarray):
+        """Score the gains ``action`` encodes on this episode; the episode ends here."""
         if self._draw is None:
             raise RuntimeError("call reset() before step()")
         tuned = self.problem.layout.action_to_tuned(np.asarray(action, dtype=float)[None])

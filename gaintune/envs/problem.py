@@ -22,17 +22,18 @@ the feasible region first and the cost inside it.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from gaintune.classical.timescale import scenario_defaults
 from gaintune.controllers.layout import GainLayout
-from gaintune.evaluation.search_box import search_box
+from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.evaluation.evaluator import DIVERGED_COST, Evaluator, Scores
+from gaintune.evaluation.search_box import search_box
 from gaintune.plants import build_plant
 from gaintune.plants.checks import validate_against_plant
-from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.sim import Simulator
 from gaintune.sim import draws as draws_mod
 from gaintune.sim.draws import Draws
@@ -85,10 +86,11 @@ class GainProblem:
         self.randomized = spec.randomize.active
         self.obs_size = draws_mod.context_size(spec)
         self.cost_scale = self._cost_scale()
-        #: Project stable, infeasible samples onto the requirement boundary before scoring (gaintune.evaluation.boundary_estimate).
+        #: Project stable, infeasible samples onto the requirement boundary before scoring
+        #: (gaintune.evaluation.boundary_estimate).
         self.repair = spec.search.repair
         #: Optional hook called as ``on_score(tuned, scored)`` after every env scoring (search monitor).
-        self.on_score = None
+        self.on_score: Callable[[np.ndarray, Scored], None] | None = None
 
     @property
     def n_sims(self) -> int:
@@ -98,6 +100,7 @@ class GainProblem:
 
     @property
     def dim(self) -> int:
+        """Number of tuned gains (the action size)."""
         return self.layout.n_tuned
 
     def _cost_scale(self) -> float:

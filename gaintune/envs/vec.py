@@ -14,6 +14,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
 from gaintune.envs.problem import GainProblem, Scored
 from gaintune.sim.draws import Draws
@@ -51,42 +52,50 @@ class BatchedGainVecEnv(VecEnv):
         return self._obs.copy()
 
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """Reseed the episode draws."""
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         return [seed] * self.num_envs
 
     def reset(self) -> np.ndarray:
+        """Start a new episode in every env; returns their observations."""
         return self._new_episodes()
 
     def step_async(self, actions: np.ndarray) -> None:
+        """Keep the actions for :meth:`step_wait`."""
         self._actions = np.asarray(actions, dtype=float).reshape(self.num_envs, -1)
 
-    def step_wait(self):
+    def step_wait(self) -> VecEnvStepReturn:
+        """Score the actions of :meth:`step_async` (one simulator call) and start a new episode in every env."""
         assert self._actions is not None and self._draws is not None
         tuned = self.problem.layout.action_to_tuned(self._actions)
         s: Scored = self.problem.score(tuned, self._draws)
         last_obs = self._obs
         new_obs = self._new_episodes()
         infos: list[dict[str, Any]] = [
-            {"cost": float(s.cost[i]), "violation": float(s.violation[i]), "diverged": bool(s.diverged[i]), "tripped": bool(s.tripped[i]),
-             "terminal_observation": last_obs[i], "TimeLimit.truncated": False}
+            {"cost": float(s.cost[i]), "violation": float(s.violation[i]), "diverged": bool(s.diverged[i]),
+             "tripped": bool(s.tripped[i]), "terminal_observation": last_obs[i], "TimeLimit.truncated": False}
             for i in range(self.num_envs)
         ]
         return new_obs, s.reward.astype(np.float32), np.ones(self.num_envs, dtype=bool), infos
 
     def close(self) -> None:
-        pass
+        """Nothing to release: the envs share one in-process simulator."""
 
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        """The attribute of this (shared) env, once per index."""
         return [getattr(self, attr_name, None)] * len(self._idx(indices))
 
     def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        """Set the attribute on this (shared) env."""
         setattr(self, attr_name, value)
 
     def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list[Any]:
+        """Call the method of this (shared) env once per index."""
         return [getattr(self, method_name)(*args, **kwargs) for _ in self._idx(indices)]
 
     def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        """Always False: the batched env wraps nothing."""
         return [False] * len(self._idx(indices))
 
     def _idx(self, indices) -> list[int]:

@@ -10,9 +10,10 @@ before it is simulated, and the policy is rewarded for the repaired gains. Sampl
 beyond the boundary then score like the boundary point they project to, and the
 policy is free to move along it.
 
-The move (:mod:`gaintune.evaluation.boundary`) is the one :mod:`gaintune.evaluation.boundary_exact` makes exactly, here on the search's fast
-estimate (:meth:`gaintune.evaluation.evaluator.Evaluator.requirement_violation`) and batched:
-every tuned gain of every PID loop is multiplied by ``alpha**d`` with ``d = 1`` on
+The move (:mod:`gaintune.evaluation.boundary`) is the one :mod:`gaintune.evaluation.boundary_exact` makes
+exactly, here on the search's fast estimate
+(:meth:`gaintune.evaluation.evaluator.Evaluator.requirement_violation`) and batched: every tuned gain
+of every PID loop is multiplied by ``alpha**d`` with ``d = 1`` on
 Kp, Ki and Kd of a parallel loop (on Kp of an ideal loop), which multiplies each
 controller by alpha. A coarse ladder of alphas below 1 finds, per candidate, the
 largest feasible scale, and a few bisection steps close the bracket. A candidate that
@@ -87,23 +88,61 @@ def onto_boundary_estimate(ev: Evaluator, tuned: np.ndarray) -> EstimateMove:
     rows = np.nonzero((v > 0) & (v < UNSTABLE_VIOLATION))[0]
     if not rows.size or not d.any():
         return EstimateMove(out, v_out, alpha, mask)
-    t = tuned[rows]
+    br = _ladder(ev, tuned[rows], d, g0[rows])
+    rows = rows[br.found]
+    br = br.subset(br.found)
+    _regula_falsi(ev, br, d)
+    moved = br.t * np.exp(br.xg)[:, None] ** d
+    fv = ev.requirement_scores(moved)[0]  # the full estimate, stability included, decides
+    ok = fv <= 0
+    rows = rows[ok]
+    out[rows] = moved[ok]
+    v_out[rows] = 0.0
+    alpha[rows] = np.exp(br.xg[ok])
+    mask[rows] = True
+    return EstimateMove(out, v_out, alpha, mask)
+
+
+@dataclass
+class _Bracket:
+    """Per candidate, a bracket in x = log alpha: its feasible end ``xg`` (shortfall ``gg`` <= 0) and infeasible end
+    ``xb`` (shortfall ``gb``); ``found`` where the ladder found a feasible scale at all."""
+
+    t: np.ndarray
+    xg: np.ndarray
+    gg: np.ndarray
+    xb: np.ndarray
+    gb: np.ndarray
+    found: np.ndarray
+
+    def subset(self, rows: np.ndarray) -> _Bracket:
+        """The brackets of ``rows`` only (a boolean mask or indices; copies)."""
+        return _Bracket(self.t[rows], self.xg[rows], self.gg[rows], self.xb[rows], self.gb[rows], self.found[rows])
+
+
+def _ladder(ev: Evaluator, t: np.ndarray, d: np.ndarray, g0: np.ndarray) -> _Bracket:
+    """Bracket the boundary of each candidate in ``t`` with the :data:`LADDER` of scales, all in one estimate."""
     x_floor = np.log(alpha_floor(ev.layout, t, d))
     xs = np.maximum(np.log1p(-np.array(LADDER))[None, :], x_floor[:, None])  # (n, L)
-    n, L = xs.shape
+    n, n_ladder = xs.shape
     # the root find checks margins only (stability is 2/3 of the estimate's cost); the answer is checked in full
-    lv, lg = ev.requirement_scores((t[:, None, :] * np.exp(xs)[..., None] ** d).reshape(n * L, -1), stability=False)
-    lv, lg = lv.reshape(n, L), lg.reshape(n, L)
+    lv, lg = ev.requirement_scores((t[:, None, :] * np.exp(xs)[..., None] ** d).reshape(n * n_ladder, -1),
+                                   stability=False)
+    lv, lg = lv.reshape(n, n_ladder), lg.reshape(n, n_ladder)
     ok = lv <= 0
-    found = ok.any(axis=1)
     first = np.argmax(ok, axis=1)  # the largest feasible scale on the ladder
     i = np.arange(n)
-    xg, gg = xs[i, first], lg[i, first]
     prev = np.maximum(first - 1, 0)
-    xb = np.where(first > 0, xs[i, prev], 0.0)
-    gb = np.where(first > 0, lg[i, prev], g0[rows])
-    keep = found
-    rows, t, xg, gg, xb, gb = rows[keep], t[keep], xg[keep], gg[keep], xb[keep], gb[keep]
+    return _Bracket(t=t, xg=xs[i, first], gg=lg[i, first], xb=np.where(first > 0, xs[i, prev], 0.0),
+                    gb=np.where(first > 0, lg[i, prev], g0), found=np.asarray(ok.any(axis=1)))
+
+
+def _regula_falsi(ev: Evaluator, br: _Bracket, d: np.ndarray) -> None:
+    """Close each bracket onto ``g = -TOL/2`` with :data:`SECANT_STEPS` safeguarded regula-falsi steps (in place).
+
+    A step whose secant is undefined, or whose infeasible end is unstable, bisects instead.
+    """
+    xg, gg, xb, gb = br.xg, br.gg, br.xb, br.gb
     for _ in range(SECANT_STEPS):
         act = gg < -TOL  # rows whose feasible end is still too far inside
         if not act.any():
@@ -116,18 +155,9 @@ def onto_boundary_estimate(ev: Evaluator, tuned: np.ndarray) -> EstimateMove:
         w = xb - xg  # keep the trial strictly inside the bracket
         xm = np.clip(xm, xg + 0.02 * w, xb - 0.02 * w)
         a = np.nonzero(act)[0]
-        tv, tg = ev.requirement_scores(t[a] * np.exp(xm[a])[:, None] ** d, stability=False)
+        tv, tg = ev.requirement_scores(br.t[a] * np.exp(xm[a])[:, None] ** d, stability=False)
         good = tv <= 0
         xg[a] = np.where(good, xm[a], xg[a])
         gg[a] = np.where(good, tg, gg[a])
         xb[a] = np.where(good, xb[a], xm[a])
         gb[a] = np.where(good, gb[a], tg)
-    moved = t * np.exp(xg)[:, None] ** d
-    fv = ev.requirement_scores(moved)[0]  # the full estimate, stability included, decides
-    ok = fv <= 0
-    rows = rows[ok]
-    out[rows] = moved[ok]
-    v_out[rows] = 0.0
-    alpha[rows] = np.exp(xg[ok])
-    mask[rows] = True
-    return EstimateMove(out, v_out, alpha, mask)

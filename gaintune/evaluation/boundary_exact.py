@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gaintune.controllers.layout import GainLayout
 from gaintune.evaluation.boundary import alpha_floor, loop_gain_exponents
 from gaintune.evaluation.evaluator import Evaluator
 from gaintune.spec.backoff import BackoffSpec
@@ -109,7 +110,7 @@ def _directions(ev: Evaluator, loop: str | None) -> tuple[str, list[np.ndarray]]
     gain up. Empty for LQ loops and loops with nothing tuned.
     """
     layout = ev.layout
-    names = [lp.name for lp in ev.spec.loops]
+    names = ev.spec.loop_names
     if loop is None or loop not in names:
         loop = names[-1]  # the plant-input break point: the innermost loop drives the plant
     spec_loop = ev.spec.loops[names.index(loop)]
@@ -126,9 +127,43 @@ def _directions(ev: Evaluator, loop: str | None) -> tuple[str, list[np.ndarray]]
     return loop, out
 
 
-def _alpha_min(layout, tuned: np.ndarray, d: np.ndarray) -> float:
+def _alpha_min(layout: GainLayout, tuned: np.ndarray, d: np.ndarray) -> float:
     """Smallest alpha < 1 that keeps ``tuned * alpha**d`` inside the search box (0 when d moves nothing)."""
     return float(alpha_floor(layout, tuned, d)[0])
+
+
+class _ExactProbe:
+    """Exact requirement margins of ``tuned * alpha**d``, to the search's aim, counting the verifications run."""
+
+    def __init__(self, ev: Evaluator, tuned: np.ndarray) -> None:
+        self.ev, self.tuned, self.checks = ev, tuned, 0
+        self.aim = ev.spec.requirements.backoff  # settle onto the search's aim; the verdict judges the exact limits
+
+    def moved(self, d: np.ndarray, a: float) -> np.ndarray:
+        """The answer with its gains scaled by ``a**d``."""
+        return self.tuned * a**d
+
+    def margin_and_loop(self, t: np.ndarray) -> tuple[float, str | None]:
+        """:func:`normalised_margin` of gains ``t`` by exact verification (nominal, linear checks only)."""
+        ev = self.ev
+        self.checks += 1
+        report = verify(ev.spec, ev.layout.full(t), nonlinear=False, plant=ev.plant, layout=ev.layout)
+        return normalised_margin(report, self.aim)
+
+    def margin(self, d: np.ndarray, a: float) -> float:
+        """The normalised margin of the answer moved by ``a**d``."""
+        return self.margin_and_loop(self.moved(d, a))[0]
+
+    def bisect(self, d: np.ndarray, ok: float, bad: float, m_ok: float) -> tuple[float, float]:
+        """Narrow the bracket [ok (margin >= 0), bad] to ``ALPHA_TOL``; returns (ok, its margin)."""
+        while abs(bad - ok) > ALPHA_TOL * min(ok, bad):
+            mid = math.sqrt(ok * bad)
+            m = self.margin(d, mid)
+            if m >= 0:
+                ok, m_ok = mid, m
+            else:
+                bad = mid
+        return ok, m_ok
 
 
 def onto_boundary_exact(ev: Evaluator, tuned: np.ndarray, cost: float | None = None) -> ExactMove:
@@ -142,75 +177,72 @@ def onto_boundary_exact(ev: Evaluator, tuned: np.ndarray, cost: float | None = N
         The search's answer (tuned-gain vector).
     cost
         Its plain cost, when known (saves one evaluation).
+
+    Returns
+    -------
+    ExactMove
+        The settled gains and what was done to them.
     """
-    tuned = np.asarray(tuned, dtype=float)
-    spec, layout = ev.spec, ev.layout
-    aim = spec.requirements.backoff  # settle onto the search's aim; the verdict judges the exact limits
-    checks = 0
-
-    def margin_of(t: np.ndarray) -> float:
-        nonlocal checks
-        checks += 1
-        return normalised_margin(verify(spec, layout.full(t), nonlinear=False, plant=ev.plant, layout=layout), aim)[0]
-
-    def moved(d: np.ndarray, a: float) -> np.ndarray:
-        return tuned * a**d
-
-    def bisect(d: np.ndarray, ok: float, bad: float, m_ok: float) -> tuple[float, float]:
-        while abs(bad - ok) > ALPHA_TOL * min(ok, bad):
-            mid = math.sqrt(ok * bad)
-            m = margin_of(moved(d, mid))
-            if m >= 0:
-                ok, m_ok = mid, m
-            else:
-                bad = mid
-        return ok, m_ok
-
-    checks += 1
-    m0, binding = normalised_margin(verify(spec, layout.full(tuned), nonlinear=False, plant=ev.plant, layout=layout), aim)
+    probe = _ExactProbe(ev, np.asarray(tuned, dtype=float))
+    m0, binding = probe.margin_and_loop(probe.tuned)
     if m0 == -math.inf:
-        return ExactMove(tuned, 1.0, None, "not_settled", m0, checks)
+        return ExactMove(probe.tuned, 1.0, None, "not_settled", m0, probe.checks)
     loop, dirs = _directions(ev, binding)
     if not dirs:
-        return ExactMove(tuned, 1.0, None, "unchanged" if m0 >= 0 else "not_settled", m0, checks)
-    if m0 < 0:  # pull inside: small steps first, since a peak can be non-monotone far from alpha = 1
-        for d in dirs:
-            a_min = _alpha_min(layout, tuned, d)
-            bad, a, m = 1.0, 1.0, m0
-            for step in PULL_STEPS:
-                a = max(1.0 - step, a_min)
-                if a >= bad:
-                    break  # the box allows no further move this way
-                m = margin_of(moved(d, a))
-                if m >= 0 or a <= a_min:
-                    break
-                bad = a
-            if m >= 0:
-                a, m = bisect(d, a, bad, m)
-                return ExactMove(moved(d, a), a, loop, "pulled_inside", m, checks)
-        return ExactMove(tuned, 1.0, loop, "not_settled", m0, checks)
-    d = dirs[0]
-    a_max = 1.0 / _alpha_min(layout, tuned, -d) if _alpha_min(layout, tuned, -d) > 0 else MAX_PUSH
+        return ExactMove(probe.tuned, 1.0, None, "unchanged" if m0 >= 0 else "not_settled", m0, probe.checks)
+    if m0 < 0:
+        return _pull_inside(probe, loop, dirs, m0)
+    return _push_out(probe, loop, dirs[0], m0, cost)
+
+
+def _pull_inside(probe: _ExactProbe, loop: str, dirs: list[np.ndarray], m0: float) -> ExactMove:
+    """Scale a failing answer inside along the first direction that reaches a pass, then bisect onto the boundary.
+
+    Small steps first, since a peak can be non-monotone far from alpha = 1.
+    """
+    for d in dirs:
+        a_min = _alpha_min(probe.ev.layout, probe.tuned, d)
+        bad, a, m = 1.0, 1.0, m0
+        for step in PULL_STEPS:
+            a = max(1.0 - step, a_min)
+            if a >= bad:
+                break  # the box allows no further move this way
+            m = probe.margin(d, a)
+            if m >= 0 or a <= a_min:
+                break
+            bad = a
+        if m >= 0:
+            a, m = probe.bisect(d, a, bad, m)
+            return ExactMove(probe.moved(d, a), a, loop, "pulled_inside", m, probe.checks)
+    return ExactMove(probe.tuned, 1.0, loop, "not_settled", m0, probe.checks)
+
+
+def _push_out(probe: _ExactProbe, loop: str, d: np.ndarray, m0: float, cost: float | None) -> ExactMove:
+    """Push an almost-active passing answer out along the loop gain onto the boundary; kept only if it costs less."""
+    ev, tuned = probe.ev, probe.tuned
+    unchanged = ExactMove(tuned, 1.0, loop, "unchanged", m0, probe.checks)
+    a_max = 1.0 / _alpha_min(ev.layout, tuned, -d) if _alpha_min(ev.layout, tuned, -d) > 0 else MAX_PUSH
     if m0 > PUSH_BAND or a_max <= 1.0:
-        return ExactMove(tuned, 1.0, loop, "unchanged", m0, checks)
-    # push out along the loop gain: find a failing scale, then bisect back onto the boundary
+        return unchanged
+    # find a failing scale, then bisect back onto the boundary
     a, m, ok, m_ok = 1.0, m0, 1.0, m0
     while m >= 0 and a < min(MAX_PUSH, a_max):
         ok, m_ok = a, m
         a = min(a * (1.0 + max(2.0 * m, 0.01)), MAX_PUSH, a_max)
-        m = margin_of(moved(d, a))
+        m = probe.margin(d, a)
     if m >= 0:
         ok, m_ok = a, m
     else:
-        ok, m_ok = bisect(d, ok, a, m_ok)
+        ok, m_ok = probe.bisect(d, ok, a, m_ok)
+    unchanged.checks = probe.checks
     if ok == 1.0:
-        return ExactMove(tuned, 1.0, loop, "unchanged", m0, checks)
+        return unchanged
     base = cost if cost is not None else float(ev.evaluate(tuned[None]).cost[0])
-    cand = ev.evaluate(moved(d, ok)[None])
+    cand = ev.evaluate(probe.moved(d, ok)[None])
     # the exact check decides the requirements here; the run itself must not diverge or trip
     if not (cand.diverged[0] or cand.tripped[0]) and float(cand.cost[0]) < base:
-        return ExactMove(moved(d, ok), ok, loop, "pushed_to_boundary", m_ok, checks)
-    return ExactMove(tuned, 1.0, loop, "unchanged", m0, checks)
+        return ExactMove(probe.moved(d, ok), ok, loop, "pushed_to_boundary", m_ok, probe.checks)
+    return unchanged
 
 
 def violation_after(settled: ExactMove | None, scores) -> float:
@@ -220,7 +252,7 @@ def violation_after(settled: ExactMove | None, scores) -> float:
     >= 0) while the estimate, which aims :data:`~gaintune.verification.quick.FEASIBILITY_MARGIN`
     inside, may call it a hair short; its run must still neither diverge nor trip.
     """
-    moved = settled is not None and settled.action in ("pulled_inside", "pushed_to_boundary")
-    if moved and settled.margin >= 0 and not (scores.diverged[0] or scores.tripped[0]):
+    if (settled is not None and settled.action in ("pulled_inside", "pushed_to_boundary") and settled.margin >= 0
+            and not (scores.diverged[0] or scores.tripped[0])):
         return 0.0
     return float(scores.violation[0])

@@ -116,8 +116,9 @@ class Scores:
 
 def scenario_cost(m: dict[str, np.ndarray], obj: ObjectiveSpec, sc: ScenarioSpec) -> np.ndarray:
     """Cost of one scenario's metrics (each (B,)); diverged runs get DIVERGED_COST."""
-    settle = np.where(np.isnan(m["settling_time"]), sc.horizon, m["settling_time"])
-    with np.errstate(invalid="ignore", over="ignore"):  # inf * 0 weight on diverged rows, or a weight of 1e300: replaced below
+    settle = np.where(np.isnan(m["settling_time"]), sc.resolved_horizon, m["settling_time"])
+    # inf * 0 weight on diverged rows, or a weight of 1e300: replaced below
+    with np.errstate(invalid="ignore", over="ignore"):
         cost = (
             m[obj.measure]
             + obj.effort_weight * m["effort"]
@@ -165,7 +166,8 @@ class Evaluator:
             sim = Simulator(spec, plant, GainLayout(spec, plant.states, plant=plant))
         self.sim = sim
         if not all(sc.resolved for sc in spec.scenarios):
-            spec = sim.spec  # the simulator's: scenario dt/horizon derived from the plant (gaintune.classical.timescale)
+            # the simulator's: scenario dt/horizon derived from the plant (gaintune.classical.timescale)
+            spec = sim.spec
         self.spec = spec
         self.plant: Plant = self.sim.plant
         self.layout = self.sim.layout
@@ -185,6 +187,7 @@ class Evaluator:
 
     @property
     def dim(self) -> int:
+        """Number of tuned gains."""
         return self.layout.n_tuned
 
     @property
@@ -200,7 +203,7 @@ class Evaluator:
             if spec.randomize.params or spec.randomize.delay:
                 c = draws_mod.corners(spec, plant, max_corners=MAX_PENALTY_CORNERS)
                 for i in range(len(c)):
-                    lin = plant.linearize(dict(zip(plant.param_names, c.params[i])))
+                    lin = plant.linearize(dict(zip(plant.param_names, c.params[i], strict=True)))
                     models.append(dataclasses.replace(lin, delay=float(c.delay[i])))
             self._constraint_models = models
         return self._constraint_models
@@ -230,8 +233,8 @@ class Evaluator:
               for lin in self.constraint_models]
         v = np.max([x[0] for x in vs], axis=0)
         short = np.max([x[1] for x in vs], axis=0)
-        fix = dict(nan=DIVERGED_VIOLATION, posinf=DIVERGED_VIOLATION)
-        return np.nan_to_num(v, **fix), np.nan_to_num(short, **fix)
+        return (np.nan_to_num(v, nan=DIVERGED_VIOLATION, posinf=DIVERGED_VIOLATION),
+                np.nan_to_num(short, nan=DIVERGED_VIOLATION, posinf=DIVERGED_VIOLATION))
 
     def evaluate(
         self, tuned: np.ndarray, draws: Draws | None = None, traces: bool = False, violation: np.ndarray | None = None
@@ -273,8 +276,8 @@ class Evaluator:
         total = np.where(diverged, DIVERGED_COST, np.minimum(total, DIVERGED_COST))
         rob = self.spec.search.robust
         cost = aggregate(total.reshape(B, K), rob.aggregate, rob.alpha)
-        div = diverged.reshape(B, K).any(axis=1)
-        trip = tripped.reshape(B, K).any(axis=1)
+        div = np.asarray(diverged.reshape(B, K).any(axis=1))
+        trip = np.asarray(tripped.reshape(B, K).any(axis=1))
         violation = self.requirement_violation(tuned) if violation is None else np.asarray(violation, dtype=float)
         violation = np.where(div, np.maximum(violation, DIVERGED_VIOLATION), violation)
         violation = violation + TRIP_VIOLATION * trip

@@ -16,7 +16,8 @@ know before any search, ranked like every search ranks (feasibility first, then 
    integrator), a scrambled Sobol sample of :data:`GRID_POINTS` gain sets spread log-uniformly
    over the layout's default bounds (scipy's ``qmc.Sobol``, seeded by ``search.seed``): the
    best of them centres the box instead of the middle of 1e-3 .. 1e3. Sampled gain sets that
-   overshoot a requirement are first moved onto its boundary (:func:`gaintune.evaluation.boundary_estimate.onto_boundary_estimate`),
+   overshoot a requirement are first moved onto its boundary
+   (:func:`gaintune.evaluation.boundary_estimate.onto_boundary_estimate`),
    and :data:`ZOOM_STAGES` smaller samples around the best so far walk the centre toward the
    optimum (one unlucky best sample had Kd 50x below the optimum's, outside the final box).
    LQ specs keep their Riccati-based defaults.
@@ -40,15 +41,16 @@ import numpy as np
 from gaintune.cache import LRU
 from gaintune.classical import BOUNDS_FACTOR, auto_bounds, rule_candidates
 from gaintune.controllers.layout import GainLayout
+from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.evaluation.evaluator import Evaluator
 from gaintune.plants import build_plant
 from gaintune.plants.plant import Plant
-from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.sim import Simulator
 from gaintune.spec import Gains, TuningSpec
 from gaintune.spec.backoff import BackoffSpec
 
-__all__ = ["SearchBox", "SCALES", "GRID_POINTS", "ZOOM_STAGES", "ZOOM_POINTS", "ZOOM_STARTS", "search_box", "search_layout", "make_evaluator"]
+__all__ = ["SearchBox", "SCALES", "GRID_POINTS", "ZOOM_STAGES", "ZOOM_POINTS", "ZOOM_STARTS", "search_box",
+           "search_layout", "make_evaluator"]
 
 #: Gain sets sampled when no classical rule applies (a power of two, as Sobol sampling wants).
 GRID_POINTS = 1024
@@ -97,10 +99,9 @@ class SearchBox:
 def _scale(gains: Gains, a: float, spec: TuningSpec) -> Gains:
     """Every loop's controller gains times ``a`` (ideal form: Kp only; Ti, Td are times)."""
     out = {}
-    for loop in spec.loops:
-        g = gains[loop.name]
+    for name, loop in zip(spec.loop_names, spec.loops, strict=True):
         keep = {"Ti", "Td"} if loop.form == "ideal" else set()
-        out[loop.name] = {k: (v if k in keep else v * a) for k, v in g.items()}
+        out[name] = {k: (v if k in keep else v * a) for k, v in gains[name].items()}
     return out
 
 
@@ -139,10 +140,11 @@ def _search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
         names = list(named)
         tuned = np.array([plain.from_dict(named[n])[plain.tuned_idx] for n in names])
         violation = None
-        if project:  # sampled gains that overshoot a requirement are scored on its boundary (gaintune.evaluation.boundary_estimate)
+        # sampled gains that overshoot a requirement are scored on its boundary (gaintune.evaluation.boundary_estimate)
+        if project:
             r = onto_boundary_estimate(ev, tuned)
             tuned, violation = r.tuned, r.violation
-            named = {n: plain.to_dict(plain.full(t)) for n, t in zip(names, tuned)}
+            named = {n: plain.to_dict(plain.full(t)) for n, t in zip(names, tuned, strict=True)}
         s = ev.evaluate(tuned, violation=violation)
         return [(float(s.merit[i]), n, named[n], bool(s.feasible[i]), float(s.violation[i]), float(s.cost[i]))
                 for i, n in enumerate(names)]
@@ -159,8 +161,8 @@ def _search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
             for stage in range(ZOOM_STAGES):
                 centre = min(walk, key=lambda r: r[0])[2]
                 zoom = GainLayout(spec, plant.states, auto_bounds=auto_bounds(spec, centre, BOUNDS_FACTOR), plant=plant)
-                walk += score(_sobol_candidates(zoom, seed + 1 + stage + 10 * k, ZOOM_POINTS, f"zoom{k + 1}.{stage + 1}"),
-                              project=True)
+                label = f"zoom{k + 1}.{stage + 1}"
+                walk += score(_sobol_candidates(zoom, seed + 1 + stage + 10 * k, ZOOM_POINTS, label), project=True)
             scored += walk[1:]
     best = min(scored, key=lambda r: r[0])
     _, source, centre, feasible, _, _ = best
@@ -171,7 +173,8 @@ def _search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
 def _distinct_starts(layout: GainLayout, scored: list, n: int) -> list:
     """The ``n`` best-ranked scored designs that lie in different regions (every pair differs by more
     than BOUNDS_FACTOR in some gain), so the zoom walks explore different valleys."""
-    out, logs = [], []
+    out: list = []
+    logs: list[np.ndarray] = []
     for r in sorted(scored, key=lambda r: r[0]):
         x = np.log(np.abs(layout.from_dict(r[2])[layout.tuned_idx]) + 1e-300)
         if all(np.max(np.abs(x - y)) > np.log(BOUNDS_FACTOR) for y in logs):
@@ -190,7 +193,8 @@ def search_layout(spec: TuningSpec, plant: Plant) -> GainLayout:
 def make_evaluator(spec: TuningSpec, plant: Plant | None = None, exact: bool = False) -> Evaluator:
     """An :class:`~gaintune.evaluation.evaluator.Evaluator` on the problem's default search box.
 
-    ``exact``: its requirement estimate (and a :func:`gaintune.evaluation.boundary_exact.onto_boundary_exact` on it) judges the
+    ``exact``: its requirement estimate (and a :func:`gaintune.evaluation.boundary_exact.onto_boundary_exact` on it)
+    judges the
     exact limits, without ``requirements.backoff``, in the same box: for the benchmark reference,
     which is the exact-limit optimum.
     """

@@ -25,11 +25,11 @@ def loop_coefficients(spec: TuningSpec, gains: Gains) -> list[dict[str, Any]]:
     limits, anti-windup mode and ``Tt``; LQ loops give ``K, Kint, Nr`` and the
     operating point. Every loop also gets ``i0`` (integrator start) and ``y0``.
     """
+    from gaintune.controllers.direction import measured_indices
     from gaintune.controllers.layout import GainLayout
     from gaintune.controllers.lq import lq_gains
     from gaintune.controllers.pid import pid_params
     from gaintune.plants.plant import build_plant
-    from gaintune.controllers.direction import measured_indices
 
     plant = build_plant(spec.plant)
     layout = GainLayout(spec, plant.states)
@@ -40,8 +40,8 @@ def loop_coefficients(spec: TuningSpec, gains: Gains) -> list[dict[str, Any]]:
     act = spec.actuator.limits or (-math.inf, math.inf)
     out = []
     n_loops = len(spec.loops)
-    for i, loop in enumerate(spec.loops):
-        g = named[loop.name]
+    for i, (name, loop) in enumerate(zip(spec.loop_names, spec.loops, strict=True)):
+        g = named[name]
         inner = i == n_loops - 1
         lo, hi = act if inner else (loop.output_limits or (-math.inf, math.inf))
         i0 = float(lin.u0) if inner else float(lin.y0[meas[i + 1]])

@@ -69,6 +69,6 @@ def _unique_idents(names: list[str], style: str) -> None:
     for i, name in enumerate(names):
         key = _ident(name).upper() if style == "c" else _ident(name)
         if key in seen:
-            raise ExportError(f"loops.{i}.name", f"loop name {name!r} and {seen[key]!r} both become the identifier {key}; "
-                                                 "rename one so they differ after non-alphanumerics become _")
+            raise ExportError(f"loops.{i}.name", f"loop name {name!r} and {seen[key]!r} both become the identifier "
+                                                 f"{key}; rename one so they differ after non-alphanumerics become _")
         seen[key] = name

@@ -30,7 +30,7 @@ def verified_dt(spec: TuningSpec) -> float:
 
     The sampled-loop analysis (:mod:`gaintune.verification.sampled`) and the analysis band use it.
     """
-    return max(sc.dt for sc in spec.scenarios)
+    return max(sc.resolved_dt for sc in spec.scenarios)
 
 
 _spec_verified_dt = verified_dt  # for functions whose ``verified_dt`` parameter shadows the name
@@ -45,17 +45,19 @@ def spec_at_dt(spec: TuningSpec, dt: float, *, max_steps: int | None = None) -> 
     dt = _check_dt(dt)
     limit = MAX_STEPS if max_steps is None else min(int(max_steps), MAX_STEPS)
     for i, sc in enumerate(spec.scenarios):
-        steps = sc.horizon / dt
+        horizon = sc.resolved_horizon
+        steps = horizon / dt
         if steps > limit:
             raise ExportError(
                 "dt", f"dt = {_fmt_dt(dt)} s needs horizon/dt = {steps:.0f} steps for scenario {sc.name!r} "
-                f"(horizon {_fmt_dt(sc.horizon)} s), over the limit of {limit}; export at dt >= "
-                f"{_fmt_dt(sc.horizon / limit)} s, or shorten scenarios.{i}.horizon and re-tune")
+                f"(horizon {_fmt_dt(horizon)} s), over the limit of {limit}; export at dt >= "
+                f"{_fmt_dt(horizon / limit)} s, or shorten scenarios.{i}.horizon and re-tune")
         if steps < 2:
             raise ExportError(
-                "dt", f"dt = {_fmt_dt(dt)} s leaves fewer than 2 samples in the {_fmt_dt(sc.horizon)} s horizon of scenario "
-                f"{sc.name!r}; export at dt <= {_fmt_dt(sc.horizon / 2)} s, or lengthen scenarios.{i}.horizon and re-tune")
-    if all(_same_dt(sc.dt, dt) for sc in spec.scenarios):
+                "dt", f"dt = {_fmt_dt(dt)} s leaves fewer than 2 samples in the {_fmt_dt(horizon)} s horizon of "
+                f"scenario {sc.name!r}; export at dt <= {_fmt_dt(horizon / 2)} s, or lengthen "
+                f"scenarios.{i}.horizon and re-tune")
+    if all(_same_dt(sc.resolved_dt, dt) for sc in spec.scenarios):
         return spec
     from pydantic import ValidationError
 
@@ -67,7 +69,8 @@ def spec_at_dt(spec: TuningSpec, dt: float, *, max_steps: int | None = None) -> 
     except ValidationError as exc:
         e = exc.errors(include_url=False, include_input=False)[0]
         loc = ".".join(str(p) for p in e["loc"])
-        raise ExportError("dt", f"the spec is not valid at dt = {_fmt_dt(dt)} s ({loc}: {e['msg']}); choose another dt") from None
+        raise ExportError("dt", f"the spec is not valid at dt = {_fmt_dt(dt)} s ({loc}: {e['msg']}); "
+                                "choose another dt") from None
 
 
 def first_reason(report: Any) -> str | None:
@@ -89,13 +92,15 @@ def stored_verdict_holds(spec: TuningSpec, dt: float, stored: VerificationReport
     """
     if stored is None:
         return False
+    verdict: str | None
+    spec_hash: str | None
     if isinstance(stored, VerificationReport):
         verdict, spec_hash = stored.verdict, stored.spec_hash
     else:
         verdict, spec_hash = stored.get("verdict"), stored.get("spec_hash")
     vdt = verified_dt(spec)
     return (verdict is not None and spec_hash == spec.content_hash() and _same_dt(dt, vdt)
-            and all(_same_dt(sc.dt, vdt) for sc in spec.scenarios))
+            and all(_same_dt(sc.resolved_dt, vdt) for sc in spec.scenarios))
 
 
 def verdict_at_dt(
@@ -123,20 +128,21 @@ def verdict_at_dt(
     Raises :class:`ExportError` (field ``dt``) for a ``dt`` the spec cannot run at.
     """
     dt = verified_dt(spec) if dt is None else _check_dt(dt)
-    if isinstance(stored, VerificationReport):
-        stored = json.loads(stored.model_dump_json())
-    if stored_verdict_holds(spec, dt, stored):
-        return str(stored["verdict"]), stored
+    held: dict[str, Any] | None = (json.loads(stored.model_dump_json())
+                                   if isinstance(stored, VerificationReport) else stored)
+    if held is not None and stored_verdict_holds(spec, dt, held):
+        return str(held["verdict"]), held
     target = spec_at_dt(spec, dt, max_steps=max_steps)
-    if robust is None and stored is not None and "robust" in stored:
-        robust = stored["robust"] is not None  # as the stored verification did
+    if robust is None and held is not None and "robust" in held:
+        robust = held["robust"] is not None  # as the stored verification did
     from gaintune.verification import verify
 
     report = verify(target, gains, robust=robust)
     return report.verdict, json.loads(report.model_dump_json())
 
 
-def result_verdict_at_dt(result: Any, dt: float | None = None, *, max_steps: int | None = None) -> tuple[str, dict[str, Any] | None]:
+def result_verdict_at_dt(result: Any, dt: float | None = None, *,
+                         max_steps: int | None = None) -> tuple[str, dict[str, Any] | None]:
     """:func:`verdict_at_dt` for a :class:`~gaintune.search.result.TuneResult` (its stored verification included)."""
     spec = TuningSpec.model_validate(result.spec)
     return verdict_at_dt(spec, result.gains, dt, stored=result.verification, max_steps=max_steps)
@@ -175,7 +181,7 @@ class _Stamp:
         if self.verdict == "fail":
             return (f"verification: FAILED at dt = {dt} s - {self.reason} - these gains did not pass verification "
                     "at this sample time; do not deploy")
-        if self.stale:
+        if self.stale and self.verified_dt is not None:
             return (f"verification: NOT verified at dt = {dt} s (the verdict '{self.held}' holds at dt = "
                     f"{_fmt_dt(self.verified_dt)} s only) - do not deploy; re-verify or re-tune at this sample time")
         return "verification: not run - these gains are unverified"

@@ -4,10 +4,19 @@ Sections: 1 Summary, 2 Time responses, 3 Frequency, 4 Robustness, 5 Search,
 6 Baselines, 7 Reproducibility. Plots are inline SVG (matplotlib, Agg), so the
 page is one file that works offline.
 
-Example
--------
->>> from gaintune.report import render_report, result_from_gains   # doctest: +SKIP
->>> render_report(result, "out/report.html")                        # doctest: +SKIP
+Examples
+--------
+>>> import pathlib, tempfile
+>>> from gaintune.spec import load_spec
+>>> spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+...                   "scenario": {"dt": 0.05, "horizon": 20.0}})
+>>> result = result_from_gains(spec, {"loop0": {"Kp": 1.14, "Ki": 0.454}})
+>>> result.verdict
+'pass'
+>>> with tempfile.TemporaryDirectory() as d:
+...     path = render_report(result, pathlib.Path(d) / "report.html")
+...     print(path.name, path.read_text().startswith("<!DOCTYPE html>"))
+report.html True
 """
 
 from __future__ import annotations
@@ -18,7 +27,7 @@ import os
 import subprocess
 import tempfile
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -28,7 +37,8 @@ from gaintune.files import write_atomic
 if TYPE_CHECKING:  # pragma: no cover
     from gaintune.spec import Gains
 
-__all__ = ["SECTIONS", "ReportError", "load_verification", "render_html", "render_report", "render_pdf", "find_chromium", "result_from_gains"]
+__all__ = ["SECTIONS", "ReportError", "load_verification", "render_html", "render_report", "render_pdf",
+           "find_chromium", "result_from_gains"]
 
 #: Section ids in page order (the HTML element ids).
 SECTIONS: tuple[str, ...] = ("summary", "time", "frequency", "robustness", "search", "baselines", "reproducibility")
@@ -75,7 +85,7 @@ def render_html(result: Any, *, command: str | None = None) -> str:
         loader=jinja2.FileSystemLoader(str(Path(__file__).parent / "templates")),
         autoescape=jinja2.select_autoescape(["html", "j2"]),
     )
-    ctx.update(generated=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), version=_version())
+    ctx.update(generated=datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), version=_version())
     return env.get_template("report.html.j2").render(**ctx)
 
 
@@ -95,6 +105,7 @@ def render_report(result: Any, path: str | os.PathLike, *, pdf: bool = False, co
 
 
 def find_chromium() -> str | None:
+    """The Chromium that prints PDFs: ``$GAINTUNE_CHROMIUM``, else the first of ``CHROMIUM_PATHS``; None if none."""
     env = os.environ.get("GAINTUNE_CHROMIUM")
     if env:
         return env if Path(env).exists() else None
@@ -134,14 +145,16 @@ def render_pdf(html_path: str | os.PathLike, pdf_path: str | os.PathLike, *, tim
         except subprocess.TimeoutExpired:
             raise ReportError("pdf", f"Chromium did not finish printing within {timeout:.0f} s") from None
         if proc.returncode != 0 or not printed.is_file() or printed.stat().st_size == 0:
-            raise ReportError("pdf", f"Chromium failed to print the PDF (exit {proc.returncode}): {proc.stderr.strip()[-500:]}")
+            raise ReportError("pdf", f"Chromium failed to print the PDF (exit {proc.returncode}): "
+                                     f"{proc.stderr.strip()[-500:]}")
         write_atomic(pdf_path, printed.read_bytes())
     return pdf_path
 
 
 def result_from_gains(spec: Any, gains: Gains, *, algo: str = "manual", verify: bool = True,
                       baselines: list[dict[str, Any]] | None = None, command: str = "") -> Any:
-    """Wrap hand-picked (or baseline) gains in a :class:`TuneResult`, verified and scored, so they can be reported and exported."""
+    """Wrap hand-picked (or baseline) gains in a :class:`TuneResult`, verified and scored, so they can be reported and
+    exported."""
     from gaintune.evaluation.evaluator import Evaluator
     from gaintune.provenance import versions
     from gaintune.search.result import Provenance, TuneResult
@@ -158,11 +171,13 @@ def result_from_gains(spec: Any, gains: Gains, *, algo: str = "manual", verify: 
     }
     rep = run_verify(spec, named) if verify else None
     return TuneResult(
-        spec=json.loads(spec.model_dump_json()), algo=algo, gains=named, gains_source="best_seen", cost=float(scores.cost[0]),
+        spec=json.loads(spec.model_dump_json()), algo=algo, gains=named, gains_source="best_seen",
+        cost=float(scores.cost[0]),
         violation=float(scores.violation[0]),
         metrics=metrics, sims=ev.n_sims, wall_time=time.perf_counter() - t0, stopped="budget", verification=rep,
         baselines=baselines or [],
-        provenance=Provenance(spec_hash=spec.content_hash(), seed=spec.search.seed, versions=versions(), command=command),
+        provenance=Provenance(spec_hash=spec.content_hash(), seed=spec.search.seed, versions=versions(),
+                              command=command),
     )
 
 

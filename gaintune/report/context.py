@@ -4,15 +4,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
 
 from gaintune.fmt import fmt
-from gaintune.report import plots
-from gaintune.spec import DisturbanceSpec, Gains, ProfileSpec, ScenarioSpec, TuningSpec
 from gaintune.provenance import versions as all_versions
+from gaintune.report import plots
+from gaintune.report.plant_summary import plant_summary as _plant_summary
+from gaintune.spec import DisturbanceSpec, Gains, ProfileSpec, ScenarioSpec, TuningSpec
+
+if TYPE_CHECKING:  # the result model, for annotations only (the report reads any TuneResult)
+    from gaintune.search.result import TuneResult
 
 __all__ = ["build_context"]
 
@@ -27,57 +31,6 @@ _fmt = fmt  # one formatter for every table (gaintune.fmt)
 
 
 # ------------------------------------------------------------------ summary
-
-
-def _plant_summary(spec: TuningSpec, plant) -> dict[str, Any]:
-    p = spec.plant
-    units: dict[str, str] = {}
-    out: dict[str, Any] = {"kind": plant.kind, "states": plant.states, "outputs": plant.outputs,
-                           "params": dict(plant.with_params(None)) if plant.param_names else {}}
-    if p.model is not None:
-        from gaintune.plants.library import load_model
-
-        m = load_model(p.model.name)
-        out["title"] = f"{m.title} (built-in model '{m.name}')"
-        out["description"] = m.description
-        units = {k: v.unit for k, v in m.outputs.items() if v.unit and v.unit != "-"}
-        if m.input.unit and m.input.unit != "-":
-            out["input_unit"] = m.input.unit
-        out["param_units"] = {k: v.unit for k, v in m.parameters.items()}
-        if m.plant.tf is not None:
-            out["structure"] = f"G(s) = {_wrap(_poly(m.plant.tf.num))} / {_wrap(_poly(m.plant.tf.den))}"
-        elif m.plant.ss is not None:
-            out["structure"] = f"state space, states {plant.states}, outputs {plant.outputs}"
-        else:
-            out["structure"] = f"nonlinear ODE, states {plant.states}, outputs {plant.outputs}"
-    elif p.tf is not None:
-        out["title"] = "Transfer function"
-        out["structure"] = f"G(s) = {_wrap(_poly(p.tf.num))} / {_wrap(_poly(p.tf.den))}"
-    elif p.ss is not None:
-        out["title"] = "State space"
-        out["structure"] = f"states {plant.states}, outputs {plant.outputs}"
-    else:
-        out["title"] = "Nonlinear ODE"
-        out["structure"] = f"states {plant.states}, outputs {plant.outputs} (margins from the linearisation)"
-    out["delay"] = plant.delay()
-    out["units"] = units
-    return out
-
-
-def _wrap(text: str) -> str:
-    return text if text.replace("_", "").replace(".", "").isalnum() else f"({text})"
-
-
-def _poly(v: Any) -> str:
-    if isinstance(v, str):
-        return v
-    n = len(v) - 1
-    terms = []
-    for i, c in enumerate(v):
-        k = n - i
-        cs = _fmt(c) if not isinstance(c, str) else (c if c.replace("_", "").isalnum() or len(v) == 1 else f"({c})")
-        terms.append(cs if k == 0 else f"{cs} s" + (f"^{k}" if k > 1 else ""))
-    return " + ".join(terms)
 
 
 def _loop_rows(spec: TuningSpec, plant) -> list[dict[str, Any]]:
@@ -105,9 +58,9 @@ def _gain_rows(spec: TuningSpec, plant, gains: Gains, ps: dict[str, Any]) -> lis
     units, rows = ps["units"], []
     loops = {lp.name: (i, lp) for i, lp in enumerate(spec.loops)}
     for loop, g in gains.items():
-        i, lp = loops.get(loop, (None, None))
+        i, lp = loops.get(loop, (-1, None))
         pid = lp is not None and not lp.is_lq
-        other: dict[str, float] = equivalent(lp.form, g) if pid else {}
+        other: dict[str, float] = equivalent(lp.form, g) if lp is not None and not lp.is_lq else {}
         y_unit = units.get((lp.measure or plant.outputs[0]) if lp is not None else "", "")
         if lp is None:
             u_unit = ""
@@ -119,7 +72,8 @@ def _gain_rows(spec: TuningSpec, plant, gains: Gains, ps: dict[str, Any]) -> lis
         alt = [f"{k} {_fmt(v, 4)}" + (f" {gain_unit(k, u_unit, y_unit)}" if gain_unit(k, u_unit, y_unit) else "")
                for k, v in other.items() if k not in g]
         for k, v in g.items():
-            rows.append({"loop": loop, "gain": k, "value": _fmt(v, 6), "unit": gain_unit(k, u_unit, y_unit) if pid else "",
+            rows.append({"loop": loop, "gain": k, "value": _fmt(v, 6),
+                         "unit": gain_unit(k, u_unit, y_unit) if pid else "",
                          "other": ", ".join(alt) if k == next(iter(g)) else ""})
     return rows
 
@@ -164,7 +118,7 @@ def _load_scenario(spec: TuningSpec, u_final: float, u0: float) -> ScenarioSpec 
     amp = 0.1 * (lim[1] - lim[0]) if lim else abs(u_final - u0)
     if not math.isfinite(amp) or amp < 1e-9:
         amp = 1.0
-    t_d = round(0.1 * sc.horizon / sc.dt) * sc.dt
+    t_d = round(0.1 * sc.resolved_horizon / sc.resolved_dt) * sc.resolved_dt
     return sc.model_copy(update={
         "name": "load_disturbance",
         "reference": ProfileSpec(kind="none"),
@@ -188,7 +142,8 @@ def _time_section(spec, plant, sim, full, ps) -> tuple[list[dict], dict]:
     lim = spec.actuator.limits
 
     def figure(res, title: str) -> str:
-        return plots.time_figure(res.t, _loop_traces(res, spec, plant, units), res.traces["u"][0], lim, title, u_unit=u_unit)
+        return plots.time_figure(res.t, _loop_traces(res, spec, plant, units), res.traces["u"][0], lim, title,
+                                 u_unit=u_unit)
 
     figs = []
     nominal_runs = {}
@@ -196,7 +151,8 @@ def _time_section(spec, plant, sim, full, ps) -> tuple[list[dict], dict]:
         res = sim.run(full[None], scenario=i, traces=True)
         nominal_runs[i] = res
         kind = sc.reference.kind if sc.reference.kind != "none" else "no reference change"
-        dist = "" if sc.disturbance.kind == "none" else f", {sc.disturbance.kind} load disturbance at the {sc.disturbance.entry}"
+        dist = ("" if sc.disturbance.kind == "none"
+                else f", {sc.disturbance.kind} load disturbance at the {sc.disturbance.entry}")
         title = f"Scenario '{sc.name}': reference {kind}{dist}"
         figs.append({"title": title, "svg": figure(res, title)})
     lin = plant.linearize()
@@ -206,14 +162,16 @@ def _time_section(spec, plant, sim, full, ps) -> tuple[list[dict], dict]:
         res = sim.run(full[None], scenario=load, traces=True)
         title = (f"Load disturbance: input step of {load.disturbance.amplitude:.3g} at t = {load.disturbance.time:g} s "
                  "(derived from the first scenario, reference held)")
-        figs.append({"title": title, "svg": figure(res, title), "note": f"load IAE {_fmt(float(res.metrics['load_iae'][0]))}"})
+        figs.append({"title": title, "svg": figure(res, title),
+                     "note": f"load IAE {_fmt(float(res.metrics['load_iae'][0]))}"})
     step = _setpoint_scenario(spec)
     if step is not None:
         res = sim.run(full[None], scenario=step, traces=True)
         title = "Setpoint step of 1, for information (the spec tunes for its load scenarios only)"
         m = res.metrics
         figs.append({"title": title, "svg": figure(res, title),
-                     "note": f"overshoot {_fmt(float(m['overshoot'][0]))}, settling time {_fmt(float(m['settling_time'][0]))} s"})
+                     "note": f"overshoot {_fmt(float(m['overshoot'][0]))}, "
+                             f"settling time {_fmt(float(m['settling_time'][0]))} s"})
     return figs, nominal_runs
 
 
@@ -247,15 +205,17 @@ def _freq_section(spec, plant, layout, full, rep) -> dict[str, Any]:
     L = loop_frequency_responses(spec, plant, layout, full, w, lin)
     figs_by_break = {(f.loop, f.break_point): f for f in rep.loops}
     bodes, curves = [], []
-    breaks = list(zip(cas.break_names, L))
+    breaks = list(zip(cas.break_names, L, strict=True))
     if len(spec.loops) == 1:  # the controller output is the plant input: one curve is enough
         breaks = breaks[:1]
     for (loop, brk), Lr in breaks:
         f = figs_by_break.get((loop, brk))
-        label = f"{loop} (broken at its controller output)" if brk == "controller_output" else "plant input (all loops closed)"
+        label = (f"{loop} (broken at its controller output)" if brk == "controller_output"
+                 else "plant input (all loops closed)")
         gm = {"db": f.gm_db, "freq": f.gm_freq} if f else None
         pm = {"deg": f.pm_deg, "freq": f.pm_freq} if f else None
-        bodes.append({"title": f"Bode: loop transfer at {label}", "svg": plots.bode_figure(w, Lr, f"L at {label}", gm, pm)})
+        bodes.append({"title": f"Bode: loop transfer at {label}",
+                      "svg": plots.bode_figure(w, Lr, f"L at {label}", gm, pm)})
         curves.append((loop if brk == "controller_output" else "plant input", Lr))
     req = spec.requirements
     ms_vals = [f.ms for f in rep.loops]
@@ -266,8 +226,9 @@ def _freq_section(spec, plant, layout, full, rep) -> dict[str, Any]:
         "sensitivity": plots.sensitivity_figure(w, curves, req.ms_max, req.mt_max),
         "delay_note": (
             f"Sampled loop at dt = {analysis_dt(spec):.4g} s: zero-order-hold plant with its delay {lin.delay:.4g} s "
-            f"(exact), the controllers' discrete laws" + (f", {spec.verify.compute_delay} sample(s) of computation delay"
-                                                          if spec.verify.compute_delay else "") + "."
+            f"(exact), the controllers' discrete laws"
+            + (f", {spec.verify.compute_delay} sample(s) of computation delay" if spec.verify.compute_delay else "")
+            + "."
             if spec.verify.sampled else
             f"Continuous loop: delay {delay_T:.4g} s = plant delay {lin.delay:.4g} s + sampling delay dt/2 = "
             f"{sampling_delay(spec):.4g} s, " + ("exact e^(-jwT)." if spec.verify.pade_order is None
@@ -300,12 +261,13 @@ def _robust_section(spec, plant, sim, full, rep, nominal_res, units) -> dict[str
     out: dict[str, Any] = {"active": spec.randomize.active, "worst": [], "svg": None}
     if rep.robust is not None:
         r = rep.robust
-        out["summary"] = (f"{r.n_samples} sampled plants ({r.n_corners} box corners + {r.n_monte_carlo} random draws, seed {r.seed}); "
-                          f"{r.n_unstable} unstable")
+        out["summary"] = (f"{r.n_samples} sampled plants ({r.n_corners} box corners + {r.n_monte_carlo} random draws, "
+                          f"seed {r.seed}); {r.n_unstable} unstable")
         out["n_unstable"] = r.n_unstable
         for wc in r.worst:
             out["worst"].append({
-                "loop": wc.loop, "break": "controller output" if wc.break_point == "controller_output" else "plant input",
+                "loop": wc.loop,
+                "break": "controller output" if wc.break_point == "controller_output" else "plant input",
                 "gm": _fmt(wc.gm_db, 3), "pm": _fmt(wc.pm_deg, 3), "dm": _fmt(wc.delay_margin, 3), "ms": _fmt(wc.ms, 3),
                 "mt": _fmt(wc.mt, 3), "disk": _fmt(wc.disk_alpha, 3),
                 "where": ", ".join(f"{k}={_fmt(v, 3)}" for k, v in wc.where.get("pm_deg", {}).items()),
@@ -324,8 +286,9 @@ def _robust_section(spec, plant, sim, full, rep, nominal_res, units) -> dict[str
     out["n_draws"] = n
     out["n_diverged"] = int((~ok).sum())
     if ok.any():
-        out["svg"] = plots.envelope_figure(res.t, ys[ok], nom.traces[f"y.{lp0.name}"][0], nom.traces[f"sp.{lp0.name}"][0],
-                                           res.traces["u"][ok], nom.traces["u"][0], meas)
+        out["svg"] = plots.envelope_figure(res.t, ys[ok], nom.traces[f"y.{lp0.name}"][0],
+                                           nom.traces[f"sp.{lp0.name}"][0], res.traces["u"][ok], nom.traces["u"][0],
+                                           meas)
         iae = res.metrics["iae"][ok]
         out["iae"] = {"min": _fmt(float(iae.min())), "mean": _fmt(float(iae.mean())), "max": _fmt(float(iae.max()))}
     return out
@@ -334,7 +297,8 @@ def _robust_section(spec, plant, sim, full, rep, nominal_res, units) -> dict[str
 def _search_section(result, spec: TuningSpec) -> dict[str, Any]:
     series = []
     if result.curve:
-        series.append((f"{result.algo} (gaintune)", [c.sims for c in result.curve], [c.best_cost for c in result.curve]))
+        series.append((f"{result.algo} (gaintune)", [c.sims for c in result.curve],
+                       [c.best_cost for c in result.curve]))
     for b in result.baselines or []:
         h = b.get("history") or []
         if h:
@@ -343,8 +307,9 @@ def _search_section(result, spec: TuningSpec) -> dict[str, Any]:
         ("algorithm", result.algo), ("environment", spec.search.env), ("budget (simulations)", spec.search.budget),
         ("simulations used", result.sims), ("RL simulations", result.rl_sims), ("parallel envs", spec.search.n_envs),
         ("robust samples / aggregate", f"{spec.search.robust.samples} / {spec.search.robust.aggregate}"),
-        ("wall time", f"{result.wall_time:.1f} s"), ("stopped by", result.stopped), ("gains source", result.gains_source),
-        ("final cost", _fmt(result.cost)), ("RL-only cost", _fmt(result.rl_cost)), ("policy cost", _fmt(result.policy_cost)),
+        ("wall time", f"{result.wall_time:.1f} s"), ("stopped by", result.stopped),
+        ("gains source", result.gains_source), ("final cost", _fmt(result.cost)),
+        ("RL-only cost", _fmt(result.rl_cost)), ("policy cost", _fmt(result.policy_cost)),
         ("seed", spec.search.seed), ("agent", result.agent_path or "-"),
     ]
     return {"facts": [(k, _fmt(v) if not isinstance(v, str) else v) for k, v in facts],
@@ -372,8 +337,9 @@ def _baselines_section(result, rep0, spec, plant, sim, full, nominal_res, units)
                 entries.append(run_baseline(spec, m).model_dump())
             except Exception as exc:  # a baseline that cannot run is reported, never fatal
                 entries.append({"method": m, "gains": None, "reason": str(exc)})
-    rows = [{"method": f"gaintune ({result.algo})", "gains": _gains_text(result.gains), "cost": _fmt(result.cost), "sims": _fmt(result.sims),
-             "verdict": rep0.verdict, "gm": "", "pm": "", "ms": "", "note": "this result", "self": True}]
+    rows = [{"method": f"gaintune ({result.algo})", "gains": _gains_text(result.gains), "cost": _fmt(result.cost),
+             "sims": _fmt(result.sims), "verdict": rep0.verdict, "gm": "", "pm": "", "ms": "", "note": "this result",
+             "self": True}]
     if rep0.loops:
         rows[0].update(gm=_fmt(min(f.gm_db for f in rep0.loops), 3), pm=_fmt(min(f.pm_deg for f in rep0.loops), 3),
                        ms=_fmt(max(f.ms for f in rep0.loops), 3))
@@ -382,8 +348,9 @@ def _baselines_section(result, rep0, spec, plant, sim, full, nominal_res, units)
     runs = [(f"gaintune ({result.algo})", nom.traces[f"y.{lp0.name}"][0], nom.traces["u"][0])]
     for b in entries:
         g = b.get("gains")
-        row = {"method": b.get("method", "?"), "gains": _gains_text(g), "cost": _fmt(b.get("cost")), "sims": _fmt(b.get("n_sims")),
-               "verdict": "-", "gm": "-", "pm": "-", "ms": "-", "note": b.get("reason") or "", "self": False}
+        row = {"method": b.get("method", "?"), "gains": _gains_text(g), "cost": _fmt(b.get("cost")),
+               "sims": _fmt(b.get("n_sims")), "verdict": "-", "gm": "-", "pm": "-", "ms": "-",
+               "note": b.get("reason") or "", "self": False}
         if g:
             try:
                 vec = sim.layout.from_dict(g)
@@ -406,9 +373,51 @@ def _baselines_section(result, rep0, spec, plant, sim, full, nominal_res, units)
 
 # -------------------------------------------------------------------- main
 
+#: The nominal metrics the report tabulates per scenario.
+METRIC_KEYS = ("iae", "ise", "effort", "overshoot", "rise_time", "settling_time", "sse", "peak_u", "sat_frac")
 
-def build_context(result, *, command: str | None = None) -> dict[str, Any]:
-    """All data of the report for one TuneResult (re-simulates with traces, computes frequency responses)."""
+
+def _metric_rows(spec: TuningSpec, nominal_res: dict[int, Any]) -> list[dict[str, Any]]:
+    """One row of :data:`METRIC_KEYS` per scenario, from the nominal runs."""
+    rows = []
+    for i, sc in enumerate(spec.scenarios):
+        m = nominal_res[i].metrics
+        rows.append({"scenario": sc.name, **{k: _fmt(float(m[k][0])) for k in METRIC_KEYS},
+                     "diverged": bool(m["diverged"][0])})
+    return rows
+
+
+def _repro(result: TuneResult, command: str | None) -> dict[str, Any]:
+    """What reproduces the result: the spec as YAML, seed, spec hash, package versions and the command."""
+    prov = result.provenance
+    versions = dict(prov.versions) if prov.versions else {}
+    if not versions:
+        versions = all_versions()
+    return {
+        "spec_yaml": yaml.safe_dump(result.spec, sort_keys=False),
+        "seed": prov.seed,
+        "spec_hash": prov.spec_hash,
+        "versions": versions,
+        "command": command or prov.command or f"gaintune tune spec.yaml --seed {prov.seed}",
+    }
+
+
+
+def build_context(result: TuneResult, *, command: str | None = None) -> dict[str, Any]:
+    """All data of the report for one TuneResult (re-simulates with traces, computes frequency responses).
+
+    Parameters
+    ----------
+    result
+        The result to report; it is verified here when it carries no verification.
+    command
+        The command shown as the way to reproduce it (default: the one in its provenance).
+
+    Returns
+    -------
+    dict
+        The template's context: sections of tables, SVG figures and facts.
+    """
     from gaintune.plants.plant import build_plant
     from gaintune.sim import Simulator
     from gaintune.verification import verify
@@ -417,29 +426,19 @@ def build_context(result, *, command: str | None = None) -> dict[str, Any]:
     plant = build_plant(spec.plant)
     sim = Simulator(spec, plant)
     full = sim.layout.from_dict(result.gains)
-    verified_now = result.verification is None
-    rep = verify(spec, result.gains, plant=plant, layout=sim.layout) if verified_now else result.verification
-    passed = rep.verdict == "pass"
+    rep = result.verification
+    verified_now = rep is None
+    if rep is None:
+        rep = verify(spec, result.gains, plant=plant, layout=sim.layout)
     ps = _plant_summary(spec, plant)
     units = ps["units"]
-    gains_rows = _gain_rows(spec, plant, result.gains, ps)
     time_figs, nominal_res = _time_section(spec, plant, sim, full, ps)
-    metric_keys = ("iae", "ise", "effort", "overshoot", "rise_time", "settling_time", "sse", "peak_u", "sat_frac")
-    metrics = []
-    for i, sc in enumerate(spec.scenarios):
-        m = nominal_res[i].metrics
-        metrics.append({"scenario": sc.name, **{k: _fmt(float(m[k][0])) for k in metric_keys}, "diverged": bool(m["diverged"][0])})
-    prov = result.provenance
-    versions = dict(prov.versions) if prov.versions else {}
-    if not versions:
-        versions = all_versions()
-    cmd = command or prov.command or f"gaintune tune spec.yaml --seed {prov.seed}"
     return {
         "title": f"gaintune report: {spec.name}",
         "spec": spec,
         "spec_name": spec.name,
         "description": spec.description,
-        "passed": passed,
+        "passed": rep.verdict == "pass",
         "diagnosis": result.diagnosis.model_dump() if result.diagnosis is not None else None,
         "verdict": rep.verdict,
         "verified_now": verified_now,
@@ -449,24 +448,18 @@ def build_context(result, *, command: str | None = None) -> dict[str, Any]:
         "plant": ps,
         "loops": _loop_rows(spec, plant),
         "actuator": {"limits": spec.actuator.limits, "rate_limit": spec.actuator.rate_limit},
-        "gains": gains_rows,
+        "gains": _gain_rows(spec, plant, result.gains, ps),
         "gains_source": result.gains_source,
         "requirements": _requirements(rep),
         "margins": _margin_rows(rep),
         "stability": rep.stability,
-        "metric_keys": metric_keys,
-        "metrics": metrics,
+        "metric_keys": METRIC_KEYS,
+        "metrics": _metric_rows(spec, nominal_res),
         "time": time_figs,
         "freq": _freq_section(spec, plant, sim.layout, full, rep),
         "robust": _robust_section(spec, plant, sim, full, rep, nominal_res, units),
         "search": _search_section(result, spec),
         "baselines": _baselines_section(result, rep, spec, plant, sim, full, nominal_res, units),
-        "repro": {
-            "spec_yaml": yaml.safe_dump(result.spec, sort_keys=False),
-            "seed": prov.seed,
-            "spec_hash": prov.spec_hash,
-            "versions": versions,
-            "command": cmd,
-        },
+        "repro": _repro(result, command),
         "fmt": _fmt,
     }

@@ -121,7 +121,7 @@ def time_figure(t: np.ndarray, loops: list[dict], u: np.ndarray, u_limits: tuple
     plt = _plt()
     n = len(loops) + 1
     fig, axes = plt.subplots(n, 1, figsize=(8, 1.9 * n + 0.4), sharex=True)
-    for ax, lp in zip(axes, loops):
+    for ax, lp in zip(axes, loops, strict=False):  # the last axes hold the actuator
         ax.plot(t, _plottable(lp["sp"]), color="0.4", ls="--", lw=1.0, label=f"setpoint {lp['name']}")
         ax.plot(t, _plottable(lp["y"]), color=COLORS[0], lw=1.4, label=f"{lp['name']} ({lp['measure']})")
         ax.set_ylabel(lp["measure"] + (f" [{lp['unit']}]" if lp.get("unit") and lp["unit"] != "-" else ""))
@@ -171,7 +171,8 @@ def bode_figure(w: np.ndarray, L: np.ndarray, title: str, gm: dict | None, pm: d
         p = float(np.interp(np.log(wc), np.log(w), ph))
         base = p - pm["deg"]
         a2.vlines(wc, base, p, color=COLORS[2], lw=2)
-        a2.annotate(f"PM {pm['deg']:.1f} deg", (wc, (p + base) / 2), xytext=(6, 0), textcoords="offset points", color=COLORS[2])
+        a2.annotate(f"PM {pm['deg']:.1f} deg", (wc, (p + base) / 2), xytext=(6, 0), textcoords="offset points",
+                    color=COLORS[2])
     lo = np.nanpercentile(mag[np.isfinite(mag)], 1) if np.any(np.isfinite(mag)) else -60
     hi = np.nanmax(mag[np.isfinite(mag)]) if np.any(np.isfinite(mag)) else 20
     a1.set_ylim(max(lo, -120) - 5, min(hi, 120) + 5)
@@ -212,7 +213,8 @@ def nyquist_figure(curves: list[tuple[str, np.ndarray]], ms_max: float | None, m
     return to_svg(fig)
 
 
-def sensitivity_figure(w: np.ndarray, curves: list[tuple[str, np.ndarray]], ms_max: float | None, mt_max: float | None) -> str:
+def sensitivity_figure(w: np.ndarray, curves: list[tuple[str, np.ndarray]], ms_max: float | None,
+                       mt_max: float | None) -> str:
     """|S| and |T| per break point with the required peaks."""
     plt = _plt()
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(8, 3.2), sharey=True)
@@ -264,7 +266,8 @@ def envelope_figure(t: np.ndarray, ys: np.ndarray, y_nom: np.ndarray, sp: np.nda
     plt = _plt()
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 4.6), sharex=True)
     ys, y_nom, sp, us, u_nom = (_plottable(v) for v in (ys, y_nom, sp, us, u_nom))
-    a1.fill_between(t, np.nanmin(ys, 0), np.nanmax(ys, 0), color=COLORS[0], alpha=0.2, lw=0, label=f"envelope ({ys.shape[0]} plants)")
+    a1.fill_between(t, np.nanmin(ys, 0), np.nanmax(ys, 0), color=COLORS[0], alpha=0.2, lw=0,
+                    label=f"envelope ({ys.shape[0]} plants)")
     for row in ys[: min(12, ys.shape[0])]:
         a1.plot(t, row, color=COLORS[0], lw=0.4, alpha=0.5)
     a1.plot(t, sp, color="0.4", ls="--", lw=1, label="setpoint")

@@ -26,9 +26,10 @@ import json
 import re
 import warnings
 import zipfile
-from dataclasses import dataclass, field as dc_field
+from dataclasses import dataclass
+from dataclasses import field as dc_field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -88,7 +89,8 @@ def read_agent_file(path: str | Path, field: str, limit: int = MAX_INPUT_BYTES) 
 def _read_archive(archive: zipfile.ZipFile, path: Path, field: str, limit: int) -> SavedAgent:
     members = {info.filename: info for info in archive.infolist()}
     if "policy.pth" not in members:
-        raise SpecError(field, f"{path} holds no policy weights (policy.pth); give the agent.zip a tune wrote with --out")
+        raise SpecError(field, f"{path} holds no policy weights (policy.pth); give the agent.zip a tune wrote "
+                               "with --out")
     inflate = _Inflater(archive, path, field, limit)
     saved = SavedAgent(path)
     for name, info in members.items():
@@ -140,9 +142,9 @@ def _read_plain_data(saved: SavedAgent, raw: bytes) -> None:
         return
     if not isinstance(data, dict):
         return
-    shapes = tuple(_shape(data.get(key)) for key in ("action_space", "observation_space"))
-    if all(s is not None for s in shapes):
-        saved.shapes = shapes  # type: ignore[assignment]
+    action, observation = _shape(data.get("action_space")), _shape(data.get("observation_space"))
+    if action is not None and observation is not None:
+        saved.shapes = (action, observation)
     steps = data.get("num_timesteps")
     if type(steps) is int and 0 <= steps < 2**53:
         saved.num_timesteps = steps
@@ -166,9 +168,8 @@ def load_module_state(module: torch.nn.Module, state: Any) -> str | None:
     missing = [k for k in own if k not in state]
     unexpected = [k for k in state if k not in own]
     other = [k for k in own if k in state and not _same_kind(state[k], own[k])]
-    problems = [f"{len(keys)} {what} (e.g. {keys[0]!r})"
-                for keys, what in ((missing, "missing"), (unexpected, "unexpected"), (other, "of another shape or type"))
-                if keys]
+    kinds = ((missing, "missing"), (unexpected, "unexpected"), (other, "of another shape or type"))
+    problems = [f"{len(keys)} {what} (e.g. {keys[0]!r})" for keys, what in kinds if keys]
     if problems:
         return ", ".join(problems)
     if not all(bool(torch.isfinite(t).all()) for t in state.values()):
@@ -191,12 +192,14 @@ def load_optimizer_state(optimizer: torch.optim.Optimizer, state: Any) -> str | 
     shape would fail at the first step: every tensor is checked here against its parameter first.
     Returns None when loaded, else what does not fit (and ``optimizer`` is unchanged)."""
     own = optimizer.state_dict()
-    if not (isinstance(state, dict) and isinstance(state.get("state"), dict) and isinstance(state.get("param_groups"), list)):
+    if not (isinstance(state, dict) and isinstance(state.get("state"), dict)
+            and isinstance(state.get("param_groups"), list)):
         return "is no optimizer state"
-    if [g.get("params") if isinstance(g, dict) else None for g in state["param_groups"]] != [g["params"] for g in own["param_groups"]]:
+    theirs = [g.get("params") if isinstance(g, dict) else None for g in state["param_groups"]]
+    if theirs != [g["params"] for g in own["param_groups"]]:
         return "holds other parameters"
     params = dict(zip((i for g in own["param_groups"] for i in g["params"]),
-                      (p for g in optimizer.param_groups for p in g["params"])))
+                      (p for g in optimizer.param_groups for p in g["params"]), strict=True))
     needed = next((keys for cls, keys in _STATE_KEYS if isinstance(optimizer, cls)), frozenset())
     for index, moments in state["state"].items():
         param = params.get(index) if type(index) is int else None
@@ -204,7 +207,8 @@ def load_optimizer_state(optimizer: torch.optim.Optimizer, state: Any) -> str | 
             return "holds no moments of this optimizer"
         for key, value in moments.items():
             # the shape first: a forged tensor can be a huge zero-stride view of a few bytes
-            if not (isinstance(value, torch.Tensor) and (value.shape == param.shape or (key == "step" and value.numel() == 1))
+            if not (isinstance(value, torch.Tensor)
+                    and (value.shape == param.shape or (key == "step" and value.numel() == 1))
                     and value.is_floating_point() and bool(torch.isfinite(value).all())):
                 return f"has a {key!r} that is no finite tensor of its parameter's shape"
     # the file's moments, the spec's hyper-parameters (learning rate, betas, ...)
@@ -226,7 +230,7 @@ def load_variables(agent: BaseAlgorithm, names: list[str], saved: Any) -> None:
                 current.copy_(value)
 
 
-def _same_kind(value: Any, like: torch.Tensor) -> bool:
+def _same_kind(value: Any, like: torch.Tensor) -> TypeGuard[torch.Tensor]:
     """``value`` is a tensor of the shape and type of ``like``."""
     return isinstance(value, torch.Tensor) and value.shape == like.shape and value.dtype == like.dtype
 

@@ -28,6 +28,7 @@ import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.preprocessing import get_action_dim
 from stable_baselines3.common.save_util import recursive_getattr
 from stable_baselines3.common.vec_env import VecEnv
 
@@ -60,8 +61,8 @@ def agent_defaults(algo: str, n_envs: int, dim: int, budget_steps: int) -> dict[
         # one rollout = one step of every env; SB3's PPO needs a minibatch of 2 or more, so a single
         # env collects 2 steps per update
         return dict(
-            n_steps=1 if n_envs > 1 else 2, batch_size=max(n_envs, 2), n_epochs=10, learning_rate=3e-3, gamma=0.0, gae_lambda=1.0,
-            clip_range=0.2, ent_coef=0.0, vf_coef=0.5, max_grad_norm=0.5, normalize_advantage=True,
+            n_steps=1 if n_envs > 1 else 2, batch_size=max(n_envs, 2), n_epochs=10, learning_rate=3e-3, gamma=0.0,
+            gae_lambda=1.0, clip_range=0.2, ent_coef=0.0, vf_coef=0.5, max_grad_norm=0.5, normalize_advantage=True,
             policy_kwargs=dict(net_arch=dict(pi=net, vf=net), log_std_init=-1.0, ortho_init=True),
         )
     if algo == "a2c":
@@ -99,7 +100,7 @@ def make_agent(
 ) -> BaseAlgorithm:
     """Build an SB3 agent on the batched env with gain-search defaults (plus ``overrides``)."""
     cls = ALGOS[algo]
-    kw = agent_defaults(algo, env.num_envs, env.action_space.shape[0], budget_steps)
+    kw = agent_defaults(algo, env.num_envs, get_action_dim(env.action_space), budget_steps)
     if horizon > 1:
         kw.update(iterative_defaults(algo, env.num_envs, horizon))
     kw.update(overrides or {})
@@ -168,10 +169,11 @@ def load_weights(agent: BaseAlgorithm, path: str | Path, *, field: str = "warm_s
         network than ``agent`` has.
     """
     saved = read_agent_file(path, field)
-    want = (tuple(agent.action_space.shape), tuple(agent.observation_space.shape))
+    want = (tuple(agent.action_space.shape or ()), tuple(agent.observation_space.shape or ()))
     if saved.shapes is not None and saved.shapes != want:
-        raise SpecError(field, f"the agent at {path} was trained on {_count(saved.shapes)}; this spec has {_count(want)}. "
-                        "A trained agent serves only the same loops, tuned gains and randomised parameters")
+        raise SpecError(field, f"the agent at {path} was trained on {_count(saved.shapes)}; this spec has "
+                        f"{_count(want)}. A trained agent serves only the same loops, tuned gains and randomised "
+                        "parameters")
     misfit = f"the weights in {path} do not fit the {agent.__class__.__name__} agent this spec builds"
     modules, variables = agent._get_torch_save_params()
     _install_eager_optim()  # loading an optimizer state: keep torch._dynamo unloaded

@@ -45,12 +45,14 @@ REQUIREMENT_TEXT: dict[str, tuple[str, str]] = {
 ON_BOUND = 0.01
 
 
-def bound_hints(layout: GainLayout, tuned: np.ndarray, skip: frozenset[tuple[int, str, str]] = frozenset()) -> list[str]:
-    """One hint per tuned gain that lies on (within 1 % of) its search bound, except ``(loop index, gain, side)`` in ``skip``."""
+def bound_hints(layout: GainLayout, tuned: np.ndarray,
+                skip: frozenset[tuple[int, str, str]] = frozenset()) -> list[str]:
+    """One hint per tuned gain that lies on (within 1 % of) its search bound, except ``(loop index, gain, side)`` in
+    ``skip``."""
     hints = []
     t = np.log(np.asarray(tuned, dtype=float))
     span = np.maximum(layout.log_hi - layout.log_lo, 1e-12)
-    for slot, x, lo, hi, w in zip(layout.tuned_slots, t, layout.log_lo, layout.log_hi, span):
+    for slot, x, lo, hi, w in zip(layout.tuned_slots, t, layout.log_lo, layout.log_hi, span, strict=True):
         for side, b in (("lower", lo), ("upper", hi)):
             if abs(x - b) <= ON_BOUND * w and (slot.loop, slot.name, side) not in skip:
                 hints.append(
@@ -68,10 +70,12 @@ def budget_hints(result: TuneResult) -> list[str]:
     rollout = rollout_sims(s.n_envs, per, s.env)
     if result.rl_sims == 0 and result.stopped not in ("cancelled", "wall_time"):
         need = min_budget_for_rl(result.setup_sims, per, rollout, s.refine)
+        policy = (f"saved policy of {result.warm_start} as it is (learning off)" if result.warm_start
+                  else "untrained policy")
         return [f"no RL search ran: after the set-up's {result.setup_sims} simulations (search box, reward scale), "
                 f"search.budget {s.budget} left too few for one rollout ({s.n_envs} gain sets x {per} simulation(s)) "
                 f"beside the final checks and the refinement reserve; the answer is the search box's start or the "
-                f"{'saved policy of ' + result.warm_start + ' as it is (learning off)' if result.warm_start else 'untrained policy'}. "
+                f"{policy}. "
                 f"Raise search.budget to at least {need}, or lower search.n_envs"]
     if result.sims > s.budget:
         return [f"the tune ran {result.sims} simulations, more than search.budget {s.budget}: the set-up (search box, "
@@ -117,7 +121,7 @@ def slow_integral_loops(spec: TuningSpec, gains: Gains) -> list[tuple[int, float
     """``(loop index, Ti)`` of every loop whose integral time Ti = Kp/Ki is longer than the longest scenario horizon."""
     from gaintune.controllers.pid import pid_params
 
-    horizon = max(sc.horizon for sc in spec.scenarios)
+    horizon = max(sc.resolved_horizon for sc in spec.scenarios)
     out = []
     for i, loop in enumerate(spec.loops):
         if loop.is_lq or "i" not in loop.type[1:] or loop.name not in gains:
@@ -131,10 +135,11 @@ def slow_integral_loops(spec: TuningSpec, gains: Gains) -> list[tuple[int, float
 
 def integral_time_hints(spec: TuningSpec, gains: Gains) -> list[str]:
     """A warning per loop whose integral time Ti = Kp/Ki is longer than the longest scenario horizon."""
-    horizon = max(sc.horizon for sc in spec.scenarios)
+    horizon = max(sc.resolved_horizon for sc in spec.scenarios)
     return [f"loops[{i}] ({spec.loops[i].name}): the integral time Ti = Kp/Ki = {ti:.4g} s is longer than the longest "
             f"scenario horizon ({horizon:.4g} s), so the scenarios cannot see the integral action work: lengthen the "
-            "horizon (or leave dt/horizon out and let gaintune derive them from the plant) before widening the gain bounds"
+            "horizon (or leave dt/horizon out and let gaintune derive them from the plant) before widening the gain "
+            "bounds"
             for i, ti in slow_integral_loops(spec, gains)]
 
 
@@ -148,7 +153,8 @@ def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray, plant: P
     horizon, not the bound, is what to change.
     """
     spec = TuningSpec.model_validate(result.spec)
-    timing, skip = scenario_hints(result), frozenset()
+    timing = scenario_hints(result)
+    skip: frozenset[tuple[int, str, str]] = frozenset()
     if all(sc.resolved for sc in spec.scenarios):  # a tune stores the spec with its scenarios resolved
         timing += integral_time_hints(spec, result.gains)
         if plant is not None:
@@ -174,7 +180,8 @@ def diagnose(result: TuneResult, layout: GainLayout, tuned: np.ndarray, plant: P
     if not stable:
         summary = "no stabilising gains were found" if not searched_feasible else "the closed loop is unstable"
         generic = ("check the plant sign and model, or widen the gain bounds; the search never saw a stable loop"
-                   if not searched_feasible else "the exact verification found the loop unstable; raise verify.n_freq or report a bug")
+                   if not searched_feasible
+                   else "the exact verification found the loop unstable; raise verify.n_freq or report a bug")
         hints[:0] = direction_hints(TuningSpec.model_validate(result.spec), plant) + [generic]
         return Diagnosis(status="fail", summary=summary, hints=hints)
     if failing:
@@ -215,6 +222,6 @@ def direction_hints(spec, plant: Plant | None) -> list[str]:
             continue
         if (auto.sign > 0) != (loop.direction == "direct"):
             want = "direct" if auto.sign > 0 else "reverse"
-            out.append(f"loops[{i}] ({loop.name}) is set to direction: {loop.direction}, but its path has {auto.reason}: "
-                       f"no gains of that sign can stabilise it; set direction: {want} or auto")
+            out.append(f"loops[{i}] ({loop.name}) is set to direction: {loop.direction}, but its path has "
+                       f"{auto.reason}: no gains of that sign can stabilise it; set direction: {want} or auto")
     return out

@@ -47,8 +47,8 @@ def _disabled_wrappers(fn: Callable[..., Any]) -> list[Callable[..., Any]]:
     return [c.cell_contents for c in cells if getattr(c.cell_contents, "__code__", None) is _DISABLE_INNER]
 
 
-def _targets() -> list[Callable[..., Any]] | None:
-    """The wrapped functions Adam calls, or None when torch is not laid out as expected."""
+def _targets() -> list[Any] | None:
+    """The wrapped functions Adam calls (each with ``__wrapped__``), or None when torch is not laid out as expected."""
     found = []
     for name in _METHODS:
         found += _disabled_wrappers(getattr(Optimizer, name))
@@ -60,7 +60,7 @@ def _targets() -> list[Callable[..., Any]] | None:
 
 def _plain_adam_step() -> Callable[..., Any] | None:
     """``Adam.step`` without the grad-mode wrapper (``_use_grad``) that imports dynamo at every step."""
-    fn = torch.optim.Adam.step  # possibly under torch's profiling hook, which keeps __wrapped__
+    fn: Any = torch.optim.Adam.step  # possibly under torch's profiling hook, which keeps __wrapped__
     while fn is not None:
         if getattr(getattr(fn, "__code__", None), "co_name", "") == "_use_grad":
             return getattr(fn, "__wrapped__", None)
@@ -69,7 +69,8 @@ def _plain_adam_step() -> Callable[..., Any] | None:
 
 
 def _wanted() -> bool:
-    return os.environ.get("GAINTUNE_TORCH_DYNAMO", "") not in ("1", "true", "yes") and "torch._dynamo" not in sys.modules
+    wanted = os.environ.get("GAINTUNE_TORCH_DYNAMO", "") in ("1", "true", "yes")
+    return not wanted and "torch._dynamo" not in sys.modules
 
 
 def install() -> bool:
@@ -93,7 +94,8 @@ class EagerAdam(torch.optim.Adam):
     #: (parameter ids, then what :meth:`_flat_state` returns)
     _flat: tuple | None = None
 
-    def step(self, closure=None):  # type: ignore[override]
+    def step(self, closure=None):
+        """One Adam step over every parameter (flat when possible, else torch's own step)."""
         if _ADAM_STEP is None:  # a torch laid out differently (e.g. an agent saved here, loaded elsewhere)
             return super().step(closure)
         if closure is None and self._flat_step():
@@ -148,7 +150,7 @@ class EagerAdam(torch.optim.Adam):
             step_size = lr / bias_correction1
             bias_correction2_sqrt = bias_correction2**0.5
             torch.sqrt(v, out=denom).div_(bias_correction2_sqrt).add_(eps)  # (v.sqrt() / c).add_(eps), in place
-            for p, mp, dp in zip(params, m_views, d_views):
+            for p, mp, dp in zip(params, m_views, d_views, strict=True):
                 p.addcdiv_(mp, dp, value=-step_size)
         return True
 
@@ -159,7 +161,7 @@ class EagerAdam(torch.optim.Adam):
         torch's own step then runs)."""
         flat = self._flat
         if flat is not None and flat[0] == [id(p) for p in params] and all(
-                self.state[p].get("exp_avg") is mp for p, mp in zip(params, flat[4])):
+                self.state[p].get("exp_avg") is mp for p, mp in zip(params, flat[4], strict=True)):
             return flat[1:]
         states = [self.state[p] for p in params]
         if all(len(st) == 0 for st in states):
@@ -176,7 +178,7 @@ class EagerAdam(torch.optim.Adam):
             return None
         denom = torch.empty_like(m)
         offset, m_views, d_views = 0, [], []
-        for i, (p, st) in enumerate(zip(params, states)):
+        for i, (p, st) in enumerate(zip(params, states, strict=True)):
             n = p.numel()
             st["step"] = steps[i]
             st["exp_avg"] = m[offset:offset + n].view_as(p)

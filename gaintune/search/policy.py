@@ -27,9 +27,9 @@ import numpy as np
 from gaintune.envs.problem import GainProblem
 from gaintune.envs.vec import BatchedGainVecEnv
 from gaintune.errors import SpecError
+from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.evaluation.evaluator import Evaluator
 from gaintune.plants import build_plant
-from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.search.agents import load_agent
 from gaintune.search.result import PolicyAnswer
 from gaintune.sim import Simulator
@@ -94,7 +94,8 @@ class PolicyTuner:
         return TuningSpec.model_validate(data)
 
     def answer(self, params: dict[str, float] | None = None) -> PolicyAnswer:
-        """The policy's gains for the plant at ``params`` (unnamed parameters keep their nominal values), verified there."""
+        """The policy's gains for the plant at ``params`` (unnamed parameters keep their nominal values), verified
+        there."""
         t0 = time.perf_counter()
         spec = self.spec_at(params or {})
         try:
@@ -112,7 +113,7 @@ class PolicyTuner:
             tuned = onto_boundary_estimate(Evaluator(spec, Simulator(spec, plant, layout)), tuned).tuned
         gains = layout.to_dict(layout.full(tuned[0]))
         report = verify(spec, gains, plant=plant, layout=layout, cache=False)
-        values = dict(zip(plant.param_names, map(float, plant.param_vector())))
+        values = dict(zip(plant.param_names, map(float, plant.param_vector()), strict=True))
         outside = [n for n, (lo, hi) in self.ranges.items() if not lo <= values[n] <= hi]
         return PolicyAnswer(params={n: values[n] for n in self.ranges},
                             gains=gains, verification=report, outside=outside,
@@ -136,4 +137,4 @@ class PolicyTuner:
         if not names:
             return [self.answer()]
         points = np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(names), -1).T
-        return [self.answer(dict(zip(names, map(float, p)))) for p in points]
+        return [self.answer(dict(zip(names, map(float, p), strict=True))) for p in points]

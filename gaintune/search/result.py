@@ -10,8 +10,34 @@ from pydantic import BaseModel, Field, computed_field, field_serializer, field_v
 from gaintune.spec import Gains, ScenarioDefault
 from gaintune.verification.report import VerificationReport, load_report
 
-__all__ = ["CurvePoint", "Progress", "Provenance", "SettleInfo", "Diagnosis", "TuneResult", "PolicyAnswer"]
+__all__ = ["CurvePoint", "Progress", "Provenance", "SettleInfo", "Diagnosis", "TuneResult", "PolicyAnswer",
+           "accepted", "report_json"]
 
+
+def accepted(gains: Gains, verdict: str | None) -> Gains | None:
+    """The one rule of acceptance: ``gains`` when their verification verdict is ``pass``, else None.
+
+    Parameters
+    ----------
+    gains
+        The gains that were verified.
+    verdict
+        Their verdict: "pass", "fail", or None when they were not verified.
+
+    Returns
+    -------
+    Gains or None
+        ``gains`` on a pass; None otherwise.
+
+    Examples
+    --------
+    >>> g = {"main": {"Kp": 1.0}}
+    >>> accepted(g, "pass")
+    {'main': {'Kp': 1.0}}
+    >>> accepted(g, "fail") is None, accepted(g, None) is None
+    (True, True)
+    """
+    return gains if verdict == "pass" else None
 
 
 def report_json(v: VerificationReport | None) -> dict[str, Any] | None:
@@ -30,7 +56,7 @@ class CurvePoint(BaseModel):
 
 
 class SettleInfo(BaseModel):
-    """What the exact boundary step (:func:`gaintune.evaluation.boundary_exact.onto_boundary_exact`) did to the search's answer."""
+    """What the exact boundary step (:func:`~gaintune.evaluation.boundary_exact.onto_boundary_exact`) did."""
 
     action: Literal["unchanged", "pulled_inside", "pushed_to_boundary", "not_settled"]
     alpha: float = Field(description="Loop-gain scale applied to the binding loop (1 = unchanged).")
@@ -44,7 +70,8 @@ class Diagnosis(BaseModel):
 
     status: Literal["pass", "fail", "unverified"]
     summary: str
-    binding: str | None = Field(None, description="The requirement that decides the verdict (most violated, or tightest).")
+    binding: str | None = Field(
+        None, description="The requirement that decides the verdict (most violated, or tightest).")
     value: float | None = Field(None, description="Its figure for the returned gains.")
     limit: float | None = None
     hints: list[str] = Field(default_factory=list)
@@ -82,23 +109,38 @@ class TuneResult(BaseModel):
     read as plain dicts keep their form. A dict is read back into a report, tolerant of
     older files (:func:`gaintune.verification.report.load_report`: infinities stored as
     ``null``, fields added since).
+
+    Examples
+    --------
+    Unverified gains are not accepted; :func:`gaintune.search.tune.tune` returns verified ones.
+
+    >>> r = TuneResult(spec={}, algo="manual", gains={"loop0": {"Kp": 1.0}}, cost=1.0,
+    ...                provenance=Provenance(spec_hash="-", seed=0, versions={}))
+    >>> r.verdict is None, r.accepted_gains is None
+    (True, True)
+    >>> TuneResult.model_validate_json(r.model_dump_json()).gains
+    {'loop0': {'Kp': 1.0}}
     """
 
-    spec: dict[str, Any] = Field(description="The spec as validated (JSON form), every scenario's dt and horizon filled in.")
+    spec: dict[str, Any] = Field(
+        description="The spec as validated (JSON form), every scenario's dt and horizon filled in.")
     scenario_defaults: list[ScenarioDefault] = Field(
         default_factory=list, description="The scenarios whose dt or horizon the spec left out: the values derived "
         "from the plant's time scale, and why (docs/simulation.md).")
     algo: str
     gains: Gains = Field(description="Frozen gains chosen as the answer (best of policy / best seen / refined).")
     gains_source: Literal["policy", "best_seen", "start", "refined"] = Field(
-        "best_seen", description="policy output, best gains the agent sampled, the start point (search box centre), or the local polish."
+        "best_seen", description="policy output, best gains the agent sampled, the start point (search box centre), "
+        "or the local polish."
     )
     policy_gains: Gains | None = Field(None, description="Deterministic policy output for the nominal context.")
     best_seen_gains: Gains | None = None
     cost: float = Field(description="Plain cost of `gains` (the objective, no penalty terms), on the robust draws.")
-    violation: float = Field(0.0, description="Requirement violation of `gains` by the search's estimate (0 = feasible).")
+    violation: float = Field(
+        0.0, description="Requirement violation of `gains` by the search's estimate (0 = feasible).")
     rl_cost: float | None = Field(None, description="Plain cost reached by the RL agent alone (before any refinement).")
-    rl_feasible: bool | None = Field(None, description="Whether the RL agent's own answer met every requirement (search estimate).")
+    rl_feasible: bool | None = Field(
+        None, description="Whether the RL agent's own answer met every requirement (search estimate).")
     settle: SettleInfo | None = None
     policy_cost: float | None = None
     metrics: dict[str, dict[str, float | None]] = Field(
@@ -113,11 +155,13 @@ class TuneResult(BaseModel):
     diverged_episodes: int = Field(0, description="Search episodes whose simulation diverged.")
     tripped_episodes: int = Field(0, description="Search episodes in which the safety monitor tripped.")
     agent_path: str | None = None
-    warm_start: str | None = Field(None, description="The saved agent this search continued from (learning on), if any.")
+    warm_start: str | None = Field(
+        None, description="The saved agent this search continued from (learning on), if any.")
     verification: VerificationReport | None = Field(None, description="The verification report, when verified.")
     verification_set_aside: str | None = Field(
-        None, description="Why a stored verification was set aside when this result was read: it was for other gains or "
-        "another spec (the result was edited after it was verified). The gains are unverified until verified again.")
+        None, description="Why a stored verification was set aside when this result was read: it was for other "
+        "gains or another spec (the result was edited after it was verified). The gains are unverified until verified "
+        "again.")
     baselines: list[dict[str, Any]] = Field(default_factory=list, description="Baseline results for comparison.")
     diagnosis: Diagnosis | None = None
     provenance: Provenance
@@ -143,38 +187,43 @@ class TuneResult(BaseModel):
 
     @property
     def verdict(self) -> str | None:
+        """The verification's verdict ("pass" or "fail"), or None when the gains are unverified."""
         return None if self.verification is None else self.verification.verdict
 
     @property
     def accepted_gains(self) -> Gains | None:
-        """The gains, only when verification passed; otherwise None."""
-        return self.gains if self.verdict == "pass" else None
+        """The gains, only when verification passed; otherwise None (:func:`accepted`)."""
+        return accepted(self.gains, self.verdict)
 
 
 
 class PolicyAnswer(BaseModel):
     """The trained policy's gains for one plant, and their verification on that plant."""
 
-    params: dict[str, float] = Field(description="Plant parameters the gains are for (the training spec's nominal values where not given).")
+    params: dict[str, float] = Field(
+        description="Plant parameters the gains are for (the training spec's nominal values where not given).")
     gains: Gains = Field(description="The policy's gains, moved onto the requirement boundary as the search does.")
-    verification: VerificationReport = Field(description="Verification of the gains on the plant at these parameters (nominal, no robust set).")
-    outside: list[str] = Field(default_factory=list, description="Parameters outside their training range: the policy extrapolates there.")
+    verification: VerificationReport = Field(
+        description="Verification of the gains on the plant at these parameters (nominal, no robust set).")
+    outside: list[str] = Field(
+        default_factory=list, description="Parameters outside their training range: the policy extrapolates there.")
     elapsed_ms: float = Field(description="Wall time of this answer (policy, repair and verification), milliseconds.")
 
     @field_serializer("verification")
     def _verification_json(self, v: VerificationReport) -> dict[str, Any] | None:
         return report_json(v)
 
-    @computed_field(description="pass or fail: the verification's verdict.")
+    @computed_field(description="pass or fail: the verification's verdict.")  # type: ignore[prop-decorator]  # mypy: computed_field on a property
     @property
     def verdict(self) -> str:
+        """The verification's verdict: pass or fail."""
         return self.verification.verdict
 
-    @computed_field(description="The gains when the verdict is pass, else null.")
+    @computed_field(description="The gains when the verdict is pass, else null.")  # type: ignore[prop-decorator]  # as above
     @property
     def accepted_gains(self) -> Gains | None:
-        """The gains, only when their verification passed; otherwise None."""
-        return self.gains if self.verdict == "pass" else None
+        """The gains, only when their verification passed; otherwise None (:func:`accepted`)."""
+        return accepted(self.gains, self.verdict)
 
 
 def _verification_mismatch(spec: dict[str, Any], gains: Gains, report: VerificationReport | None) -> str | None:

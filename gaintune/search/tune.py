@@ -11,138 +11,34 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.preprocessing import get_action_dim
+from stable_baselines3.common.vec_env import VecEnv
 
-from gaintune.envs.problem import GainProblem, Scored
+from gaintune.baselines.cma import load_cma
+from gaintune.envs.problem import GainProblem
 from gaintune.envs.vec import BatchedGainVecEnv
-from gaintune.evaluation.evaluator import DIVERGED_COST, merit
+from gaintune.evaluation.boundary_exact import ExactMove, onto_boundary_exact, violation_after
+from gaintune.evaluation.evaluator import Evaluator, Scores, merit
+from gaintune.provenance import versions
 from gaintune.search.agent_file import save_agent
 from gaintune.search.agents import load_agent, load_weights, make_agent
 from gaintune.search.budget import refine_reserve, rollout_sims
 from gaintune.search.budget import rl_budget as rl_budget_of
-from gaintune.evaluation.boundary_exact import onto_boundary_exact, violation_after
-from gaintune.baselines.cma import load_cma
 from gaintune.search.diagnosis import diagnose
-from gaintune.search.result import CurvePoint, Progress, Provenance, SettleInfo, TuneResult
+from gaintune.search.monitor import Cancel, SearchMonitor, StopCallback
+from gaintune.search.result import Progress, Provenance, SettleInfo, TuneResult
 from gaintune.spec import Gains, TuningSpec
-from gaintune.provenance import versions
 
 # The polish's optimiser, imported with this module: a CLI process still runs one thread here,
 # so gaintune.baselines.cma can skip scipy.stats (~0.3 s of every tune).
 CMA = load_cma()
 
-__all__ = ["tune", "policy_gains", "SearchMonitor"]
-
-
-class Cancel(Protocol):
-    def is_set(self) -> bool: ...
-
-
-class SearchMonitor:
-    """Tracks best gains, the training curve and every stop condition of a search."""
-
-    def __init__(
-        self,
-        problem: GainProblem,
-        budget: int,
-        wall_time: float | None,
-        progress: Callable[[Progress], bool | None] | None,
-        cancel: Cancel | None,
-        patience: int | None,
-        total_budget: int | None = None,
-    ) -> None:
-        self.problem = problem
-        self.budget = budget
-        self.total_budget = total_budget if total_budget is not None else budget  # search.budget: what progress shows
-        self.wall_time = wall_time
-        self.progress = progress
-        self.cancel = cancel
-        self.patience = patience
-        self.t0 = time.perf_counter()
-        self.sims0 = problem.n_sims
-        self.best_merit = np.inf
-        self.best_cost = np.inf  # plain cost of the best-ranked candidate
-        self.best_feasible = False
-        self.best_tuned: np.ndarray | None = None
-        self.best_at = 0
-        self.curve: list[CurvePoint] = []
-        self.n_diverged = 0
-        self.n_tripped = 0
-        self.stopped = "budget"
-        self._last_report = 0.0
-
-    @property
-    def sims(self) -> int:
-        return self.problem.n_sims - self.sims0
-
-    @property
-    def elapsed(self) -> float:
-        return time.perf_counter() - self.t0
-
-    def on_batch(self, tuned: np.ndarray, s: Scored) -> None:
-        """Record the batch's best candidate, feasibility first (see :func:`gaintune.evaluation.evaluator.merit`)."""
-        self.n_diverged += int(s.diverged.sum())
-        self.n_tripped += int(s.tripped.sum())
-        m = s.merit
-        i = int(np.argmin(m))
-        if m[i] < self.best_merit * (1 - 1e-3):
-            self.best_at = self.sims
-        if m[i] < self.best_merit:
-            self.best_merit = float(m[i])
-            self.best_cost = float(s.cost[i])
-            self.best_feasible = bool(s.feasible[i])
-            self.best_tuned = tuned[i].copy()
-        self.curve.append(CurvePoint(sims=self.sims, best_cost=float(min(self.best_cost, DIVERGED_COST)),
-                                     feasible=self.best_feasible, wall_time=self.elapsed))
-        self.report()
-
-    def report(self, force: bool = False, phase: str = "search") -> None:
-        if self.progress is None:
-            return
-        now = self.elapsed
-        if not force and now - self._last_report < 0.2:
-            return
-        self._last_report = now
-        rate = self.sims / now if now > 0 else 0.0
-        # an ETA only while the search runs, never below 0: settle, refine and verify are not paced by the budget
-        eta = max(0.0, (self.budget - self.sims) / rate) if rate > 0 and phase == "search" else None
-        # every simulation of the run (set-up, search, settle, refine), as the result's ``sims`` counts them
-        total = self.problem.n_sims
-        keep = self.progress(
-            Progress(sims=total, budget=max(self.total_budget, total), elapsed=now, eta=eta, phase=phase,
-                     best_cost=self.best_cost if self.best_feasible else None)
-        )
-        if keep is False:
-            self.stopped = "cancelled"
-
-    def keep_going(self, next_batch: int) -> bool:
-        if self.stopped == "cancelled" or (self.cancel is not None and self.cancel.is_set()):
-            self.stopped = "cancelled"
-            return False
-        if self.sims + next_batch > self.budget:
-            self.stopped = "budget"
-            return False
-        if self.wall_time is not None and self.elapsed > self.wall_time:
-            self.stopped = "wall_time"
-            return False
-        if self.patience is not None and self.sims - self.best_at > self.patience:
-            self.stopped = "converged"
-            return False
-        return True
-
-
-class _StopCallback(BaseCallback):
-    def __init__(self, monitor: SearchMonitor, batch: int) -> None:
-        super().__init__()
-        self.monitor = monitor
-        self.batch = batch
-
-    def _on_step(self) -> bool:
-        return self.monitor.keep_going(self.batch)
+__all__ = ["tune", "TuneOptions", "policy_gains", "SearchMonitor"]
 
 
 def _nominal_obs(problem: GainProblem) -> np.ndarray:
@@ -162,7 +58,7 @@ def _iterative_rollout(agent, spec: TuningSpec, problem: GainProblem, horizon: i
     obs, _ = env.reset(seed=spec.search.seed)
     for _ in range(horizon):
         obs, *_ = env.step(agent.predict(obs[None], deterministic=True)[0][0])
-    return env._a.copy()
+    return env.action
 
 
 def _refine(problem: GainProblem, start: np.ndarray, sims: int, seed: int) -> tuple[np.ndarray, float, int]:
@@ -176,11 +72,45 @@ def _refine(problem: GainProblem, start: np.ndarray, sims: int, seed: int) -> tu
     while ev.n_sims - n0 + opt.population_size <= sims and not opt.should_stop():
         xs = np.array([opt.ask() for _ in range(opt.population_size)])
         cs = ev.cost_of_action(xs)
-        opt.tell(list(zip(xs, cs)))
+        opt.tell(list(zip(xs, cs, strict=True)))
         i = int(np.argmin(cs))
         if cs[i] < best_c:
             best_a, best_c = xs[i], float(cs[i])
     return best_a, best_c, ev.n_sims - n0
+
+
+@dataclass(frozen=True)
+class TuneOptions:
+    """What :func:`tune` does besides the search itself (every keyword argument of :func:`tune`).
+
+    Attributes
+    ----------
+    progress
+        Called with a :class:`Progress` a few times per second; return False to stop.
+    out_dir
+        When given, the agent is saved there as ``agent.zip``.
+    verify
+        Settle the answer on the exact requirement boundary and verify it (the gate).
+    baselines
+        Also score the classical rules for the report's comparison table.
+    cancel
+        An object with ``is_set()`` that stops the search.
+    warm_start
+        A saved agent zip whose weights the search starts from.
+    agent_overrides
+        SB3 hyper-parameters replacing the defaults of :mod:`gaintune.search.agents`.
+    command
+        The command line recorded in the result's provenance.
+    """
+
+    progress: Callable[[Progress], bool | None] | None = None
+    out_dir: str | Path | None = None
+    verify: bool = True
+    baselines: bool = False
+    cancel: Cancel | None = None
+    warm_start: str | Path | None = None
+    agent_overrides: dict[str, Any] | None = None
+    command: str = ""
 
 
 def tune(
@@ -217,146 +147,245 @@ def tune(
         only, into the agent this spec builds (:func:`gaintune.search.agents.load_weights`).
     agent_overrides
         SB3 hyper-parameters replacing the defaults of :mod:`gaintune.search.agents`.
+    command
+        The command line recorded in the result's provenance.
+
+    Returns
+    -------
+    TuneResult
+        The frozen gains, their cost and metrics, the verification (when ``verify``) and how they were found.
+
+    Examples
+    --------
+    A short search (200 simulations) on a third-order lag; the gains are accepted only when they pass:
+
+    >>> from gaintune import load_spec, tune
+    >>> spec = load_spec({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+    ...                   "scenario": {"dt": 0.05, "horizon": 20.0}, "search": {"budget": 200, "seed": 0}})
+    >>> result = tune(spec)
+    >>> sorted(result.gains["loop0"]), result.sims <= 200, result.stopped
+    (['Ki', 'Kp'], True, 'budget')
+    >>> result.verdict, result.accepted_gains == result.gains
+    ('pass', True)
     """
-    return _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_overrides, command)
+    options = TuneOptions(progress=progress, out_dir=out_dir, verify=verify, baselines=baselines, cancel=cancel,
+                          warm_start=warm_start, agent_overrides=agent_overrides, command=command)
+    return _tune(spec, options)
 
 
-def _tune(spec, progress, out_dir, verify, baselines, cancel, warm_start, agent_overrides, command) -> TuneResult:
-    t0 = time.perf_counter()
-    s = spec.search
-    problem = GainProblem(spec)
-    spec = problem.spec  # scenario dt/horizon derived from the plant where the spec left them out
-    per_candidate = problem.k * len(spec.scenarios)
-    n_envs = s.n_envs
-    batch = rollout_sims(n_envs, per_candidate, s.env)
-    # Budget: set-up sims already spent + RL + the final evaluations + the refinement reserve (gaintune.search.budget).
-    reserve = refine_reserve(s.budget, s.refine)
-    setup_sims = problem.n_sims
-    rl_budget = rl_budget_of(s.budget, setup_sims, per_candidate, s.refine)
-    monitor = SearchMonitor(problem, rl_budget, s.wall_time, progress, cancel, s.early_stop_patience, total_budget=s.budget)
+@dataclass(frozen=True)
+class _Plan:
+    """The simulation budget of one tune, split between set-up, RL and the refinement (gaintune.search.budget)."""
+
+    per_candidate: int  # simulations per gain set: robust draws x scenarios
+    batch: int  # simulations of one rollout (the stop callback's step)
+    reserve: int  # kept for the local polish
+    setup_sims: int  # spent before the search: search box and reward scale
+    rl_budget: int
+    steps: int  # agent timesteps
+
+
+def _plan(problem: GainProblem) -> _Plan:
+    """Split ``problem.spec.search.budget`` (set-up sims already spent + RL + final evaluations + refinement)."""
+    s = problem.spec.search
+    per_candidate = problem.k * len(problem.spec.scenarios)
+    rl_budget = rl_budget_of(s.budget, problem.n_sims, per_candidate, s.refine)
+    return _Plan(per_candidate=per_candidate, batch=rollout_sims(s.n_envs, per_candidate, s.env),
+                 reserve=refine_reserve(s.budget, s.refine), setup_sims=problem.n_sims, rl_budget=rl_budget,
+                 steps=max(rl_budget // per_candidate, s.n_envs))
+
+
+def _make_env(problem: GainProblem) -> tuple[VecEnv, int]:
+    """The training VecEnv of ``problem`` and its episode horizon (1 for the one-shot env)."""
+    s = problem.spec.search
+    if s.env != "iterative":
+        return BatchedGainVecEnv(problem, s.n_envs, seed=s.seed), 1
+    # The multi-step env scores one gain set per env step (no batching across envs).
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from gaintune.envs.iterative import IterativeGainTuningEnv
+
+    spec = problem.spec
+    env = DummyVecEnv([lambda: IterativeGainTuningEnv(spec, problem=problem, horizon=ITERATIVE_HORIZON)
+                       for _ in range(s.n_envs)])
+    env.seed(s.seed)
+    return env, ITERATIVE_HORIZON
+
+
+@dataclass(frozen=True)
+class _Trained:
+    """A trained agent, the monitor of its search, its episode horizon and the simulations it used."""
+
+    agent: Any
+    monitor: SearchMonitor
+    horizon: int
+    rl_sims: int
+
+
+def _train(problem: GainProblem, plan: _Plan, options: TuneOptions) -> _Trained:
+    """Train the spec's agent within ``plan.rl_budget`` (stopped early by budget, time, patience or cancel)."""
+    s = problem.spec.search
+    monitor = SearchMonitor(problem, plan.rl_budget, s.wall_time, options.progress, options.cancel,
+                            s.early_stop_patience, total_budget=s.budget)
     problem.on_score = monitor.on_batch
-    horizon = 1
-    if s.env == "iterative":
-        # The multi-step env scores one gain set per env step (no batching across envs).
-        from stable_baselines3.common.vec_env import DummyVecEnv
-
-        from gaintune.envs.iterative import IterativeGainTuningEnv
-
-        horizon = ITERATIVE_HORIZON
-        env = DummyVecEnv([lambda: IterativeGainTuningEnv(spec, problem=problem, horizon=horizon) for _ in range(n_envs)])
-        env.seed(s.seed)
-    else:
-        env = BatchedGainVecEnv(problem, n_envs, seed=s.seed)
-    steps = max(rl_budget // per_candidate, n_envs)
-    agent = make_agent(s.algo, env, s.seed, steps, agent_overrides, horizon=horizon)
-    if warm_start is not None:  # the spec's agent with the saved weights, read as weights only (nothing is executed)
-        load_weights(agent, warm_start)
+    env, horizon = _make_env(problem)
+    agent = make_agent(s.algo, env, s.seed, plan.steps, options.agent_overrides, horizon=horizon)
+    if options.warm_start is not None:  # the spec's agent with the saved weights, read as weights only
+        load_weights(agent, options.warm_start)
         agent.set_random_seed(s.seed)
-    if rl_budget >= batch:
-        agent.learn(total_timesteps=steps, callback=_StopCallback(monitor, batch), reset_num_timesteps=warm_start is None)
-    rl_sims = monitor.sims
-
-    # Freeze: deterministic policy output for the nominal context, and the best gains seen.
-    layout = problem.layout
-    ev = problem.evaluator
+    if plan.rl_budget >= plan.batch:
+        agent.learn(total_timesteps=plan.steps, callback=StopCallback(monitor, plan.batch),
+                    reset_num_timesteps=options.warm_start is None)
     problem.on_score = None
-    if s.env == "iterative":
-        policy_action = _iterative_rollout(agent, spec, problem, horizon)
+    return _Trained(agent=agent, monitor=monitor, horizon=horizon, rl_sims=monitor.sims)
+
+
+@dataclass
+class _Answer:
+    """The search's answer as it moves through freeze, settle and refine."""
+
+    tuned: np.ndarray
+    source: str
+    policy_tuned: np.ndarray
+    policy_cost: float
+    rl_cost: float = 0.0
+    rl_feasible: bool = False
+    best_merit: float = 0.0
+    settled: ExactMove | None = None
+
+
+def _freeze(problem: GainProblem, trained: _Trained) -> tuple[_Answer, Scores, int]:
+    """Rank the policy's answer, the best gains seen and the start point; returns (answer, their scores, its row).
+
+    The policy's answer is scored as its samples were: repaired onto the boundary
+    (gaintune.evaluation.boundary_estimate). The start point (the best classical design,
+    gaintune.evaluation.search_box) is always a candidate, so the search never loses it.
+    """
+    layout, agent, best_tuned = problem.layout, trained.agent, trained.monitor.best_tuned
+    if problem.spec.search.env == "iterative":
+        policy_action = _iterative_rollout(agent, problem.spec, problem, trained.horizon)
     else:
         obs = _nominal_obs(problem)
         policy_action = np.asarray(agent.predict(obs, deterministic=True)[0], dtype=float).reshape(-1)
     cand = {"policy": policy_action}
-    if monitor.best_tuned is not None:
-        cand["best_seen"] = layout.tuned_to_action(monitor.best_tuned)
-    # the search never loses the start point (the best classical design, gaintune.evaluation.search_box)
+    if best_tuned is not None:
+        cand["best_seen"] = layout.tuned_to_action(best_tuned)
     cand["start"] = layout.tuned_to_action(layout.initial_tuned())
     names = list(cand)
-    # the policy's answer is scored as its samples were: repaired onto the boundary (gaintune.evaluation.boundary_estimate)
     cand_tuned = problem.repaired(layout.action_to_tuned(np.array([cand[k] for k in names])))
-    first = ev.evaluate(cand_tuned)
+    first = problem.evaluator.evaluate(cand_tuned)
     k = int(np.argmin(first.merit))  # feasibility first, then the plain cost
-    source = names[k]
-    policy_cost = float(first.cost[names.index("policy")])
-    policy_tuned = cand_tuned[names.index("policy")]
-    tuned = cand_tuned[k]
-    settled = None
-    if verify:
-        # Close the gap between the fast requirement estimate and the exact verdict (gaintune.evaluation.boundary_exact).
-        # Every method gets this exact step, so the RL-only figure includes it (but no local polish).
+    policy = names.index("policy")
+    answer = _Answer(tuned=cand_tuned[k], source=names[k], policy_tuned=cand_tuned[policy],
+                     policy_cost=float(first.cost[policy]), rl_cost=float(first.cost[k]),
+                     rl_feasible=bool(first.feasible[k]), best_merit=float(first.merit[k]))
+    return answer, first, k
+
+
+def _settle(ev: Evaluator, answer: _Answer, first: Scores, k: int) -> None:
+    """Move the answer onto the exact requirement boundary (gaintune.evaluation.boundary_exact), in place.
+
+    This closes the gap between the fast requirement estimate and the exact verdict. Every
+    method gets this exact step, so the RL-only figures include it (but no local polish).
+    """
+    settled = onto_boundary_exact(ev, answer.tuned, cost=float(first.cost[k]) if first.feasible[k] else None)
+    answer.settled = settled
+    if settled.action in ("pulled_inside", "pushed_to_boundary"):
+        answer.tuned = settled.tuned
+        rl = ev.evaluate(answer.tuned[None])
+        answer.rl_cost, answer.rl_feasible = float(rl.cost[0]), violation_after(settled, rl) <= 0
+        answer.best_merit = float(merit(rl.cost, np.array([violation_after(settled, rl)]))[0])
+
+
+def _polish(problem: GainProblem, plan: _Plan, answer: _Answer, verify: bool) -> None:
+    """Local CMA-ES polish of the answer within the refinement reserve, kept when it ranks better (in place)."""
+    s = problem.spec.search
+    layout = problem.layout
+    start = layout.tuned_to_action(answer.tuned)
+    sims = min(plan.reserve, s.budget - problem.n_sims - plan.per_candidate)
+    ra, rm, _ = _refine(problem, start, sims, s.seed)
+    if rm < answer.best_merit:
+        answer.tuned, answer.source = layout.action_to_tuned(ra), "refined"
+        if verify:
+            answer.settled = onto_boundary_exact(problem.evaluator, answer.tuned)
+            if answer.settled.action in ("pulled_inside", "pushed_to_boundary"):
+                answer.tuned = answer.settled.tuned
+
+
+def _tune(spec: TuningSpec, options: TuneOptions) -> TuneResult:
+    """The steps of :func:`tune`: plan the budget, train, freeze, settle, polish, then build the result."""
+    t0 = time.perf_counter()
+    problem = GainProblem(spec)
+    spec = problem.spec  # scenario dt/horizon derived from the plant where the spec left them out
+    plan = _plan(problem)
+    trained = _train(problem, plan, options)
+    monitor = trained.monitor
+    answer, first, k = _freeze(problem, trained)
+    if options.verify:
         monitor.report(force=True, phase="settle")
-        settled = onto_boundary_exact(ev, tuned, cost=float(first.cost[k]) if first.feasible[k] else None)
-        if settled.action in ("pulled_inside", "pushed_to_boundary"):
-            tuned = settled.tuned
-            rl = ev.evaluate(tuned[None])
-            rl_cost, rl_feasible = float(rl.cost[0]), violation_after(settled, rl) <= 0
-            best_merit = float(merit(rl.cost, np.array([violation_after(settled, rl)]))[0])
-        else:
-            rl_cost, rl_feasible, best_merit = float(first.cost[k]), bool(first.feasible[k]), float(first.merit[k])
-    else:
-        rl_cost, rl_feasible, best_merit = float(first.cost[k]), bool(first.feasible[k]), float(first.merit[k])
-    if s.refine and monitor.stopped != "cancelled" and reserve > 0:
+        _settle(problem.evaluator, answer, first, k)
+    if spec.search.refine and monitor.stopped != "cancelled" and plan.reserve > 0:
         monitor.report(force=True, phase="refine")
-        start = layout.tuned_to_action(tuned)
-        ra, rm, _ = _refine(problem, start, min(reserve, s.budget - problem.n_sims - per_candidate), s.seed)
-        if rm < best_merit:
-            tuned, source = layout.action_to_tuned(ra), "refined"
-            if verify:
-                settled = onto_boundary_exact(ev, tuned)
-                if settled.action in ("pulled_inside", "pushed_to_boundary"):
-                    tuned = settled.tuned
-    final = ev.evaluate(tuned[None])
-    full = layout.full(tuned)
-    gains = layout.to_dict(full)
-    metrics = {
-        r.scenario: {k: (float(v[0]) if np.isfinite(v[0]) else None) for k, v in r.metrics.items()} for r in final.results
-    }
+        _polish(problem, plan, answer, options.verify)
     agent_path = None
-    if out_dir is not None:
-        out = Path(out_dir)
+    if options.out_dir is not None:
+        out = Path(options.out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        agent_path = str(save_agent(agent, out / "agent.zip"))  # atomic: a symlink there is replaced, not followed
-    result = TuneResult(
+        agent_path = str(save_agent(trained.agent, out / "agent.zip"))  # atomic: a symlink is replaced, not followed
+    result = _result(problem, plan, trained, answer, options, agent_path)
+    if options.verify:
+        monitor.report(force=True, phase="verify")
+        from gaintune.verification import verify as verify_gains
+
+        result.verification = verify_gains(spec, result.gains, plant=problem.plant, layout=problem.layout)
+    if options.baselines:
+        from gaintune.baselines import run_baseline
+
+        for method in ("simc", "amigo", "zn_step", "imc"):
+            res = run_baseline(spec, method, evaluator=problem.evaluator)
+            result.baselines.append(res.model_dump(mode="json"))
+    result.diagnosis = diagnose(result, problem.layout, answer.tuned, problem.plant)
+    result.wall_time = time.perf_counter() - t0
+    return result
+
+
+def _result(problem: GainProblem, plan: _Plan, trained: _Trained, answer: _Answer, options: TuneOptions,
+            agent_path: str | None) -> TuneResult:
+    """The unverified result of the search: the answer's gains, cost and metrics, and how they were found."""
+    spec, layout, settled, monitor = problem.spec, problem.layout, answer.settled, trained.monitor
+    final = problem.evaluator.evaluate(answer.tuned[None])
+    metrics = {r.scenario: {k: (float(v[0]) if np.isfinite(v[0]) else None) for k, v in r.metrics.items()}
+               for r in final.results}
+    best_seen = monitor.best_tuned
+    return TuneResult(
         spec=spec.model_dump(mode="json"),
         scenario_defaults=problem.scenario_defaults,
-        algo=s.algo,
-        gains=gains,
-        gains_source=source,
-        policy_gains=layout.to_dict(layout.full(policy_tuned)),
-        best_seen_gains=layout.to_dict(layout.full(monitor.best_tuned)) if monitor.best_tuned is not None else None,
+        algo=spec.search.algo,
+        gains=layout.to_dict(layout.full(answer.tuned)),
+        gains_source=answer.source,
+        policy_gains=layout.to_dict(layout.full(answer.policy_tuned)),
+        best_seen_gains=layout.to_dict(layout.full(best_seen)) if best_seen is not None else None,
         cost=float(final.cost[0]),
         violation=violation_after(settled, final),
-        rl_cost=rl_cost,
-        rl_feasible=rl_feasible,
-        policy_cost=policy_cost,
+        rl_cost=answer.rl_cost,
+        rl_feasible=answer.rl_feasible,
+        policy_cost=answer.policy_cost,
         settle=None if settled is None else SettleInfo(action=settled.action, alpha=settled.alpha, loop=settled.loop,
                                                        margin=settled.margin, checks=settled.checks),
         metrics=metrics,
         curve=monitor.curve,
         sims=problem.n_sims,
-        setup_sims=setup_sims,
-        rl_sims=rl_sims,
+        setup_sims=plan.setup_sims,
+        rl_sims=trained.rl_sims,
         wall_time=0.0,
         stopped=monitor.stopped,
         diverged_episodes=monitor.n_diverged,
         tripped_episodes=monitor.n_tripped,
         agent_path=agent_path,
-        warm_start=None if warm_start is None else str(warm_start),
-        provenance=Provenance(spec_hash=spec.content_hash(), seed=s.seed, versions=versions(), command=command),
+        warm_start=None if options.warm_start is None else str(options.warm_start),
+        provenance=Provenance(spec_hash=spec.content_hash(), seed=spec.search.seed, versions=versions(),
+                              command=options.command),
     )
-    if verify:
-        monitor.report(force=True, phase="verify")
-        from gaintune.verification import verify as verify_gains
-
-        result.verification = verify_gains(spec, gains, plant=problem.plant, layout=layout)
-    if baselines:
-        from gaintune.baselines import run_baseline
-
-        for method in ("simc", "amigo", "zn_step", "imc"):
-            res = run_baseline(spec, method, evaluator=ev)
-            result.baselines.append(res.model_dump(mode="json"))
-    result.diagnosis = diagnose(result, layout, tuned, problem.plant)
-    result.wall_time = time.perf_counter() - t0
-    return result
 
 
 def policy_gains(agent_path: str | Path, spec: TuningSpec, context: np.ndarray | None = None) -> Gains:
@@ -372,7 +401,8 @@ def policy_gains(agent_path: str | Path, spec: TuningSpec, context: np.ndarray |
     if agent.action_space.shape != (problem.dim,) or agent.observation_space.shape != obs.shape[1:]:
         from gaintune.errors import SpecError
 
-        raise SpecError("warm_start", f"agent expects {agent.action_space.shape[0]} gains; this spec tunes {problem.dim}")
+        raise SpecError("warm_start",
+                        f"agent expects {get_action_dim(agent.action_space)} gains; this spec tunes {problem.dim}")
     action = np.asarray(agent.predict(obs, deterministic=True)[0], dtype=float).reshape(-1)
     tuned = problem.repaired(problem.layout.action_to_tuned(action))[0]
     return problem.layout.to_dict(problem.layout.full(tuned))

@@ -27,6 +27,20 @@ is the one import path:
 * :mod:`gaintune.spec.yamlload`: YAML loading with a bound on alias expansion (:data:`MAX_YAML_NODES`);
 * :mod:`gaintune.spec.design`: the pidtune-style ``design`` shortcut, expanded into requirements and scenarios;
 * :mod:`gaintune.spec.doc`: renders ``docs/spec.md`` from this schema (``python -m gaintune.spec.doc``).
+
+Examples
+--------
+A :class:`TuningSpec` fills every default; a bad field is named in the error:
+
+>>> spec = TuningSpec.model_validate({"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pid"}]})
+>>> spec.loops[0].name, spec.search.algo
+('loop0', 'ppo')
+>>> from pydantic import ValidationError
+>>> try:
+...     TuningSpec.model_validate({"plant": {"tf": {"num": [1], "den": [1, 1]}}, "loops": [{"type": "pq"}]})
+... except ValidationError as exc:
+...     print(exc.errors()[0]["loc"], exc.errors()[0]["msg"])
+('loops', 0, 'type') Input should be 'p', 'pi', 'pd', 'pid', 'lqr' or 'lqi'
 """
 
 from __future__ import annotations
@@ -50,6 +64,7 @@ from gaintune.spec.base import (
     _Model,
     check_delay_samples,
 )
+from gaintune.spec.design import DesignSpec, expand_design
 from gaintune.spec.loops import GAIN_NAMES, ActuatorSpec, DerivativeFilterSpec, Gains, GainSpec, LoopSpec
 from gaintune.spec.names import ident_key, name_problem
 from gaintune.spec.plant import (
@@ -71,7 +86,6 @@ from gaintune.spec.scenarios import (
 )
 from gaintune.spec.settings import DistSpec, RandomizeSpec, RobustSpec, SafetySpec, SearchSpec, VerifySpec
 from gaintune.spec.yamlload import MAX_YAML_NODES, load_yaml
-from gaintune.spec.design import DesignSpec, expand_design
 
 __all__ = [
     "parse_json_or_yaml",
@@ -118,8 +132,8 @@ class TuningSpec(_Model):
 
     name: str = Field(
         "untitled",
-        description="Label of the spec, written into the exported files (gains.h, gains.m): printable text on one line, "
-        "no control characters and no '/*' or '*/'.",
+        description="Label of the spec, written into the exported files (gains.h, gains.m): printable text on one "
+        "line, no control characters and no '/*' or '*/'.",
     )
     description: str = ""
     plant: PlantSpec
@@ -143,8 +157,8 @@ class TuningSpec(_Model):
         # accepts, so the spec's hash and every dump of it would fail far from the input.
         bad = _lone_surrogate(data, "")
         if bad is not None:
-            raise ValueError(f"{bad or 'spec'}: the text is not valid Unicode (a lone surrogate escape such as \\ud800); "
-                             "use plain UTF-8 text")
+            raise ValueError(f"{bad or 'spec'}: the text is not valid Unicode (a lone surrogate escape such as "
+                             "\\ud800); use plain UTF-8 text")
         return data
 
     @field_validator("name")
@@ -173,7 +187,7 @@ class TuningSpec(_Model):
         return data
 
     @model_validator(mode="after")
-    def _loop_names(self) -> "TuningSpec":
+    def _loop_names(self) -> TuningSpec:
         for i, loop in enumerate(self.loops):
             if loop.name is None:
                 loop.name = f"loop{i}"
@@ -191,11 +205,16 @@ class TuningSpec(_Model):
                             f"are {names}", mks)
         return self
 
+    @property
+    def loop_names(self) -> list[str]:
+        """The loops' names, outer first (a validated spec names every loop: ``loop0``, ``loop1``, ... by default)."""
+        return [lp.name or f"loop{i}" for i, lp in enumerate(self.loops)]
+
     def _check_identifiers(self) -> None:
         """Two loops whose names give one C/MATLAB identifier would redefine each other's gains in the exports."""
         seen: dict[str, int] = {}
         for i, loop in enumerate(self.loops):
-            key = ident_key(loop.name)
+            key = ident_key(loop.name or f"loop{i}")  # named by _loop_names already
             j = seen.setdefault(key, i)
             if j != i:
                 msg = (f"loop name {loop.name!r} collides with loops[{j}].name {self.loops[j].name!r}: both become the "
@@ -212,8 +231,9 @@ class TuningSpec(_Model):
         delays = []
         try:  # a number, or an expression that is a plain number ("1e300"); parameter expressions are
             # bounded where the plant is built (gaintune.sim.simulator)
-            delays.append(("plant.delay", float(self.plant.delay)))
-        except (TypeError, ValueError):
+            if self.plant.delay is not None:
+                delays.append(("plant.delay", float(self.plant.delay)))
+        except ValueError:
             pass
         if self.randomize.delay is not None:
             delays.append(("randomize.delay", float(self.randomize.delay.box[1])))
@@ -317,12 +337,33 @@ def parse_json_or_yaml(text: str) -> Any:
 def load_spec(source: str | Path | dict[str, Any]) -> TuningSpec:
     """Load and validate a spec from a YAML/JSON file path, a YAML/JSON string or a dict.
 
+    Parameters
+    ----------
+    source
+        A path ending in ``.yaml``, ``.yml`` or ``.json`` (a regular file of at most 10 MB), the
+        YAML/JSON text itself, or the spec as a dict.
+
+    Returns
+    -------
+    TuningSpec
+        The validated spec.
+
     Raises
     ------
     SpecError
         When the file cannot be read or parsed, or the content is not a mapping.
     pydantic.ValidationError
         When a field is invalid (the message names the field).
+
+    Examples
+    --------
+    >>> spec = load_spec("plant: {tf: {num: [1], den: '(s+1)^3'}}\\nloops: [{type: pi}]\\n")
+    >>> spec.loops[0].type, spec.plant.tf.den
+    ('pi', '(s+1)^3')
+    >>> load_spec("- not\\n- a mapping\\n")
+    Traceback (most recent call last):
+        ...
+    gaintune.errors.SpecError: spec: must be a mapping with at least 'plant' and 'loops'
     """
     if isinstance(source, dict):
         data = source

@@ -42,12 +42,14 @@ class BackoffSpec(_Model):
         0.01, ge=0, lt=0.5,
         description="Relative back-off on the peak limits Ms, Mt and Mks: the search aims at limit x (1 - peaks) "
         "(Ms never below halfway between 1 and its limit).")
-    pm_deg: float = Field(0.5, ge=0, le=10, description="Phase-margin back-off in degrees: the search aims at pm_min_deg + pm_deg.")
+    pm_deg: float = Field(
+        0.5, ge=0, le=10, description="Phase-margin back-off in degrees: the search aims at pm_min_deg + pm_deg.")
     gm_db: float = Field(
         0.1, ge=0, le=3,
         description="Gain-margin back-off in dB: the search aims at gm_min_db + gm_db (0.1 dB is ~1.2 % of loop gain, "
         "the scale of the peak back-off).")
-    dm: float = Field(0.01, ge=0, lt=0.5, description="Relative delay-margin back-off: the search aims at dm_min x (1 + dm).")
+    dm: float = Field(
+        0.01, ge=0, lt=0.5, description="Relative delay-margin back-off: the search aims at dm_min x (1 + dm).")
 
     @model_validator(mode="before")
     @classmethod
@@ -67,7 +69,8 @@ class BackoffSpec(_Model):
         # Publish the scalar 0 too, so the JSON schema accepts what the model accepts.
         obj = handler.resolve_ref_schema(handler(schema))
         zero = {"const": 0, "description": "0: no back-off (the answer lands on each limit)."}
-        return {"title": obj.pop("title", cls.__name__), "description": obj.pop("description", ""), "anyOf": [obj, zero]}
+        return {"title": obj.pop("title", cls.__name__), "description": obj.pop("description", ""),
+                "anyOf": [obj, zero]}
 
     @property
     def active(self) -> bool:

@@ -10,7 +10,7 @@ modules can enforce them without importing the package that re-exports them.
 from __future__ import annotations
 
 import math
-from functools import lru_cache
+from functools import cache
 from typing import Annotated, Any, Literal, get_args
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
@@ -18,7 +18,8 @@ from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from gaintune.errors import SpecError
 
-__all__ = ["MAX_STEPS", "MAX_DELAY_STEPS", "MAX_ORDER", "MAX_LOOPS", "MAX_BUDGET", "check_delay_samples", "FiniteNumber"]
+__all__ = ["MAX_STEPS", "MAX_DELAY_STEPS", "MAX_ORDER", "MAX_LOOPS", "MAX_BUDGET", "check_delay_samples",
+           "FiniteNumber"]
 
 #: Largest number of simulation steps (horizon / dt) in one scenario.
 MAX_STEPS = 200_000
@@ -63,10 +64,11 @@ class _Model(BaseModel):
     @classmethod
     def _no_boolean_numbers(cls, v: Any, info: ValidationInfo) -> Any:
         # pydantic's lax mode reads true as 1.0 (or 1): a boolean where a number belongs is a mistake
-        policy = _bool_policy(cls, info.field_name)
+        field = info.field_name or ""  # always set for a field validator
+        policy = _bool_policy(cls, field)
         if policy == "allow" or (policy == "top" and not isinstance(v, bool)):
             return v
-        found = _boolean_in(v, info.field_name)
+        found = _boolean_in(v, field)
         if found is not None:
             where, value = found
             raise _boolean_error(f"{where} must be a number", value)
@@ -95,8 +97,8 @@ def check_delay_samples(delay: float, dt: float, field: str = "plant.delay") -> 
                                f"of {MAX_DELAY_STEPS}; give a delay <= {MAX_DELAY_STEPS * dt:g} s or a larger dt")
 
 
-@lru_cache(maxsize=None)
-def _bool_policy(model: type, field: str) -> Literal["allow", "top", "deep"]:
+@cache
+def _bool_policy(model: type[BaseModel], field: str) -> Literal["allow", "top", "deep"]:
     """How :class:`_Model` checks ``field`` for booleans: "allow" unless its type holds numbers and no
     bool; then "deep" (every value inside lists, tuples and dicts, e.g. ``bounds`` or ``params``), or
     "top" (the value itself) when the type may also be a model, which checks its own fields."""

@@ -43,7 +43,8 @@ class DesignSpec(BaseModel):
     # as the spec's own models (gaintune.spec.base._Model): numbers are finite and not booleans
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    phase_margin: float = Field(60.0, gt=0, lt=90, description="Target (minimum) phase margin in degrees, as pidtune's default.")
+    phase_margin: float = Field(
+        60.0, gt=0, lt=90, description="Target (minimum) phase margin in degrees, as pidtune's default.")
     focus: Literal["balanced", "reference_tracking", "disturbance_rejection"] = Field(
         "balanced", description="What the cost measures: setpoint steps, load steps at the plant input, or both."
     )
@@ -120,7 +121,8 @@ def expand_design(data: dict[str, Any]) -> dict[str, Any]:
         if isinstance(loops, (list, tuple)) and len(loops) != 1:
             raise ValueError("design.crossover applies to a single loop; for a cascade set requirements.wc_min "
                              "and requirements.wc_max instead")
-        band = {"wc_min": d.crossover / (1.0 + d.crossover_tolerance), "wc_max": d.crossover * (1.0 + d.crossover_tolerance)}
+        band = {"wc_min": d.crossover / (1.0 + d.crossover_tolerance),
+                "wc_max": d.crossover * (1.0 + d.crossover_tolerance)}
         for k, v in band.items():  # a dumped spec carries both; they must agree
             given = _number(req, k)
             if given is not None and abs(given - v) > 1e-12 * v:

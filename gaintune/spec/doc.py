@@ -72,11 +72,13 @@ def render_markdown() -> str:
     lines = [
         "# Spec reference",
         "",
-        "Generated from the schema in `gaintune/spec/` by `python -m gaintune.spec.doc > docs/spec.md` (a test checks it is current).",
-        f"Limits: horizon/dt <= {S.MAX_STEPS} steps, delay/dt (plant.delay, the top of randomize.delay) <= {S.MAX_DELAY_STEPS} samples, plant order <= {S.MAX_ORDER}, cascade depth <= {S.MAX_LOOPS}.",
+        "Generated from the schema in `gaintune/spec/` by `python -m gaintune.spec.doc > docs/spec.md` "
+        "(a test checks it is current).",
+        f"Limits: horizon/dt <= {S.MAX_STEPS} steps, delay/dt (plant.delay, the top of randomize.delay) <= "
+        f"{S.MAX_DELAY_STEPS} samples, plant order <= {S.MAX_ORDER}, cascade depth <= {S.MAX_LOOPS}.",
         "",
-        "Numbers: every numeric field takes finite numbers only (NaN and infinity, YAML's `.nan`/`.inf` included, are refused), "
-        "and `true`/`false` are refused where a number belongs rather than read as 1/0. "
+        "Numbers: every numeric field takes finite numbers only (NaN and infinity, YAML's `.nan`/`.inf` included, "
+        "are refused), and `true`/`false` are refused where a number belongs rather than read as 1/0. "
         f"YAML: aliases (`*name`) may expand a document to at most {S.MAX_YAML_NODES:,} nodes. "
         f"Polynomials in `s` (`plant.tf.num`/`den` as text): every part can reach a degree of at most {S.MAX_ORDER}, "
         "bounded from the expression before it is expanded (products add degrees, powers multiply them). "

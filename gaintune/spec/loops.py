@@ -44,7 +44,7 @@ class GainSpec(_Model):
     )
 
     @model_validator(mode="after")
-    def _check(self) -> "GainSpec":
+    def _check(self) -> GainSpec:
         if self.value is not None:
             _finite(self.value, "gain value")
         if not self.tune and self.value is None:
@@ -80,7 +80,8 @@ class LoopSpec(_Model):
     form: Literal["parallel", "ideal"] = "parallel"
     gains: dict[str, GainSpec] = Field(
         default_factory=dict,
-        description="Per-gain settings keyed by gain name (Kp, Ki, Kd / Ti, Td; LQ: q_<state>, r, q_int or k_<state>, k_int).",
+        description="Per-gain settings keyed by gain name (Kp, Ki, Kd / Ti, Td; LQ: q_<state>, r, q_int or "
+        "k_<state>, k_int).",
     )
     filter: DerivativeFilterSpec = Field(default_factory=DerivativeFilterSpec)
     b: float = Field(1.0, ge=0, description="Setpoint weight on the proportional term.")
@@ -125,7 +126,7 @@ class LoopSpec(_Model):
         return _finite(v, info.field_name)
 
     @model_validator(mode="after")
-    def _lq_direction(self) -> "LoopSpec":
+    def _lq_direction(self) -> LoopSpec:
         if self.type in ("lqr", "lqi") and self.direction == "reverse":
             raise ValueError(
                 f"direction: reverse does not apply to an {self.type} loop (state feedback has no controller sign; "
@@ -142,6 +143,7 @@ class LoopSpec(_Model):
 
     @property
     def is_lq(self) -> bool:
+        """Whether this is a state-feedback (LQR/LQI) loop."""
         return self.type in ("lqr", "lqi")
 
 

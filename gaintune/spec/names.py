@@ -96,7 +96,8 @@ def name_problem(text: str) -> str | None:
     """
     ch = unsafe_char(text)
     if ch is not None:
-        return (f"contains the control character U+{ord(ch):04X} ({_CONTROL_NAMES.get(ch) or unicodedata.name(ch, 'control')}); names are "
+        what = _CONTROL_NAMES.get(ch) or unicodedata.name(ch, "control")
+        return (f"contains the control character U+{ord(ch):04X} ({what}); names are "
                 "written into comments of gains.h and gains.m, so give printable text on one line")
     for delim in _C_COMMENT:
         if delim in text:

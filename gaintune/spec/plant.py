@@ -7,7 +7,7 @@ randomised LTI plants are expressed.
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Union
+from typing import Annotated, Any
 
 from pydantic import AfterValidator, Field, field_validator, model_validator
 
@@ -24,7 +24,7 @@ __all__ = [
 ]
 
 #: A plant coefficient: a number, or an expression over ``plant.params``.
-Coef = Union[float, str]
+Coef = float | str
 
 
 def _check_coefs(values: Any, what: str) -> Any:
@@ -103,9 +103,10 @@ class OdeSpec(_Model):
     u0: Coef | None = Field(None, description="Operating-point input; solved from x0 for equilibrium if omitted.")
 
     @model_validator(mode="after")
-    def _rhs_matches_states(self) -> "OdeSpec":
+    def _rhs_matches_states(self) -> OdeSpec:
         if len(set(self.states)) != len(self.states):
-            raise ValueError(f"states names must be unique, {sorted({n for n in self.states if self.states.count(n) > 1})} repeat")
+            repeated = sorted({n for n in self.states if self.states.count(n) > 1})
+            raise ValueError(f"states names must be unique, {repeated} repeat")
         if self.input in self.states:
             # the expressions would read the name as the input: the state would vanish from the model
             i = self.states.index(self.input)
@@ -138,7 +139,8 @@ class PlantSpec(_Model):
     ode: OdeSpec | None = None
     model: ModelRefSpec | str | None = None
     delay: Coef | None = Field(
-        None, description="Input/output time delay in seconds (number or parameter expression); default 0, or the model's."
+        None, description="Input/output time delay in seconds (number or parameter expression); default 0, or the "
+        "model's."
     )
     params: FiniteParams = Field(default_factory=dict, description="Nominal parameter values.")
 
@@ -152,7 +154,7 @@ class PlantSpec(_Model):
         return v
 
     @model_validator(mode="after")
-    def _exactly_one(self) -> "PlantSpec":
+    def _exactly_one(self) -> PlantSpec:
         given = [k for k in ("tf", "ss", "ode", "model") if getattr(self, k) is not None]
         if len(given) != 1:
             raise ValueError(
@@ -174,4 +176,5 @@ class PlantSpec(_Model):
         for name in self.params:
             if name in taken:
                 raise _error_at(("params", name), f"parameter {name!r} clashes with {taken[name]} (the same name); "
-                                "in the expressions one would hide the other, so rename the parameter", self.params[name])
+                                "in the expressions one would hide the other, so rename the parameter",
+                                self.params[name])

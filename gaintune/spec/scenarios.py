@@ -42,7 +42,7 @@ class ProfileSpec(_Model):
         return v
 
     @model_validator(mode="after")
-    def _check(self) -> "ProfileSpec":
+    def _check(self) -> ProfileSpec:
         for x in (self.amplitude, self.time, self.slope):
             _finite(x, "profile value")
         if self.kind == "sequence":
@@ -84,7 +84,7 @@ class ScenarioSpec(_Model):
     weight: float = Field(1.0, ge=0, description="Weight of this scenario in the combined cost.")
 
     @model_validator(mode="after")
-    def _check(self) -> "ScenarioSpec":
+    def _check(self) -> ScenarioSpec:
         for name in ("dt", "horizon"):
             v = getattr(self, name)
             if v is None:
@@ -92,7 +92,7 @@ class ScenarioSpec(_Model):
             _finite(v, name)
             if v <= 0:
                 raise ValueError(f"{name} must be > 0 seconds, got {v}")
-        if not self.resolved:
+        if self.dt is None or self.horizon is None:  # not resolved yet: checked once derived from the plant
             return self
         steps = self.horizon / self.dt
         if steps > MAX_STEPS:
@@ -109,8 +109,25 @@ class ScenarioSpec(_Model):
         return self.dt is not None and self.horizon is not None
 
     @property
+    def resolved_dt(self) -> float:
+        """``dt`` once resolved (given, or derived from the plant); ValueError before."""
+        if self.dt is None:
+            raise ValueError(f"scenario {self.name!r} has no dt yet: derive it from the plant first "
+                             "(gaintune.classical.timescale.resolve_scenarios)")
+        return self.dt
+
+    @property
+    def resolved_horizon(self) -> float:
+        """``horizon`` once resolved (given, or derived from the plant); ValueError before."""
+        if self.horizon is None:
+            raise ValueError(f"scenario {self.name!r} has no horizon yet: derive it from the plant first "
+                             "(gaintune.classical.timescale.resolve_scenarios)")
+        return self.horizon
+
+    @property
     def n_steps(self) -> int:
-        if not self.resolved:
+        """Simulated samples, ``horizon / dt`` (ValueError before both are resolved)."""
+        if self.dt is None or self.horizon is None:
             raise ValueError(f"scenario {self.name!r} has no dt/horizon yet: derive them from the plant first "
                              "(gaintune.classical.timescale.resolve_scenarios)")
         return int(round(self.horizon / self.dt))
@@ -197,7 +214,7 @@ class RequirementsSpec(_Model):
         description="How far inside each limit the search aims (the verdict judges the exact limits): "
         "{peaks, pm_deg, gm_db, dm}; 0 for none (the answer lands on the limit itself). See docs/search.md.")
 
-    def aimed(self) -> "RequirementsSpec":
+    def aimed(self) -> RequirementsSpec:
         """These requirements with every limit moved to the search's aim (:meth:`BackoffSpec.aim`) and no
         back-off left; themselves when the back-off is 0. ``mks_max: auto`` stays ``auto``: a caller that
         resolves it aims the resolved limit with ``backoff.aim("mks_max", limit)``."""

@@ -48,7 +48,7 @@ class DistSpec(_Model):
                 "anyOf": [obj, pair]}
 
     @model_validator(mode="after")
-    def _check(self) -> "DistSpec":
+    def _check(self) -> DistSpec:
         for name in ("low", "high", "mean", "std"):
             v = getattr(self, name)
             if v is not None:
@@ -57,22 +57,28 @@ class DistSpec(_Model):
             if self.mean is None or self.std is None:
                 raise ValueError("a normal distribution needs mean and std")
         else:
-            missing = [k for k in ("low", "high") if getattr(self, k) is None]
-            if missing:
-                other = " (mean and std describe a normal one: set dist: normal)" if self.mean is not None or self.std is not None else ""
-                raise ValueError(f"a {self.dist} distribution needs low and high; {' and '.join(missing)} missing{other}")
-            if not self.low <= self.high:
-                raise ValueError(f"a {self.dist} distribution needs low <= high, got low {self.low} > high {self.high}")
-            if self.dist == "loguniform" and self.low <= 0:
+            low, high = self.low, self.high
+            if low is None or high is None:
+                missing = [k for k, v in (("low", low), ("high", high)) if v is None]
+                normal = self.mean is not None or self.std is not None
+                other = " (mean and std describe a normal one: set dist: normal)" if normal else ""
+                raise ValueError(f"a {self.dist} distribution needs low and high; {' and '.join(missing)} "
+                                 f"missing{other}")
+            if not low <= high:
+                raise ValueError(f"a {self.dist} distribution needs low <= high, got low {low} > high {high}")
+            if self.dist == "loguniform" and low <= 0:
                 raise ValueError("a loguniform distribution needs low > 0")
         return self
 
     @property
     def box(self) -> tuple[float, float]:
         """Range used for corners and normalisation (mean +/- 2 std for normal)."""
-        if self.dist == "normal":
-            return (self.mean - 2 * self.std, self.mean + 2 * self.std)  # type: ignore[operator]
-        return (self.low, self.high)  # type: ignore[return-value]
+        # the validator above made sure the numbers of this kind of distribution are there
+        if self.dist == "normal" and self.mean is not None and self.std is not None:
+            return (self.mean - 2 * self.std, self.mean + 2 * self.std)
+        if self.low is None or self.high is None:
+            raise ValueError(f"a {self.dist} distribution without low and high has no range")
+        return (self.low, self.high)
 
 
 class RandomizeSpec(_Model):
@@ -97,12 +103,15 @@ class RandomizeSpec(_Model):
             return d
         strict = info.field_name == "actuator_scale"
         what, lowest = ("mean", d.mean) if d.dist == "normal" else ("low", d.low)
+        if lowest is None:  # not reached: DistSpec requires mean (normal) or low (the others)
+            return d
         if lowest < 0 or (strict and lowest == 0):
             raise ValueError(f"{what} must be {'> 0' if strict else '>= 0 s'}, got {lowest}")
         return d
 
     @property
     def active(self) -> bool:
+        """Whether anything is randomised."""
         return bool(
             self.params
             or self.delay
@@ -129,7 +138,7 @@ class SafetySpec(_Model):
     divergence_bound: float = Field(1e6, gt=0, description="|state| beyond this, or NaN/inf, marks divergence.")
 
     @model_validator(mode="after")
-    def _finite_numbers(self) -> "SafetySpec":
+    def _finite_numbers(self) -> SafetySpec:
         for k, v in self.state_bounds.items():
             _finite(v, f"state bound {k!r}")
             if v <= 0:
@@ -154,13 +163,15 @@ class SearchSpec(_Model):
     """RL gain search settings."""
 
     algo: Literal["ppo", "sac", "td3", "a2c", "ddpg"] = "ppo"
-    env: Literal["oneshot", "iterative"] = Field("oneshot", description="Gains chosen in one action, or refined in steps.")
+    env: Literal["oneshot", "iterative"] = Field(
+        "oneshot", description="Gains chosen in one action, or refined in steps.")
     budget: int = Field(
         3000, ge=10, le=MAX_BUDGET,
         description=f"Hard limit on closed-loop simulations (10 .. {MAX_BUDGET:,}; use wall_time for a time limit).",
     )
     wall_time: float | None = Field(None, gt=0, description="Wall-time limit in seconds.")
-    seed: int = Field(0, ge=0, le=2**32 - 1, description="Random seed of the search and the draws (0 .. 2^32 - 1, numpy's range).")
+    seed: int = Field(
+        0, ge=0, le=2**32 - 1, description="Random seed of the search and the draws (0 .. 2^32 - 1, numpy's range).")
     n_envs: int = Field(32, ge=1, le=4096, description="Parallel environments, simulated in one batched call.")
     robust: RobustSpec = Field(default_factory=RobustSpec)
     early_stop_patience: int | None = Field(

@@ -167,3 +167,17 @@ def test_iterative_env_return_is_total_improvement(lag3):
         total += r
     assert truncated and not terminated
     assert total == pytest.approx(-COST_CAP * float(obs[lag3.dim]) - start_value, abs=1e-5)
+
+
+def test_iterative_env_action_is_where_the_steps_moved_the_gains(lag3):
+    """The search reads the iterative policy's answer through ``action`` (it reached into ``env._a`` before)."""
+    env = IterativeGainTuningEnv(lag3.spec, problem=lag3, horizon=3)
+    obs, _ = env.reset(seed=0)
+    assert np.array_equal(env.action, np.zeros(lag3.dim))
+    env.step(np.full(lag3.dim, 0.4))
+    env.step(np.full(lag3.dim, 0.4))
+    moved = env.action
+    assert np.allclose(moved, np.clip(2 * env.max_step * 0.4, -1, 1))
+    assert np.allclose(env.step(np.zeros(lag3.dim))[0][: lag3.dim], moved)  # the observation shows it too
+    moved[:] = 9.0  # a copy: changing it leaves the env alone
+    assert np.all(env.action < 1.0)
