@@ -71,6 +71,23 @@ def test_shallow_copy_propagation_reaches_numbas_fixed_point() -> None:
     assert any(ours.values())  # the inlined stage's parameter copies are there to propagate
 
 
+def test_the_sample_signature_is_every_calls_signature() -> None:
+    """What is compiled ahead is what real calls need: nonlinear, randomised, traced, any batch."""
+    from gaintune.plants.library import load_model
+    from gaintune.sim import Simulator
+    from gaintune.sim import draws as draws_mod
+    from gaintune.spec import load_spec
+
+    for model in ("water_tank", "dc_motor"):
+        sim = Simulator(load_spec(load_model(model).example_spec()))
+        for B in (1, 3, 70):
+            d = draws_mod.sample(sim.spec, sim.plant, np.random.default_rng(0), B) if sim.spec.randomize.active else None
+            sim.run(np.tile(sim.layout.full(sim.layout.initial_tuned()), (B, 1)), d, traces=B == 3)
+    sample = precompile._sample_args()
+    for fn in COMPILED.values():
+        assert fn.signatures == [tuple(fn.typeof_pyval(a) for a in sample)]
+
+
 def test_a_cold_cache_lacks_every_variant_and_the_check_compiles_nothing(fresh_python, tmp_path: Path) -> None:
     code = ("import json; from gaintune.sim.precompile import missing; from gaintune.sim.kernel import COMPILED; "
             "print(json.dumps([missing(), [len(f.signatures) for f in COMPILED.values()]]))")
