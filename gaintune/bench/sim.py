@@ -368,8 +368,9 @@ def _memory_worker(name: str, impl: str, batch: int) -> dict[str, Any]:
     """Run in a fresh process: peak RSS above the pre-run level of one batch run."""
     import gc
 
-    # warm up on a small batch that takes the same kernel variant (single, serial or parallel),
-    # so that loading or compiling it is not counted; a small one, so its freed memory cannot
+    # warm up on a small batch that takes the same path (single lane, one serial chunk, or the
+    # kernel threads over chunk ranges), so that loading the variant or starting the threads is not
+    # counted; a small one, so its freed memory cannot
     # hide the measured run's peak
     from gaintune.sim.kernel import CHUNK
 
@@ -422,7 +423,7 @@ def run_benchmark(cases=CASES, batches=(1, 4096), repeat: int = 5, min_time: flo
                 row["numpy_peak_mb"] = measure_memory(name, "numpy", B)["peak_delta_mb"] if numpy_baseline else np.nan
             rows.append(row)
     return {
-        "machine": {"cpus": os.cpu_count(), "numba_threads": numba.get_num_threads(), "python": sys.version.split()[0],
+        "machine": {"cpus": os.cpu_count(), "numba_threads": numba.config.NUMBA_NUM_THREADS, "python": sys.version.split()[0],
                     "numpy": np.__version__, "numba": numba.__version__},
         "rows": rows,
     }

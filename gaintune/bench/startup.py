@@ -20,6 +20,13 @@ docs/benchmarks.md, "Start-up".
 ``--before DIR`` measures an older checkout beside this one, interleaved in the same run (e.g.
 ``git worktree add /tmp/before <rev>``): both run as ``python -m gaintune`` with ``PYTHONPATH``
 set to their own tree, and the table adds the before figures and the after/before ratio.
+
+``--cold-cache`` measures the first run after an install instead (issue 25): ``gaintune demo``
+on an empty numba cache (``NUMBA_CACHE_DIR`` a fresh folder for every run, so the simulator
+compiles) and on a warm one (a folder filled by a warm-up run), interleaved. It reports wall
+time and CPU seconds of the command and every process it started (the compile runs in child
+processes): on a shared machine the CPU seconds are the steadier figure. Target: the cold demo
+<= 25 s on 2 cores, the warm one unchanged.
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ from __future__ import annotations
 import compileall
 import json
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -118,6 +126,55 @@ def _wall(argv: list[str], env: dict[str, str] | None = None, cwd: Path | None =
     return time.perf_counter() - t0
 
 
+def _timed(argv: list[str], env: dict[str, str] | None, cwd: Path) -> tuple[float, float]:
+    """Wall and CPU seconds of one run: the process and every process it started and waited for."""
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    wall = _wall(argv, env, cwd)
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+
+
+def demo_command(folder: Path, module: bool = False) -> list[str]:
+    """argv of the ``--cold-cache`` command: ``gaintune demo`` writing into ``folder``."""
+    script = shutil.which("gaintune") or str(Path(sys.executable).with_name("gaintune"))
+    return [*([sys.executable, "-m", "gaintune"] if module else [script]), "demo", "--out", str(folder / "demo")]
+
+
+def cold_cache_runs(trees: dict[str, Path | None], envs: dict[str, dict[str, str] | None], folder: Path,
+                    repeat: int, module: bool) -> dict[tuple[str, str], list[tuple[float, float]]]:
+    """(tree, "cold" | "warm") -> [(wall s, CPU s)] of ``gaintune demo``, ``repeat`` interleaved runs each.
+
+    Cold: ``NUMBA_CACHE_DIR`` a new empty folder per run. Warm: one folder per tree, filled by a
+    warm-up run first."""
+    cmd = demo_command(folder, module)
+    runs: dict[tuple[str, str], list[tuple[float, float]]] = {(k, c): [] for k in trees for c in ("cold", "warm")}
+    base = {k: dict(envs[k] if envs[k] is not None else os.environ) for k in trees}
+    for k in trees:  # warm-up: fills the warm cache (and the OS file cache)
+        _wall(cmd, {**base[k], "NUMBA_CACHE_DIR": str(folder / f"numba-warm-{k}")}, folder)
+    for i in range(repeat):
+        for k in trees:
+            cold = {**base[k], "NUMBA_CACHE_DIR": str(folder / f"numba-cold-{k}-{i}")}
+            runs[(k, "cold")].append(_timed(cmd, cold, folder))
+            runs[(k, "warm")].append(_timed(cmd, {**base[k], "NUMBA_CACHE_DIR": str(folder / f"numba-warm-{k}")}, folder))
+    return runs
+
+
+def cold_cache_table(runs: dict[tuple[str, str], list[tuple[float, float]]], before: bool) -> tuple[list[str], list]:
+    """Header and rows of the ``--cold-cache`` table: median wall, min wall, median CPU (and after/before)."""
+    def med(k: str, c: str, j: int) -> float:
+        return float(np.median([r[j] for r in runs[(k, c)]]))
+
+    rows, head = [], ["gaintune demo", "median wall s", "min wall s", "median CPU s"]
+    if before:
+        head += ["before median wall s", "before median CPU s", "after / before (CPU)"]
+    for c in ("cold", "warm"):
+        row = [f"{c} numba cache", med("after", c, 0), min(r[0] for r in runs[("after", c)]), med("after", c, 1)]
+        if before:
+            row += [med("before", c, 0), med("before", c, 1), med("after", c, 1) / med("before", c, 1)]
+        rows.append(row)
+    return head, rows
+
+
 def _tree_env(tree: Path) -> dict[str, str]:
     """The environment that makes ``tree``'s gaintune the one imported (ahead of the installed one)."""
     return {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(tree), os.environ.get("PYTHONPATH")]))}
@@ -131,6 +188,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = BenchParser(prog="gaintune bench startup", description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=positive_int, default=5, help="timed runs per command (default 5)")
     ap.add_argument("--before", type=Path, help="an older gaintune checkout to measure beside this one")
+    ap.add_argument("--cold-cache", action="store_true",
+                    help="time `gaintune demo` on an empty and on a warm numba cache (the first run after an install)")
     add_out_argument(ap)
     args = ap.parse_args(argv)
     if args.before is not None and not (args.before / "gaintune" / "__init__.py").is_file():
@@ -140,9 +199,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     here = Path(__file__).resolve().parents[2]
     trees = {"after": here, "before": args.before.resolve()} if args.before else {"after": None}
     load0 = os.getloadavg()
+    envs = {k: (_tree_env(t) if t is not None else None) for k, t in trees.items()}
+    if args.cold_cache:
+        return _cold_cache_main(args, trees, envs, out, here, load0)
     with tempfile.TemporaryDirectory() as tmp:
         cmds = commands(Path(tmp), module=args.before is not None)
-        envs = {k: (_tree_env(t) if t is not None else None) for k, t in trees.items()}
         times = {(k, name): [] for k in trees for name in cmds}
         for t in trees.values():  # warm-up: bytecode, as an installed package has it
             compile_bytecode(t / "gaintune" if t is not None else None)
@@ -174,5 +235,28 @@ def main(argv: Sequence[str] | None = None) -> int:
                           out, "startup",
                           f"# gaintune bench startup --repeat {args.repeat}{' --before ' + str(args.before) if args.before else ''}"
                           f"\n\n{table}\n\n{load}\n")
+    print(f"wrote {md}")
+    return 0
+
+
+def _cold_cache_main(args, trees: dict, envs: dict, out: Path, here: Path, load0: tuple) -> int:
+    """``--cold-cache``: run, print and write the cold/warm ``gaintune demo`` table."""
+    for t in trees.values():  # bytecode, as an installed package has it
+        compile_bytecode(t / "gaintune" if t is not None else None)
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = cold_cache_runs(trees, envs, Path(tmp), args.repeat, module=args.before is not None)
+    load1 = os.getloadavg()
+    head, rows = cold_cache_table(runs, args.before is not None)
+    table = md_table(head, rows)
+    note = (f"load average (1, 5, 15 min) before {_load(load0)}, after {_load(load1)}; {os.cpu_count()} CPUs; "
+            "CPU s = user + system of the command and the processes it started")
+    if args.before:
+        note += f"; before = {args.before}, after = {here}, both as python -m gaintune"
+    print(table)
+    print(note)
+    cmd = f"# gaintune bench startup --cold-cache --repeat {args.repeat}{' --before ' + str(args.before) if args.before else ''}"
+    _, md = write_outputs({"rows": rows, "header": head, "repeat": args.repeat, "load_before": load0,
+                           "load_after": load1, "runs": {f"{k}/{c}": v for (k, c), v in runs.items()}},
+                          out, "startup_cold", f"{cmd}\n\n{table}\n\n{note}\n")
     print(f"wrote {md}")
     return 0

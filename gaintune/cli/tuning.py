@@ -21,6 +21,7 @@ from typing import Any
 import typer
 
 from gaintune.cli.common import EXIT_VERIFY, _f, apply_overrides, err, out
+from gaintune.cli.compiling import compile_simulator
 from gaintune.cli.output import _print_summary, _write_outputs
 
 __all__ = ["demo_spec", "_get_tune", "_run_tune", "_finish"]
@@ -67,6 +68,7 @@ def _run_tune(tune: Callable, spec, *, out_dir: Path | None, json_out: bool, bas
             kwargs["command"] = command
     except (TypeError, ValueError):  # pragma: no cover - not introspectable
         pass
+    compile_simulator(None if json_out else err)  # a fresh install's first run: say so, compile side by side
     if json_out:
         return tune(spec, progress=None, **kwargs)
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn

@@ -70,3 +70,30 @@ def test_the_verification_row_imports_the_verify_package_of_a_checkout_older_tha
     out = subprocess.run(cmd, capture_output=True, text=True, env=startup._tree_env(tmp_path), check=True,
                          cwd=tmp_path / "files").stdout
     assert out.strip() == "old verify imported"
+
+def test_cold_cache_runs_give_every_cold_run_an_empty_numba_cache(tmp_path: Path, monkeypatch) -> None:
+    """``--cold-cache``: each cold run gets a new, empty NUMBA_CACHE_DIR; the warm runs share one filled by a warm-up."""
+    log = tmp_path / "log.txt"
+    probe = ("import os, sys; d = os.environ['NUMBA_CACHE_DIR']; seen = os.path.exists(d); os.makedirs(d, exist_ok=True); "
+             f"open({str(log)!r}, 'a').write(d + ' ' + str(seen) + chr(10))")
+    monkeypatch.setattr(startup, "demo_command", lambda folder, module=False: [sys.executable, "-c", probe])
+    work = tmp_path / "work"
+    work.mkdir()
+    runs = startup.cold_cache_runs({"after": None}, {"after": None}, work, 2, module=False)
+    lines = [(Path(d).name, seen) for d, seen in (ln.split() for ln in log.read_text().splitlines())]
+    warmup, timed = lines[0], lines[1:]
+    assert warmup == ("numba-warm-after", "False")
+    cold = [ln for ln in timed if ln[0].startswith("numba-cold")]
+    assert len(cold) == 2 and len({d for d, _ in cold}) == 2 and all(seen == "False" for _, seen in cold)
+    assert [ln for ln in timed if ln not in cold] == [("numba-warm-after", "True")] * 2
+    assert all(wall > 0 and cpu >= 0 for v in runs.values() for wall, cpu in v) and len(runs[("after", "cold")]) == 2
+
+
+def test_cold_cache_table_has_a_cold_and_a_warm_row_with_cpu_seconds(tmp_path: Path, monkeypatch) -> None:
+    py = sys.executable
+    monkeypatch.setattr(startup, "demo_command", lambda folder, module=False: [py, "-c", "pass"])
+    assert startup.main(["--cold-cache", "--repeat", "1", "--out", str(tmp_path / "out")]) == 0
+    data = json.loads((tmp_path / "out" / "startup_cold.json").read_text())
+    assert data["header"] == ["gaintune demo", "median wall s", "min wall s", "median CPU s"]
+    assert [r[0] for r in data["rows"]] == ["cold numba cache", "warm numba cache"]
+    assert "--cold-cache" in (tmp_path / "out" / "startup_cold.md").read_text()

@@ -1,7 +1,8 @@
 """The compiled (numba) closed-loop kernel, split by job:
 
-* :mod:`.drivers` - the time loop, its compiled variants (parallel, serial,
-  single-lane) and the dispatch: :func:`run_kernel`, :func:`simulate_kernel`;
+* :mod:`.drivers` - the time loop, its two compiled variants (``CHUNK`` lanes,
+  single lane), the threads over chunks and the dispatch: :func:`run_kernel`,
+  :func:`simulate_kernel`;
 * :mod:`.law` - the controller law and the actuator;
 * :mod:`.plant` - measured outputs, the delayed input, the state update (ZOH, RK4);
 * :mod:`.signals` - reference and disturbance signals;
@@ -9,7 +10,7 @@
 * :mod:`.metrics` - streaming metrics and traces;
 * :mod:`.tape_vm` - the casadi tape interpreter (nonlinear plants);
 * :mod:`.layout`, :mod:`.ops` - chunk state layout, metric rows, scalar primitives;
-* :mod:`.pipeline` - the numba compiler pipeline of the serial variants.
+* :mod:`.pipeline` - the numba compiler pipeline of the variants.
 
 The stage modules are inlined into the one compiled function (numba
 ``inline="always"``). Its arguments are a :class:`gaintune.sim.kernel_args.KernelArgs`.
@@ -20,11 +21,11 @@ from __future__ import annotations
 from gaintune.sim.kernel_args import KernelArgs
 
 from .drivers import (
-    VARIANTS, run_kernel, simulate_kernel, simulate_kernel_parallel, simulate_kernel_serial, simulate_kernel_single,
+    COMPILED, VARIANTS, run_kernel, simulate_kernel, simulate_kernel_parallel, simulate_kernel_serial, simulate_kernel_single,
 )
 from .layout import CHUNK, METRICS
 
 __all__ = [
     "KernelArgs", "run_kernel", "simulate_kernel", "simulate_kernel_parallel", "simulate_kernel_serial",
-    "simulate_kernel_single", "VARIANTS", "METRICS", "CHUNK",
+    "simulate_kernel_single", "VARIANTS", "COMPILED", "METRICS", "CHUNK",
 ]

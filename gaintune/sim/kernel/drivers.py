@@ -2,9 +2,17 @@
 
 One call simulates B candidates (gain sets, each with its own plant sample and
 scenario draw). Arrays carry the batch on their LAST axis; the batch is cut
-into chunks of ``CHUNK`` candidates that run in parallel (``prange``). All
-state of a chunk lives in one flat array of rows of ``CHUNK`` lanes (see
-:mod:`.layout`), so memory is O(B) unless traces are requested.
+into chunks of ``CHUNK`` candidates, and the compiled function runs a given
+range of chunks. All state of a chunk lives in one flat array of rows of
+``CHUNK`` lanes (see :mod:`.layout`), so memory is O(B) unless traces are requested.
+
+Two variants are compiled from the one source: ``CHUNK`` lanes, and a single
+lane for a batch of one (below). A batch of more than one chunk runs on
+threads, each a contiguous range of chunks through the same compiled variant
+with the GIL released (:func:`simulate_kernel_parallel`). numba's ``prange``
+would do the same, but its parfor variant was a third compile, the costliest
+(64 s of CPU against ~20 s for each of the others): threads over the serial
+variant ran as fast, and compiled nothing more.
 
 Each stage of a time step (signals, measurement, monitor, controllers,
 actuator, metrics, plant update) is one short loop over the lanes of a chunk,
@@ -12,7 +20,7 @@ written in its own module (:mod:`.signals`, :mod:`.plant`, :mod:`.monitor`,
 :mod:`.law`, :mod:`.metrics`) and inlined here at numba IR level
 (``inline="always"``): the kernel compiles as one function, as if the stages
 were written in the loop below, to the same machine code as the kernel did as
-one source file. (The serial variants need :mod:`.pipeline` for that: without
+one source file. (The variants need :mod:`.pipeline` for that: without
 its copy propagation every array handed to a stage cost a reference-count pair
 per step, 3x on a single simulation.) LLVM vectorises the stage loops (AVX2: 4
 candidates per instruction). What it took, each measured on the reference case
@@ -24,9 +32,9 @@ candidates per instruction). What it took, each measured on the reference case
 * ``_min``/``_max`` as plain selects (numba's builtins block vectorisation);
 * no conditional stores: "store the new value or the old one" turns into a
   masked store, which is microcoded on AMD cores;
-* the stride, and the measured-output row, re-bound inside the ``prange``
-  body, whose outlined function would otherwise receive them as runtime
-  arguments;
+* the stride, and the measured-output row, bound inside the chunk loop:
+  as a ``prange`` body, outlined by numba, the loop received them as runtime
+  arguments (the parfor variant ran 1.45x slower per thread for it);
 * every row a stage loop touches at a compile-time distance from one base:
   the controller loop first copies its setpoint into its own rows, and the
   applied input is kept in the chunk state (``F_U``) beside the delay line.
@@ -51,7 +59,11 @@ instead of loading a stale cache.
 from __future__ import annotations
 
 import hashlib
+import os
+import queue
+import threading
 import types
+from concurrent.futures import Future
 from pathlib import Path
 
 import numba as nb
@@ -76,7 +88,7 @@ from .signals import fill_signals, hold_shared_signals, signals_shared
 
 __all__ = [
     "simulate_kernel", "run_kernel", "simulate_kernel_parallel", "simulate_kernel_serial", "simulate_kernel_single",
-    "VARIANTS",
+    "VARIANTS", "COMPILED",
 ]
 
 
@@ -94,6 +106,7 @@ def _kernel(
     max_err, max_out, xbound, div_bound, safe_mode, u_safe, fb_kp, fb_ki, fb_kd, fb_tf, fb_kb,
     target, k_step, k_load,
     want_traces, tr_y, tr_sp, tr_u,
+    chunk0, chunk1,
 ):
     C = _U(CHUNK)
     n = x_op.shape[0]
@@ -101,7 +114,6 @@ def _kernel(
     un = _U(n)
     uL = _U(L)
     B = u_op.shape[0]
-    nchunks = (B + C - 1) // C
     out = np.zeros((len(METRICS), B))
     dmax = 0
     any_noise = False
@@ -131,13 +143,13 @@ def _kernel(
     n_in = n + 1 + P.shape[0]
     X0 = LP0 + uL * N_P  # plant state rows X0 + i, next state rows X0 + n + i
     n_rows = X0 + _U(2) * un
-    for c in nb.prange(nchunks):
-        # re-bound inside the parallel body: numba passes outer variables into the outlined
-        # body as arguments, which would hide the compile-time row stride from LLVM
+    for c in range(chunk0, chunk1):
+        # Bound inside the chunk loop's body. Were the loop a prange, numba would pass outer
+        # variables into the outlined body as runtime arguments: the row stride would no longer be
+        # a compile-time constant, and the measured-output row offset made the controller loop's
+        # memory checks opaque (that parfor variant ran ~1.45x slower per thread than the serial one).
         C = _U(CHUNK)
-        # measured = true output unless there is noise. Bound here for the same reason: as an
-        # argument of the outlined body, this row offset made the controller loop's memory checks
-        # opaque, and the parallel kernel ran ~1.45x slower per thread than the serial one.
+        # measured = true output unless there is noise
         ymf = P_YM if any_noise else P_YT
         b0 = _U(c) * C
         mt = min(C, _U(B) - b0)  # lanes in use, as a runtime count (the tape interpreter's)
@@ -243,7 +255,7 @@ def _kernel(
 # The record and the kernel must agree field for field: a mismatch would splat arrays into the
 # wrong parameters, so it fails here, at import, rather than as a typing error or wrong numbers.
 _PARAMS = _kernel.__code__.co_varnames[: _kernel.__code__.co_argcount]
-if _PARAMS != KernelArgs._fields:
+if _PARAMS != KernelArgs._fields + ("chunk0", "chunk1"):
     raise ImportError(f"KernelArgs fields do not match the kernel's parameters: {KernelArgs._fields} != {_PARAMS}")
 
 
@@ -259,46 +271,115 @@ def _source_tag(package: Path = Path(__file__).parent) -> str:
 _TAG = _source_tag()
 
 
-def _compile(parallel: bool, lanes: int = CHUNK, name: str = ""):
+def _compile(lanes: int, name: str):
     """Compile a variant of :func:`_kernel` with ``lanes`` candidates per chunk.
 
     A distinct function object and qualname per variant keeps numba's on-disk
     caches apart; ``CHUNK`` is frozen into the variant as a compile-time constant.
     The qualname carries :data:`_TAG`, since numba's cache sees only this file.
+    ``nogil``: :func:`simulate_kernel_parallel` runs chunk ranges of one batch on threads.
     """
     glb = dict(_kernel.__globals__, CHUNK=lanes)
     fn = types.FunctionType(_kernel.__code__, glb, "_kernel")
     fn.__qualname__ = f"{name}_{_TAG}"
-    # the parallel variant's parfor passes already propagate the inlined stages' argument copies
-    extra = {} if parallel else {"pipeline_class": SerialKernelCompiler}
-    return nb.njit(cache=True, parallel=parallel, error_model="numpy", fastmath={"contract"}, **extra)(fn)
+    return nb.njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract"},
+                   pipeline_class=SerialKernelCompiler)(fn)
 
 
-#: Parallel over chunks (large batches) and serial (small batches: no thread start-up cost).
-simulate_kernel_parallel = _compile(True, name="simulate_kernel_parallel")
-simulate_kernel_serial = _compile(False, name="simulate_kernel_serial")
-#: One lane per chunk, a compile-time count: every per-lane loop collapses to
-#: straight-line code (no loop set-up or overlap checks per stage). Same source,
-#: so the same control law.
-simulate_kernel_single = _compile(False, lanes=1, name="simulate_kernel_single")
-
-#: The compiled variants by name, for :func:`run_kernel`.
-VARIANTS = {"parallel": simulate_kernel_parallel, "serial": simulate_kernel_serial, "single": simulate_kernel_single}
+#: The compiled variants, each called with a record's fields and then the range of chunks to run:
+#: ``"serial"`` with ``CHUNK`` lanes per chunk, and ``"single"`` with one lane, a compile-time
+#: count, so every per-lane loop collapses to straight-line code (same source: the same law).
+COMPILED = {"serial": _compile(CHUNK, "simulate_kernel_serial"), "single": _compile(1, "simulate_kernel_single")}
+_serial, _single = COMPILED["serial"], COMPILED["single"]
 
 _BATCH = KernelArgs._fields.index("u_op")  # the argument that sets the batch size
 
 
-def simulate_kernel(*args):
+class _Workers:
+    """Daemon threads that run kernel calls (daemon: a finished command exits without joining them)."""
+
+    def __init__(self, n: int) -> None:
+        self.pid, self.n = os.getpid(), n
+        self._tasks: queue.SimpleQueue = queue.SimpleQueue()
+        for i in range(n):
+            threading.Thread(target=self._work, name=f"gaintune-kernel-{i}", daemon=True).start()
+
+    def submit(self, fn, *args) -> Future:
+        f: Future = Future()
+        self._tasks.put((f, fn, args))
+        return f
+
+    def _work(self) -> None:
+        while True:
+            f, fn, args = self._tasks.get()
+            if f.set_running_or_notify_cancel():
+                try:
+                    f.set_result(fn(*args))
+                except BaseException as exc:  # noqa: BLE001 - handed to the caller
+                    f.set_exception(exc)
+
+
+_WORKERS: _Workers | None = None
+_WORKERS_LOCK = threading.Lock()
+
+
+def _workers(n: int) -> _Workers:
+    """At least ``n`` worker threads of this process (threads do not survive a fork: new ones then)."""
+    global _WORKERS
+    with _WORKERS_LOCK:
+        if _WORKERS is None or _WORKERS.pid != os.getpid() or _WORKERS.n < n:
+            _WORKERS = _Workers(n)
+        return _WORKERS
+
+
+def simulate_kernel_single(*args) -> np.ndarray:
+    """The single-lane variant on positional arguments (a :class:`KernelArgs` splatted): one chunk per candidate."""
+    return _single(*args, 0, args[_BATCH].shape[0])
+
+
+def simulate_kernel_serial(*args) -> np.ndarray:
+    """The ``CHUNK``-lane variant, every chunk in turn on the calling thread."""
+    return _serial(*args, 0, -(-args[_BATCH].shape[0] // CHUNK))
+
+
+def simulate_kernel_parallel(*args) -> np.ndarray:
+    """The ``CHUNK``-lane variant on ``NUMBA_NUM_THREADS`` threads, each a contiguous range of chunks.
+
+    The compiled variant releases the GIL; the calling thread runs the first range. Each call
+    sees the whole batch (its batch-wide flags, such as noise anywhere, are those of one serial
+    pass) and fills its chunks' columns, so the numbers are the serial variant's, bit for bit.
+    """
+    B = args[_BATCH].shape[0]
+    nchunks = -(-B // CHUNK)
+    n = min(max(1, int(nb.config.NUMBA_NUM_THREADS)), nchunks)
+    if n == 1:
+        return _serial(*args, 0, nchunks)
+    edges = [nchunks * i // n for i in range(n + 1)]
+    pool = _workers(n - 1)
+    futures = [pool.submit(_serial, *args, lo, hi) for lo, hi in zip(edges[1:-1], edges[2:])]
+    out = _serial(*args, edges[0], edges[1])
+    for lo, hi, f in zip(edges[1:-1], edges[2:], futures):
+        a, b = lo * CHUNK, min(hi * CHUNK, B)
+        out[:, a:b] = f.result()[:, a:b]
+    return out
+
+
+#: The variants by name, for :func:`run_kernel`; each takes a :class:`KernelArgs` splatted.
+VARIANTS = {"parallel": simulate_kernel_parallel, "serial": simulate_kernel_serial, "single": simulate_kernel_single}
+
+
+def simulate_kernel(*args) -> np.ndarray:
     """Run the kernel on positional arguments (a :class:`KernelArgs` splatted), choosing the variant.
 
-    The single-lane variant for one candidate, serially for one chunk, else in parallel.
+    The single-lane variant for one candidate, serially for one chunk, else on threads.
     Returns the (16, B) metric rows, in the order of :data:`METRICS`.
     """
     B = args[_BATCH].shape[0]
     if B == 1:
-        return simulate_kernel_single(*args)
-    fn = simulate_kernel_parallel if B > CHUNK else simulate_kernel_serial
-    return fn(*args)
+        return _single(*args, 0, 1)
+    if B <= CHUNK:
+        return _serial(*args, 0, 1)
+    return simulate_kernel_parallel(*args)
 
 
 def run_kernel(args: KernelArgs, variant: str = "auto") -> np.ndarray:
