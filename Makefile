@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo test test-all bench clean
+.PHONY: install demo lint test test-all bench clean
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -19,8 +19,13 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/gaintune demo --out out/demo
 
-## The whole default test suite (slow tests excluded; run `make test-all` for those too).
-test: $(STAMP)
+## Lint and types on gaintune/ and api/ (config in pyproject.toml): zero findings, or the target fails.
+lint: $(STAMP)
+	$(PY) -m ruff check gaintune api
+	$(PY) -m mypy
+
+## Lint, types, then the whole default test suite (slow tests excluded; run `make test-all` for those too).
+test: lint
 	$(PY) -m pytest -q
 
 test-all: $(STAMP)

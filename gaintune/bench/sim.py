@@ -119,7 +119,11 @@ def make_case(name: str, batch: int, seed: int = 0) -> Case:
 # ------------------------------------------------------------ NumPy baseline
 
 
-def numpy_rollout(sim: Any, full: np.ndarray, scenario: int = 0, traces: bool = False, prepared: dict | None = None):
+# One loop over time steps, as the numba kernel is one function (gaintune/sim/kernel/drivers.py): it is the
+# baseline the kernel is timed against, and a call per stage and step would slow that baseline.
+def numpy_rollout(  # noqa: C901  # the NumPy mirror of the kernel's time step, kept in one loop (see above)
+    sim: Any, full: np.ndarray, scenario: int = 0, traces: bool = False, prepared: dict | None = None
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """The closed loop as a plain NumPy loop over time steps, batched over the candidates.
 
     Implements the same discrete-time law as the kernel (see
@@ -142,18 +146,17 @@ def numpy_rollout(sim: Any, full: np.ndarray, scenario: int = 0, traces: bool = 
     kp, ki, al, be, bw, cw, kb, lo, hi = (p[k] for k in ("kp", "ki", "al", "be", "bw", "cw", "kb", "lo", "hi"))
     aw, meas, r, rate, u_lo, u_hi, u_op = p["aw"], p["meas"], p["r"], p["rate"], p["u_lo"], p["u_hi"], p["u_op"]
     x = p["x0"].copy()
-    I = p["I0"].copy()
+    integ = p["I0"].copy()
     D = np.zeros((L, B))
     edp = np.zeros((L, B))
     awe = np.zeros((L, B))
     uprev = np.full(B, u_op)
     y0 = None
-    iae = np.zeros(B); ise = np.zeros(B); itae = np.zeros(B); effort = np.zeros(B); tv = np.zeros(B)
-    peak_u = np.zeros(B); sat = np.zeros(B)
-    peak = np.zeros(B); t10 = np.full(B, -1.0); t90 = np.full(B, -1.0); last = np.full(B, -1.0)
+    iae, ise, itae, effort, tv, peak_u, sat, peak = (np.zeros(B) for _ in range(8))
+    t10, t90, last = (np.full(B, -1.0) for _ in range(3))
     target, k_step = p["target"], p["k_step"]
-    tr_u = np.zeros((T, B)) if traces else None
-    tr_y = np.zeros((L, T, B)) if traces else None
+    tr_u = np.zeros((T, B) if traces else (0, B))
+    tr_y = np.zeros((L, T, B) if traces else (L, 0, B))
     rhs, out = p["rhs"], p["out"]
     monitor, tripped = p["monitor"], np.zeros(B, dtype=bool)
     Ad, G0, Cm = p["Ad"], p["G0"], p["Cm"]
@@ -165,27 +168,27 @@ def numpy_rollout(sim: Any, full: np.ndarray, scenario: int = 0, traces: bool = 
             if monitor:  # safety monitor, hold action: the actuator goes to the safe value for good
                 tripped |= (np.abs(sp - Y[meas[0]]) > p["max_err"]) | np.any(np.abs(Y) > p["max_out"], axis=0)
                 tripped |= np.any(np.abs(x) > p["xb"], axis=0)
-            for l in range(L):
-                y = Y[meas[l]]
+            for li in range(L):
+                y = Y[meas[li]]
                 e = sp - y
-                ed = cw[l] * sp - y
+                ed = cw[li] * sp - y
                 if k == 0:
-                    edp[l] = ed
-                D[l] = al[l] * D[l] + be[l] * (ed - edp[l])
-                edp[l] = ed
-                pt = kp[l] * (bw[l] * sp - y)
-                it = I[l] + ki[l] * dt * e
-                if aw[l] == 2:
-                    it = it + kb[l] * dt * awe[l]
-                vu = pt + it + D[l]
-                vs = np.clip(vu, lo[l], hi[l])
-                if aw[l] == 1:
-                    hold = (vs != vu) & (e * (vu - vs) * ki[l] > 0)
-                    it = np.where(hold, I[l], it)
-                    vu = pt + it + D[l]
-                    vs = np.clip(vu, lo[l], hi[l])
-                I[l] = it
-                awe[l] = vs - vu
+                    edp[li] = ed
+                D[li] = al[li] * D[li] + be[li] * (ed - edp[li])
+                edp[li] = ed
+                pt = kp[li] * (bw[li] * sp - y)
+                it = integ[li] + ki[li] * dt * e
+                if aw[li] == 2:
+                    it = it + kb[li] * dt * awe[li]
+                vu = pt + it + D[li]
+                vs = np.clip(vu, lo[li], hi[li])
+                if aw[li] == 1:
+                    hold = (vs != vu) & (e * (vu - vs) * ki[li] > 0)
+                    it = np.where(hold, integ[li], it)
+                    vu = pt + it + D[li]
+                    vs = np.clip(vu, lo[li], hi[li])
+                integ[li] = it
+                awe[li] = vs - vu
                 sp = vs
             u = sp
             if np.isfinite(rate):
@@ -219,8 +222,8 @@ def numpy_rollout(sim: Any, full: np.ndarray, scenario: int = 0, traces: bool = 
             uprev = u
             if traces:
                 tr_u[k] = u
-                for l in range(L):
-                    tr_y[l, k] = Y[meas[l]]
+                for li in range(L):
+                    tr_y[li, k] = Y[meas[li]]
             # plant update over the sample (ZOH)
             if rhs is None:
                 x = Ad @ x + G0 * u
@@ -244,8 +247,8 @@ def numpy_rollout(sim: Any, full: np.ndarray, scenario: int = 0, traces: bool = 
     tr = {}
     if traces:
         tr["u"] = tr_u.T
-        for l, lp in enumerate(sim.spec.loops):
-            tr[f"y.{lp.name}"] = tr_y[l].T
+        for li, lp in enumerate(sim.spec.loops):
+            tr[f"y.{lp.name}"] = tr_y[li].T
     return m, tr
 
 
@@ -277,8 +280,8 @@ def prepare_numpy(sim: Any, full: np.ndarray, scenario: int = 0) -> dict[str, An
     r = (act * (off[None, :] + slope[None, :] * (k[:, None] - k0[None, :]) * dt)).sum(axis=1) + a.y_op[0, 0]
     y_op = a.y_op[:, 0]
     I0 = np.zeros((L, B))
-    for l in range(L):
-        I0[l] = y_op[l + 1] if l + 1 < L else a.u_op[0]
+    for li in range(L):
+        I0[li] = y_op[li + 1] if li + 1 < L else a.u_op[0]
     tf = a.tf
     out: dict[str, Any] = dict(
         T=T, dt=dt, L=L, B=B, kp=a.kp, ki=a.ki, al=tf / (tf + dt), be=a.kd / (tf + dt),
@@ -316,7 +319,9 @@ def _per_call(fn: Callable[[], Any], min_time: float, clock: Callable[[], float]
             return el / n
 
 
-def time_case(name: str, batch: int, repeat: int = 5, min_time: float = 0.3, numpy_baseline: bool = True) -> dict[str, Any]:
+def time_case(
+    name: str, batch: int, repeat: int = 5, min_time: float = 0.3, numpy_baseline: bool = True
+) -> dict[str, Any]:
     """Interleaved timings of kernel-only, full ``Simulator.run`` and the NumPy loop for one case and batch."""
     from gaintune.sim.kernel import METRICS, run_kernel
 
@@ -329,7 +334,8 @@ def time_case(name: str, batch: int, repeat: int = 5, min_time: float = 0.3, num
         m_np, _ = numpy_rollout(sim, full, prepared=prep)
         iae_k = out_k[METRICS.index("iae")]
         ok = np.isfinite(iae_k) & np.isfinite(m_np["iae"])
-        agree = float(np.max(np.abs(iae_k[ok] - m_np["iae"][ok]) / np.maximum(np.abs(iae_k[ok]), 1e-12))) if ok.any() else np.nan
+        rel = np.abs(iae_k[ok] - m_np["iae"][ok]) / np.maximum(np.abs(iae_k[ok]), 1e-12)
+        agree = float(np.max(rel)) if ok.any() else np.nan
     else:
         agree = np.nan
     tk, tr, tn = [], [], []
@@ -395,8 +401,9 @@ def _memory_worker(name: str, impl: str, batch: int) -> dict[str, Any]:
     else:
         numpy_rollout(case.sim, case.full)
     peak = _rss_kb("VmHWM") if method.startswith("VmHWM") else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return {"case": name, "impl": impl, "batch": batch, "peak_delta_mb": max(peak - (before or 0), 0) / 1024.0,
-            "peak_rss_mb": (_rss_kb("VmHWM") or resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) / 1024.0, "method": method}
+    high = _rss_kb("VmHWM") or resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return {"case": name, "impl": impl, "batch": batch, "peak_delta_mb": max((peak or 0) - (before or 0), 0) / 1024.0,
+            "peak_rss_mb": high / 1024.0, "method": method}
 
 
 def measure_memory(name: str, impl: str, batch: int) -> dict[str, Any]:
@@ -423,7 +430,9 @@ def run_benchmark(cases=CASES, batches=(1, 4096), repeat: int = 5, min_time: flo
                 row["numpy_peak_mb"] = measure_memory(name, "numpy", B)["peak_delta_mb"] if numpy_baseline else np.nan
             rows.append(row)
     return {
-        "machine": {"cpus": os.cpu_count(), "numba_threads": numba.config.NUMBA_NUM_THREADS, "python": sys.version.split()[0],
+        "machine": {"cpus": os.cpu_count(),
+                    "numba_threads": numba.config.NUMBA_NUM_THREADS,  # type: ignore[attr-defined]  # not in numba's stubs
+                    "python": sys.version.split()[0],
                     "numpy": np.__version__, "numba": numba.__version__},
         "rows": rows,
     }
@@ -432,20 +441,25 @@ def run_benchmark(cases=CASES, batches=(1, 4096), repeat: int = 5, min_time: flo
 def markdown(result: dict[str, Any]) -> str:
     m = result["machine"]
     lines = [
-        f"{m['cpus']} CPUs, {m['numba_threads']} numba threads, Python {m['python']}, NumPy {m['numpy']}, numba {m['numba']}",
+        f"{m['cpus']} CPUs, {m['numba_threads']} numba threads, Python {m['python']}, NumPy {m['numpy']}, "
+        f"numba {m['numba']}",
         "",
-        "| case | batch | steps | kernel sims/s | kernel ms/sim | Simulator.run sims/s | run overhead | NumPy sims/s | kernel vs NumPy | peak mem kernel (MB) | peak mem NumPy (MB) |",
+        "| case | batch | steps | kernel sims/s | kernel ms/sim | Simulator.run sims/s | run overhead | NumPy sims/s "
+        "| kernel vs NumPy | peak mem kernel (MB) | peak mem NumPy (MB) |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in result["rows"]:
         lines.append(
-            f"| {r['case']} | {r['batch']} | {r['steps']} | {r['kernel_sims_per_s']:,.0f} | {r['kernel_ms_per_sim']:.4f} | "
+            f"| {r['case']} | {r['batch']} | {r['steps']} | {r['kernel_sims_per_s']:,.0f} | "
+            f"{r['kernel_ms_per_sim']:.4f} | "
             f"{r['run_sims_per_s']:,.0f} | {100 * r['overhead_frac']:.0f} % | {r['numpy_sims_per_s']:,.1f} | "
-            f"{r['speedup_vs_numpy']:,.0f}x | {r.get('kernel_peak_mb', float('nan')):.2f} | {r.get('numpy_peak_mb', float('nan')):.2f} |"
+            f"{r['speedup_vs_numpy']:,.0f}x | {r.get('kernel_peak_mb', float('nan')):.2f} | "
+            f"{r.get('numpy_peak_mb', float('nan')):.2f} |"
         )
     meth = {r.get("memory_method") for r in result["rows"]} - {None}
     if meth:
-        lines += ["", f"Peak memory: RSS high-water mark above the pre-run level of one batch run in a fresh process ({', '.join(sorted(meth))})."]
+        lines += ["", "Peak memory: RSS high-water mark above the pre-run level of one batch run in a fresh process "
+                      f"({', '.join(sorted(str(x) for x in meth))})."]
     return "\n".join(lines)
 
 
@@ -466,7 +480,8 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(_memory_worker(name, impl, int(B))))
         return 0
     try:
-        res = run_benchmark(a.case, a.batch, a.repeat, a.min_time, memory=not a.no_memory, numpy_baseline=not a.no_numpy)
+        res = run_benchmark(a.case, a.batch, a.repeat, a.min_time, memory=not a.no_memory,
+                            numpy_baseline=not a.no_numpy)
     except MemoryError:  # within MAX_BATCH, but more than this machine holds
         fail("--batch", f"out of memory at batch {max(a.batch):,}; give a smaller --batch")
     print(json.dumps(res, indent=2, default=float) if a.json else markdown(res))

@@ -42,6 +42,7 @@ import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -50,12 +51,13 @@ from gaintune.bench.compare import md_table, write_outputs
 
 __all__ = ["commands", "main"]
 
-SPEC = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
+SPEC: dict[str, Any] = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pi"}],
         "scenario": {"dt": 0.05, "horizon": 20}, "search": {"budget": 3000, "seed": 0}}
 GAINS = {"loop0": {"Kp": 1.14, "Ki": 0.454}}
 
 #: The learner's share of the 3,000-sim tune on its own, in a fresh process: ``gaintune.search``
-#: imported (torch, SB3, and the result and verification types every tune loads, ~0.25 s), gaintune's PPO (default hyper-parameters, ``EagerAdam``) built on 32 do-nothing environments
+#: imported (torch, SB3, and the result and verification types every tune loads, ~0.25 s), gaintune's PPO
+#: (default hyper-parameters, ``EagerAdam``) built on 32 do-nothing environments
 #: shaped like the PI problem's (1 observation, 2 gains) and trained for the 80 updates of 10
 #: gradient steps that the tune runs (its RL budget is 2,592 simulations: 81 batches of 32, and the
 #: last batch ends the search before an update). No plant, simulation, repair or verification: any
@@ -148,14 +150,15 @@ def cold_cache_runs(trees: dict[str, Path | None], envs: dict[str, dict[str, str
     warm-up run first."""
     cmd = demo_command(folder, module)
     runs: dict[tuple[str, str], list[tuple[float, float]]] = {(k, c): [] for k in trees for c in ("cold", "warm")}
-    base = {k: dict(envs[k] if envs[k] is not None else os.environ) for k in trees}
+    base: dict[str, dict[str, str]] = {k: dict(envs[k] or os.environ) for k in trees}
     for k in trees:  # warm-up: fills the warm cache (and the OS file cache)
         _wall(cmd, {**base[k], "NUMBA_CACHE_DIR": str(folder / f"numba-warm-{k}")}, folder)
     for i in range(repeat):
         for k in trees:
             cold = {**base[k], "NUMBA_CACHE_DIR": str(folder / f"numba-cold-{k}-{i}")}
             runs[(k, "cold")].append(_timed(cmd, cold, folder))
-            runs[(k, "warm")].append(_timed(cmd, {**base[k], "NUMBA_CACHE_DIR": str(folder / f"numba-warm-{k}")}, folder))
+            warm_env = {**base[k], "NUMBA_CACHE_DIR": str(folder / f"numba-warm-{k}")}
+            runs[(k, "warm")].append(_timed(cmd, warm_env, folder))
     return runs
 
 
@@ -193,7 +196,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_out_argument(ap)
     args = ap.parse_args(argv)
     if args.before is not None and not (args.before / "gaintune" / "__init__.py").is_file():
-        print(f"error: --before: {args.before} holds no gaintune package (give the checkout's top folder)", file=sys.stderr)
+        print(f"error: --before: {args.before} holds no gaintune package (give the checkout's top folder)",
+              file=sys.stderr)
         return 2
     out = resolve_out(args.out)
     here = Path(__file__).resolve().parents[2]
@@ -204,7 +208,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _cold_cache_main(args, trees, envs, out, here, load0)
     with tempfile.TemporaryDirectory() as tmp:
         cmds = commands(Path(tmp), module=args.before is not None)
-        times = {(k, name): [] for k in trees for name in cmds}
+        times: dict[tuple[str, str], list[float]] = {(k, name): [] for k in trees for name in cmds}
         for t in trees.values():  # warm-up: bytecode, as an installed package has it
             compile_bytecode(t / "gaintune" if t is not None else None)
         for k in trees:
@@ -226,15 +230,17 @@ def main(argv: Sequence[str] | None = None) -> int:
                 for name in cmds]
         head = ["command", "median s", "min s", "median - python -c pass, s"]
     table = md_table(head, rows)
-    load = f"load average (1, 5, 15 min) before {_load(load0)}, after {_load(load1)}; gaintune bytecode compiled in the warm-up"
+    load = (f"load average (1, 5, 15 min) before {_load(load0)}, after {_load(load1)}; "
+            "gaintune bytecode compiled in the warm-up")
     if args.before:
         load += f"; before = {args.before}, after = {here}, both as python -m gaintune"
     print(table)
     print(load)
-    _, md = write_outputs({"rows": rows, "header": head, "repeat": args.repeat, "load_before": load0, "load_after": load1},
+    before = f" --before {args.before}" if args.before else ""
+    _, md = write_outputs({"rows": rows, "header": head, "repeat": args.repeat, "load_before": load0,
+                           "load_after": load1},
                           out, "startup",
-                          f"# gaintune bench startup --repeat {args.repeat}{' --before ' + str(args.before) if args.before else ''}"
-                          f"\n\n{table}\n\n{load}\n")
+                          f"# gaintune bench startup --repeat {args.repeat}{before}\n\n{table}\n\n{load}\n")
     print(f"wrote {md}")
     return 0
 
@@ -254,9 +260,14 @@ def _cold_cache_main(args, trees: dict, envs: dict, out: Path, here: Path, load0
         note += f"; before = {args.before}, after = {here}, both as python -m gaintune"
     print(table)
     print(note)
-    cmd = f"# gaintune bench startup --cold-cache --repeat {args.repeat}{' --before ' + str(args.before) if args.before else ''}"
+    before = f" --before {args.before}" if args.before else ""
+    cmd = f"# gaintune bench startup --cold-cache --repeat {args.repeat}{before}"
     _, md = write_outputs({"rows": rows, "header": head, "repeat": args.repeat, "load_before": load0,
                            "load_after": load1, "runs": {f"{k}/{c}": v for (k, c), v in runs.items()}},
                           out, "startup_cold", f"{cmd}\n\n{table}\n\n{note}\n")
     print(f"wrote {md}")
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -187,7 +187,7 @@ class Simulator:
         metrics["tripped"] = metrics["tripped"].astype(bool)
         res = SimResult(sc.name, metrics)
         if traces:
-            res.t = np.arange(args.n_steps) * sc.dt
+            res.t = np.arange(args.n_steps) * sc.resolved_dt
             names = [lp.name for lp in self.spec.loops]
             for i, nm in enumerate(names):
                 res.traces[f"y.{nm}"] = args.tr_y[i].T
@@ -196,7 +196,9 @@ class Simulator:
         return res
 
 
-def simulate(spec: TuningSpec, full_gains: np.ndarray, draws: Draws | None = None, traces: bool = False) -> list[SimResult]:
+def simulate(
+    spec: TuningSpec, full_gains: np.ndarray, draws: Draws | None = None, traces: bool = False
+) -> list[SimResult]:
     """Simulate every scenario of ``spec`` for a batch of full gain vectors."""
     sim = Simulator(spec)
     return [sim.run(full_gains, draws, i, traces) for i in range(len(spec.scenarios))]

@@ -21,7 +21,13 @@ from __future__ import annotations
 from gaintune.sim.kernel_args import KernelArgs
 
 from .drivers import (
-    COMPILED, VARIANTS, run_kernel, simulate_kernel, simulate_kernel_parallel, simulate_kernel_serial, simulate_kernel_single,
+    COMPILED,
+    VARIANTS,
+    run_kernel,
+    simulate_kernel,
+    simulate_kernel_parallel,
+    simulate_kernel_serial,
+    simulate_kernel_single,
 )
 from .layout import CHUNK, METRICS
 

@@ -74,15 +74,39 @@ from gaintune.sim.kernel_args import KernelArgs
 
 from .law import actuator, controllers, init_loops
 from .layout import (
-    CHUNK, F_ALIVE, F_KLD, F_KST, F_LAST, F_T10, F_T90, F_UHI, F_ULO, F_UOP, F_UPREV, LP0, METRICS, N_P, P_YM,
-    P_YT, _U,
+    _U,
+    CHUNK,
+    F_ALIVE,
+    F_KLD,
+    F_KST,
+    F_LAST,
+    F_T10,
+    F_T90,
+    F_UHI,
+    F_ULO,
+    F_UOP,
+    F_UPREV,
+    LP0,
+    METRICS,
+    N_P,
+    P_YM,
+    P_YT,
 )
 from .metrics import accumulate_metrics, finish_metrics, record_traces, start_metrics
 from .monitor import check_divergence, safety_monitor
 from .pipeline import SerialKernelCompiler
 from .plant import (
-    add_noise, delay_shared, freeze_dead, input_seen_by_outputs, outputs_lti, outputs_tape, plant_input,
-    plant_shared, update_rk4, update_zoh, update_zoh_shared,
+    add_noise,
+    delay_shared,
+    freeze_dead,
+    input_seen_by_outputs,
+    outputs_lti,
+    outputs_tape,
+    plant_input,
+    plant_shared,
+    update_rk4,
+    update_zoh,
+    update_zoh_shared,
 )
 from .signals import fill_signals, hold_shared_signals, signals_shared
 
@@ -351,14 +375,14 @@ def simulate_kernel_parallel(*args) -> np.ndarray:
     """
     B = args[_BATCH].shape[0]
     nchunks = -(-B // CHUNK)
-    n = min(max(1, int(nb.config.NUMBA_NUM_THREADS)), nchunks)
+    n = min(max(1, int(nb.config.NUMBA_NUM_THREADS)), nchunks)  # type: ignore[attr-defined]  # set at import; not in numba's stubs
     if n == 1:
         return _serial(*args, 0, nchunks)
     edges = [nchunks * i // n for i in range(n + 1)]
     pool = _workers(n - 1)
-    futures = [pool.submit(_serial, *args, lo, hi) for lo, hi in zip(edges[1:-1], edges[2:])]
+    futures = [pool.submit(_serial, *args, lo, hi) for lo, hi in zip(edges[1:-1], edges[2:], strict=True)]
     out = _serial(*args, edges[0], edges[1])
-    for lo, hi, f in zip(edges[1:-1], edges[2:], futures):
+    for lo, hi, f in zip(edges[1:-1], edges[2:], futures, strict=True):
         a, b = lo * CHUNK, min(hi * CHUNK, B)
         out[:, a:b] = f.result()[:, a:b]
     return out

@@ -13,8 +13,35 @@ from __future__ import annotations
 import numba as nb
 
 from .layout import (
-    AW_BACKCALC, AW_CLAMP, F_ALIVE, F_R, F_TRIP, F_U, F_UHI, F_ULO, F_UOP, F_UPREV, F_Z, LP0, N_P, P_AL, P_AWE,
-    P_BE, P_BW, P_CW, P_D, P_EDP, P_HI, P_I, P_KB, P_KI, P_KP, P_LO, P_SP, P_VOUT, _1,
+    AW_BACKCALC,
+    AW_CLAMP,
+    F_ALIVE,
+    F_R,
+    F_TRIP,
+    F_U,
+    F_UHI,
+    F_ULO,
+    F_UOP,
+    F_UPREV,
+    F_Z,
+    LP0,
+    N_P,
+    P_AL,
+    P_AWE,
+    P_BE,
+    P_BW,
+    P_CW,
+    P_D,
+    P_EDP,
+    P_HI,
+    P_I,
+    P_KB,
+    P_KI,
+    P_KP,
+    P_LO,
+    P_SP,
+    P_VOUT,
+    _1,
 )
 from .ops import _max, _min
 

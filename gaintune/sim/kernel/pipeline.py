@@ -25,7 +25,11 @@ from numba.core.analysis import compute_cfg_from_blocks
 from numba.core.compiler import CompilerBase, DefaultPassBuilder
 from numba.core.compiler_machinery import FunctionPass, register_pass
 from numba.core.ir_utils import (
-    apply_copy_propagate, get_name_var_table, init_copy_propagate_data, remove_dead, restore_copy_var_names,
+    apply_copy_propagate,
+    get_name_var_table,
+    init_copy_propagate_data,
+    remove_dead,
+    restore_copy_var_names,
     simplify_CFG,
 )
 from numba.core.typed_passes import NopythonRewrites, NopythonTypeInference

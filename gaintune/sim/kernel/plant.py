@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numba as nb
 
-from .layout import F_ALIVE, F_DIN, F_DOUT, F_UA, F_UB, LP0, N_P, P_YM, P_YT, _1, _U
+from .layout import _U, F_ALIVE, F_DIN, F_DOUT, F_UA, F_UB, LP0, N_P, P_YM, P_YT, _1
 from .ops import _normal
 from .tape_vm import _run_tape
 
