@@ -139,7 +139,7 @@ def cold_cache_runs(trees: dict[str, Path | None], envs: dict[str, dict[str, str
     warm-up run first."""
     cmd = demo_command(folder, module)
     runs: dict[tuple[str, str], list[tuple[float, float]]] = {(k, c): [] for k in trees for c in ("cold", "warm")}
-    base = {k: dict(envs[k] if envs[k] is not None else os.environ) for k in trees}
+    base = {k: dict(envs[k] or os.environ) for k in trees}
     for k in trees:  # warm-up: fills the warm cache (and the OS file cache)
         _wall(cmd, {**base[k], "NUMBA_CACHE_DIR": str(folder / f"numba-warm-{k}")}, folder)
     for i in range(repeat):

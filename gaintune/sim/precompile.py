@@ -142,9 +142,11 @@ class _Run:
     """The state of one :func:`precompile`: progress, failures, and the children to stop if interrupted."""
 
     def __init__(self, todo: list[str], on_progress: Callable[[int, int], None] | None) -> None:
-        self.todo, self.done, self.failed = todo, 0, {}
+        self.todo, self.done = todo, 0
+        self.failed: dict[str, str] = {}
         self._report = on_progress or (lambda done, total: None)
-        self._lock, self._stopped, self._children = threading.Lock(), False, []
+        self._lock, self._stopped = threading.Lock(), False
+        self._children: list[subprocess.Popen] = []
         self._report(0, len(todo))
 
     def finished(self, name: str, err: str | None) -> None:

@@ -351,7 +351,7 @@ def simulate_kernel_parallel(*args) -> np.ndarray:
     """
     B = args[_BATCH].shape[0]
     nchunks = -(-B // CHUNK)
-    n = min(max(1, int(nb.config.NUMBA_NUM_THREADS)), nchunks)
+    n = min(max(1, int(nb.config.NUMBA_NUM_THREADS)), nchunks)  # type: ignore[attr-defined]
     if n == 1:
         return _serial(*args, 0, nchunks)
     edges = [nchunks * i // n for i in range(n + 1)]
