@@ -232,15 +232,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     table = md_table(head, rows)
     load = (f"load average (1, 5, 15 min) before {_load(load0)}, after {_load(load1)}; "
             "gaintune bytecode compiled in the warm-up")
+    return _publish(args, here, out, "startup", "", table, load,
+                    {"rows": rows, "header": head, "repeat": args.repeat, "load_before": load0, "load_after": load1})
+
+
+def _publish(args, here: Path, out: Path, stem: str, flag: str, table: str, note: str, data: dict) -> int:
+    """Print the table and its note, write ``<stem>.md/.json`` with the command that made them."""
     if args.before:
-        load += f"; before = {args.before}, after = {here}, both as python -m gaintune"
+        note += f"; before = {args.before}, after = {here}, both as python -m gaintune"
     print(table)
-    print(load)
+    print(note)
     before = f" --before {args.before}" if args.before else ""
-    _, md = write_outputs({"rows": rows, "header": head, "repeat": args.repeat, "load_before": load0,
-                           "load_after": load1},
-                          out, "startup",
-                          f"# gaintune bench startup --repeat {args.repeat}{before}\n\n{table}\n\n{load}\n")
+    cmd = f"# gaintune bench startup{flag} --repeat {args.repeat}{before}"
+    _, md = write_outputs(data, out, stem, f"{cmd}\n\n{table}\n\n{note}\n")
     print(f"wrote {md}")
     return 0
 
@@ -256,17 +260,9 @@ def _cold_cache_main(args, trees: dict, envs: dict, out: Path, here: Path, load0
     table = md_table(head, rows)
     note = (f"load average (1, 5, 15 min) before {_load(load0)}, after {_load(load1)}; {os.cpu_count()} CPUs; "
             "CPU s = user + system of the command and the processes it started")
-    if args.before:
-        note += f"; before = {args.before}, after = {here}, both as python -m gaintune"
-    print(table)
-    print(note)
-    before = f" --before {args.before}" if args.before else ""
-    cmd = f"# gaintune bench startup --cold-cache --repeat {args.repeat}{before}"
-    _, md = write_outputs({"rows": rows, "header": head, "repeat": args.repeat, "load_before": load0,
-                           "load_after": load1, "runs": {f"{k}/{c}": v for (k, c), v in runs.items()}},
-                          out, "startup_cold", f"{cmd}\n\n{table}\n\n{note}\n")
-    print(f"wrote {md}")
-    return 0
+    return _publish(args, here, out, "startup_cold", " --cold-cache", table, note,
+                    {"rows": rows, "header": head, "repeat": args.repeat, "load_before": load0, "load_after": load1,
+                     "runs": {f"{k}/{c}": v for (k, c), v in runs.items()}})
 
 
 if __name__ == "__main__":

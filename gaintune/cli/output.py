@@ -89,12 +89,9 @@ def _pid_forms(result) -> dict[str, str]:
 
 
 def _other_form(form: str | None, gains: dict[str, float]) -> str:
-    from gaintune.controllers.forms import equivalent
+    from gaintune.controllers.forms import other_form_text
 
-    if form is None:
-        return ""
-    alt = {k: v for k, v in equivalent(form, gains).items() if k not in gains}
-    return ", ".join(f"{k} {_f(v, 4)}" + (" s" if k in ("Ti", "Td") else "") for k, v in alt.items())
+    return other_form_text(form, gains, lambda v: _f(v, 4))
 
 
 def _print_margins(rep, console: Console | _Console) -> None:

@@ -10,8 +10,9 @@ other form, for tables and reports, and :func:`to_form` reads gains written in e
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
-__all__ = ["IDEAL", "PARALLEL", "equivalent", "to_form", "gain_unit"]
+__all__ = ["IDEAL", "PARALLEL", "equivalent", "form_of", "other_form_text", "to_form", "gain_unit"]
 
 PARALLEL = ("Kp", "Ki", "Kd")
 IDEAL = ("Kp", "Ti", "Td")
@@ -48,6 +49,38 @@ def equivalent(form: str, gains: dict[str, float]) -> dict[str, float]:
     {'Kp': 2.0, 'Ki': 0.5}
     """
     return _ideal(gains) if form == "parallel" else _parallel(gains)
+
+
+def form_of(gains: dict[str, float]) -> str | None:
+    """The PID form ``gains`` are written in, when their names tell (None for a P loop or other gains).
+
+    Examples
+    --------
+    >>> form_of({"Kp": 1.0, "Ti": 2.0}), form_of({"Kp": 1.0, "Ki": 0.5}), form_of({"Kp": 1.0})
+    ('ideal', 'parallel', None)
+    """
+    names = set(gains)
+    if names <= set(PARALLEL) and names & {"Ki", "Kd"}:
+        return "parallel"
+    if names <= set(IDEAL) and names & {"Ti", "Td"}:
+        return "ideal"
+    return None
+
+
+def other_form_text(form: str | None, gains: dict[str, float], number: Callable[[float], str]) -> str:
+    """The gains the other PID form adds, as text: ``"Ti 2.5 s, Td 0.5 s"`` for a parallel loop ("" for none).
+
+    ``number`` formats each value (the caller's table style).
+
+    Examples
+    --------
+    >>> other_form_text("parallel", {"Kp": 2.0, "Ki": 0.5, "Kd": 1.0}, "{:g}".format)
+    'Ti 4 s, Td 0.5 s'
+    """
+    if form is None:
+        return ""
+    alt = {k: v for k, v in equivalent(form, gains).items() if k not in gains}
+    return ", ".join(f"{k} {number(v)}" + (" s" if k in ("Ti", "Td") else "") for k, v in alt.items())
 
 
 def to_form(form: str, gains: dict[str, float]) -> dict[str, float]:

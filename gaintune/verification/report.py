@@ -304,18 +304,13 @@ def _f(x: float | None, fmt: str = "{:.3g}") -> str:
 
 def _other_form(gains: dict[str, float]) -> str:
     """`` (ideal: Ti 2.5 s, Td 0.5 s)`` for a parallel PID's gains, `` (parallel: Ki ..)`` for an ideal one."""
-    from gaintune.controllers.forms import IDEAL, PARALLEL, equivalent
+    from gaintune.controllers.forms import form_of, other_form_text
 
-    names = set(gains)
-    if names <= set(PARALLEL) and names & {"Ki", "Kd"}:
-        form, other = "parallel", "ideal"
-    elif names <= set(IDEAL) and names & {"Ti", "Td"}:
-        form, other = "ideal", "parallel"
-    else:
+    form = form_of(gains)
+    if form is None:
         return ""
-    alt = {k: v for k, v in equivalent(form, gains).items() if k not in gains}
-    unit = {"Ti": " s", "Td": " s"}
-    return f" ({other}: " + ", ".join(f"{k} {_f(v, '{:.4g}')}{unit.get(k, '')}" for k, v in alt.items()) + ")"
+    other = "ideal" if form == "parallel" else "parallel"
+    return f" ({other}: {other_form_text(form, gains, lambda v: _f(v, '{:.4g}'))})"
 
 
 def _header(report: VerificationReport) -> list[str]:
