@@ -25,9 +25,11 @@ LAYERS: dict[str, int] = {
     "gaintune.evaluation": 7,
     "gaintune.envs": 8, "gaintune.baselines": 8,
     "gaintune.search": 9,
-    "gaintune.export": 10, "gaintune.report": 10, "gaintune.bench": 10,
-    "gaintune.cli": 11, "gaintune_api": 11,
-    "gaintune": 12, "gaintune.__main__": 12,
+    "gaintune.export": 10,
+    "gaintune.tuners": 11, "gaintune.report": 11,
+    "gaintune.bench": 12,
+    "gaintune.cli": 13, "gaintune_api": 13,
+    "gaintune": 14, "gaintune.__main__": 14,
 }
 
 #: The only modules at the gaintune/ root besides __init__ and __main__: base utilities every layer may use.

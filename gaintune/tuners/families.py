@@ -1,0 +1,162 @@
+"""The plant families of the ready-made tuners, and their dimensionless form.
+
+A ready-made tuner answers any plant of a classical model family: FOTD ``K e^{-Ls}/(Ts+1)``,
+SOTD ``K e^{-Ls}/((T1 s+1)(T2 s+1))`` and integrating-plus-delay ``K e^{-Ls}/(s (T s+1))``. Each
+family is self-similar: with time measured in units of the plant's time scale ``tc`` and gain in
+units of ``K``, the constrained optimum (load-step IAE under an Ms limit) depends only on the
+dimensionless shape, e.g. ``tau = L/(L+T)`` for FOTD (Åström & Hägglund's normalised dead time).
+So a tuner is trained on the unit plants of the family (``K = 1``, ``tc = 1``) over the shape
+parameters, and :meth:`Family.scale_gains` maps its dimensionless gains to a real plant:
+``Kp = kp/K``, ``Ki = ki/(K tc)``, ``Kd = kd tc/K`` (for the integrating family ``K`` is the
+velocity gain and the factors carry one more ``tc``). The answer is then verified on the real plant
+(its own sample time and horizon), never only on the unit plant.
+
+:func:`problem_spec` is the one definition of the tuning problem every tuner, the reference optimum
+and ``gaintune bench tuners`` share: a unit load step at the plant input, cost = its IAE (no effort
+term), the Ms limit as the only requirement, at the exact limit (``backoff: 0``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from gaintune.errors import SpecError
+from gaintune.spec import TuningSpec, load_spec
+
+__all__ = ["Family", "FAMILIES", "problem_spec", "family"]
+
+
+@dataclass(frozen=True)
+class Family:
+    """A self-similar plant family: its model, parameters, shape variables and their ranges.
+
+    Attributes
+    ----------
+    name
+        ``fotd``, ``sotd`` or ``ipd``.
+    title
+        The model as a formula.
+    params
+        The physical parameters a query gives (``K``, ``T``, ``L``, ...).
+    shape
+        The dimensionless shape variables and their training ranges (log-uniform).
+    integrating
+        The plant has an integrator (K is a velocity gain: gains carry one more time factor).
+    """
+
+    name: str
+    title: str
+    params: tuple[str, ...]
+    shape: dict[str, tuple[float, float]]
+    integrating: bool = False
+
+    def plant(self, values: Mapping[str, float]) -> dict[str, Any]:
+        """The spec's ``plant`` block for physical parameters ``values``."""
+        v = {k: float(values[k]) for k in self.params}
+        if self.name == "fotd":
+            tf = {"num": ["K"], "den": "T*s + 1"}
+        elif self.name == "sotd":
+            tf = {"num": ["K"], "den": "(T1*s + 1)*(T2*s + 1)"}
+        else:
+            tf = {"num": ["K"], "den": "s*(T*s + 1)"}
+        return {"tf": tf, "delay": "L", "params": v}
+
+    def time_scale(self, v: Mapping[str, float]) -> float:
+        """The time unit ``tc`` of the dimensionless form (seconds)."""
+        if self.name == "fotd":
+            return v["L"] + v["T"]
+        if self.name == "sotd":
+            return v["L"] + v["T1"] + v["T2"]
+        return v["L"] + v["T"]
+
+    def shape_of(self, values: Mapping[str, float]) -> dict[str, float]:
+        """The dimensionless shape of a plant (checked: every parameter given, finite, K > 0, lags >= 0)."""
+        v = self.checked(values)
+        tc = self.time_scale(v)
+        if self.name == "fotd":
+            return {"tau": v["L"] / tc}
+        if self.name == "sotd":
+            return {"tau": v["L"] / tc, "r": min(v["T1"], v["T2"]) / max(v["T1"], v["T2"], 1e-300)}
+        return {"tau": v["L"] / tc}
+
+    def unit_params(self, shape: Mapping[str, float]) -> dict[str, float]:
+        """Physical parameters of the unit plant (K = 1, tc = 1) with this shape."""
+        tau = float(shape["tau"])
+        if self.name == "sotd":
+            r = float(shape["r"])
+            lag = 1.0 - tau  # T1 + T2 = 1 - tau, T2 = r T1
+            return {"K": 1.0, "T1": lag / (1.0 + r), "T2": lag * r / (1.0 + r), "L": tau}
+        return {"K": 1.0, "T": 1.0 - tau, "L": tau}
+
+    def checked(self, values: Mapping[str, float]) -> dict[str, float]:
+        """``values`` as floats, every parameter present and in its physical domain (SpecError otherwise)."""
+        missing = [p for p in self.params if p not in values]
+        if missing:
+            raise SpecError(f"params.{missing[0]}", f"the {self.name} family needs {', '.join(self.params)}; "
+                            f"give {missing[0]} (-p {missing[0]}=VALUE)")
+        extra = sorted(set(values) - set(self.params))
+        if extra:
+            raise SpecError(f"params.{extra[0]}", f"not a parameter of the {self.name} family {self.title}; "
+                            f"its parameters are {', '.join(self.params)}")
+        out: dict[str, float] = {}
+        for p in self.params:
+            x = values[p]
+            if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+                raise SpecError(f"params.{p}", f"must be a finite number, got {x!r}")
+            out[p] = float(x)
+        if out["K"] <= 0:
+            raise SpecError("params.K", f"must be > 0 (got {out['K']:g}); for a reverse-acting plant give |K| "
+                            "and set the loop's direction to -1")
+        for p in self.params[1:]:
+            if out[p] < 0:
+                raise SpecError(f"params.{p}", f"must be >= 0, got {out[p]:g}")
+        if self.time_scale(out) <= 0:
+            raise SpecError("params", "the plant has no time scale (all lags and the delay are 0)")
+        return out
+
+    def scale_gains(self, unit_gains: Mapping[str, float], values: Mapping[str, float]) -> dict[str, float]:
+        """The unit plant's gains scaled to the plant with physical parameters ``values``."""
+        v = self.checked(values)
+        K, tc = v["K"], self.time_scale(v)
+        if self.integrating:
+            K = K * tc  # a velocity gain: K e^{-Ls}/s has the static gain K tc at the time unit tc
+        factor = {"Kp": 1.0 / K, "Ki": 1.0 / (K * tc), "Kd": tc / K}
+        return {g: float(x) * factor[g] for g, x in unit_gains.items()}
+
+
+FAMILIES: dict[str, Family] = {
+    "fotd": Family("fotd", "K e^{-Ls}/(T s + 1)", ("K", "T", "L"), {"tau": (0.05 / 1.05, 10.0 / 11.0)}),
+    "sotd": Family("sotd", "K e^{-Ls}/((T1 s + 1)(T2 s + 1))", ("K", "T1", "T2", "L"),
+                   {"tau": (0.05 / 1.05, 10.0 / 11.0), "r": (0.05, 1.0)}),
+    "ipd": Family("ipd", "K e^{-Ls}/(s (T s + 1))", ("K", "T", "L"), {"tau": (0.05, 0.95)}, integrating=True),
+}
+
+
+def family(name: str) -> Family:
+    """The family called ``name`` (SpecError naming ``family`` otherwise)."""
+    try:
+        return FAMILIES[name]
+    except KeyError:
+        raise SpecError("family", f"unknown family {name!r}; known: {', '.join(FAMILIES)}") from None
+
+
+def problem_spec(fam: Family, values: Mapping[str, float], ctype: str = "pi", ms_max: float = 1.4,
+                 name: str | None = None) -> TuningSpec:
+    """The tuning problem of one plant of ``fam``: unit load step at the input, load IAE, Ms <= ``ms_max``.
+
+    Sample time and horizon are derived from the plant (:mod:`gaintune.classical.timescale`), so a
+    plant with T = 60 s is simulated and verified at its own time scale.
+    """
+    v = fam.checked(values)
+    return load_spec({
+        "name": name or f"{fam.name}_{ctype}_ms{ms_max:g}",
+        "plant": fam.plant(v),
+        "loops": [{"name": "main", "type": ctype}],
+        "scenarios": [{"name": "load", "reference": {"kind": "none"},
+                       "disturbance": {"kind": "step", "entry": "input", "amplitude": 1.0, "time": 0.0}}],
+        "objective": {"measure": "iae", "effort_weight": 0.0},
+        "requirements": {"gm_min_db": None, "pm_min_deg": None, "ms_max": ms_max, "backoff": 0},
+    })
