@@ -1,0 +1,202 @@
+"""Training a tuner: PPO on the per-context bandit, checkpointed, exported to NumPy, validated, saved.
+
+:func:`train` runs stable-baselines3's PPO on :class:`gaintune.tuners.env.ContextBanditVecEnv`
+(one step per episode, a fresh plant of the family per episode, the reward that plant's own
+``-log(cost)`` after the boundary move). The value network learns each context's cost level, so
+the advantage is how much better than usual for *this* plant a gain set is. Every
+:data:`CHECKPOINT_EVERY` rollouts the agent is saved (SB3's format, read back as weights only) with
+the run's state; a killed run given the same output folder resumes from there. At the end the
+actor is exported to plain arrays (checked against torch on random inputs), validated on held-out
+contexts against their own optimum, and written atomically as a tuner folder.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gaintune.errors import SpecError
+from gaintune.files import read_text_bounded, write_atomic
+from gaintune.provenance import versions
+from gaintune.tuners import artefact
+from gaintune.tuners.artefact import Artefact
+from gaintune.tuners.box import fit_box
+from gaintune.tuners.mlp import NumpyPolicy, from_sb3
+from gaintune.tuners.problems import TunerProblem
+from gaintune.tuners.validation import answer_cost, context_optimum, validate
+
+__all__ = ["TrainSettings", "train", "CHECKPOINT_EVERY", "EXPORT_TOL"]
+
+#: Rollouts between checkpoints (and training-curve points).
+CHECKPOINT_EVERY = 4
+#: Largest difference allowed between the NumPy policy and torch's deterministic action.
+EXPORT_TOL = 1e-6
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    """PPO settings of a tuner's training (defaults chosen on the FOTD family, docs/tuners.md)."""
+
+    episodes: int = 60_000
+    seed: int = 0
+    n_envs: int = 64
+    contexts_per_step: int = 8
+    n_steps: int = 16
+    batch_size: int = 256
+    n_epochs: int = 10
+    learning_rate: float = 1e-3
+    log_std_init: float = -1.5
+    net_arch: tuple[int, ...] = (64, 64)
+    validation: int = 24
+    curve_contexts: int = 8
+
+    def key(self, problem: TunerProblem) -> str:
+        """Hash of what a checkpoint depends on: the problem, its box and these settings."""
+        assert problem.box is not None
+        d = {"problem": problem.as_dict(), "box": problem.box.as_dict(), "settings": self.__dict__}
+        return hashlib.sha256(json.dumps(d, sort_keys=True, default=list).encode()).hexdigest()[:16]
+
+
+def _make_agent(env: Any, s: TrainSettings) -> Any:
+    import torch
+    from stable_baselines3 import PPO
+
+    torch.set_num_threads(1)  # a 64-unit network: threads cost more than they give
+    lr = s.learning_rate
+    return PPO("MlpPolicy", env, n_steps=s.n_steps, batch_size=s.batch_size, n_epochs=s.n_epochs,
+               learning_rate=lambda progress: lr * progress, gamma=0.0, gae_lambda=1.0, seed=s.seed, verbose=0,
+               device="cpu", policy_kwargs={"log_std_init": s.log_std_init, "net_arch": list(s.net_arch)})
+
+
+class _Checkpoint:
+    """The resumable state of a run: ``<out>.training/agent.zip`` and ``state.json``."""
+
+    def __init__(self, out: Path, key: str) -> None:
+        self.dir = out.with_name(f".{out.name}.training")
+        self.key = key
+
+    def load(self) -> dict[str, Any] | None:
+        try:
+            state = json.loads(read_text_bounded(self.dir / "state.json", "resume"))
+        except (SpecError, ValueError):
+            return None
+        return state if isinstance(state, dict) and state.get("key") == self.key else None
+
+    def save(self, agent: Any, state: dict[str, Any]) -> None:
+        from gaintune.search.agent_file import save_agent
+
+        self.dir.mkdir(parents=True, exist_ok=True)
+        save_agent(agent, self.dir / "agent.zip")
+        write_atomic(self.dir / "state.json", json.dumps({**state, "key": self.key}))
+
+    def clear(self) -> None:
+        import shutil
+
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+
+def _curve_point(problem: TunerProblem, policy: NumpyPolicy, curve_set: list[tuple[dict[str, float], float]]
+                 ) -> float:
+    """Median cost / optimum of the policy on the fixed curve contexts."""
+    ratios = [answer_cost(problem, policy, ctx)[0] / opt for ctx, opt in curve_set]
+    return float(np.median(ratios))
+
+
+def _exported(agent: Any, n_in: int, seed: int) -> NumpyPolicy:
+    """The actor as arrays, checked against torch's deterministic action on random inputs."""
+    pol = from_sb3(agent)
+    x = np.random.default_rng(seed).uniform(-1.5, 1.5, (256, n_in)).astype(np.float32)
+    ref = agent.predict(x, deterministic=True)[0]
+    err = float(np.max(np.abs(pol(x) - ref)))
+    if err > EXPORT_TOL:
+        raise RuntimeError(f"the NumPy policy differs from torch's by {err:.2e} (> {EXPORT_TOL:g})")
+    return pol
+
+
+def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None = None, *, name: str | None = None,
+          on_progress: Callable[[int, int, dict[str, Any]], None] | None = None, resume: bool = True) -> Path:
+    """Train a tuner for ``problem`` and write it to the folder ``out``; returns ``out``.
+
+    ``on_progress(done, total, info)`` is called after every rollout (episodes done, episodes in
+    all, and ``{"reward", "sims", "elapsed_s", "ratio"}``; ``ratio`` at checkpoints). With
+    ``resume`` a checkpoint of the same problem and settings in ``.<out>.training`` is continued.
+    """
+    from gaintune.search.agents import load_weights
+    from gaintune.tuners.env import ContextBanditVecEnv
+
+    s = settings or TrainSettings()
+    out = Path(out)
+    fit_box(problem)
+    env = ContextBanditVecEnv(problem, s.n_envs, s.contexts_per_step, seed=s.seed)
+    agent = _make_agent(env, s)
+    ckpt = _Checkpoint(out, s.key(problem))
+    state = ckpt.load() if resume else None
+    if state is not None:
+        load_weights(agent, ckpt.dir / "agent.zip", field="resume")
+        env.rng = np.random.default_rng([s.seed, int(state["episodes"])])  # fresh contexts after the resume point
+        env.n_sims = int(state["sims"])
+    state = state or {"episodes": 0, "sims": 0, "elapsed_s": 0.0, "curve": [], "resumed": 0}
+    state["resumed"] = state.get("resumed", 0) + (1 if state["episodes"] else 0)
+    curve_set = _curve_set(problem, s)
+    rollout = s.n_envs * s.n_steps
+    t0, base = time.perf_counter(), float(state["elapsed_s"])
+    while state["episodes"] < s.episodes:
+        chunk = min(CHECKPOINT_EVERY * rollout, s.episodes - int(state["episodes"]))
+        agent.learn(chunk, reset_num_timesteps=False, callback=_progress_callback(on_progress, state, env, s, t0, base))
+        state.update(episodes=int(agent.num_timesteps), sims=env.n_sims, elapsed_s=base + time.perf_counter() - t0)
+        ratio = _curve_point(problem, from_sb3(agent), curve_set)
+        state["curve"].append({"episodes": state["episodes"], "sims": state["sims"],
+                               "elapsed_s": round(state["elapsed_s"], 2), "reward": env.last.get("reward"),
+                               "median_ratio": ratio})
+        if on_progress:
+            on_progress(int(state["episodes"]), s.episodes, {**state["curve"][-1], "ratio": ratio})
+        ckpt.save(agent, state)
+    policy = _exported(agent, len(problem.variables), s.seed)
+    val = validate(problem, policy, s.validation, s.seed)
+    training = {"algo": "ppo", "settings": {**s.__dict__, "net_arch": list(s.net_arch)},
+                "episodes": int(state["episodes"]), "sims": int(state["sims"]),
+                "wall_s": round(float(state["elapsed_s"]), 1), "resumed": int(state["resumed"]),
+                "curve": state["curve"]}
+    art = Artefact(name or out.name, problem, policy, training, val,
+                   meta={"versions": versions(), "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
+    artefact.save(out, art)
+    ckpt.clear()
+    return out
+
+
+def _curve_set(problem: TunerProblem, s: TrainSettings) -> list[tuple[dict[str, float], float]]:
+    """Fixed contexts for the training curve, with their optimum (drawn apart from training and validation)."""
+    from gaintune.evaluation.evaluator import Evaluator
+
+    rng = np.random.default_rng([s.seed, 7])
+    out = []
+    for ctx in problem.draw(rng, s.curve_contexts):
+        opt, _ = context_optimum(Evaluator(problem.spec_at(ctx)))
+        if math.isfinite(opt) and opt > 0:
+            out.append((ctx, opt))
+    return out
+
+
+def _progress_callback(on_progress: Any, state: dict[str, Any], env: Any, s: TrainSettings, t0: float,
+                       base: float) -> Any:
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class _Cb(BaseCallback):
+        def _on_step(self) -> bool:
+            return True
+
+        def _on_rollout_end(self) -> None:
+            if on_progress:
+                on_progress(int(self.model.num_timesteps), s.episodes,
+                            {"reward": env.last.get("reward"), "sims": env.n_sims,
+                             "elapsed_s": base + time.perf_counter() - t0})
+
+    return _Cb()

@@ -1,0 +1,158 @@
+"""A trained tuner answers verified gains for one plant: NumPy forward pass, boundary move, verification.
+
+:meth:`Tuner.query` takes a plant's parameters (``K``, ``T``, ``L`` for a FOTD tuner; the
+randomised parameters of a spec tuner) and
+
+1. maps them to the tuner's context (a family tuner reduces them to the dimensionless shape);
+   a context outside the training ranges is refused, naming the value and the range;
+2. evaluates the policy in NumPy (no torch is imported anywhere on this path);
+3. moves the gains onto this plant's requirement boundary, inward or outward, where that lowers
+   the cost (:func:`gaintune.evaluation.boundary_both.onto_boundary`);
+4. optionally refines them with CMA-ES from there, with at most ``refine`` more simulations;
+5. verifies them on this plant (:func:`gaintune.verification.verify`). As everywhere in gaintune,
+   only a ``pass`` releases gains (:attr:`TunerAnswer.accepted_gains`).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gaintune.evaluation.boundary_both import onto_boundary
+from gaintune.evaluation.evaluator import Evaluator
+from gaintune.spec import Gains
+from gaintune.tuners import artefact
+from gaintune.tuners.artefact import Artefact
+from gaintune.tuners.problems import FamilyProblem
+from gaintune.verification import verify
+from gaintune.verification.report import VerificationReport
+
+__all__ = ["Tuner", "TunerAnswer", "OutsideFamilyError"]
+
+
+class OutsideFamilyError(ValueError):
+    """The plant lies outside the family the tuner was trained on (a SpecError-like message)."""
+
+    def __init__(self, field_name: str, message: str) -> None:
+        super().__init__(f"{field_name}: {message}")
+        self.field, self.message = field_name, message
+
+
+@dataclass
+class TunerAnswer:
+    """One plant's answer. ``accepted_gains`` is None unless the verdict is ``pass``."""
+
+    params: dict[str, float]
+    context: dict[str, float]
+    gains: Gains
+    verdict: str
+    cost: float
+    policy_ms: float
+    elapsed_ms: float
+    n_sims: int
+    refined: int = 0
+    verification: VerificationReport | None = field(default=None, repr=False)
+
+    @property
+    def accepted_gains(self) -> Gains | None:
+        return self.gains if self.verdict == "pass" else None
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready: parameters, context, gains, verdict, cost, timings, simulations, the verification summary."""
+        v = self.verification
+        return {
+            "params": self.params, "context": self.context, "gains": self.gains, "verdict": self.verdict,
+            "accepted_gains": self.accepted_gains, "cost": self.cost, "policy_ms": self.policy_ms,
+            "elapsed_ms": self.elapsed_ms, "n_sims": self.n_sims, "refined_sims": self.refined,
+            "failures": list(v.failures) if v is not None and hasattr(v, "failures") else [],
+        }
+
+
+class Tuner:
+    """A loaded tuner (see the module docstring). Thread-safe: a query holds no shared state."""
+
+    def __init__(self, art: Artefact, folder: Path | None = None) -> None:
+        self.artefact = art
+        self.problem = art.problem
+        self.policy = art.policy
+        self.folder = folder
+        self._lock = threading.Lock()
+
+    @classmethod
+    def load(cls, name_or_dir: str | Path) -> Tuner:
+        """A tuner folder, or a shipped tuner by name (``gaintune tuner list``)."""
+        folder = artefact.resolve(name_or_dir)
+        return cls(artefact.load(folder), folder)
+
+    @property
+    def name(self) -> str:
+        return self.artefact.name
+
+    def context(self, params: Mapping[str, float]) -> dict[str, float]:
+        """The context of ``params``; OutsideFamilyError when it lies outside the training ranges."""
+        ctx = self.problem.context_of(params)
+        for v in self.problem.variables:
+            x = ctx[v.name]
+            if not v.contains(x):
+                raise OutsideFamilyError(f"params.{v.name}", self._outside_text(v.name, x, v.lo, v.hi))
+        return ctx
+
+    def _outside_text(self, name: str, x: float, lo: float, hi: float) -> str:
+        if isinstance(self.problem, FamilyProblem) and name == "tau":
+            def ratio(t: float) -> float:
+                return t / (1.0 - t) if t < 1 else float("inf")
+            return (f"L/T = {ratio(x):.3g} is outside the family this tuner was trained on (L/T from {ratio(lo):.3g} "
+                    f"to {ratio(hi):.3g}); use 'gaintune tune' for this plant")
+        return (f"{name} = {x:g} is outside the family this tuner was trained on ({lo:g} to {hi:g}); "
+                "use 'gaintune tune' for this plant, or 'gaintune tuner update' with a wider range")
+
+    def policy_gains(self, params: Mapping[str, float]) -> tuple[Gains, dict[str, float], float]:
+        """The policy's raw gains for ``params`` (before the boundary move), the context, and the forward-pass ms."""
+        ctx = self.context(params)
+        assert self.problem.box is not None
+        t0 = time.perf_counter()
+        action = self.policy(self.problem.features(ctx)[None, :])[0]
+        ms = 1e3 * (time.perf_counter() - t0)
+        unit = self.problem.box.to_gains(self.problem.box.to_tuned(action)[0])
+        return self.problem.scale_answer(unit, params), ctx, ms
+
+    def query(self, params: Mapping[str, float], refine: int = 0, seed: int = 0) -> TunerAnswer:
+        """Verified gains for the plant at ``params`` (see the module docstring)."""
+        t0 = time.perf_counter()
+        gains, ctx, policy_ms = self.policy_gains(params)
+        ev = Evaluator(self.problem.physical_spec(params))
+        lay = ev.layout
+        tuned = np.asarray(lay.from_dict(gains), dtype=float)[lay.tuned_idx]
+        move = onto_boundary(ev, tuned[None, :])
+        tuned, cost = move.tuned[0], float(move.scores.cost[0])
+        spent = 0
+        if refine > 0:
+            tuned, cost, spent = _refine(ev, tuned, float(move.scores.merit[0]), cost, refine, seed)
+        gains = lay.to_dict(lay.full(tuned))
+        report = verify(ev.spec, gains, plant=ev.plant, layout=lay, cache=False)
+        return TunerAnswer(params={k: float(v) for k, v in params.items()}, context=ctx, gains=gains,
+                           verdict=report.verdict, cost=cost, policy_ms=policy_ms,
+                           elapsed_ms=1e3 * (time.perf_counter() - t0), n_sims=ev.n_sims, refined=spent,
+                           verification=report)
+
+
+def _refine(ev: Evaluator, tuned: np.ndarray, merit: float, cost: float, budget: int,
+            seed: int) -> tuple[np.ndarray, float, int]:
+    """CMA-ES from the answer with at most ``budget`` simulations, then the boundary move; the better answer."""
+    from gaintune.baselines.optimizers import optimize
+
+    n0 = ev.n_sims
+    # a few simulations stay for the boundary move of the refined point (it evaluates both sides once)
+    res = optimize(ev, "cmaes", max(budget - 3, 1), seed=seed, x0=tuned, sigma0=0.05)
+    x = np.asarray(res.tuned, dtype=float)
+    move = onto_boundary(ev, x[None, :])
+    spent = ev.n_sims - n0
+    if float(move.scores.merit[0]) < merit:
+        return move.tuned[0], float(move.scores.cost[0]), spent
+    return tuned, cost, spent
