@@ -31,6 +31,8 @@ BENCH = {
     "startup": "End-to-end wall time of --help, import, verify and a 3,000-simulation tune, beside python -c pass.",
     "policy": "A trained tuner's answer time (policy, repair, verification per plant) beside the search that "
               "trained it.",
+    "tuners": "Trained tuners on held-out FOTD plants against the per-plant optimum and AMIGO/SIMC, with their "
+              "answer time.",
     "api": "REST API load test.",
     "chaos": "Chaos campaign against a real API server: worker/server kills, freezes, storage faults, reused "
              "connections.",

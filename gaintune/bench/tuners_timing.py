@@ -1,0 +1,129 @@
+"""Answer times of a trained tuner for ``gaintune bench tuners``: in-process percentiles and fresh processes.
+
+A fresh process runs ``gaintune tuner query NAME -p K=.. -p T=.. -p L=.. --json`` as a user types it
+(the installed ``gaintune`` script, in an empty working folder), after a warm-up run that fills
+numba's cache and the OS file cache, and with gaintune's bytecode compiled as an installation has
+it (:func:`gaintune.bench.startup.compile_bytecode`). A second child imports the CLI the way the
+script does, runs the same query in-process and prints whether ``torch`` is in ``sys.modules``
+afterwards: answering a query must not pay for the learner's import.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["TORCH_PROBE", "query_argv", "percentiles", "in_process_timing", "fresh_process_timing"]
+
+#: A child that runs one CLI command in-process (``sys.argv[1:]``) and reports whether torch was imported.
+TORCH_PROBE = """
+import sys
+from typer.main import get_command
+from gaintune.cli import app
+try:
+    get_command(app).main(args=sys.argv[1:], prog_name="gaintune", standalone_mode=False)
+except SystemExit:
+    pass
+except Exception as exc:
+    print(f"probe: the command raised {type(exc).__name__}: {exc}", file=sys.stderr)
+print()
+print("torch_imported=" + str("torch" in sys.modules))
+"""
+
+#: A fresh process that does not answer within this many seconds counts as failed.
+TIMEOUT_S = 600.0
+
+
+def query_argv(name: str, values: Mapping[str, float]) -> list[str]:
+    """The arguments of ``gaintune tuner query NAME -p K=.. -p T=.. -p L=.. --json`` (values as exact reprs)."""
+    argv = ["tuner", "query", name]
+    for p in ("K", "T", "L"):
+        argv += ["-p", f"{p}={float(values[p])!r}"]
+    return [*argv, "--json"]
+
+
+def percentiles(values: Sequence[float]) -> dict[str, float | None]:
+    """``{"p50", "p95", "max", "n"}`` of ``values`` (None when empty)."""
+    v = np.asarray([x for x in values if x is not None], dtype=float)
+    if v.size == 0:
+        return {"p50": None, "p95": None, "max": None, "n": 0}
+    return {"p50": float(np.percentile(v, 50)), "p95": float(np.percentile(v, 95)), "max": float(v.max()),
+            "n": int(v.size)}
+
+
+def in_process_timing(rows: Sequence[Mapping[str, Any]], modes: Sequence[str]) -> dict[str, Any]:
+    """Per mode: percentiles of the answers' ``policy_ms`` and ``elapsed_ms`` over the plants."""
+    out: dict[str, Any] = {}
+    for mode in modes:
+        answers = [r[mode] for r in rows if mode in r and r[mode].get("elapsed_ms") is not None]
+        out[mode] = {"policy_ms": percentiles([a.get("policy_ms") for a in answers]),
+                     "elapsed_ms": percentiles([a["elapsed_ms"] for a in answers])}
+    return out
+
+
+def _gaintune_command() -> list[str]:
+    """The installed ``gaintune`` script of this interpreter (else the one on PATH, else ``python -m``)."""
+    script = Path(sys.executable).with_name("gaintune")
+    if script.exists():
+        return [str(script)]
+    found = shutil.which("gaintune")
+    return [found] if found else [sys.executable, "-m", "gaintune"]
+
+
+def _run(argv: list[str], cwd: str) -> dict[str, Any]:
+    """One fresh process: wall time, exit code (None on timeout), stdout and the last stderr line."""
+    t0 = time.perf_counter()
+    try:
+        p = subprocess.run(argv, capture_output=True, text=True, cwd=cwd, timeout=TIMEOUT_S, check=False)
+    except subprocess.TimeoutExpired:
+        return {"wall_s": time.perf_counter() - t0, "code": None, "stdout": "", "error": f"timeout {TIMEOUT_S:g} s"}
+    wall = time.perf_counter() - t0
+    lines = [x for x in p.stderr.splitlines() if x.strip()]
+    return {"wall_s": wall, "code": p.returncode, "stdout": p.stdout, "error": lines[-1] if lines else ""}
+
+
+def _is_json(text: str) -> bool:
+    try:
+        json.loads(text)
+    except ValueError:
+        return False
+    return True
+
+
+def fresh_process_timing(name: str, plants: Sequence[Mapping[str, float]], runs: int) -> dict[str, Any]:
+    """``runs`` fresh ``gaintune tuner query`` processes (plants in turn) and the torch probe.
+
+    Returns the wall times of the runs that exited 0, their median and max, how many printed valid
+    JSON, the failures (exit code and last stderr line) and ``torch_imported`` (None when the probe
+    printed no answer).
+    """
+    from gaintune.bench.startup import compile_bytecode
+
+    compile_bytecode()
+    exe = _gaintune_command()
+    with tempfile.TemporaryDirectory() as tmp:  # an empty working folder: no local package shadows the install
+        warm = _run([*exe, *query_argv(name, plants[0])], tmp)  # fills numba's cache and the OS file cache
+        done = [_run([*exe, *query_argv(name, plants[i % len(plants)])], tmp) for i in range(runs)]
+        probe = _run([sys.executable, "-c", TORCH_PROBE, *query_argv(name, plants[0])], tmp)
+    ok = [d for d in done if d["code"] == 0]
+    walls = [d["wall_s"] for d in ok]
+    m = re.search(r"^torch_imported=(True|False)$", probe["stdout"], re.M)
+    return {
+        "command": " ".join(["gaintune", *query_argv(name, plants[0])]),
+        "runs": runs, "ok": len(ok), "json_ok": sum(_is_json(d["stdout"]) for d in ok),
+        "wall_s": walls, "median_s": float(np.median(walls)) if walls else None,
+        "max_s": max(walls) if walls else None, "warm_up": {"code": warm["code"], "wall_s": warm["wall_s"]},
+        "failures": [{"code": d["code"], "error": d["error"]} for d in done if d["code"] != 0],
+        "torch_imported": None if m is None else m.group(1) == "True",
+        "probe_error": probe["error"] if m is None or probe["code"] != 0 else "",
+    }

@@ -1,0 +1,156 @@
+"""``gaintune bench tuners``: held-out plants, the per-plant reference and its cache, the rules, the tuner rows.
+
+The real trained tuner is run by the benchmark only; here a fake tuner that answers AMIGO's gains
+exercises the tuner rows, so the expected ratios are known exactly. No timing is asserted.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from types import SimpleNamespace
+
+import pytest
+
+from gaintune.bench import tuners as TB
+from gaintune.bench import tuners_refs as R
+from gaintune.bench.tuners_timing import fresh_process_timing, query_argv
+
+PLANT = {"K": 2.0, "T": 10.0, "L": 1.0}  # L/T = 0.1: AMIGO passes, SIMC (tau_c = L) exceeds Ms 1.4
+
+
+def _case(values=PLANT, ctype="pi"):
+    return R.make_case(0, values, ctype, 1.4)
+
+
+def _rules(case):
+    return {name: R.judge(case, R.rule_gains(name, case)[0], None) for name in R.RULES}
+
+
+def test_held_out_plants_are_deterministic_and_in_range() -> None:
+    plants = R.held_out_plants(300)
+    assert plants == R.held_out_plants(300) and R.held_out_plants(7) == plants[:7]
+    assert R.held_out_plants(7, seed=1) != plants[:7]
+    for p in plants:
+        assert 0.05 <= p["L"] / p["T"] <= 10 and 1 <= p["T"] <= 100 and 0.5 <= p["K"] <= 5
+    ratios = sorted(p["L"] / p["T"] for p in plants)
+    assert ratios[0] < 0.1 and ratios[-1] > 5  # log-uniform: both ends of the range are drawn
+
+
+def test_query_argv_gives_the_plant_values_exactly() -> None:
+    plant = R.held_out_plants(1)[0]
+    argv = query_argv("fotd_pi_ms1.4", plant)
+    assert argv[:3] == ["tuner", "query", "fotd_pi_ms1.4"] and argv[-1] == "--json"
+    given = dict(a.split("=") for a in argv[4:-1:2])
+    assert {k: float(v) for k, v in given.items()} == plant
+
+
+def test_reference_of_one_plant_passes_and_no_passing_rule_beats_it(tmp_path) -> None:
+    case = _case()
+    rules = _rules(case)
+    ref = R.reference_for_plant(case, rules, tmp_path)
+    assert ref["source"] == "migo" and not ref["cached"]
+    assert R.judge(case, ref["gains"], ref["cost"])["verdict"] == "pass"
+    passing = [r for r in rules.values() if r["verdict"] == "pass"]
+    assert passing, rules  # the comparison below must compare something
+    for r in passing:
+        assert ref["cost"] <= r["cost"]
+
+
+def test_cached_reference_whose_cost_no_longer_scores_is_recomputed(tmp_path) -> None:
+    case = _case()
+    first = R.reference_for_plant(case, {}, tmp_path)
+    assert R.reference_for_plant(case, {}, tmp_path)["cached"]
+    path = tmp_path / R.CACHE_FILE
+    data = json.loads(path.read_text())
+    data[first["key"]]["cost"] *= 1.1  # a cost function changed since the entry was written
+    path.write_text(json.dumps(data))
+    logged: list[str] = []
+    again = R.reference_for_plant(case, {}, tmp_path, log=logged.append)
+    assert not again["cached"] and again["cost"] == pytest.approx(first["cost"], rel=1e-9)
+    assert json.loads(path.read_text())[first["key"]]["cost"] == pytest.approx(first["cost"], rel=1e-9)
+    assert logged and "recomputing" in logged[0]
+
+
+class AmigoTuner:
+    """A fake tuner answering AMIGO's gains; with ``refine`` it misreports its cost (the bench must notice)."""
+
+    def query(self, values, refine=0):
+        case = R.make_case(0, values, "pi", 1.4)
+        gains = R.rule_gains("amigo", case)[0]
+        cost = R.score(case.ev, gains)
+        return SimpleNamespace(gains=gains, verdict="pass", cost=cost * (2.0 if refine else 1.0),
+                               policy_ms=0.1, elapsed_ms=5.0 + refine, n_sims=min(refine, 4))
+
+
+def test_fake_tuner_rows_give_amigos_ratios_and_flag_a_misreported_cost(tmp_path) -> None:
+    plants = R.held_out_plants(2)
+    result = TB.measure(plants, tmp_path, tuner_name="fake", refine=10, tuner_factory=lambda name: AmigoTuner())
+    assert result["methods"] == ["amigo", "simc", "tuner", "refine"]
+    for row in result["rows"]:
+        for mode in ("tuner", "refine"):
+            assert row[mode]["ratio"] == pytest.approx(row["amigo"]["ratio"], rel=1e-12)
+            assert row[mode]["verdict"] == row["amigo"]["verdict"]
+    s = result["summary"]
+    amigo_passes = sum(r["amigo"]["verdict"] == "pass" for r in result["rows"])
+    # equal cost is not a win: every plant where AMIGO passes is an exception, with the reason
+    vs_amigo = s["tuner"]["beats"]["amigo"]
+    assert vs_amigo["wins"] == 0 and len(vs_amigo["exceptions"]) == vs_amigo["rule_passes"] == amigo_passes
+    assert s["tuner"]["cost_agrees"] == 2 and s["refine"]["cost_agrees"] == 0
+    assert s["refine"]["max_sims"] == 4 and s["tuner"]["median_ratio"] == pytest.approx(s["amigo"]["median_ratio"])
+    timing = result["timing"]["in_process"]
+    assert timing["tuner"]["elapsed_ms"]["p50"] == 5.0 and timing["refine"]["elapsed_ms"]["p50"] == 15.0
+    text = TB.render(result, "gaintune bench tuners --plants 2")
+    assert "| tuner + refine |" in text and "## Plants where the tuner does not beat a passing rule" in text
+    refine_row = next(line for line in text.splitlines() if line.startswith("| tuner + refine |"))
+    assert "| 0/2 | 2/2 |" in refine_row  # its costs disagree with the bench's, its verdicts agree
+
+
+def test_tuner_that_raises_on_a_plant_gives_an_error_row_not_a_crash(tmp_path) -> None:
+    class Broken:
+        def query(self, values, refine=0):
+            raise RuntimeError("policy file truncated")
+
+    result = TB.measure(R.held_out_plants(1), tmp_path, tuner_name="broken", tuner_factory=lambda name: Broken())
+    row = result["rows"][0]["tuner"]
+    assert row["verdict"] == "error" and "policy file truncated" in row["error"]
+    assert result["summary"]["tuner"]["errors"] == 1 and result["summary"]["tuner"]["pass"] == 0
+
+
+def test_rules_only_runs_end_to_end_on_3_plants(tmp_path, capsys) -> None:
+    assert TB.main(["--rules-only", "--plants", "3", "--out", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith("# gaintune bench tuners --rules-only --plants 3 --out ")
+    assert "| AMIGO |" in text and "| SIMC |" in text and "rules only (no tuner measured)" in text
+    raw = json.loads((tmp_path / "tuners.json").read_text())
+    assert len(raw["rows"]) == 3 and raw["methods"] == ["amigo", "simc"] and raw["timing"] == {}
+    assert raw["reference"]["pass"] == 3 and raw["reference"]["computed"] == 3
+    assert all(math.isfinite(r["reference"]["cost"]) for r in raw["rows"])
+    assert (tmp_path / "tuners.md").read_text().startswith("# gaintune bench tuners")
+
+
+def test_missing_tuner_core_exits_2_with_a_message_before_any_work(tmp_path, capsys, monkeypatch) -> None:
+    monkeypatch.setitem(sys.modules, "gaintune.tuners.tuner", None)  # import fails, on any tree
+    with pytest.raises(SystemExit) as info:
+        TB.main(["--plants", "1", "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and "Traceback" not in err
+    assert err.startswith("error: --tuner: the trained-tuner core") and "--rules-only" in err
+    assert not (tmp_path / R.CACHE_FILE).exists()
+
+
+@pytest.mark.parametrize("args, option", [(["--plants", "0"], "--plants"), (["--ctype", "pd"], "--ctype"),
+                                          (["--refine", "-3"], "--refine"), (["--fresh-runs", "x"], "--fresh-runs"),
+                                          (["--rules-only", "--tuner", "x"], "--tuner")])
+def test_bench_tuners_bad_argument_exits_2_naming_it(args, option, tmp_path, capsys) -> None:
+    with pytest.raises(SystemExit) as info:
+        TB.main([*args, "--out", str(tmp_path)])
+    assert info.value.code == 2 and capsys.readouterr().err.startswith(f"error: {option}:")
+
+
+def test_fresh_process_timing_reports_a_failing_query_instead_of_raising() -> None:
+    fresh = fresh_process_timing("no_such_tuner_for_this_test", R.held_out_plants(1), 1)
+    assert fresh["runs"] == 1 and fresh["ok"] == 0 and fresh["median_s"] is None
+    assert fresh["failures"][0]["code"] not in (0, None) and fresh["failures"][0]["error"]
+    assert fresh["torch_imported"] in (True, False)  # the probe answers even when the command fails
