@@ -247,9 +247,10 @@ def _c_backcalc(t: ScheduleTable) -> list[str]:
     if t.tracking_time is not None:
         return [f"    kb = 1.0 / {_c_num(t.tracking_time)};"]
     return [
-        "    ti = ki * kp > 0.0 ? kp / ki : 1.0;",
-        "    td = kd * kp > 0.0 ? kd / kp : 0.0;",
-        "    kb = 1.0 / (td > 0.0 ? sqrt(ti * td) : ti);",
+        "    {",
+        "        double ti = ki * kp > 0.0 ? kp / ki : 1.0, td = kd * kp > 0.0 ? kd / kp : 0.0;",
+        "        kb = 1.0 / (td > 0.0 ? sqrt(ti * td) : ti);  /* Tt = sqrt(Ti Td), or Ti without Td */",
+        "    }",
     ]
 
 
@@ -279,7 +280,7 @@ def _c_lookup(t: ScheduleTable, P: str, U: str) -> list[str]:
         "/* The per-step coefficients at x: gains, derivative filter, back-calculation, limits. */",
         f"static inline void {P}_sched_coef(double x, {P}_pid_coef *c)",
         "{",
-        "    double kp, ki, kd, tf, kb" + (", ti, td;" if t.aw == "back_calculation" else ";"),
+        "    double kp, ki, kd, tf, kb;",
         f"    {P}_sched_gains(x, &kp, &ki, &kd);",
         f"    tf = {_c_filter(t)};",
         *_c_backcalc(t),

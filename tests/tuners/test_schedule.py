@@ -20,10 +20,10 @@ from gaintune.tuners.schedule import (
     compare_fixed,
     fit_midpoints,
     gains_between,
+    grid_and_midpoints,
     load_schedule,
     parse_grid,
     spec_at,
-    grid_and_midpoints,
     verify_schedule,
 )
 from gaintune.tuners.schedule.compare import constant_table, level_step
@@ -106,6 +106,7 @@ def test_schedule_json_round_trip(imc_schedule, tmp_path) -> None:
 @pytest.mark.parametrize("version", [0, 2, "1", None])
 def test_schedule_of_another_version_is_refused_naming_version(imc_schedule, version) -> None:
     data = json.loads(imc_schedule.to_json())
+    assert data["version"] == SCHEDULE_VERSION
     data["version"] = version
     with pytest.raises(SpecError) as exc:
         load_schedule(data)
@@ -239,3 +240,12 @@ def test_compare_fixed_levels_and_figures(imc_schedule) -> None:
     by = {lv.level: lv for lv in c.levels}
     assert by[20.0].iae_scheduled == pytest.approx(by[20.0].iae_fixed, rel=1e-12)  # same gains there
     assert by[2.0].better and by[2.0].ratio < 1.0
+
+
+def test_docstring_examples_of_the_schedule_run() -> None:
+    import doctest
+
+    import gaintune.tuners.schedule.table as table
+
+    result = doctest.testmod(table, verbose=False)
+    assert result.attempted > 0 and result.failed == 0

@@ -79,8 +79,8 @@ def verify_schedule(schedule: GainSchedule, *, sweep: bool = True, hold: float |
     model
         A :class:`~gaintune.tuners.schedule.sweep.ScheduleModel` of this schedule to reuse.
     """
-    values = sorted([(v, "grid") for v in schedule.grid] + [(v, "midpoint") for v in schedule.midpoints])
-    points = [verify_point(schedule, v, kind) for v, kind in values]  # type: ignore[arg-type]  # kind is a literal
+    points = sorted([verify_point(schedule, v, "grid") for v in schedule.grid]
+                    + [verify_point(schedule, v, "midpoint") for v in schedule.midpoints], key=lambda p: p.value)
     report = nonlinear_sweep(schedule, model, hold) if sweep else SweepReport(ran=False, note="not requested")
     reasons = [f"{schedule.var} = {p.value:g} ({p.kind}): {p.reasons[0] if p.reasons else 'failed'}"
                for p in points if p.verdict != "pass"]

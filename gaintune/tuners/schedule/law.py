@@ -56,7 +56,7 @@ class ScheduledPid:
         self.reset(table.grid[0])
 
     def coef(self, x: float) -> Coef:
-        """The coefficients at scheduling value ``x`` (filter and 1/Tt as :func:`gaintune.controllers.pid.pid_params`)."""
+        """The coefficients at ``x`` (the filter and 1/Tt as :func:`gaintune.controllers.pid.pid_params` gives them)."""
         t, dt = self.t, self.t.dt
         kp, ki, kd = interp(t.grid, t.kp, x), interp(t.grid, t.ki, x), interp(t.grid, t.kd, x)
         if not t.has_d:

@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 from pydantic import BaseModel, Field
@@ -73,12 +74,14 @@ class _Rk4:
 
     plant: Plant
     dt: float
-    step: object = field(init=False)
+    step: Any = field(init=False)  # casadi.Function (no type stubs)
 
     def __post_init__(self) -> None:
         import casadi as ca
 
         f = self.plant.f
+        if f is None:
+            raise ValueError("the scheduled simulation steps ODE plants only")
         n, npar = self.plant.order, len(self.plant.params)
         x, u, p = ca.SX.sym("x", n), ca.SX.sym("u"), ca.SX.sym("p", npar)
         h = 0.5 * self.dt

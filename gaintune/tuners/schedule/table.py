@@ -31,7 +31,6 @@ __all__ = ["SCHEDULE_VERSION", "GainSchedule", "parse_grid", "check_grid", "spec
 
 #: Version of the schedule file's layout; a file of another version is refused (field ``version``).
 SCHEDULE_VERSION = 1
-FORMAT = "gaintune-gain-schedule"
 
 
 class GainSchedule(BaseModel):
@@ -60,7 +59,7 @@ class GainSchedule(BaseModel):
 
     model_config = ConfigDict(extra="forbid", ser_json_inf_nan="strings")
 
-    format: Literal["gaintune-gain-schedule"] = FORMAT
+    format: Literal["gaintune-gain-schedule"] = "gaintune-gain-schedule"
     version: int = SCHEDULE_VERSION
     spec: dict[str, Any]
     var: str
