@@ -124,9 +124,10 @@ def test_schedule_file_with_a_bad_field_names_it(imc_schedule) -> None:
     with pytest.raises(SpecError) as exc:
         load_schedule(data)
     assert exc.value.field == "gains"
-    with pytest.raises(SpecError) as exc:
-        load_schedule("{not json")
-    assert exc.value.field == "schedule"
+    for bad in ("{not json", "[1, 2]", "/no/such/schedule.json"):
+        with pytest.raises(SpecError) as exc:
+            load_schedule(bad)
+        assert exc.value.field == "schedule", bad
 
 
 def test_build_schedule_refuses_what_cannot_be_scheduled() -> None:
@@ -231,6 +232,19 @@ def test_fit_midpoints_scales_the_neighbours_of_a_failing_midpoint() -> None:
 
 
 # ------------------------------------------------------------------------------------------ comparison
+
+
+def test_best_fixed_pi_meets_the_noise_limit_of_every_level(imc_schedule) -> None:
+    """The robust spec alone resolves ``mks_max: auto`` at the nominal 10 m; a PI meeting only that failed
+    verification at every level above it. The fixed PI is held to each level's own requirements."""
+    from gaintune.tuners.schedule import best_fixed_pi
+    from gaintune.verification import verify
+
+    fixed = best_fixed_pi(imc_schedule, budget=150 * 5)
+    assert fixed.feasible and fixed.levels == [2.0, 6.5, 11.0, 15.5, 20.0]
+    for v in fixed.levels:
+        rep = verify(spec_at(imc_schedule.tuning_spec, "H0", v), fixed.gains)
+        assert rep.verdict == "pass", (v, rep.reasons)
 
 
 def test_compare_fixed_levels_and_figures(imc_schedule) -> None:

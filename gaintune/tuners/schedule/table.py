@@ -262,7 +262,7 @@ def load_schedule(source: GainSchedule | dict[str, Any] | str | Path) -> GainSch
     if isinstance(source, GainSchedule):
         return source
     data: Any = source
-    if isinstance(source, Path) or (isinstance(source, str) and not source.lstrip().startswith("{")):
+    if isinstance(source, Path) or (isinstance(source, str) and not source.lstrip().startswith(("{", "["))):
         data = read_text_bounded(source, "schedule")
     if isinstance(data, str):
         try:
