@@ -17,6 +17,7 @@ hold the rest:
 * :mod:`gaintune.export.c`: the C header, which implements exactly the simulator's
   discrete-time law for one sample time ``dt``;
 * :mod:`gaintune.export.matlab`: the MATLAB/Octave file;
+* :mod:`gaintune.export.schedule`: a gain schedule's C header, MATLAB file and JSON, from plain tables;
 * :mod:`gaintune.export.common`: :class:`ExportError` and helpers the modules share.
 
 Example

@@ -32,7 +32,7 @@ from gaintune.export.common import ExportError, Gains, _ident, _one_line, _uniqu
 from gaintune.export.verdict import _Stamp
 from gaintune.spec import TuningSpec
 
-__all__ = ["AW_CODE", "to_c"]
+__all__ = ["AW_CODE", "to_c", "pid_coef_typedef", "state_typedef", "pid_step"]
 
 AW_CODE = {"none": 0, "clamping": 1, "back_calculation": 2}
 
@@ -173,18 +173,7 @@ def _macros(spec: TuningSpec, st: _Stamp, h: _Header) -> list[str]:
 def _coefficient_tables(h: _Header) -> list[str]:
     """The PID coefficient struct and table, and the state-feedback constants."""
     P, U, dt, lq = h.P, h.U, h.dt, h.lq
-    lines = [
-        "",
-        "typedef struct {",
-        "    double kp, ki, kd, tf, b, c;  /* parallel form */",
-        "    double al, be;                /* al = Tf/(Tf+dt), be = Kd/(Tf+dt) */",
-        "    double kb;                    /* back-calculation 1/Tt (0 if unused) */",
-        "    double lo, hi;                /* output saturation */",
-        "    double i0;                    /* integrator start (operating point) */",
-        "    int aw;                       /* anti-windup mode */",
-        f"}} {P}_pid_coef;",
-        "",
-    ]
+    lines = ["", *pid_coef_typedef(P), ""]
     if h.pid:
         lines.append(f"static const {P}_pid_coef {U}_PID[{len(h.pid)}] = {{")
         for c in h.pid:
@@ -209,17 +198,39 @@ def _coefficient_tables(h: _Header) -> list[str]:
     return lines
 
 
-def _state_and_pid_step(h: _Header) -> list[str]:
-    """The controller state struct, ``<p>_reset`` and the one-PID-loop step ``<p>_pid_step``."""
-    P, U, n = h.P, h.U, h.n_pid
+def pid_coef_typedef(P: str) -> list[str]:
+    """The ``<P>_pid_coef`` struct: one PID loop's per-step coefficients (parallel form, limits, anti-windup)."""
+    return [
+        "typedef struct {",
+        "    double kp, ki, kd, tf, b, c;  /* parallel form */",
+        "    double al, be;                /* al = Tf/(Tf+dt), be = Kd/(Tf+dt) */",
+        "    double kb;                    /* back-calculation 1/Tt (0 if unused) */",
+        "    double lo, hi;                /* output saturation */",
+        "    double i0;                    /* integrator start (operating point) */",
+        "    int aw;                       /* anti-windup mode */",
+        f"}} {P}_pid_coef;",
+    ]
+
+
+def state_typedef(P: str, n_pid: int, n_loops: int) -> list[str]:
+    """The ``<P>_state`` struct: every loop's integrator, filter, last error and anti-windup state."""
+    n = n_pid
     return [
         "typedef struct {",
         f"    double I[{n}], D[{n}], ed_prev[{n}], awe[{n}];",
-        f"    double sp[{len(h.coefs)}];   /* setpoint of each loop at the last step */",
+        f"    double sp[{n_loops}];   /* setpoint of each loop at the last step */",
         "    double z;         /* LQI integrator */",
         "    double u_prev;    /* last applied actuator value */",
         "    int started;",
         f"}} {P}_state;",
+    ]
+
+
+def _state_and_pid_step(h: _Header) -> list[str]:
+    """The controller state struct, ``<p>_reset`` and the one-PID-loop step ``<p>_pid_step``."""
+    P, U, n = h.P, h.U, h.n_pid
+    return [
+        *state_typedef(P, n, len(h.coefs)),
         "",
         f"static inline void {P}_reset({P}_state *s)",
         "{",
@@ -234,6 +245,13 @@ def _state_and_pid_step(h: _Header) -> list[str]:
         "    s->started = 0;",
         "}",
         "",
+        *pid_step(P, U),
+    ]
+
+
+def pid_step(P: str, U: str) -> list[str]:
+    """``<P>_pid_step``: one sample of one PID loop (the simulator's discrete law, see the module docstring)."""
+    return [
         "/* One PID loop: setpoint sp, measurement y -> saturated output. */",
         f"static inline double {P}_pid_step(const {P}_pid_coef *c, {P}_state *s, int l, double sp, double y)",
         "{",
