@@ -50,6 +50,8 @@ class Artefact:
     training: dict[str, Any] = field(default_factory=dict)
     validation: dict[str, Any] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
+    #: Other files written with the tuner (``agent.zip``: the torch agent ``gaintune tuner update`` continues).
+    files: dict[str, bytes] = field(default_factory=dict, repr=False)
 
 
 def _npz_bytes(policy: NumpyPolicy) -> bytes:
@@ -77,6 +79,8 @@ def save(out: str | Path, art: Artefact) -> Path:
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
         write_atomic(tmp / "policy.npz", npz)
+        for fname, data in art.files.items():
+            write_atomic(tmp / fname, data)
         write_atomic(tmp / "tuner.json", json.dumps(doc, indent=1, sort_keys=False) + "\n")
         old = None
         if out.exists():

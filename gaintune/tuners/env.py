@@ -61,6 +61,7 @@ class ContextBanditVecEnv(VecEnv):
         self.last: dict[str, Any] = {}
         self._contexts: list[dict[str, float]] = []
         self._actions = np.zeros((n_envs, n_act))
+        self.render_mode = None
 
     def _new_contexts(self) -> np.ndarray:
         self._contexts = self.problem.draw(self.rng, self.k)

@@ -122,21 +122,29 @@ def _exported(agent: Any, n_in: int, seed: int) -> NumpyPolicy:
 
 
 def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None = None, *, name: str | None = None,
-          on_progress: Callable[[int, int, dict[str, Any]], None] | None = None, resume: bool = True) -> Path:
+          on_progress: Callable[[int, int, dict[str, Any]], None] | None = None, resume: bool = True,
+          warm_start: str | Path | None = None) -> Path:
     """Train a tuner for ``problem`` and write it to the folder ``out``; returns ``out``.
 
     ``on_progress(done, total, info)`` is called after every rollout (episodes done, episodes in
     all, and ``{"reward", "sims", "elapsed_s", "ratio"}``; ``ratio`` at checkpoints). With
     ``resume`` a checkpoint of the same problem and settings in ``.<out>.training`` is continued.
+    ``warm_start`` is a tuner folder whose agent and gain box the training continues from
+    (``gaintune tuner update``): same gains and number of context values, a changed family.
     """
     from gaintune.search.agents import load_weights
     from gaintune.tuners.env import ContextBanditVecEnv
 
     s = settings or TrainSettings()
     out = Path(out)
-    fit_box(problem)
+    start = _warm_box(problem, warm_start) if warm_start is not None else None
+    if start is None:
+        fit_box(problem)
     env = ContextBanditVecEnv(problem, s.n_envs, s.contexts_per_step, seed=s.seed)
     agent = _make_agent(env, s)
+    if warm_start is not None:
+        load_weights(agent, Path(warm_start) / "agent.zip", field="tuner")
+        agent.num_timesteps = 0
     ckpt = _Checkpoint(out, s.key(problem))
     state = ckpt.load() if resume else None
     if state is not None:
@@ -165,11 +173,40 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
                 "episodes": int(state["episodes"]), "sims": int(state["sims"]),
                 "wall_s": round(float(state["elapsed_s"]), 1), "resumed": int(state["resumed"]),
                 "curve": state["curve"]}
+    if warm_start is not None:
+        training["warm_start"] = str(warm_start)
     art = Artefact(name or out.name, problem, policy, training, val,
-                   meta={"versions": versions(), "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
+                   meta={"versions": versions(), "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())},
+                   files={"agent.zip": _agent_bytes(agent)})
     artefact.save(out, art)
     ckpt.clear()
     return out
+
+
+def _agent_bytes(agent: Any) -> bytes:
+    """The agent in SB3's zip format (read back as weights only by ``update``)."""
+    import tempfile
+
+    from gaintune.search.agent_file import save_agent
+
+    with tempfile.TemporaryDirectory() as tmp:
+        return save_agent(agent, Path(tmp) / "agent.zip").read_bytes()
+
+
+def _warm_box(problem: TunerProblem, folder: str | Path) -> bool:
+    """Give ``problem`` the gain box of the tuner at ``folder`` (its policy's actions mean the same gains)."""
+    old = artefact.load(artefact.resolve(folder))
+    assert old.problem.box is not None
+    if len(old.problem.variables) != len(problem.variables):
+        raise SpecError("spec.randomize", f"the tuner at {folder} has {len(old.problem.variables)} context values, "
+                        f"this family {len(problem.variables)}; update needs the same varying parameters")
+    box = old.problem.box
+    problem.box = box
+    probe = problem.spec_at(problem.centre())
+    slots = tuple((lp.name, g) for lp in probe.loops for g in lp.gains)
+    if set(slots) != set(box.slots):
+        raise SpecError("spec.loops", f"the tuner at {folder} tunes {list(box.slots)}; this spec {list(slots)}")
+    return True
 
 
 def _curve_set(problem: TunerProblem, s: TrainSettings) -> list[tuple[dict[str, float], float]]:
