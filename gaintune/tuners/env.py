@@ -54,6 +54,7 @@ class ContextBanditVecEnv(VecEnv):
         n_obs, n_act = len(problem.variables), len(problem.box.slots)
         obs_space = gym.spaces.Box(-3.0, 3.0, (n_obs,), np.float32)
         act_space = gym.spaces.Box(-1.0, 1.0, (n_act,), np.float32)
+        self.render_mode = None  # SB3 asks for it while initialising
         super().__init__(n_envs, obs_space, act_space)
         self.rng = np.random.default_rng(seed)
         self.n_sims = 0
@@ -61,7 +62,6 @@ class ContextBanditVecEnv(VecEnv):
         self.last: dict[str, Any] = {}
         self._contexts: list[dict[str, float]] = []
         self._actions = np.zeros((n_envs, n_act))
-        self.render_mode = None
 
     def _new_contexts(self) -> np.ndarray:
         self._contexts = self.problem.draw(self.rng, self.k)

@@ -1,0 +1,64 @@
+"""Rebuild the ready-made tuners shipped with gaintune: ``python -m gaintune.tuners.build_shipped [NAME ...]``.
+
+Each entry of :data:`SHIPPED` is a family tuner (:class:`gaintune.tuners.problems.FamilyProblem`)
+trained with the default :class:`gaintune.tuners.train.TrainSettings` (seed 0) into
+``gaintune/tuners/shipped/<name>``. The folders are small (the policy's arrays and the agent
+for ``gaintune tuner update``) and kept in the repository; ``tests/tuners/test_shipped.py``
+checks that every one loads with the code that reads it and answers a plant of its family.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+
+from gaintune.tuners.artefact import SHIPPED_DIR
+
+__all__ = ["SHIPPED", "main"]
+
+#: name -> (family, controller, Ms limit, training episodes)
+SHIPPED: dict[str, tuple[str, str, float, int]] = {
+    "fotd_pi_ms1.4": ("fotd", "pi", 1.4, 60_000),
+    "fotd_pi_ms2": ("fotd", "pi", 2.0, 60_000),
+    "fotd_pid_ms1.4": ("fotd", "pid", 1.4, 60_000),
+    "fotd_pid_ms2": ("fotd", "pid", 2.0, 60_000),
+    "sotd_pi_ms1.4": ("sotd", "pi", 1.4, 60_000),
+    "ipd_pi_ms1.4": ("ipd", "pi", 1.4, 40_000),
+}
+
+
+def build(name: str, log=print) -> None:
+    """Train one shipped tuner into ``SHIPPED_DIR/name``."""
+    from gaintune.tuners.problems import FamilyProblem
+    from gaintune.tuners.train import TrainSettings, train
+
+    fam, ctype, ms, episodes = SHIPPED[name]
+    t0 = time.perf_counter()
+
+    def progress(done: int, total: int, info: dict) -> None:
+        if "median_ratio" in info:
+            log(f"{name}: {done:,}/{total:,} episodes, {info['sims']:,} sims, {info['elapsed_s']:.0f} s, "
+                f"curve median ratio {info['median_ratio']:.4f}")
+
+    train(FamilyProblem(fam, ctype, ms), SHIPPED_DIR / name, TrainSettings(episodes=episodes), name=name,
+          on_progress=progress)
+    log(f"{name}: done in {time.perf_counter() - t0:.0f} s")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m gaintune.tuners.build_shipped", description=__doc__.splitlines()[0])
+    ap.add_argument("names", nargs="*", help=f"tuners to rebuild (default: all of {', '.join(SHIPPED)})")
+    args = ap.parse_args(argv)
+    unknown = [n for n in args.names if n not in SHIPPED]
+    if unknown:
+        print(f"error: unknown shipped tuner {unknown[0]!r}; known: {', '.join(SHIPPED)}", file=sys.stderr)
+        return 2
+    for name in args.names or list(SHIPPED):
+        build(name)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

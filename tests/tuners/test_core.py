@@ -1,0 +1,180 @@
+"""The tuner core: NumPy policy = torch policy, artefact round trip, query determinism, family scaling,
+the boundary move from both sides, out-of-family contexts refused."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from gaintune.errors import SpecError
+from gaintune.evaluation.boundary_both import onto_boundary
+from gaintune.evaluation.evaluator import Evaluator
+from gaintune.tuners import artefact
+from gaintune.tuners.families import family, problem_spec
+from gaintune.tuners.mlp import NumpyPolicy, from_sb3
+from gaintune.tuners.problems import FamilyProblem, SpecProblem
+from gaintune.tuners.train import TrainSettings, train
+from gaintune.tuners.tuner import OutsideFamilyError, Tuner
+from gaintune.verification import verify
+
+TINY = TrainSettings(episodes=512, n_envs=32, contexts_per_step=4, n_steps=4, batch_size=64, validation=2,
+                     curve_contexts=2)
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    out = tmp_path_factory.mktemp("tuners") / "fotd_tiny"
+    return train(FamilyProblem("fotd", "pi", 1.4), out, TINY)
+
+
+def test_numpy_policy_equals_the_torch_policy_to_1e_6():
+    from stable_baselines3 import PPO
+
+    from gaintune.tuners.box import fit_box
+    from gaintune.tuners.env import ContextBanditVecEnv
+
+    p = FamilyProblem("fotd", "pi", 1.4)
+    fit_box(p)
+    agent = PPO("MlpPolicy", ContextBanditVecEnv(p, 8, 2), n_steps=4, batch_size=16, seed=3, device="cpu")
+    with __import__("torch").no_grad():  # random weights, and a bias that pushes some actions past the clip
+        agent.policy.action_net.bias.add_(0.7)
+    x = np.random.default_rng(0).uniform(-3, 3, (500, 1)).astype(np.float32)
+    ref = agent.predict(x, deterministic=True)[0]
+    assert np.max(np.abs(from_sb3(agent)(x) - ref)) <= 1e-6
+
+
+def test_numpy_policy_refuses_layers_that_do_not_fit():
+    with pytest.raises(ValueError, match="layer 1"):
+        NumpyPolicy((np.zeros((4, 1)), np.zeros((2, 3))), (np.zeros(4), np.zeros(2)))
+
+
+def test_tuner_artefact_round_trip_and_query_determinism(tiny):
+    t1, t2 = Tuner.load(tiny), Tuner.load(tiny)
+    assert np.allclose(t1.policy(np.array([[0.3]])), t2.policy(np.array([[0.3]])), rtol=0, atol=0)
+    a, b = t1.query({"K": 2.0, "T": 60.0, "L": 10.0}), t2.query({"K": 2.0, "T": 60.0, "L": 10.0})
+    assert a.gains == b.gains and a.cost == b.cost and a.verdict == b.verdict
+    doc = json.loads((tiny / "tuner.json").read_text())
+    assert doc["format"] == artefact.FORMAT and doc["version"] == artefact.VERSION
+    assert doc["training"]["episodes"] == TINY.episodes and doc["validation"]["n"] == TINY.validation
+
+
+def test_tuner_of_another_format_version_is_refused_naming_version(tiny, tmp_path):
+    import shutil
+
+    bad = tmp_path / "old"
+    shutil.copytree(tiny, bad)
+    doc = json.loads((bad / "tuner.json").read_text())
+    doc["version"] = artefact.VERSION + 1
+    (bad / "tuner.json").write_text(json.dumps(doc))
+    with pytest.raises(SpecError) as e:
+        Tuner.load(bad)
+    assert e.value.field == "version"
+
+
+def test_tampered_policy_arrays_are_refused_by_their_hash(tiny, tmp_path):
+    import shutil
+
+    bad = tmp_path / "tampered"
+    shutil.copytree(tiny, bad)
+    arrays = dict(np.load(bad / "policy.npz"))
+    arrays["b0"] = arrays["b0"] + 1.0
+    np.savez(bad / "policy.npz", **arrays)
+    with pytest.raises(SpecError, match="hash"):
+        Tuner.load(bad)
+
+
+def test_pickled_object_in_policy_npz_is_never_loaded(tiny, tmp_path):
+    import hashlib
+    import shutil
+
+    bad = tmp_path / "pickled"
+    shutil.copytree(tiny, bad)
+    np.savez(bad / "policy.npz", W0=np.array([object()], dtype=object), b0=np.zeros(1))
+    doc = json.loads((bad / "tuner.json").read_text())
+    doc["policy"]["sha256"] = hashlib.sha256((bad / "policy.npz").read_bytes()).hexdigest()
+    (bad / "tuner.json").write_text(json.dumps(doc))
+    with pytest.raises(SpecError, match="damaged"):
+        Tuner.load(bad)
+
+
+def test_plant_outside_the_training_family_is_refused_naming_l_over_t(tiny):
+    with pytest.raises(OutsideFamilyError) as e:
+        Tuner.load(tiny).query({"K": 1.0, "T": 1.0, "L": 30.0})
+    assert e.value.field == "params.tau" and "L/T = 30" in e.value.message
+
+
+def test_unknown_or_missing_parameter_is_refused_naming_it(tiny):
+    t = Tuner.load(tiny)
+    with pytest.raises(SpecError) as e:
+        t.query({"K": 1.0, "T": 1.0})
+    assert e.value.field == "params.L"
+    with pytest.raises(SpecError) as e:
+        t.query({"K": 1.0, "T": 1.0, "L": 1.0, "Q": 2.0})
+    assert e.value.field == "params.Q"
+    with pytest.raises(SpecError) as e:
+        t.query({"K": -1.0, "T": 1.0, "L": 1.0})
+    assert e.value.field == "params.K"
+
+
+def test_failing_verdict_releases_no_gains(tiny):
+    a = Tuner.load(tiny).query({"K": 2.0, "T": 60.0, "L": 10.0})
+    a.verdict = "fail"
+    assert a.accepted_gains is None and a.as_dict()["accepted_gains"] is None
+
+
+def test_family_gains_scale_with_the_plant_so_the_cost_scales_by_k_tc():
+    """Self-similarity: the unit plant's gains scaled to K=2, T=60, L=10 give cost K*tc times the unit cost."""
+    fam = family("fotd")
+    unit = {"Kp": 0.9, "Ki": 0.9}
+    params = {"K": 2.0, "T": 60.0, "L": 10.0}
+    shape = fam.shape_of(params)
+    ev_u = Evaluator(problem_spec(fam, fam.unit_params(shape)))
+    ev_r = Evaluator(problem_spec(fam, params))
+    c_u = ev_u.evaluate(np.array([[unit["Kp"], unit["Ki"]]])).cost[0]
+    real = fam.scale_gains(unit, params)
+    c_r = ev_r.evaluate(np.array([[real["Kp"], real["Ki"]]])).cost[0]
+    assert c_r / (2.0 * 70.0) == pytest.approx(c_u, rel=2e-3)
+
+
+def test_feasible_interior_gains_are_moved_out_onto_the_boundary_when_that_lowers_the_cost():
+    spec = problem_spec(family("fotd"), {"K": 1.0, "T": 1.0, "L": 0.5})
+    ev = Evaluator(spec)
+    timid = np.array([[0.1, 0.05]])  # Ms ~ 1.05: feasible, far inside
+    move = onto_boundary(ev, timid)
+    before = ev.evaluate(timid).cost[0]
+    assert move.repaired[0] and move.alpha[0] > 1.5 and move.scores.cost[0] < before
+    rep = verify(ev.spec, ev.layout.to_dict(ev.layout.full(move.tuned[0])), cache=False)
+    assert rep.verdict == "pass"
+    assert rep.loops[0].ms == pytest.approx(1.4, rel=3e-3)  # on the boundary, not inside it
+
+
+def test_infeasible_gains_are_moved_inward_onto_the_boundary():
+    spec = problem_spec(family("fotd"), {"K": 1.0, "T": 1.0, "L": 0.5})
+    ev = Evaluator(spec)
+    move = onto_boundary(ev, np.array([[3.0, 3.0]]))
+    assert move.repaired[0] and move.alpha[0] < 1 and bool(move.scores.feasible[0])
+
+
+def test_spec_problem_context_is_the_randomised_parameters():
+    from gaintune.spec import load_spec
+
+    spec = load_spec({"plant": {"tf": {"num": ["K"], "den": "T*s+1"}, "delay": 1.0, "params": {"K": 1.0, "T": 5.0}},
+                      "loops": [{"type": "pi"}], "randomize": {"params": {"K": [0.5, 2.0]}}})
+    p = SpecProblem(spec)
+    assert [v.name for v in p.variables] == ["K"]
+    at = p.spec_at({"K": 1.7})
+    assert at.plant.params["K"] == 1.7 and not at.randomize.params
+    with pytest.raises(SpecError) as e:
+        p.context_of({"T": 3.0})
+    assert e.value.field == "params.T"
+
+
+def test_spec_without_randomize_cannot_train_a_tuner():
+    from gaintune.spec import load_spec
+
+    spec = load_spec({"plant": {"tf": {"num": [1], "den": "s+1"}}, "loops": [{"type": "pi"}]})
+    with pytest.raises(SpecError) as e:
+        SpecProblem(spec)
+    assert e.value.field == "randomize.params"
