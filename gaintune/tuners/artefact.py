@@ -73,6 +73,7 @@ def save(out: str | Path, art: Artefact) -> Path:
         "problem": art.problem.as_dict(), "box": art.problem.box.as_dict(),
         "context": [{"name": v.name, "lo": v.lo, "hi": v.hi, "log": v.log} for v in art.problem.variables],
         "policy": {"file": "policy.npz", "sha256": hashlib.sha256(npz).hexdigest(), "activation": art.policy.activation,
+                   "output": art.policy.output,
                    "layers": [list(w.shape) for w in art.policy.weights]},
         "training": art.training, "validation": art.validation,
     }
@@ -119,7 +120,8 @@ def load(folder: str | Path) -> Artefact:
                         "changed or damaged; retrain or restore it")
     try:
         with np.load(io.BytesIO(raw), allow_pickle=False) as arrays:
-            policy = NumpyPolicy.from_arrays({k: arrays[k] for k in arrays.files}, str(pol.get("activation")))
+            policy = NumpyPolicy.from_arrays({k: arrays[k] for k in arrays.files}, str(pol.get("activation")),
+                                             str(pol.get("output", "clip")))
         box = GainBox.from_dict(doc["box"])
         problem = problem_from_dict(doc["problem"], box)
     except (ValueError, KeyError, TypeError) as exc:

@@ -20,7 +20,7 @@ _ACTIVATIONS = {"tanh": np.tanh, "relu": lambda x: np.maximum(x, 0.0)}
 
 @dataclass(frozen=True)
 class NumpyPolicy:
-    """``a = clip(W_n f(... f(W_1 x + b_1) ...) + b_n, -1, 1)`` with ``f`` the hidden activation.
+    """``a = out(W_n f(... f(W_1 x + b_1) ...) + b_n)`` with ``f`` the hidden activation.
 
     Attributes
     ----------
@@ -28,15 +28,20 @@ class NumpyPolicy:
         Per layer, ``W`` (out, in) and ``b`` (out,), input layer first.
     activation
         ``tanh`` or ``relu``.
+    output
+        ``clip`` (to [-1, 1]: a Gaussian policy's mean, as SB3 clips it) or ``tanh`` (TD3's actor).
     """
 
     weights: tuple[np.ndarray, ...]
     biases: tuple[np.ndarray, ...]
     activation: str = "tanh"
+    output: str = "clip"
 
     def __post_init__(self) -> None:
         if self.activation not in _ACTIVATIONS:
             raise ValueError(f"activation must be one of {sorted(_ACTIVATIONS)}, got {self.activation!r}")
+        if self.output not in ("clip", "tanh"):
+            raise ValueError(f"output must be 'clip' or 'tanh', got {self.output!r}")
         if len(self.weights) != len(self.biases) or not self.weights:
             raise ValueError("need one bias per weight matrix, at least one layer")
         for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
@@ -60,7 +65,8 @@ class NumpyPolicy:
         f = _ACTIVATIONS[self.activation]
         for w, b in zip(self.weights[:-1], self.biases[:-1], strict=True):
             h = f(h @ w.T + b)
-        return np.clip(h @ self.weights[-1].T + self.biases[-1], -1.0, 1.0)
+        a = h @ self.weights[-1].T + self.biases[-1]
+        return np.tanh(a) if self.output == "tanh" else np.clip(a, -1.0, 1.0)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """``W0, b0, W1, b1, ...`` for ``np.savez``."""
@@ -70,7 +76,7 @@ class NumpyPolicy:
         return out
 
     @classmethod
-    def from_arrays(cls, arrays: Any, activation: str) -> NumpyPolicy:
+    def from_arrays(cls, arrays: Any, activation: str, output: str = "clip") -> NumpyPolicy:
         """The policy from ``W0, b0, ...`` (an ``np.load`` result or a dict)."""
         n = sum(1 for k in arrays if str(k).startswith("W"))
         try:
@@ -78,21 +84,28 @@ class NumpyPolicy:
             bs = tuple(np.asarray(arrays[f"b{i}"], dtype=float) for i in range(n))
         except KeyError as exc:
             raise ValueError(f"missing array {exc}") from None
-        return cls(ws, bs, activation)
+        return cls(ws, bs, activation, output)
 
 
 def from_sb3(agent: Any) -> NumpyPolicy:
-    """The deterministic actor of an SB3 ``ActorCriticPolicy`` (PPO/A2C ``MlpPolicy``) as plain arrays."""
+    """The deterministic actor of an SB3 agent as plain arrays: PPO/A2C's ``MlpPolicy`` (the Gaussian mean,
+    clipped) or TD3's actor (``mu``, ending in tanh)."""
     import torch
 
     pol = agent.policy
-    layers = [m for m in pol.mlp_extractor.policy_net if isinstance(m, torch.nn.Linear)]
-    acts = {type(m).__name__ for m in pol.mlp_extractor.policy_net if not isinstance(m, torch.nn.Linear)}
+    if hasattr(pol, "actor") and hasattr(pol.actor, "mu"):  # TD3: Linear, act, ..., Linear, Tanh
+        body = list(pol.actor.mu)
+        if not isinstance(body[-1], torch.nn.Tanh):
+            raise ValueError("TD3 actor without a final tanh")
+        body, output = body[:-1], "tanh"
+    else:
+        body, output = [*pol.mlp_extractor.policy_net, pol.action_net], "clip"
+    layers = [m for m in body if isinstance(m, torch.nn.Linear)]
+    acts = {type(m).__name__ for m in body if not isinstance(m, torch.nn.Linear)}
     activation = {"Tanh": "tanh", "ReLU": "relu"}.get(next(iter(acts), "Tanh"))
     if activation is None or len(acts) > 1:
         raise ValueError(f"cannot export activations {sorted(acts)}")
-    layers.append(pol.action_net)
     with torch.no_grad():
         ws = tuple(m.weight.detach().cpu().double().numpy().copy() for m in layers)
         bs = tuple(m.bias.detach().cpu().double().numpy().copy() for m in layers)
-    return NumpyPolicy(ws, bs, activation)
+    return NumpyPolicy(ws, bs, activation, output)

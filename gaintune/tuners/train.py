@@ -1,13 +1,16 @@
-"""Training a tuner: PPO on the per-context bandit, checkpointed, exported to NumPy, validated, saved.
+"""Training a tuner: TD3 (or PPO) on the per-context bandit, checkpointed, exported to NumPy, validated, saved.
 
-:func:`train` runs stable-baselines3's PPO on :class:`gaintune.tuners.env.ContextBanditVecEnv`
+:func:`train` runs a stable-baselines3 agent on :class:`gaintune.tuners.env.ContextBanditVecEnv`
 (one step per episode, a fresh plant of the family per episode, the reward that plant's own
-``-log(cost)`` after the boundary move). The value network learns each context's cost level, so
-the advantage is how much better than usual for *this* plant a gain set is. Every
-:data:`CHECKPOINT_EVERY` rollouts the agent is saved (SB3's format, read back as weights only) with
-the run's state; a killed run given the same output folder resumes from there. At the end the
-actor is exported to plain arrays (checked against torch on random inputs), validated on held-out
-contexts against their own optimum, and written atomically as a tuner folder.
+``-log(cost)`` after the boundary move). TD3, the default, learns a critic of the reward of
+(context, gains) and a deterministic actor that climbs it: the actor's answer for each context
+moves to that context's best gains. PPO is kept for comparison (``algo: ppo``); on the FOTD family
+it places the answer less precisely for the same episodes (docs/tuners.md). After every
+:attr:`TrainSettings.chunk` episodes the agent is saved (SB3's format, read back as weights only)
+with the run's state and a training-curve point; a killed run given the same output folder resumes
+from there. At the end the actor is exported to plain arrays (checked against torch on random
+inputs), validated on held-out contexts against their own optimum, and written atomically as a
+tuner folder.
 """
 
 from __future__ import annotations
@@ -33,30 +36,43 @@ from gaintune.tuners.mlp import NumpyPolicy, from_sb3
 from gaintune.tuners.problems import TunerProblem
 from gaintune.tuners.validation import answer_cost, context_optimum, validate
 
-__all__ = ["TrainSettings", "train", "CHECKPOINT_EVERY", "EXPORT_TOL"]
+__all__ = ["TrainSettings", "train", "EXPORT_TOL"]
 
-#: Rollouts between checkpoints (and training-curve points).
-CHECKPOINT_EVERY = 4
 #: Largest difference allowed between the NumPy policy and torch's deterministic action.
 EXPORT_TOL = 1e-6
 
 
 @dataclass(frozen=True)
 class TrainSettings:
-    """PPO settings of a tuner's training (defaults chosen on the FOTD family, docs/tuners.md)."""
+    """Training settings of a tuner (defaults chosen on the FOTD family, docs/tuners.md).
 
-    episodes: int = 60_000
+    ``algo`` is ``td3`` (default: a deterministic actor on a learned reward model, which is what a
+    one-step bandit needs to place the answer precisely) or ``ppo``. Exploration noise (TD3's action
+    noise, PPO's policy std) is annealed geometrically from ``noise_start`` to ``noise_end`` over the
+    run, so the answer settles as the policy improves.
+    """
+
+    episodes: int = 36_000
     seed: int = 0
+    algo: str = "td3"
     n_envs: int = 64
     contexts_per_step: int = 8
+    chunk: int = 4096
     n_steps: int = 16
-    batch_size: int = 256
-    n_epochs: int = 10
+    noise_start: float = 0.2
+    noise_end: float = 0.02
     learning_rate: float = 1e-3
-    log_std_init: float = -1.5
+    batch_size: int = 256
+    gradient_steps: int = 8
     net_arch: tuple[int, ...] = (64, 64)
     validation: int = 24
     curve_contexts: int = 8
+
+    def __post_init__(self) -> None:
+        if self.algo not in ("td3", "ppo"):
+            raise SpecError("algo", f"a tuner trains with td3 or ppo, not {self.algo!r}")
+        if self.episodes < 1 or self.n_envs % self.contexts_per_step:
+            raise SpecError("episodes", "need episodes >= 1 and n_envs a multiple of contexts_per_step")
 
     def key(self, problem: TunerProblem) -> str:
         """Hash of what a checkpoint depends on: the problem, its box and these settings."""
@@ -64,16 +80,44 @@ class TrainSettings:
         d = {"problem": problem.as_dict(), "box": problem.box.as_dict(), "settings": self.__dict__}
         return hashlib.sha256(json.dumps(d, sort_keys=True, default=list).encode()).hexdigest()[:16]
 
+    def noise(self, done: int) -> float:
+        """Exploration noise after ``done`` episodes."""
+        f = min(max(done / self.episodes, 0.0), 1.0)
+        return math.exp(math.log(self.noise_start) * (1 - f) + math.log(self.noise_end) * f)
+
 
 def _make_agent(env: Any, s: TrainSettings) -> Any:
     import torch
-    from stable_baselines3 import PPO
 
     torch.set_num_threads(1)  # a 64-unit network: threads cost more than they give
-    lr = s.learning_rate
-    return PPO("MlpPolicy", env, n_steps=s.n_steps, batch_size=s.batch_size, n_epochs=s.n_epochs,
-               learning_rate=lambda progress: lr * progress, gamma=0.0, gae_lambda=1.0, seed=s.seed, verbose=0,
-               device="cpu", policy_kwargs={"log_std_init": s.log_std_init, "net_arch": list(s.net_arch)})
+    if s.algo == "ppo":
+        from stable_baselines3 import PPO
+
+        agent = PPO("MlpPolicy", env, n_steps=s.n_steps, batch_size=s.batch_size,
+                    n_epochs=10, learning_rate=s.learning_rate, gamma=0.0, gae_lambda=1.0, seed=s.seed, verbose=0,
+                    device="cpu", policy_kwargs={"net_arch": list(s.net_arch)})
+        agent.policy.log_std.requires_grad_(False)  # annealed by the schedule instead
+        return agent
+    from stable_baselines3 import TD3
+
+    # gamma 0: an episode is one step, so the critic learns the reward of (context, gains) itself
+    return TD3("MlpPolicy", env, learning_rate=s.learning_rate, buffer_size=200_000,
+               learning_starts=min(1024, max(s.episodes // 4, s.n_envs)),
+               batch_size=s.batch_size, gamma=0.0, train_freq=1, gradient_steps=s.gradient_steps, policy_delay=2,
+               target_policy_noise=0.05, target_noise_clip=0.1, seed=s.seed, verbose=0, device="cpu",
+               policy_kwargs={"net_arch": list(s.net_arch)})
+
+
+def _set_noise(agent: Any, s: TrainSettings, done: int) -> None:
+    """Anneal the exploration noise to its value after ``done`` episodes."""
+    sd = s.noise(done)
+    n_act = int(agent.action_space.shape[0])
+    if s.algo == "ppo":
+        agent.policy.log_std.data[:] = math.log(sd)
+    else:
+        from stable_baselines3.common.noise import NormalActionNoise
+
+        agent.action_noise = NormalActionNoise(np.zeros(n_act), sd * np.ones(n_act))
 
 
 class _Checkpoint:
@@ -154,10 +198,10 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
     state = state or {"episodes": 0, "sims": 0, "elapsed_s": 0.0, "curve": [], "resumed": 0}
     state["resumed"] = state.get("resumed", 0) + (1 if state["episodes"] else 0)
     curve_set = _curve_set(problem, s)
-    rollout = s.n_envs * s.n_steps
     t0, base = time.perf_counter(), float(state["elapsed_s"])
     while state["episodes"] < s.episodes:
-        chunk = min(CHECKPOINT_EVERY * rollout, s.episodes - int(state["episodes"]))
+        chunk = min(s.chunk, s.episodes - int(state["episodes"]))
+        _set_noise(agent, s, int(state["episodes"]))
         agent.learn(chunk, reset_num_timesteps=False, callback=_progress_callback(on_progress, state, env, s, t0, base))
         state.update(episodes=int(agent.num_timesteps), sims=env.n_sims, elapsed_s=base + time.perf_counter() - t0)
         ratio = _curve_point(problem, from_sb3(agent), curve_set)
@@ -169,7 +213,7 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
         ckpt.save(agent, state)
     policy = _exported(agent, len(problem.variables), s.seed)
     val = validate(problem, policy, s.validation, s.seed)
-    training = {"algo": "ppo", "settings": {**s.__dict__, "net_arch": list(s.net_arch)},
+    training = {"algo": s.algo, "settings": {**s.__dict__, "net_arch": list(s.net_arch)},
                 "episodes": int(state["episodes"]), "sims": int(state["sims"]),
                 "wall_s": round(float(state["elapsed_s"]), 1), "resumed": int(state["resumed"]),
                 "curve": state["curve"]}
@@ -230,7 +274,7 @@ def _progress_callback(on_progress: Any, state: dict[str, Any], env: Any, s: Tra
         def _on_step(self) -> bool:
             return True
 
-        def _on_rollout_end(self) -> None:
+        def _on_rollout_end(self) -> None:  # every env step for TD3, every rollout for PPO
             if on_progress:
                 on_progress(int(self.model.num_timesteps), s.episodes,
                             {"reward": env.last.get("reward"), "sims": env.n_sims,

@@ -19,7 +19,7 @@ from gaintune.tuners.train import TrainSettings, train
 from gaintune.tuners.tuner import OutsideFamilyError, Tuner
 from gaintune.verification import verify
 
-TINY = TrainSettings(episodes=512, n_envs=32, contexts_per_step=4, n_steps=4, batch_size=64, validation=2,
+TINY = TrainSettings(episodes=512, n_envs=32, contexts_per_step=4, chunk=256, batch_size=64, validation=2,
                      curve_contexts=2)
 
 
@@ -43,6 +43,21 @@ def test_numpy_policy_equals_the_torch_policy_to_1e_6():
     x = np.random.default_rng(0).uniform(-3, 3, (500, 1)).astype(np.float32)
     ref = agent.predict(x, deterministic=True)[0]
     assert np.max(np.abs(from_sb3(agent)(x) - ref)) <= 1e-6
+
+
+def test_numpy_policy_equals_the_torch_td3_actor_to_1e_6():
+    from stable_baselines3 import TD3
+
+    from gaintune.tuners.box import fit_box
+    from gaintune.tuners.env import ContextBanditVecEnv
+
+    p = FamilyProblem("sotd", "pid", 1.4)
+    fit_box(p)
+    agent = TD3("MlpPolicy", ContextBanditVecEnv(p, 8, 2), seed=4, device="cpu", policy_kwargs={"net_arch": [16, 16]})
+    x = np.random.default_rng(1).uniform(-3, 3, (500, 2)).astype(np.float32)
+    ref = agent.predict(x, deterministic=True)[0]
+    pol = from_sb3(agent)
+    assert pol.output == "tanh" and np.max(np.abs(pol(x) - ref)) <= 1e-6
 
 
 def test_numpy_policy_refuses_layers_that_do_not_fit():
