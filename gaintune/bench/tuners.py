@@ -45,6 +45,7 @@ from gaintune.bench.tuners_refs import (
     rule_gains,
 )
 from gaintune.bench.tuners_timing import fresh_process_timing, in_process_timing
+from gaintune.bench.tuners_update import measure_update, render_update, training_figures
 from gaintune.fmt import fmt
 
 __all__ = ["DEFAULT_TUNER", "MS_MAX", "TunerUnavailable", "load_tuner", "measure", "render", "main"]
@@ -310,6 +311,15 @@ def render(result: Mapping[str, Any], command: str) -> str:
              f"input, Ms <= {s['ms_max']:g} (exact limit); {tuner}; {os.cpu_count()} CPUs, load average "
              f"{result.get('loadavg', '-')}.", "", LEGEND, "", "## Summary", "", _summary_table(result), "",
              _reference_text(result), ""]
+    if result.get("training"):
+        t = result["training"]
+        lines += ["## Training", "", md_table(["what", "figure"], [
+            ["algorithm, episodes, simulations", f"{t['algo']}, {t['episodes']:,}, {t['sims']:,}"],
+            ["training wall time (s, on the machine that built it)", t["wall_s"]],
+            ["validation on its own held-out contexts: median / worst ratio, passed",
+             f"{t['validation_median']:.4f} / {t['validation_worst']:.4f}, "
+             f"{t['validation_passed']}/{t['validation_n']}"],
+            ["tuner folder size (KB)", t["size_kb"]]]), ""]
     if result["timing"]:
         table = md_table(["what", "figure", "unit"], _timing_rows(result["timing"], s["refine"]))
         lines += ["## Answer time", "", table, ""]
@@ -336,6 +346,10 @@ def build_parser() -> BenchParser:
     ap.add_argument("--fresh-runs", type=int_range(0, 1000), default=7,
                     help="fresh `gaintune tuner query` processes timed (default 7; 0: none)")
     ap.add_argument("--rules-only", action="store_true", help="AMIGO and SIMC against the reference only")
+    ap.add_argument("--update", action="store_true",
+                    help="instead: 'tuner update' vs a cold start on a changed family (writes tuners_update.*)")
+    ap.add_argument("--update-episodes", type=int_range(1024, 1_000_000), default=16_384,
+                    help="training episodes of each --update run (default 16384)")
     add_out_argument(ap)
     return ap
 
@@ -349,6 +363,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = resolve_out(args.out)
     name = None if args.rules_only else (args.tuner or DEFAULT_TUNER[args.ctype])
     command = shlex.join(["gaintune", "bench", "tuners", *argv])
+    if args.update:
+        return _main_update(args, out, command)
     load0 = [round(x, 2) for x in os.getloadavg()]
     try:
         result = measure(held_out_plants(args.plants, args.seed), out, ctype=args.ctype, tuner_name=name,
@@ -357,11 +373,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     except TunerUnavailable as exc:
         fail("--tuner", str(exc))
     result["loadavg"] = f"{load0} at the start, {[round(x, 2) for x in os.getloadavg()]} at the end"
+    if name is not None:
+        result["training"] = training_figures(name)
     result["command"] = command
     result["settings"]["seed"] = args.seed
     md = render(result, command)
     print(md)
     _, mp = write_outputs(result, out, "tuners", md)
+    print(f"wrote {mp}")
+    return 0
+
+
+def _main_update(args: Any, out: Path, command: str) -> int:
+    """``--update``: the learning-on figure alone (two trainings)."""
+    r = measure_update(args.tuner or DEFAULT_TUNER["pi"], args.update_episodes)
+    r["command"] = command
+    md = render_update(r, command)
+    print(md)
+    _, mp = write_outputs(r, out, "tuners_update", md)
     print(f"wrote {mp}")
     return 0
 

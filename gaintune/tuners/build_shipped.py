@@ -1,10 +1,12 @@
 """Rebuild the ready-made tuners shipped with gaintune: ``python -m gaintune.tuners.build_shipped [NAME ...]``.
 
 Each entry of :data:`SHIPPED` is a family tuner (:class:`gaintune.tuners.problems.FamilyProblem`)
-trained with the default :class:`gaintune.tuners.train.TrainSettings` (seed 0) into
-``gaintune/tuners/shipped/<name>``. The folders are small (the policy's arrays and the agent
-for ``gaintune tuner update``) and kept in the repository; ``tests/tuners/test_shipped.py``
-checks that every one loads with the code that reads it and answers a plant of its family.
+or, for ``family = "spec"``, a spec tuner over the spec file ``gaintune/tuners/specs/<ctype>``
+(the water tank over its operating level, for gain schedules), trained with the default
+:class:`gaintune.tuners.train.TrainSettings` (seed 0) into ``gaintune/tuners/shipped/<name>``.
+The folders are small (the policy's arrays, and the agent for ``gaintune tuner update``) and kept
+in the repository; ``tests/tuners/test_shipped.py`` checks that every one loads with the code
+that reads it and answers a plant of its family.
 """
 
 from __future__ import annotations
@@ -20,21 +22,35 @@ __all__ = ["SHIPPED", "main"]
 
 #: name -> (family, controller, Ms limit, training episodes)
 SHIPPED: dict[str, tuple[str, str, float, int]] = {
-    "fotd_pi_ms1.4": ("fotd", "pi", 1.4, 60_000),
-    "fotd_pi_ms2": ("fotd", "pi", 2.0, 60_000),
-    "fotd_pid_ms1.4": ("fotd", "pid", 1.4, 60_000),
-    "fotd_pid_ms2": ("fotd", "pid", 2.0, 60_000),
-    "sotd_pi_ms1.4": ("sotd", "pi", 1.4, 60_000),
-    "ipd_pi_ms1.4": ("ipd", "pi", 1.4, 40_000),
+    "fotd_pi_ms1.4": ("fotd", "pi", 1.4, 36_000),
+    "fotd_pi_ms2": ("fotd", "pi", 2.0, 36_000),
+    "fotd_pid_ms1.4": ("fotd", "pid", 1.4, 36_000),
+    "fotd_pid_ms2": ("fotd", "pid", 2.0, 36_000),
+    "sotd_pi_ms1.4": ("sotd", "pi", 1.4, 36_000),
+    "ipd_pi_ms1.4": ("ipd", "pi", 1.4, 24_000),
+    "water_tank_h0": ("spec", "water_tank_h0.yaml", 0.0, 12_000),
 }
+#: Validation contexts of the spec tuners (their optimum is a reference search, not MIGO).
+SPEC_VALIDATION = 8
 
 
 def build(name: str, log=print) -> None:
     """Train one shipped tuner into ``SHIPPED_DIR/name``."""
-    from gaintune.tuners.problems import FamilyProblem
+    from pathlib import Path
+
+    from gaintune.spec import load_spec
+    from gaintune.tuners.problems import FamilyProblem, SpecProblem, TunerProblem
     from gaintune.tuners.train import TrainSettings, train
 
     fam, ctype, ms, episodes = SHIPPED[name]
+    settings = TrainSettings(episodes=episodes)
+    problem: TunerProblem
+    if fam == "spec":
+        text = (Path(__file__).resolve().parent / "specs" / ctype).read_text(encoding="utf-8")
+        problem = SpecProblem(load_spec(text))
+        settings = TrainSettings(episodes=episodes, validation=SPEC_VALIDATION, curve_contexts=4)
+    else:
+        problem = FamilyProblem(fam, ctype, ms)
     t0 = time.perf_counter()
 
     def progress(done: int, total: int, info: dict) -> None:
@@ -42,8 +58,7 @@ def build(name: str, log=print) -> None:
             log(f"{name}: {done:,}/{total:,} episodes, {info['sims']:,} sims, {info['elapsed_s']:.0f} s, "
                 f"curve median ratio {info['median_ratio']:.4f}")
 
-    train(FamilyProblem(fam, ctype, ms), SHIPPED_DIR / name, TrainSettings(episodes=episodes), name=name,
-          on_progress=progress)
+    train(problem, SHIPPED_DIR / name, settings, name=name, on_progress=progress)
     log(f"{name}: done in {time.perf_counter() - t0:.0f} s")
 
 

@@ -189,6 +189,8 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
     if warm_start is not None:
         load_weights(agent, Path(warm_start) / "agent.zip", field="tuner")
         agent.num_timesteps = 0
+        if hasattr(agent, "learning_starts"):  # the actor already answers: no random warm-up episodes
+            agent.learning_starts = s.n_envs
     ckpt = _Checkpoint(out, s.key(problem))
     state = ckpt.load() if resume else None
     if state is not None:
@@ -198,6 +200,9 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
     state = state or {"episodes": 0, "sims": 0, "elapsed_s": 0.0, "curve": [], "resumed": 0}
     state["resumed"] = state.get("resumed", 0) + (1 if state["episodes"] else 0)
     curve_set = _curve_set(problem, s)
+    if not state["curve"]:  # where the run starts (a warm start's policy, or an untrained one)
+        state["curve"].append({"episodes": 0, "sims": 0, "elapsed_s": 0.0, "reward": None,
+                               "median_ratio": _curve_point(problem, from_sb3(agent), curve_set)})
     t0, base = time.perf_counter(), float(state["elapsed_s"])
     while state["episodes"] < s.episodes:
         chunk = min(s.chunk, s.episodes - int(state["episodes"]))

@@ -1,0 +1,115 @@
+"""``gaintune bench tuners --update``: learning on (``gaintune tuner update``) against a cold start.
+
+The changed family is the FOTD family with a sensor lag added, ``e^{-tau s}/(((1-tau) s + 1)(LAG s + 1))``
+in the time unit ``L + T`` (:func:`changed_spec`), PI, the same load-step problem and Ms limit, over the
+same range of ``tau``. Both runs train on it with the same settings and seed, one from scratch and one
+from the shipped tuner (its agent and gain box; the exploration starts lower, as ``tuner update``
+does). The figure is the number of training simulations until the training curve's median
+cost / per-context optimum (on fixed contexts, each scored against its own MIGO optimum) first
+reaches :data:`TARGET`, and their ratio.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+__all__ = ["LAG", "TARGET", "changed_spec", "sims_to", "measure_update"]
+
+#: The added sensor lag, in units of L + T.
+LAG = 0.2
+#: The curve's median cost / optimum both runs must reach.
+TARGET = 1.01
+
+
+def changed_spec(ms_max: float = 1.4) -> Any:
+    """The changed family as a spec with ``randomize`` over ``tau`` (log-uniform, the FOTD tuners' range)."""
+    from gaintune.spec import load_spec
+    from gaintune.tuners.families import FAMILIES
+
+    lo, hi = FAMILIES["fotd"].shape["tau"]
+    return load_spec({
+        "name": "fotd_sensor_lag",
+        "plant": {"tf": {"num": [1], "den": f"((1 - tau)*s + 1)*({LAG}*s + 1)"}, "delay": "tau",
+                  "params": {"tau": math.sqrt(lo * hi)}},
+        "loops": [{"name": "main", "type": "pi"}],
+        "scenarios": [{"name": "load", "reference": {"kind": "none"},
+                       "disturbance": {"kind": "step", "entry": "input", "amplitude": 1.0, "time": 0.0}}],
+        "objective": {"measure": "iae", "effort_weight": 0.0},
+        "requirements": {"gm_min_db": None, "pm_min_deg": None, "ms_max": ms_max, "backoff": 0},
+        "randomize": {"params": {"tau": {"dist": "loguniform", "low": lo, "high": hi}}},
+    })
+
+
+def sims_to(curve: list[dict[str, Any]], target: float = TARGET) -> int | None:
+    """Training simulations at the first curve point with median ratio <= ``target`` (None: never)."""
+    for p in curve:
+        r = p.get("median_ratio")
+        if r is not None and r <= target:
+            return int(p["sims"])
+    return None
+
+
+def measure_update(base: str = "fotd_pi_ms1.4", episodes: int = 16_384, seed: int = 0) -> dict[str, Any]:
+    """Train cold and warm on :func:`changed_spec`; the simulations each needed to reach :data:`TARGET`."""
+    from gaintune.tuners import artefact
+    from gaintune.tuners.problems import SpecProblem
+    from gaintune.tuners.train import TrainSettings, train
+
+    common = {"episodes": episodes, "seed": seed, "chunk": 1024, "validation": 8, "curve_contexts": 8}
+    out: dict[str, Any] = {"base": base, "lag": LAG, "target": TARGET, "episodes": episodes, "seed": seed}
+    with tempfile.TemporaryDirectory() as tmp:
+        for run, extra in (("cold", {}), ("update", {"noise_start": 0.05})):
+            t0 = time.perf_counter()
+            folder = train(SpecProblem(changed_spec()), Path(tmp) / run, TrainSettings(**common, **extra),
+                           warm_start=artefact.resolve(base) if run == "update" else None, resume=False)
+            doc = artefact.load(folder)
+            curve = doc.training["curve"]
+            out[run] = {"sims_to_target": sims_to(curve), "wall_s": time.perf_counter() - t0, "curve": curve,
+                        "validation_median": doc.validation["median_ratio"],
+                        "validation_worst": doc.validation["worst_ratio"]}
+    c, u = out["cold"]["sims_to_target"], out["update"]["sims_to_target"]
+    out["ratio"] = (c / u if c and u else (math.inf if c and u == 0 else None))
+    return out
+
+
+def training_figures(name: str) -> dict[str, Any]:
+    """The training record of a tuner folder or shipped tuner: wall time, episodes, simulations, validation."""
+    from gaintune.tuners import artefact
+
+    folder = artefact.resolve(name)
+    art = artefact.load(folder)
+    t, v = art.training, art.validation
+    size = sum(p.stat().st_size for p in folder.iterdir() if p.is_file())
+    return {"tuner": name, "algo": t.get("algo"), "episodes": t.get("episodes"), "sims": t.get("sims"),
+            "wall_s": t.get("wall_s"), "resumed": t.get("resumed"), "validation_n": v.get("n"),
+            "validation_median": v.get("median_ratio"), "validation_worst": v.get("worst_ratio"),
+            "validation_passed": v.get("passed"), "size_kb": round(size / 1024, 1),
+            "versions": art.meta.get("versions", {})}
+
+
+def render_update(r: dict[str, Any], command: str) -> str:
+    """The update measurement as Markdown."""
+    from gaintune.bench.compare import md_table
+
+    rows = []
+    for run in ("cold", "update"):
+        x = r[run]
+        rows.append([run, x["sims_to_target"] if x["sims_to_target"] is not None else "not reached",
+                     f"{x['wall_s']:.0f}", f"{x['validation_median']:.4f}", f"{x['validation_worst']:.4f}"])
+    ratio = r["ratio"]
+    lines = [f"# {command}", "",
+             f"Changed family: FOTD with a sensor lag {r['lag']} (L+T) added, PI, load step, Ms <= 1.4; cold start vs "
+             f"`tuner update` from `{r['base']}`, {r['episodes']:,} episodes each, seed {r['seed']}.", "",
+             md_table(["run", f"training sims to median ratio <= {r['target']}", "wall s", "validation median",
+                       "validation worst"], rows), "",
+             f"cold / update simulations: **{ratio:.1f}x**" if isinstance(ratio, float) and math.isfinite(ratio)
+             else f"cold / update simulations: {ratio}", "",
+             "Curves (episodes, sims, median ratio):", ""]
+    for run in ("cold", "update"):
+        pts = ", ".join(f"({p['episodes']}, {p['sims']}, {p['median_ratio']:.4f})" for p in r[run]["curve"])
+        lines.append(f"- {run}: {pts}")
+    return "\n".join(lines) + "\n"
