@@ -21,7 +21,7 @@ from gaintune.tuners.problems import GainBox, TunerProblem
 __all__ = ["fit_box", "corner_contexts", "WIDEN"]
 
 #: Factor each way around the span of the classical starts.
-WIDEN = 4.0
+WIDEN = 8.0
 
 
 def corner_contexts(problem: TunerProblem, max_corners: int = 16) -> list[dict[str, float]]:

@@ -6,7 +6,7 @@ boundary from either side (:func:`gaintune.evaluation.boundary_both.onto_boundar
 scores them on that plant alone. The reward is ``-log(cost)`` of that context's plant:
 the per-context optimum is the reward's maximum for every context, and the log removes the
 family's cost scale (the value network learns each context's level). Gains that no scale makes
-feasible earn a floor reward below every feasible one. No aggregate over the family enters:
+feasible earn a reward just below the worst feasible one of their context's batch. No aggregate over the family enters:
 that is a robust design, which ``gaintune tune`` makes.
 
 The ``n_envs`` episodes of a step share ``n_envs / contexts_per_step`` contexts, so each
@@ -34,10 +34,17 @@ FLOOR_REWARD = -12.0
 
 
 def reward_of(cost: np.ndarray, feasible: np.ndarray) -> np.ndarray:
-    """``-log(cost)`` where feasible, :data:`FLOOR_REWARD` otherwise."""
+    """``-log(cost)`` where feasible; one below the worst feasible reward of the batch (one context) otherwise.
+
+    The step below the feasible ones is kept small on purpose: a critic smooths a cliff of many
+    units into the feasible side next to it and the actor then learns to keep away from the
+    boundary where the optimum lies. :data:`FLOOR_REWARD` when nothing in the batch is feasible.
+    """
     with np.errstate(divide="ignore", invalid="ignore"):
         r = -np.log(np.maximum(cost, 1e-300))
-    return np.where(feasible & np.isfinite(r), np.maximum(r, FLOOR_REWARD + 1.0), FLOOR_REWARD)
+    ok = feasible & np.isfinite(r)
+    floor = float(np.min(r[ok])) - 1.0 if ok.any() else FLOOR_REWARD
+    return np.where(ok, np.maximum(r, FLOOR_REWARD + 1.0), max(floor, FLOOR_REWARD))
 
 
 class ContextBanditVecEnv(VecEnv):

@@ -65,6 +65,7 @@ class TrainSettings:
     batch_size: int = 256
     gradient_steps: int = 8
     net_arch: tuple[int, ...] = (64, 64)
+    critic_arch: tuple[int, ...] = (256, 256)
     validation: int = 24
     curve_contexts: int = 8
 
@@ -105,7 +106,7 @@ def _make_agent(env: Any, s: TrainSettings) -> Any:
                learning_starts=min(1024, max(s.episodes // 4, s.n_envs)),
                batch_size=s.batch_size, gamma=0.0, train_freq=1, gradient_steps=s.gradient_steps, policy_delay=2,
                target_policy_noise=0.05, target_noise_clip=0.1, seed=s.seed, verbose=0, device="cpu",
-               policy_kwargs={"net_arch": list(s.net_arch)})
+               policy_kwargs={"net_arch": {"pi": list(s.net_arch), "qf": list(s.critic_arch)}})
 
 
 def _set_noise(agent: Any, s: TrainSettings, done: int) -> None:
@@ -218,7 +219,8 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
         ckpt.save(agent, state)
     policy = _exported(agent, len(problem.variables), s.seed)
     val = validate(problem, policy, s.validation, s.seed)
-    training = {"algo": s.algo, "settings": {**s.__dict__, "net_arch": list(s.net_arch)},
+    training = {"algo": s.algo, "settings": {**s.__dict__, "net_arch": list(s.net_arch),
+                             "critic_arch": list(s.critic_arch)},
                 "episodes": int(state["episodes"]), "sims": int(state["sims"]),
                 "wall_s": round(float(state["elapsed_s"]), 1), "resumed": int(state["resumed"]),
                 "curve": state["curve"]}

@@ -30,10 +30,17 @@ VALIDATION_SEED_OFFSET = 1_000_003
 
 
 def context_optimum(ev: Evaluator) -> tuple[float, str]:
-    """(cost, method) of the constrained optimum of the evaluator's problem at its exact limits."""
+    """(cost, method) of the constrained optimum of the evaluator's problem at its exact limits.
+
+    The MIGO point lies on the limit itself, where the search estimate (which keeps a 5e-5 margin)
+    calls it infeasible; the verdict judges it, as for the benchmarks' references.
+    """
     ref = migo_reference(None, ev)
-    if ref is not None and ref["feasible"] and math.isfinite(ref["cost"]):
-        return float(ref["cost"]), "migo"
+    if ref is not None and math.isfinite(ref["cost"]):
+        lay = ev.layout
+        tuned = np.asarray(lay.from_dict(ref["gains"]), dtype=float)[lay.tuned_idx]
+        if verify(ev.spec, lay.to_dict(lay.full(tuned)), plant=ev.plant, layout=lay, cache=False).verdict == "pass":
+            return float(ref["cost"]), "migo"
     r = run_baseline(ev.spec, "reference", evaluator=ev, restarts=2, sims_per_restart=1500, polish=False)
     return (float(r.cost), "reference search") if r.cost is not None and r.feasible else (math.inf, "none")
 
