@@ -152,11 +152,14 @@ def _print_quick(q) -> None:
     for n in q.notes:
         out.print(f"note: {n}", markup=False, highlight=False)
     _print_summary(q.result.model_copy(update={"baselines": []}))
-    c = Table(title="Quick answer beside the rules (same plant, cost and verdict)")
+    searched = any(r["method"] == "search" for r in q.comparison)
+    c = Table(title=f"The quick answer beside the rules{' and the search' if searched else ''} (same plant, cost "
+                    "and verdict)")
     for col in ("method", "gains", "cost", "vs quick", "verdict"):
         c.add_column(col, justify="right" if col in ("cost", "vs quick") else "left")
     for row in q.comparison:
-        c.add_row(str(row["method"]), _gains_line(row["gains"]), _f(row["cost"]),
+        method = f"search ({row['note']})" if row["method"] == "search" else str(row["method"])
+        c.add_row(method, _gains_line(row["gains"]), _f(row["cost"]),
                   "-" if row["ratio"] is None else _f(row["ratio"], 4),
                   row["verdict"] or ("-" if row["gains"] else f"n/a: {row.get('note') or ''}"))
     out.print(c)

@@ -224,7 +224,7 @@ def _compare_search(spec: TuningSpec, budget: int) -> dict[str, Any]:
     res = tune(spec.model_copy(update={"search": s}), verify=True)
     return {"method": "search", "gains": res.gains, "cost": res.cost, "feasible": res.violation <= 0,
             "n_sims": res.sims, "wall_time": res.wall_time,
-            "reason": f"gaintune tune, {spec.search.algo}, budget {budget}",
+            "reason": f"{spec.search.algo}, budget {budget}",
             "details": {"verdict": res.verdict, "algo": res.algo}}
 
 

@@ -145,6 +145,14 @@ def test_quick_on_a_fotd_spec_passes_and_is_not_worse_than_amigo(fotd_answer) ->
             assert q.result.cost <= r["cost"] * (1 + 1e-9), r
 
 
+def test_compare_search_adds_the_searched_answer_to_the_comparison(tuners_dir) -> None:
+    q = quick_tune(_spec(), tuners_dir=tuners_dir, refine=0, compare_search=400)
+    row = q.comparison[-1]
+    assert row["method"] == "search" and row["verdict"] in ("pass", "fail") and "budget 400" in row["note"]
+    assert row["ratio"] == pytest.approx(row["cost"] / q.result.cost)
+    assert q.result.gains == quick_tune(_spec(), tuners_dir=tuners_dir, refine=0).result.gains  # answer unchanged
+
+
 def test_quick_gains_verify_on_the_true_plant(fotd_answer) -> None:
     from gaintune.verification import verify
 
@@ -217,7 +225,7 @@ def test_cli_quick_writes_the_outputs_and_export_reads_them(tuners_dir, spec_fil
     out = tmp_path / "out"
     res = runner.invoke(cli.app, ["tune", str(spec_file), "--quick", "--tuners", str(tuners_dir), "--out", str(out)])
     assert res.exit_code == 0, res.output
-    assert "Quick answer beside the rules" in res.output and "verdict: PASS" in res.output
+    assert "The quick answer beside the rules" in res.output and "verdict: PASS" in res.output
     for f in ("result.json", "report.html", "gains.json", "gains.h", "quick.json"):
         assert (out / f).is_file(), f
     doc = json.loads((out / "quick.json").read_text())
