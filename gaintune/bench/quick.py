@@ -74,8 +74,8 @@ def measure_problem(problem: BenchCase, out_dir: Path, tuners_dir: str | Path | 
         return row
     wall = time.perf_counter() - t0
     by = {b["method"]: b for b in q.result.baselines}
-    row.update(model=q.model.text(), tuner=q.tuner.name if q.tuner else "-", source=q.source + (" + refine" if q.refined else ""),
-               refine_sims=q.refine_sims, cost=q.result.cost,
+    row.update(model=q.model.text(), tuner=q.tuner.name if q.tuner else "-",
+               source=q.source + (" + refine" if q.refined else ""), refine_sims=q.refine_sims, cost=q.result.cost,
                ratio=ratio(q.result.cost, ref.get("cost")), verdict=q.verdict,
                tuner_ratio=ratio(q.tuner_cost, ref.get("cost")), wall_s=wall, timing=q.timing, notes=q.notes,
                gains=q.result.gains, **{m: _rule(by.get(m), ref.get("cost")) for m in ("amigo", "simc")})

@@ -122,6 +122,8 @@ def run_quick(spec, *, out_dir: Path | None, json_out: bool, tuners: Path | None
     """``tune --quick``: the quick answer, its comparison table (or JSON), ``--out``; exit 3 on a fail."""
     from gaintune.tuners.quick import quick_tune
 
+    if compare_search:
+        _get_tune()  # the search stack is there (exit 1 naming what is missing otherwise)
     compile_simulator(None if json_out else err)  # a fresh install's first run: say so
     q = quick_tune(spec, tuners_dir=tuners, refine=refine, compare_search=compare_search, command=command)
     result = q.result

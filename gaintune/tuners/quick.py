@@ -266,7 +266,8 @@ def quick_tune(spec: TuningSpec, *, tuners_dir: str | Path | None = None, refine
     rule_gains = _rule_gains(spec, plant)
     starts = ({"tuner": start.gains} if start.gains is not None else {}) | rule_gains
     if not starts:
-        raise SpecError("loops[0].type", f"{start.notes[0].split(':')[0]}, and no rule applies; {SEARCH_HINT}")
+        raise SpecError("loops[0].type", f"no ready-made tuner fits this {start.model.family.upper()} "
+                        f"{spec.loops[0].type.upper()} loop and neither AMIGO nor SIMC applies; {SEARCH_HINT}")
     ev = _evaluator(spec, plant, list(starts.values()))
     rules = _rule_rows(spec, ev)
     cands = {name: _tuned(ev, g) for name, g in starts.items()}
