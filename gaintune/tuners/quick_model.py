@@ -161,8 +161,9 @@ def tuner_params(model: LoopModel, problem: Any) -> tuple[dict[str, float], str 
     unit = fam.unit_params(inside)
     moved = {k: (params["K"] if k == "K" else v * tc) for k, v in unit.items()}
     what = ", ".join(f"{k} {shape[k]:.4g} -> {inside[k]:.4g}" for k in inside if not math.isclose(inside[k], shape[k]))
-    note = (f"the model's shape lies outside the tuner's training range ({what}; tau = L/(L+T)): the tuner "
-            "answered for the nearest shape it knows, and the settling on the true plant set the loop gain")
+    note = (f"the model's shape lies outside the tuner's training range ({what}; tau is the normalised dead "
+            "time): the tuner answered for the nearest shape it knows, and the settling on the true plant set the "
+            "loop gain")
     return moved, note
 
 
@@ -219,9 +220,6 @@ def tuner_start(spec: TuningSpec, plant: Plant, tuners_dir: str | Path | None = 
     tuners = available_tuners(tuners_dir)
     model = loop_model(spec, plant, sotd=any(t.family == "sotd" and t.ctype == ctype for t in tuners))
     info = choose_tuner(tuners, model.family, ctype, spec.requirements.ms_max)
-    if info is None and model.family == "sotd":  # a SOTD tuner of another controller type: the FOTD one
-        model = loop_model(spec, plant, sotd=False)
-        info = choose_tuner(tuners, model.family, ctype, spec.requirements.ms_max)
     if info is None:
         where = f"in {tuners_dir}" if tuners_dir is not None else "shipped with gaintune"
         have = ", ".join(t.name for t in tuners) or "none"
