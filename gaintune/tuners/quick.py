@@ -17,6 +17,7 @@ The pidtune-style path, for the common case:
    loses to a rule moved onto the boundary; :attr:`QuickResult.source` says which one won.
 4. **Compare.** AMIGO and SIMC as the rules give them (cost and verdict on the true plant) and,
    with ``compare_search=N``, the RL search at N simulations (:func:`gaintune.search.tune.tune`).
+   The answer's time (``result.wall_time``) ends before this step; ``timing["compare_s"]`` is its time.
 
 The answer is a :class:`~gaintune.search.result.TuneResult` (``algo`` ``"quick"``), so
 ``gaintune report`` and ``gaintune export`` read it as any tune's; the model, the tuner and the
@@ -86,7 +87,8 @@ class QuickResult:
         What the user should know (a shape outside the tuner's range, a requirement the tuner was not
         trained for).
     timing
-        Wall time of each step (s).
+        Wall time of each step (s): ``model_and_tuner_s``, ``settle_and_verify_s`` (together the answer's
+        time, ``result.wall_time``) and ``compare_s`` (the rules' verdicts and the comparison search).
     """
 
     result: TuneResult
@@ -269,18 +271,18 @@ def quick_tune(spec: TuningSpec, *, tuners_dir: str | Path | None = None, refine
         raise SpecError("loops[0].type", f"no ready-made tuner fits this {start.model.family.upper()} "
                         f"{spec.loops[0].type.upper()} loop and neither AMIGO nor SIMC applies; {SEARCH_HINT}")
     ev = _evaluator(spec, plant, list(starts.values()))
-    rules = _rule_rows(spec, ev)
     cands = {name: _tuned(ev, g) for name, g in starts.items()}
     policy_cost = float(ev.evaluate(cands["tuner"][None]).cost[0]) if "tuner" in cands else None
     st = _settle(ev, cands, refine, spec.search.seed)
     result = _result(spec, defaults, ev, st, start.gains, policy_cost, command)
     result.verification = verify(spec, result.gains, plant=plant, layout=ev.layout)
     _diagnose(result, ev, st.tuned, plant)
-    result.wall_time = time.perf_counter() - t0  # the answer's time: the comparison search is not part of it
+    result.wall_time = time.perf_counter() - t0  # the answer's time; the comparison below is not part of it
     timing["settle_and_verify_s"] = result.wall_time - timing["model_and_tuner_s"]
-    result.baselines = list(rules.values())
+    result.baselines = list(_rule_rows(spec, ev).values())
     if compare_search > 0:
         result.baselines.append(_compare_search(spec, compare_search))
+    timing["compare_s"] = time.perf_counter() - t0 - result.wall_time
     q = QuickResult(result, start.model, start.tuner, st.source, st.costs.get("tuner"), refined=st.refined,
                     refine_sims=st.refine_sims, notes=start.notes, timing=timing)
     q.comparison = comparison_rows(result)
