@@ -60,7 +60,7 @@ from gaintune.cli.output import (
 from gaintune.cli.policy import run_policy
 
 # the commands call _get_tune through this module, so gaintune.cli._get_tune can be replaced (tests do)
-from gaintune.cli.tuning import _finish, _get_tune, _run_tune, demo_spec
+from gaintune.cli.tuning import _check_quick_options, _finish, _get_tune, _run_tune, demo_spec, run_quick
 from gaintune.search.algos import ALGO_NAMES
 
 __all__ = ["app", "EXIT_OK", "EXIT_INPUT", "EXIT_VERIFY"]
@@ -101,16 +101,52 @@ def tune(
         "--warm-start", metavar="AGENT.zip",
         help="Continue training a saved agent (a tune's agent.zip) on this spec: same loops and randomised "
              "parameters.")] = None,
+    quick: Annotated[bool, typer.Option(
+        "--quick", help="No search: fit the loop's FOTD/SOTD model, ask the ready-made tuner, settle and verify on "
+                        "the true plant, and show the answer beside AMIGO and SIMC (one SISO PI/PID loop).")] = False,
+    refine: Annotated[int | None, typer.Option(
+        "--refine", min=0, max=100_000, help="With --quick: simulations of the local refinement after the settling "
+                                             "(default 300; 0: none).")] = None,
+    compare_search: Annotated[int | None, typer.Option(
+        "--compare-search", min=10, metavar="BUDGET",
+        help="With --quick: also run the search with this budget and show its answer in the comparison.")] = None,
+    tuners: Annotated[Path | None, typer.Option(
+        "--tuners", metavar="DIR", help="With --quick: a folder of tuner folders to choose from (default: the "
+                                        "shipped tuners).")] = None,
 ) -> None:
     """Tune the gains of SPEC with RL, verify them and print a summary. Exit 3 if verification fails."""
     spec = apply_overrides(load_spec_file(spec_path), algo=algo, budget=budget, seed=seed, workers=workers)
     if out_dir is not None:
         check_out_dir(out_dir)
+    if quick:
+        _quick(spec, spec_path, out_dir=out_dir, json_out=json_out, seed=seed, refine=refine,
+               compare_search=compare_search, tuners=tuners,
+               search_options=dict(algo=algo, budget=budget, workers=workers, baselines=baselines,
+                                   warm_start=warm_start))
+        return
+    for name, value in (("refine", refine), ("compare_search", compare_search), ("tuners", tuners)):
+        if value is not None:
+            raise InputError(name, f"--{name.replace('_', '-')} goes with --quick; add --quick, or drop it")
     command = _command_line("tune", spec_path, algo=algo, budget=budget, seed=spec.search.seed, workers=workers,
                             baselines=baselines, warm_start=warm_start)
     result = _run_tune(_get_tune(), spec, out_dir=out_dir, json_out=json_out, baselines=baselines, command=command,
                        warm_start=warm_start)
     _finish(result, out_dir=out_dir, json_out=json_out, command=command)
+
+
+def _quick(spec, spec_path: Path, *, out_dir: Path | None, json_out: bool, seed: int | None, refine: int | None,
+           compare_search: int | None, tuners: Path | None, search_options: dict) -> None:
+    """``tune --quick``: refuse the search's options, then :func:`gaintune.cli.tuning.run_quick`."""
+    from gaintune.tuners.quick import DEFAULT_REFINE
+
+    _check_quick_options(**search_options)
+    if tuners is not None and not tuners.is_dir():
+        raise InputError("tuners", f"{tuners} is not a folder; give a folder of tuner folders (each with tuner.json)")
+    command = _command_line("tune", spec_path, quick=True, seed=seed, refine=refine, compare_search=compare_search,
+                            tuners=tuners)
+    run_quick(spec, out_dir=out_dir, json_out=json_out, tuners=tuners,
+              refine=DEFAULT_REFINE if refine is None else refine, compare_search=compare_search or 0,
+              command=command)
 
 
 @app.command()

@@ -33,6 +33,8 @@ BENCH = {
               "trained it.",
     "tuners": "Trained tuners on held-out FOTD plants against the per-plant optimum and AMIGO/SIMC, with their "
               "answer time.",
+    "quick": "`tune --quick` on the standard suite's SISO problems against the cached reference and AMIGO/SIMC, with "
+             "its wall time.",
     "api": "REST API load test.",
     "chaos": "Chaos campaign against a real API server: worker/server kills, freezes, storage faults, reused "
              "connections.",
