@@ -100,102 +100,6 @@ def _settings(episodes: int | None, seed: int) -> Any:
     return TrainSettings(**{**TRAIN_DEFAULTS, **chosen})
 
 
-# -------------------------------------------------------------------------------------- training
-
-
-def _run_training(problem: TunerProblem, out_dir: Path, settings: Any, *, resume: bool,
-                  warm_start: Path | None = None) -> Path:
-    """:func:`gaintune.tuners.train.train` with a progress bar on stderr."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    from gaintune.cli.compiling import compile_simulator
-    from gaintune.tuners.train import train
-
-    compile_simulator(err)
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("episodes"),
-                  TextColumn("median cost/optimum {task.fields[ratio]}"), TimeElapsedColumn(),
-                  console=err.real(), transient=False) as bar:
-        task = bar.add_task("training", total=settings.episodes, ratio="-")
-
-        def on_progress(done: int, total: int, info: dict[str, Any]) -> None:
-            desc = "validating" if done >= total else "training"
-            bar.update(task, completed=done, total=total, description=desc)
-            if info.get("ratio") is not None:  # at a checkpoint: the training curve's figure
-                bar.update(task, ratio=_f(info["ratio"]))
-
-        try:
-            return train(problem, out_dir, settings, on_progress=on_progress, resume=resume, warm_start=warm_start)
-        except KeyboardInterrupt:
-            err.print("interrupted: the last checkpoint is kept; the same command resumes from it", markup=False)
-            raise typer.Exit(130) from None
-
-
-def _print_trained(folder: Path) -> None:
-    """What was trained: the family, the validation figures, the training record, the folder's size."""
-    from gaintune.tuners.listing import summary
-
-    s = summary(folder)
-    ranges = ", ".join(f"{r['name']} {_f(r['lo'])} .. {_f(r['hi'])}" for r in s["context"])
-    ms = f", Ms <= {_f(s['ms_max'])}" if s["ms_max"] is not None else ""
-    v, t = s["validation"], s["training"]
-    resumed = f", resumed {t['resumed']}x" if t["resumed"] else ""
-    lines = [f"wrote tuner {folder} ({s['family']}: {s['model']}, {s['controller'].upper()}{ms}; {ranges})",
-             f"validation on {v['n']} held-out plants: cost / per-plant optimum median {_f(v['median_ratio'])}, "
-             f"worst {_f(v['worst_ratio'])}; {v['passed']}/{v['n']} pass verification",
-             f"training: {t['episodes']:,} episodes, {t['sims']:,} simulations, {_f(t['wall_s'])} s{resumed}",
-             f"size: {s['size_kb']:.1f} KB"]
-    for line in lines:
-        out.print(line, markup=False, highlight=False, soft_wrap=True)
-
-
-@tuner_app.command("train")
-@handle_errors
-def train_cmd(
-    out_dir: Annotated[Path, typer.Option("--out", "-o", help="The tuner folder to write (atomically).")],
-    spec_path: Annotated[Path | None, typer.Argument(
-        metavar="[SPEC]", help="A spec whose randomize block is the plant family (or use --family).")] = None,
-    family: Annotated[str | None, typer.Option(
-        "--family", help="A ready-made family instead of SPEC: fotd, sotd or ipd.")] = None,
-    ctype: Annotated[str | None, typer.Option("--ctype", help="With --family: pi or pid (default pi).")] = None,
-    ms: Annotated[float | None, typer.Option("--ms", help="With --family: the Ms limit (default 1.4).")] = None,
-    episodes: EpisodesOpt = None,
-    seed: SeedOpt = 0,
-    no_resume: NoResumeOpt = False,
-) -> None:
-    """Train a tuner for a plant family and write it to --out; a killed run resumes from its last checkpoint."""
-    problem = _problem(spec_path, family, ctype, ms)
-    check_out_dir(out_dir)
-    folder = _run_training(problem, out_dir, _settings(episodes, seed), resume=not no_resume)
-    _print_trained(folder)
-
-
-@tuner_app.command("update")
-@handle_errors
-def update_cmd(
-    tuner: Annotated[Path, typer.Argument(metavar="DIR", help="The tuner folder to continue from.")],
-    spec_path: Annotated[Path, typer.Option("--spec", help="The changed family: a spec with a randomize block.")],
-    out_dir: Annotated[Path | None, typer.Option("--out", "-o", help="Write here (default: replace DIR).")] = None,
-    episodes: EpisodesOpt = None,
-    seed: SeedOpt = 0,
-    no_resume: NoResumeOpt = False,
-) -> None:
-    """Continue training DIR's tuner on a changed family (same varying parameters and tuned gains)."""
-    from gaintune.cli.common import load_spec_file
-    from gaintune.tuners import artefact
-    from gaintune.tuners.problems import SpecProblem
-
-    folder = artefact.resolve(tuner)
-    if out_dir is None and folder.resolve().parent == artefact.SHIPPED_DIR:
-        raise InputError("--out", "a ready-made tuner is not changed in place; give --out DIR")
-    if not (folder / "agent.zip").is_file():
-        raise InputError("tuner", f"{folder} has no agent.zip (the agent training continues from); retrain it")
-    problem = SpecProblem(load_spec_file(spec_path))
-    target = out_dir or folder
-    check_out_dir(target)
-    done = _run_training(problem, target, _settings(episodes, seed), resume=not no_resume, warm_start=folder)
-    _print_trained(done)
-
-
 # ----------------------------------------------------------------------------------------- query
 
 
@@ -308,6 +212,102 @@ def list_cmd(json_out: Annotated[bool, typer.Option("--json", help="Print the li
                   "'gaintune tuner train --family fotd --ctype pi --ms 1.4 --out DIR'", markup=False, soft_wrap=True)
     else:
         _print_list(items)
+
+
+# -------------------------------------------------------------------------------------- training
+
+
+def _run_training(problem: TunerProblem, out_dir: Path, settings: Any, *, resume: bool,
+                  warm_start: Path | None = None) -> Path:
+    """:func:`gaintune.tuners.train.train` with a progress bar on stderr."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from gaintune.cli.compiling import compile_simulator
+    from gaintune.tuners.train import train
+
+    compile_simulator(err)
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("episodes"),
+                  TextColumn("median cost/optimum {task.fields[ratio]}"), TimeElapsedColumn(),
+                  console=err.real(), transient=False) as bar:
+        task = bar.add_task("training", total=settings.episodes, ratio="-")
+
+        def on_progress(done: int, total: int, info: dict[str, Any]) -> None:
+            desc = "validating" if done >= total else "training"
+            bar.update(task, completed=done, total=total, description=desc)
+            if info.get("ratio") is not None:  # at a checkpoint: the training curve's figure
+                bar.update(task, ratio=_f(info["ratio"]))
+
+        try:
+            return train(problem, out_dir, settings, on_progress=on_progress, resume=resume, warm_start=warm_start)
+        except KeyboardInterrupt:
+            err.print("interrupted: the last checkpoint is kept; the same command resumes from it", markup=False)
+            raise typer.Exit(130) from None
+
+
+def _print_trained(folder: Path) -> None:
+    """What was trained: the family, the validation figures, the training record, the folder's size."""
+    from gaintune.tuners.listing import summary
+
+    s = summary(folder)
+    ranges = ", ".join(f"{r['name']} {_f(r['lo'])} .. {_f(r['hi'])}" for r in s["context"])
+    ms = f", Ms <= {_f(s['ms_max'])}" if s["ms_max"] is not None else ""
+    v, t = s["validation"], s["training"]
+    resumed = f", resumed {t['resumed']}x" if t["resumed"] else ""
+    lines = [f"wrote tuner {folder} ({s['family']}: {s['model']}, {s['controller'].upper()}{ms}; {ranges})",
+             f"validation on {v['n']} held-out plants: cost / per-plant optimum median {_f(v['median_ratio'])}, "
+             f"worst {_f(v['worst_ratio'])}; {v['passed']}/{v['n']} pass verification",
+             f"training: {t['episodes']:,} episodes, {t['sims']:,} simulations, {_f(t['wall_s'])} s{resumed}",
+             f"size: {s['size_kb']:.1f} KB"]
+    for line in lines:
+        out.print(line, markup=False, highlight=False, soft_wrap=True)
+
+
+@tuner_app.command("train")
+@handle_errors
+def train_cmd(
+    out_dir: Annotated[Path, typer.Option("--out", "-o", help="The tuner folder to write (atomically).")],
+    spec_path: Annotated[Path | None, typer.Argument(
+        metavar="SPEC", help="A spec whose randomize block is the plant family (or use --family).")] = None,
+    family: Annotated[str | None, typer.Option(
+        "--family", help="A ready-made family instead of SPEC: fotd, sotd or ipd.")] = None,
+    ctype: Annotated[str | None, typer.Option("--ctype", help="With --family: pi or pid (default pi).")] = None,
+    ms: Annotated[float | None, typer.Option("--ms", help="With --family: the Ms limit (default 1.4).")] = None,
+    episodes: EpisodesOpt = None,
+    seed: SeedOpt = 0,
+    no_resume: NoResumeOpt = False,
+) -> None:
+    """Train a tuner for a plant family and write it to --out; a killed run resumes from its last checkpoint."""
+    problem = _problem(spec_path, family, ctype, ms)
+    check_out_dir(out_dir)
+    folder = _run_training(problem, out_dir, _settings(episodes, seed), resume=not no_resume)
+    _print_trained(folder)
+
+
+@tuner_app.command("update")
+@handle_errors
+def update_cmd(
+    tuner: Annotated[Path, typer.Argument(metavar="DIR", help="The tuner folder to continue from.")],
+    spec_path: Annotated[Path, typer.Option("--spec", help="The changed family: a spec with a randomize block.")],
+    out_dir: Annotated[Path | None, typer.Option("--out", "-o", help="Write here (default: replace DIR).")] = None,
+    episodes: EpisodesOpt = None,
+    seed: SeedOpt = 0,
+    no_resume: NoResumeOpt = False,
+) -> None:
+    """Continue training DIR's tuner on a changed family (same varying parameters and tuned gains)."""
+    from gaintune.cli.common import load_spec_file
+    from gaintune.tuners import artefact
+    from gaintune.tuners.problems import SpecProblem
+
+    folder = artefact.resolve(tuner)
+    if out_dir is None and folder.resolve().parent == artefact.SHIPPED_DIR:
+        raise InputError("--out", "a ready-made tuner is not changed in place; give --out DIR")
+    if not (folder / "agent.zip").is_file():
+        raise InputError("tuner", f"{folder} has no agent.zip (the agent training continues from); retrain it")
+    problem = SpecProblem(load_spec_file(spec_path))
+    target = out_dir or folder
+    check_out_dir(target)
+    done = _run_training(problem, target, _settings(episodes, seed), resume=not no_resume, warm_start=folder)
+    _print_trained(done)
 
 
 # -------------------------------------------------------------------------------------- schedule

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import time
 from pathlib import Path
 
 import pytest
@@ -168,3 +169,27 @@ def test_tuner_job_trains_end_to_end_and_resumes_after_a_killed_attempt(client, 
         r = client.get(url)
         assert r.status_code == 409 and "trained a tuner" in r.json()["detail"], r.text
     assert client.get("/v1/jobs").json()["items"][0]["kind"] == "tuner"
+
+
+def test_tuner_job_cancel_stops_the_training(make_client, tmp_path: Path, tiny_training: dict, monkeypatch) -> None:
+    """The training is held after its first progress report until the job is cancelled: only the cancel request
+    can have stopped it (the next progress report ends it); the job ends cancelled without a tuner."""
+    from test_api_routes import BACKSTOP, _run_in_thread, _wait_status
+
+    monkeypatch.setattr(tuner_jobs, "TRAIN_DEFAULTS", tiny_training)
+    hold = tmp_path / "hold"
+    hold.write_text("")
+    client = make_client(test_hold_file=hold)
+    job = client.post("/v1/tuners", json={"spec": LAG2, "episodes": 4096}).json()
+    th, out = _run_in_thread(client, None)
+    j = _wait_status(client, job["id"], {"running"})
+    deadline = time.monotonic() + BACKSTOP  # a failure if reached, never a measure
+    while not (j.get("progress") or {}).get("episodes"):  # it holds at its first report
+        assert th.is_alive() and time.monotonic() < deadline, (out, j)
+        time.sleep(0.05)
+        j = client.get(f"/v1/jobs/{job['id']}").json()
+    assert j["progress"]["episodes"] < 4096 and j["progress"]["phase"] == "train"
+    assert client.delete(f"/v1/jobs/{job['id']}").status_code == 202
+    j = _wait_status(client, job["id"], {"cancelled"})
+    th.join(60)
+    assert out["status"] == "cancelled" and j["tuner"] is None and j["error"] == "cancelled on request"

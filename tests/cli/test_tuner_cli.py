@@ -61,10 +61,12 @@ def tiny_settings(monkeypatch, tiny_training: dict) -> dict:
 def test_tuner_query_prints_the_gains_verdict_cost_and_timings(tiny_fotd_tuner: Path) -> None:
     res = run("tuner", "query", tiny_fotd_tuner, *PLANT)
     _ok_or_fail(res)
-    assert "Kp" in res.stdout and "Ki" in res.stdout
-    line = next(ln for ln in res.stdout.splitlines() if ln.startswith("verdict"))
-    assert re.search(r"verdict (PASS|FAIL) +cost \S+ +context L/T = 0\.1667 +policy [\d.]+ ms +answer \d+ ms", line)
-    assert (res.exit_code == 0) == ("verdict PASS" in line)
+    head = next(ln for ln in res.stdout.splitlines() if "verdict" in ln)
+    assert re.findall(r"\w[\w/ ]*\w", head) == ["Kp", "Ki", "verdict", "cost", "L/T", "policy ms", "answer ms", "sims"]
+    row = re.findall(r"[^\s│]+", next(ln for ln in res.stdout.splitlines() if "PASS" in ln or "FAIL" in ln))
+    assert row[2] in ("PASS", "FAIL") and row[4] == "0.1667" and int(row[-1]) > 0, row
+    assert (res.exit_code == 0) == (row[2] == "PASS")
+    assert "fotd_pi: K = 2, T = 60, L = 10" in res.stdout
 
 
 def test_tuner_query_json_is_the_answer_of_the_library(tiny_fotd_tuner: Path) -> None:
@@ -100,7 +102,7 @@ def test_tuner_query_failing_verdict_exits_3_and_accepts_no_gains(tiny_fotd_tune
     doc = json.loads(res.stdout)
     assert doc["verdict"] == "fail" and doc["accepted_gains"] is None and doc["gains"]
     res = run("tuner", "query", bad, *PLANT)
-    assert res.exit_code == 3 and "verdict FAIL" in res.stdout and "FAIL: " in res.stdout
+    assert res.exit_code == 3 and "│ FAIL " in res.stdout and "\nFAIL: " in res.stdout
 
 
 @pytest.mark.parametrize("args, needle", [
