@@ -47,9 +47,17 @@ def fresh_python() -> Callable[..., Any]:
 
 # ------------------------------------------------------------------------------------- tiny trained tuners
 
-#: PPO sizes of the tiny tuners the tests train: the figures mean nothing, every code path is the real one.
+#: Sizes of the tiny tuners the tests train: the figures mean nothing, every code path is the real one.
 TINY_TRAINING: dict[str, Any] = dict(n_envs=32, contexts_per_step=4, n_steps=4, batch_size=64, validation=2,
                                      curve_contexts=1)
+
+
+def tiny_training_settings() -> dict[str, Any]:
+    """:data:`TINY_TRAINING`, with a checkpoint every 512 episodes where the settings name the interval (``chunk``)."""
+    from gaintune.tuners.train import TrainSettings
+
+    fields = getattr(TrainSettings, "__dataclass_fields__", {})
+    return {**TINY_TRAINING, **({"chunk": 512} if "chunk" in fields else {})}
 
 
 def tank_family_spec() -> dict[str, Any]:
@@ -63,8 +71,8 @@ def tank_family_spec() -> dict[str, Any]:
 
 @pytest.fixture(scope="session")
 def tiny_training() -> dict[str, Any]:
-    """:data:`TINY_TRAINING` (the tiny tuners' PPO sizes), for tests that train one themselves."""
-    return dict(TINY_TRAINING)
+    """:func:`tiny_training_settings`, for tests that train a tuner themselves."""
+    return tiny_training_settings()
 
 
 @pytest.fixture
@@ -80,7 +88,7 @@ def tiny_fotd_tuner(tmp_path_factory) -> Path:
     from gaintune.tuners.train import TrainSettings, train
 
     return train(FamilyProblem("fotd", "pi", 1.4), tmp_path_factory.mktemp("tuners") / "fotd_pi",
-                 TrainSettings(episodes=512, **TINY_TRAINING))
+                 TrainSettings(episodes=512, **tiny_training_settings()))
 
 
 @pytest.fixture(scope="session")
@@ -91,4 +99,4 @@ def tiny_tank_tuner(tmp_path_factory) -> Path:
     from gaintune.tuners.train import TrainSettings, train
 
     return train(SpecProblem(load_spec(tank_family_spec())), tmp_path_factory.mktemp("tuners") / "tank_h0",
-                 TrainSettings(episodes=512, **TINY_TRAINING))
+                 TrainSettings(episodes=512, **tiny_training_settings()))
