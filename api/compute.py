@@ -1,4 +1,4 @@
-"""Process pool for the synchronous CPU-bound endpoints (``/v1/verify``, ``/v1/simulate``).
+"""Process pool for the synchronous CPU-bound endpoints (``/v1/verify``, ``/v1/simulate``, tuner queries).
 
 Verification is Python + NumPy on small arrays and holds the GIL, so threads add
 contention rather than throughput. ``compute_processes`` warm worker processes
@@ -22,6 +22,7 @@ both, for ``/metrics``.
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import multiprocessing as mp
 import os
@@ -36,7 +37,7 @@ from typing import Any, BinaryIO
 
 from gaintune.cache import LRU
 
-__all__ = ["ComputePool", "compute_verify", "compute_simulate", "warm_up_compute"]
+__all__ = ["ComputePool", "compute_verify", "compute_simulate", "compute_tuner_query", "warm_up_compute"]
 
 log = logging.getLogger("gaintune.api")
 
@@ -92,23 +93,43 @@ def compute_verify(spec, gains, robust, nonlinear, plant=None, layout=None, spec
     return "ok", report.model_dump_json().encode()
 
 
-def compute_policy(tuners: LRU[str, Any], key: str, agent: Any, spec: dict[str, Any], grid: dict[str, Any],
-                   max_points: int) -> tuple[str, Any]:
-    """Answers of a job's trained policy over ``grid`` -> ("ok", JSON bytes) or ("invalid", [{loc, msg}]).
+#: Tuners a compute process keeps loaded when the caller passes no cache (the pool's worker processes).
+TUNER_CACHE_SIZE = 16
+_tuners: LRU[str, Any] | None = None
 
-    The tuner (agent and training problem: torch, the search box) is loaded once per job and kept in
-    ``tuners``, so a later request costs the answers only (milliseconds each)."""
+
+def _process_tuners() -> LRU[str, Any]:
+    global _tuners
+    if _tuners is None:
+        _tuners = LRU(TUNER_CACHE_SIZE)
+    return _tuners
+
+
+def compute_tuner_query(folder: str, key: str, params: dict[str, float], refine: int,
+                        cache: LRU[str, Any] | None = None) -> tuple[str, Any]:
+    """A tuner's answer for one plant: ``("ok", JSON bytes)`` | ``("invalid", problem details)`` | ``("error", msg)``.
+
+    The tuner at ``folder`` is loaded once per ``key`` (its folder and content) and kept in ``cache``
+    (the app's LRU when computed in the server, this process's own in a pool worker). Never raises
+    for bad input: a parameter the tuner does not know, a bad value or a plant outside its family is
+    "invalid", naming the field.
+    """
     from gaintune.errors import GaintuneError, problem_details
-    from gaintune.search.policy import PolicyTuner
-    from gaintune.spec import load_spec
-    from gaintune_api.schemas import PolicyAnswers
+    from gaintune.tuners.tuner import OutsideFamilyError, Tuner
+    from gaintune_api.problem_details import json_safe
 
+    tuners = cache if cache is not None else _process_tuners()
     try:
-        tuner = tuners.get_or_build(key, lambda: PolicyTuner(agent, load_spec(spec)))
-        answers = tuner.schedule({k: v if isinstance(v, list) else [v] for k, v in grid.items()}, max_points)
+        tuner = tuners.get_or_build(key, lambda: Tuner.load(folder))
+        answer = tuner.query(params, refine=refine)
+    except OutsideFamilyError as exc:
+        return "invalid", [{"loc": exc.field, "msg": exc.message}]
     except GaintuneError as exc:
         return "invalid", problem_details(exc)
-    return "ok", PolicyAnswers(answers=answers).model_dump_json().encode()
+    except Exception as exc:  # noqa: BLE001 - user input must never produce a 500
+        log.warning("tuner query failed unexpectedly", exc_info=True)
+        return "error", f"{type(exc).__name__}: {str(exc)[:300]}"
+    return "ok", json.dumps(json_safe(answer.as_dict()), allow_nan=False).encode()
 
 
 def compute_simulate(spec, gains, chosen: list[int], max_points: int, plant=None, layout=None) -> tuple[str, Any]:

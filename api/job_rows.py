@@ -40,7 +40,8 @@ CREATE TABLE IF NOT EXISTS jobs (
     worker_pid INTEGER,
     heartbeat_at REAL,
     attempts INTEGER NOT NULL DEFAULT 0,
-    artifacts TEXT
+    artifacts TEXT,
+    kind TEXT NOT NULL DEFAULT 'tune'
 );
 CREATE TABLE IF NOT EXISTS probe (id INTEGER PRIMARY KEY, at REAL NOT NULL);
 CREATE UNIQUE INDEX IF NOT EXISTS jobs_idem ON jobs(owner, idem_key) WHERE idem_key IS NOT NULL;
@@ -97,6 +98,7 @@ class JobRow:
     heartbeat_at: float | None
     attempts: int
     artifacts: str | None = None
+    kind: str = "tune"  # "tune": a search (spec = the TuningSpec); "tuner": a tuner's training (spec = the request)
 
     @classmethod
     def from_row(cls, row: sqlite3.Row) -> JobRow:

@@ -146,6 +146,8 @@ class JobStore:
         cols = {r[1] for r in conn.execute("PRAGMA table_info(jobs)")}
         if "artifacts" not in cols:  # databases written before artefact manifests
             conn.execute("ALTER TABLE jobs ADD COLUMN artifacts TEXT")
+        if "kind" not in cols:  # databases written before tuner-training jobs
+            conn.execute("ALTER TABLE jobs ADD COLUMN kind TEXT NOT NULL DEFAULT 'tune'")
 
     @_db(write=False)
     def ping(self) -> None:
@@ -161,17 +163,19 @@ class JobStore:
     # -------------------------------------------------------------- create
     @_db(write=True)
     def create(
-        self, owner: str, spec_json: str, spec_hash: str, spec_name: str, *, idem_key: str | None, max_queue: int
+        self, owner: str, spec_json: str, spec_hash: str, spec_name: str, *, idem_key: str | None, max_queue: int,
+        kind: str = "tune",
     ) -> tuple[JobRow, bool]:
         """Queue a job. Returns (job, created); an existing job for the same idempotency key is returned as is.
 
+        ``kind``: "tune" (``spec_json`` is a TuningSpec) or "tuner" (``spec_json`` is a tuner-training request).
         Raises QueueFull or IdempotencyConflict.
         """
         with self._tx() as c:
             if idem_key is not None:
                 row = c.execute(f"SELECT {_COLS} FROM jobs WHERE owner=? AND idem_key=?", (owner, idem_key)).fetchone()
                 if row is not None:
-                    if row["spec_hash"] != spec_hash:
+                    if row["spec_hash"] != spec_hash or row["kind"] != kind:
                         raise IdempotencyConflict(row["id"])
                     return JobRow.from_row(row), False
             (queued,) = c.execute("SELECT COUNT(*) FROM jobs WHERE status='queued'").fetchone()
@@ -180,9 +184,9 @@ class JobStore:
             now = time.time()
             job_id = uuid.uuid4().hex
             c.execute(
-                "INSERT INTO jobs (id, owner, idem_key, status, spec, spec_hash, spec_name, created_at, updated_at)"
-                " VALUES (?, ?, ?, 'queued', ?, ?, ?, ?, ?)",
-                (job_id, owner, idem_key, spec_json, spec_hash, spec_name, now, now),
+                "INSERT INTO jobs (id, owner, idem_key, status, spec, spec_hash, spec_name, created_at, updated_at,"
+                " kind) VALUES (?, ?, ?, 'queued', ?, ?, ?, ?, ?, ?)",
+                (job_id, owner, idem_key, spec_json, spec_hash, spec_name, now, now, kind),
             )
             row = c.execute(f"SELECT {_COLS} FROM jobs WHERE id=?", (job_id,)).fetchone()
             return JobRow.from_row(row), True

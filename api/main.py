@@ -20,7 +20,7 @@ from gaintune_api.jobfiles import JobFiles
 from gaintune_api.metrics import Metrics
 from gaintune_api.middleware import BodySizeLimit, CatchAll, DocsAuth, LatencyMetrics
 from gaintune_api.problem_details import SafeJSONResponse, install_handlers
-from gaintune_api.routes import jobs, ops, plants, simulate, verify
+from gaintune_api.routes import jobs, ops, plants, simulate, tuners, verify
 from gaintune_api.routes.docs import install_docs
 from gaintune_api.schemas import install_client_openapi
 from gaintune_api.settings import Settings, warn_unknown_settings
@@ -37,6 +37,8 @@ Tune cascaded PID / LQ controller gains with reinforcement learning, verify them
 
 * `POST /v1/tune` queues a job (the body is a gaintune spec); poll `GET /v1/jobs/{id}`.
 * `POST /v1/verify` and `POST /v1/simulate` answer synchronously.
+* `GET /v1/tuners` lists the trained tuners; `POST /v1/tuners/{name}/query` answers a plant's verified gains in
+  milliseconds; `POST /v1/tuners` trains one (a job).
 * Errors are RFC 7807 problems (`application/problem+json`) with field paths in `errors`.
 * Send `X-API-Key` when the server has keys configured; jobs are visible only to the key that created them.
 """
@@ -126,8 +128,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.compute_limiter = None
     app.state.compute_pool = None
     app.state.check_cache = None
+    app.state.tuners = None
+    app.state.tuner_list = None
     install_handlers(app)
-    for r in (jobs.router, verify.router, simulate.router, plants.router, ops.router):
+    for r in (jobs.router, tuners.router, verify.router, simulate.router, plants.router, ops.router):
         app.include_router(r)
     docs = install_docs(app)
     install_client_openapi(app)  # request schemas: defaulted fields optional for generated clients

@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from gaintune.search.result import PolicyAnswer
 from gaintune.spec import FiniteNumber, Gains, TuningSpec
 
 if TYPE_CHECKING:
@@ -22,6 +21,8 @@ __all__ = [
     "GainsBody", "JobStatus", "ProgressPublic", "JobResultPublic", "JobPublic", "JobSummary", "JobList",
     "VerifyRequest", "SimulateRequest", "ScenarioTrace", "SimulateResponse",
     "ParamPublic", "SignalPublic", "PlantPublic", "PlantList", "Health", "Ready", "ExportFormat",
+    "TunerRange", "TunerValidation", "TunerTraining", "TunerPublic", "TunerList", "TunerQuery", "TunerAnswerPublic",
+    "TunerTrainRequest", "JobKind",
     "request_schema_names", "request_defaults_optional", "install_client_openapi",
 ]
 
@@ -30,6 +31,8 @@ FiniteFloat = FiniteNumber
 #: Request gains, :data:`gaintune.spec.Gains` with every value finite and not a boolean
 GainsBody = dict[str, dict[str, FiniteFloat]]
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+#: What a job does: a tuning search (``POST /v1/tune``) or a tuner's training (``POST /v1/tuners``).
+JobKind = Literal["tune", "tuner"]
 ExportFormat = Literal["json", "yaml", "c", "matlab", "python"]
 #: A number, or "Infinity"/"-Infinity"/"NaN" for non-finite figures (JSON has no such numbers).
 Num = float | str | None
@@ -52,6 +55,11 @@ class ProgressPublic(BaseModel):
     elapsed: float = Field(0.0, description="Seconds since the search started.")
     eta: float | None = Field(None, description="Estimated seconds left.")
     phase: str = "search"
+    episodes: int | None = Field(None, description="A tuner-training job: episodes done (null for a tuning job).")
+    episodes_total: int | None = Field(None, description="A tuner-training job: episodes in all.")
+    median_ratio: float | None = Field(
+        None, description="A tuner-training job: median cost / per-plant optimum on the training curve's plants, "
+                          "at the last checkpoint.")
 
 
 class JobResultPublic(BaseModel):
@@ -82,6 +90,7 @@ class JobSummary(BaseModel):
     """A job's status and progress, without its result."""
 
     id: str
+    kind: JobKind = Field("tune", description="tune: a tuning search; tuner: a tuner's training.")
     status: JobStatus
     spec_name: str
     spec_hash: str
@@ -99,6 +108,8 @@ class JobPublic(JobSummary):
     """A job with its result (once finished) and links to its files."""
 
     result: JobResultPublic | None = None
+    tuner: TunerPublic | None = Field(
+        None, description="A finished tuner-training job: the tuner it trained (query it at links.query).")
     links: dict[str, str] = Field(default_factory=dict)
 
 
@@ -122,21 +133,6 @@ class VerifyRequest(_In):
     gains: GainsBody = Field(description="{loop_name: {gain_name: value}}; fixed gains may be omitted.")
     robust: bool | None = Field(None, description="Check the randomisation set; default: when the spec randomises.")
     nonlinear: bool = Field(True, description="Run the nonlinear simulation check.")
-
-
-class PolicyRequest(_In):
-    """Plant parameters to ask a job's trained policy about."""
-
-    params: dict[str, FiniteFloat | list[FiniteFloat]] = Field(
-        default_factory=dict, description="Plant parameter -> value, or values: several values (or several parameters) "
-        "make a grid, answered point by point (a gain schedule). Parameters left out keep the training spec's nominal "
-        "values; only parameters the job randomised (randomize.params) are accepted.")
-
-
-class PolicyAnswers(BaseModel):
-    """The trained policy's gains for each plant asked about, each verified."""
-
-    answers: list[PolicyAnswer] = Field(description="One answer per grid point (the product of the values, in order).")
 
 
 class SimulateRequest(_In):
@@ -206,6 +202,104 @@ class PlantList(BaseModel):
     items: list[PlantPublic]
 
 
+# -------------------------------------------------------------- tuners
+
+
+class TunerRange(BaseModel):
+    """The training range of one context variable (a family's shape as the ratio users know, e.g. L/T)."""
+
+    name: str
+    lo: float
+    hi: float
+    variable: str = Field(description="The context variable's own name (tau for the shape L/(L+T)).")
+
+
+class TunerValidation(BaseModel):
+    """The held-out validation: cost / per-plant optimum, and verdicts."""
+
+    n: int = Field(description="Held-out plants.")
+    median_ratio: float | None
+    worst_ratio: float | None
+    passed: int = Field(description="Answers that passed verification.")
+
+
+class TunerTraining(BaseModel):
+    """The training record."""
+
+    episodes: int
+    sims: int
+    wall_s: float | None
+    resumed: int = Field(description="Times the training resumed from a checkpoint.")
+
+
+class TunerPublic(BaseModel):
+    """A trained tuner: what it answers, how well, how it was trained, its size."""
+
+    name: str
+    kind: Literal["family", "spec"] = Field(description="family: a ready-made model family; spec: a spec's family.")
+    family: str
+    model: str = Field(description="The family's model, or the spec's name.")
+    controller: str
+    ms_max: float | None
+    params: list[str] = Field(description="The plant parameters a query gives.")
+    context: list[TunerRange]
+    validation: TunerValidation
+    training: TunerTraining
+    size_kb: float
+    version: int = Field(description="Format version of the tuner folder.")
+
+
+class TunerList(BaseModel):
+    """The ready-made tuners."""
+
+    items: list[TunerPublic]
+
+
+class TunerQuery(_In):
+    """A plant to ask a tuner about."""
+
+    params: dict[str, FiniteFloat] = Field(
+        default_factory=dict, description="Plant parameter -> value, e.g. {\"K\": 2, \"T\": 60, \"L\": 10} for an "
+        "FOTD tuner; a spec tuner's context variables not given keep the spec's nominal values.")
+    refine: int = Field(0, ge=0, description="Continue from the answer with at most this many simulations "
+                                             "(at most the server's max_tuner_refine).")
+
+
+class TunerAnswerPublic(BaseModel):
+    """A tuner's answer for one plant. ``accepted_gains`` is set only when the verdict is pass."""
+
+    params: dict[str, float]
+    context: dict[str, float]
+    gains: Gains = Field(description="The answer's gains (diagnostic when the verdict fails).")
+    verdict: Literal["pass", "fail"]
+    accepted_gains: Gains | None = Field(description="The gains, present ONLY when the verdict is pass.")
+    cost: Num
+    policy_ms: float = Field(description="The policy's forward pass, milliseconds.")
+    elapsed_ms: float = Field(description="The whole answer (policy, boundary move, refining, verification).")
+    n_sims: int
+    refined_sims: int
+    failures: list[Any] = Field(default_factory=list)
+
+
+class TunerTrainRequest(_In):
+    """A tuner to train: a spec whose ``randomize`` block is the family, or a ready-made ``family``."""
+
+    spec: TuningSpec | None = Field(None, description="A spec with a randomize block (or give family).")
+    family: Literal["fotd", "sotd", "ipd"] | None = Field(None, description="A ready-made family (or give spec).")
+    ctype: Literal["pi", "pid"] | None = Field(None, description="With family: the controller. Default pi.")
+    ms_max: float | None = Field(None, gt=1.0, le=10.0, allow_inf_nan=False,
+                                 description="With family: the Ms limit. Default 1.4.")
+    episodes: int | None = Field(None, ge=1, description="Training episodes (default 60,000; at most the server's "
+                                                         "max_tuner_episodes).")
+    seed: int = Field(0, ge=0, le=2**31 - 1, description="Training seed.")
+
+    def label(self) -> str:
+        """The job's name: the spec's, or ``<family>_<ctype>_ms<ms_max>``."""
+        if self.spec is not None:
+            return self.spec.name
+        return f"{self.family}_{self.ctype or 'pi'}_ms{self.ms_max or 1.4:g}"
+
+
 # ------------------------------------------------------------- health
 
 
@@ -223,6 +317,9 @@ class Ready(BaseModel):
     workers_alive: int
     workers_configured: int
     queue_depth: int
+
+
+JobPublic.model_rebuild()  # its tuner field names a model defined after it
 
 
 # ------------------------------------------------------ OpenAPI for typed clients

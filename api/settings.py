@@ -83,10 +83,12 @@ class Settings(BaseSettings):
         "when compute_processes is 0 (GIL-bound: more threads add contention, not throughput)."
     )
     verify_cache_size: int = Field(256, ge=0, description="LRU entries of identical /v1/verify requests (0: off).")
-    max_policy_points: int = Field(256, ge=1, le=100_000,
-                                   description="Most plants one /v1/jobs/{id}/policy request answers.")
-    policy_cache_size: int = Field(8, ge=1, le=1024,
-                                   description="Trained tuners (agent + training problem) kept loaded.")
+    tuner_cache_size: int = Field(16, ge=1, le=1024,
+                                  description="Trained tuners kept loaded per process (/v1/tuners/{name}/query).")
+    max_tuner_refine: int = Field(2000, ge=0, le=1_000_000,
+                                  description="Most refining simulations one /v1/tuners/{name}/query may ask for.")
+    max_tuner_episodes: int = Field(200_000, ge=1,
+                                    description="Most training episodes a POST /v1/tuners job may ask for.")
 
     # ------------------------------------------------------- security
     api_keys: Annotated[list[str], NoDecode] = Field(

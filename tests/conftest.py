@@ -43,3 +43,60 @@ def run_fresh_python(code: str, env: dict[str, str] | None = None, timeout: floa
 def fresh_python() -> Callable[..., Any]:
     """:func:`run_fresh_python`: ``fresh_python(code, env=None, timeout=300)``."""
     return run_fresh_python
+
+
+# ------------------------------------------------------------------------------------- tiny trained tuners
+
+#: Sizes of the tiny tuners the tests train: the figures mean nothing, every code path is the real one.
+TINY_TRAINING: dict[str, Any] = dict(n_envs=32, contexts_per_step=4, n_steps=4, batch_size=64, validation=2,
+                                     curve_contexts=1)
+
+
+def tiny_training_settings() -> dict[str, Any]:
+    """:data:`TINY_TRAINING`, with a checkpoint every 512 episodes where the settings name the interval (``chunk``)."""
+    from gaintune.tuners.train import TrainSettings
+
+    fields = getattr(TrainSettings, "__dataclass_fields__", {})
+    return {**TINY_TRAINING, **({"chunk": 512} if "chunk" in fields else {})}
+
+
+def tank_family_spec() -> dict[str, Any]:
+    """The water tank's example spec as a family over the operating level H0 (2 .. 20 m)."""
+    from gaintune.plants.library import load_model
+
+    spec = load_model("water_tank").example_spec()
+    spec["randomize"] = {"params": {"H0": [2.0, 20.0]}}
+    return spec
+
+
+@pytest.fixture(scope="session")
+def tiny_training() -> dict[str, Any]:
+    """:func:`tiny_training_settings`, for tests that train a tuner themselves."""
+    return tiny_training_settings()
+
+
+@pytest.fixture
+def tank_spec() -> dict[str, Any]:
+    """:func:`tank_family_spec`: a fresh copy per test."""
+    return tank_family_spec()
+
+
+@pytest.fixture(scope="session")
+def tiny_fotd_tuner(tmp_path_factory) -> Path:
+    """A FOTD PI tuner (Ms <= 1.4) trained for 512 episodes (about a minute on the 2-core machine)."""
+    from gaintune.tuners.problems import FamilyProblem
+    from gaintune.tuners.train import TrainSettings, train
+
+    return train(FamilyProblem("fotd", "pi", 1.4), tmp_path_factory.mktemp("tuners") / "fotd_pi",
+                 TrainSettings(episodes=512, **tiny_training_settings()))
+
+
+@pytest.fixture(scope="session")
+def tiny_tank_tuner(tmp_path_factory) -> Path:
+    """A spec tuner of the water tank over H0, trained for 512 episodes."""
+    from gaintune.spec import load_spec
+    from gaintune.tuners.problems import SpecProblem
+    from gaintune.tuners.train import TrainSettings, train
+
+    return train(SpecProblem(load_spec(tank_family_spec())), tmp_path_factory.mktemp("tuners") / "tank_h0",
+                 TrainSettings(episodes=512, **tiny_training_settings()))

@@ -1,4 +1,5 @@
-"""Tuning jobs: ``POST /v1/tune`` queues one; ``/v1/jobs`` lists, reads, cancels and serves their artifacts."""
+"""Jobs: ``POST /v1/tune`` queues a tuning job (``POST /v1/tuners`` a tuner's training, :mod:`.tuners`);
+``/v1/jobs`` lists, reads, cancels and serves their artifacts."""
 
 from __future__ import annotations
 
@@ -6,15 +7,13 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Body, Header, Query, Request, Response
+from fastapi import APIRouter, Body, Header, Query, Response
 from fastapi.responses import FileResponse, HTMLResponse
 
-from gaintune.cache import LRU
 from gaintune.search.result import TuneResult
 from gaintune.spec import TuningSpec
 from gaintune_api.artifacts import EXPORT_MEDIA, export_gains, export_verdict, render_report, render_report_html
-from gaintune_api.compute import compute_policy
-from gaintune_api.deps import FilesDep, OwnerDep, SettingsDep, StoreDep, run_compute
+from gaintune_api.deps import FilesDep, OwnerDep, SettingsDep, StoreDep
 from gaintune_api.job_store import IdempotencyConflict, JobRow, QueueFull, loads
 from gaintune_api.jobfiles import ArtifactMismatch, ArtifactMissing
 from gaintune_api.jsonbody import StrictJSONRoute
@@ -26,9 +25,8 @@ from gaintune_api.schemas import (
     JobResultPublic,
     JobStatus,
     JobSummary,
-    PolicyAnswers,
-    PolicyRequest,
     ProgressPublic,
+    TunerPublic,
 )
 from gaintune_api.validation import check_spec
 
@@ -52,9 +50,14 @@ def _progress(row: JobRow) -> ProgressPublic | None:
         return None
     budget = int(p.get("budget") or 0)
     sims = int(p.get("sims") or 0)
+    fraction = min(1.0, sims / budget) if budget else 0.0
+    episodes, total = p.get("episodes"), p.get("episodes_total")
+    if row.kind == "tuner":  # a training's progress is in episodes; its simulations have no budget
+        fraction = min(1.0, int(episodes or 0) / int(total)) if total else 0.0
     return ProgressPublic(
-        sims=sims, budget=budget, fraction=min(1.0, sims / budget) if budget else 0.0, best_cost=p.get("best_cost"),
+        sims=sims, budget=budget, fraction=fraction, best_cost=p.get("best_cost"),
         elapsed=float(p.get("elapsed") or 0.0), eta=p.get("eta"), phase=str(p.get("phase") or "search"),
+        episodes=episodes, episodes_total=total, median_ratio=p.get("median_ratio"),
     )
 
 
@@ -71,7 +74,7 @@ def _agent_file(row: JobRow, result: dict[str, Any], jobs_dir: Path) -> Path | N
 
 def _summary_fields(row: JobRow) -> dict[str, Any]:
     return dict(
-        id=row.id, status=row.status, spec_name=row.spec_name, spec_hash=row.spec_hash,
+        id=row.id, kind=row.kind, status=row.status, spec_name=row.spec_name, spec_hash=row.spec_hash,
         created_at=_ts(row.created_at), updated_at=_ts(row.updated_at), started_at=_ts(row.started_at),
         finished_at=_ts(row.finished_at), progress=_progress(row), cancel_requested=row.cancel_requested_at is not None,
         attempts=row.attempts, error=row.error,
@@ -82,14 +85,19 @@ def to_public(row: JobRow, jobs_dir: Path) -> JobPublic:
     base = f"/v1/jobs/{row.id}"
     links = {"self": base}
     result = None
+    tuner = None
     r = loads(row.result)
     if r is not None:
         agent = _agent_file(row, r, jobs_dir) is not None
-        result = _result_public(_tune_result(r), agent)
-        links.update(report=f"{base}/report", export=f"{base}/export?format=json")
+        if row.kind == "tuner":
+            tuner = TunerPublic.model_validate(r["tuner"])
+            links["query"] = f"/v1/tuners/job:{row.id}/query"
+        else:
+            result = _result_public(_tune_result(r), agent)
+            links.update(report=f"{base}/report", export=f"{base}/export?format=json")
         if agent:
             links["agent"] = f"{base}/agent"
-    return JobPublic(**_summary_fields(row), result=result, links=links)
+    return JobPublic(**_summary_fields(row), result=result, tuner=tuner, links=links)
 
 
 def _get(store, job_id: str, owner: str) -> JobRow:
@@ -202,6 +210,14 @@ def _finished_result(row: JobRow) -> dict[str, Any]:
     return r
 
 
+def _tuning_result(row: JobRow) -> dict[str, Any]:
+    """A finished tuning job's result; 409 for a tuner-training job (it has a tuner, no gains)."""
+    if row.kind == "tuner":
+        raise ApiError(409, f"Job {row.id} trained a tuner: it has no gains to report or export; query it at "
+                            f"POST /v1/tuners/job:{row.id}/query.")
+    return _finished_result(row)
+
+
 def _tune_result(r: dict[str, Any]) -> TuneResult:
     return TuneResult.model_validate(r)
 
@@ -222,7 +238,7 @@ def job_report(job_id: str, store: StoreDep, files: FilesDep, owner: OwnerDep) -
     from gaintune_api.storage_faults import StorageFault
 
     row = _get(store, job_id, owner)
-    r = _finished_result(row)
+    r = _tuning_result(row)
     path = files.job_dir(row.id) / "report.html"
     if path.is_file():
         return FileResponse(path, media_type="text/html; charset=utf-8")
@@ -252,32 +268,6 @@ def _checked_agent(row: JobRow, files) -> tuple[Path, str | None, dict[str, Any]
         raise ApiError(500, f"The agent file of job {row.id} was changed after the job finished: {exc}.",
                        title="Stored artefact does not match", extra={"cause": "artifact-mismatch"}) from None
     return path, digest, r
-
-
-@router.post("/jobs/{job_id}/policy", response_model=PolicyAnswers,
-             summary="Gains of the job's trained policy for other plants of its family, each verified",
-             responses={**NOT_FOUND,
-                        409: {"description": "No result, or the job saved no agent.", **_PROBLEM},
-                        410: {"description": "The agent file is gone from the data directory.", **_PROBLEM},
-                        422: {"description": "A parameter the job did not randomise, a bad value, or too many points.",
-                              **_PROBLEM}})
-async def job_policy(job_id: str, body: PolicyRequest, request: Request, store: StoreDep, files: FilesDep,
-                     owner: OwnerDep, settings: SettingsDep) -> Response:
-    """For each plant (the job's spec with ``params`` as its nominal parameters), the trained policy's gains,
-    moved onto that plant's requirement boundary and verified there. Only answers whose ``verdict`` is
-    ``pass`` carry ``accepted_gains``. The first request of a job loads its agent (about 2 s); later ones
-    cost milliseconds per plant."""
-    row = _get(store, job_id, owner)
-    path, digest, r = _checked_agent(row, files)
-    st = request.app.state
-    if getattr(st, "policy_tuners", None) is None:  # only the event loop runs this: no race
-        st.policy_tuners = LRU(settings.policy_cache_size)
-    tuners = st.policy_tuners
-    tag, data = await run_compute(request, compute_policy, tuners, f"{row.id}:{digest}", path, r["spec"],
-                                  body.params, settings.max_policy_points)
-    if tag != "ok":
-        raise ApiError(422, "The policy cannot answer these parameters.", errors=data)
-    return Response(data, media_type="application/json")
 
 
 @router.get("/jobs/{job_id}/agent", summary="Trained SB3 agent (zip)",
@@ -322,7 +312,7 @@ def job_export(
     from gaintune.errors import GaintuneError
 
     row = _get(store, job_id, owner)
-    r = _finished_result(row)
+    r = _tuning_result(row)
     result = _tune_result(r)
     try:
         checked = export_verdict(result, dt, settings.max_steps)

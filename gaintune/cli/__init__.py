@@ -10,7 +10,8 @@ This package holds the typer :data:`app` and its commands; its modules hold the 
 * :mod:`gaintune.cli.output`: result summaries, tables, plots and ``--out`` folders;
 * :mod:`gaintune.cli.tuning`: running a tune with its progress bar (``tune``, ``demo``);
 * :mod:`gaintune.cli.exporting`: the verdict gate of ``export``;
-* :mod:`gaintune.cli.policy`: a trained tuner's gains for other plants (``policy``);
+* :mod:`gaintune.cli.tuner`: the ``tuner`` sub-app (train, query, list, update, schedule) and
+  :mod:`gaintune.cli.schedule`, its ``schedule`` command;
 * :mod:`gaintune.cli.bench`: the ``bench`` sub-app (:data:`BENCH`);
 * :mod:`gaintune.cli.entry`: :data:`app`'s class, which ends a command run as the program
   without interpreter teardown (0.9 s after a tune).
@@ -57,7 +58,7 @@ from gaintune.cli.output import (
     _simulation_json,
     _write_outputs,  # noqa: F401 - gaintune.cli._write_outputs, used by tests
 )
-from gaintune.cli.policy import run_policy
+from gaintune.cli.tuner import tuner_app
 
 # the commands call _get_tune through this module, so gaintune.cli._get_tune can be replaced (tests do)
 from gaintune.cli.tuning import _check_quick_options, _finish, _get_tune, _run_tune, demo_spec, run_quick
@@ -78,6 +79,7 @@ plants_app = typer.Typer(help="Built-in plant models: list them, or show one.", 
                          epilog=EPILOG)
 app.add_typer(plants_app, name="plants")
 app.add_typer(bench_app, name="bench")
+app.add_typer(tuner_app, name="tuner")
 
 
 # --------------------------------------------------------------- commands
@@ -301,22 +303,6 @@ def export(
             output.parent.mkdir(parents=True, exist_ok=True)
             write_atomic(output, text)  # a symlink at --output is replaced, never written through
         err.print(f"wrote {output}")
-
-
-@app.command()
-@handle_errors
-def policy(
-    run: Annotated[Path, typer.Argument(
-        metavar="RUN", help="A folder 'gaintune tune --out' wrote (result.json + agent.zip).")],
-    param: Annotated[list[str] | None, typer.Option(
-        "--param", "-p", metavar="NAME=V[,V...]",
-        help="Plant parameter value(s); several values or several --param give a grid (a gain schedule).")] = None,
-    json_out: Annotated[bool, typer.Option("--json", help="Print the answers as JSON.")] = False,
-) -> None:
-    """Gains of RUN's trained policy for plants of its family (parameters in its randomize ranges), each verified.
-
-    Exit 3 if any answer fails verification."""
-    run_policy(run, param or [], json_out)
 
 
 @app.command()

@@ -29,8 +29,6 @@ BENCH = {
     "kernel": "The simulator kernel side by side with an earlier git revision of it.",
     "ablation": "RL agents and PPO settings side by side on 1/(s+1)^3 PID.",
     "startup": "End-to-end wall time of --help, import, verify and a 3,000-simulation tune, beside python -c pass.",
-    "policy": "A trained tuner's answer time (policy, repair, verification per plant) beside the search that "
-              "trained it.",
     "tuners": "Trained tuners on held-out FOTD plants against the per-plant optimum and AMIGO/SIMC, with their "
               "answer time.",
     "quick": "`tune --quick` on the standard suite's SISO problems against the cached reference and AMIGO/SIMC, with "

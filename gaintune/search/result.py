@@ -5,13 +5,13 @@ from __future__ import annotations
 import json
 from typing import Any, Literal
 
-from pydantic import BaseModel, Field, computed_field, field_serializer, field_validator, model_validator
+from pydantic import BaseModel, Field, field_serializer, field_validator, model_validator
 
 from gaintune.spec import Gains, ScenarioDefault
 from gaintune.verification.report import VerificationReport, load_report
 
-__all__ = ["CurvePoint", "Progress", "Provenance", "SettleInfo", "Diagnosis", "TuneResult", "PolicyAnswer",
-           "accepted", "report_json"]
+__all__ = ["CurvePoint", "Progress", "Provenance", "SettleInfo", "Diagnosis", "TuneResult", "accepted",
+           "report_json"]
 
 
 def accepted(gains: Gains, verdict: str | None) -> Gains | None:
@@ -193,36 +193,6 @@ class TuneResult(BaseModel):
     @property
     def accepted_gains(self) -> Gains | None:
         """The gains, only when verification passed; otherwise None (:func:`accepted`)."""
-        return accepted(self.gains, self.verdict)
-
-
-
-class PolicyAnswer(BaseModel):
-    """The trained policy's gains for one plant, and their verification on that plant."""
-
-    params: dict[str, float] = Field(
-        description="Plant parameters the gains are for (the training spec's nominal values where not given).")
-    gains: Gains = Field(description="The policy's gains, moved onto the requirement boundary as the search does.")
-    verification: VerificationReport = Field(
-        description="Verification of the gains on the plant at these parameters (nominal, no robust set).")
-    outside: list[str] = Field(
-        default_factory=list, description="Parameters outside their training range: the policy extrapolates there.")
-    elapsed_ms: float = Field(description="Wall time of this answer (policy, repair and verification), milliseconds.")
-
-    @field_serializer("verification")
-    def _verification_json(self, v: VerificationReport) -> dict[str, Any] | None:
-        return report_json(v)
-
-    @computed_field(description="pass or fail: the verification's verdict.")  # type: ignore[prop-decorator]  # mypy: computed_field on a property
-    @property
-    def verdict(self) -> str:
-        """The verification's verdict: pass or fail."""
-        return self.verification.verdict
-
-    @computed_field(description="The gains when the verdict is pass, else null.")  # type: ignore[prop-decorator]  # as above
-    @property
-    def accepted_gains(self) -> Gains | None:
-        """The gains, only when their verification passed; otherwise None (:func:`accepted`)."""
         return accepted(self.gains, self.verdict)
 
 

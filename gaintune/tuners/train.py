@@ -168,14 +168,16 @@ def _exported(agent: Any, n_in: int, seed: int) -> NumpyPolicy:
 
 def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None = None, *, name: str | None = None,
           on_progress: Callable[[int, int, dict[str, Any]], None] | None = None, resume: bool = True,
-          warm_start: str | Path | None = None) -> Path:
+          warm_start: str | Path | None = None, keep_agent: bool = True) -> Path:
     """Train a tuner for ``problem`` and write it to the folder ``out``; returns ``out``.
 
     ``on_progress(done, total, info)`` is called after every rollout (episodes done, episodes in
     all, and ``{"reward", "sims", "elapsed_s", "ratio"}``; ``ratio`` at checkpoints). With
     ``resume`` a checkpoint of the same problem and settings in ``.<out>.training`` is continued.
     ``warm_start`` is a tuner folder whose agent and gain box the training continues from
-    (``gaintune tuner update``): same gains and number of context values, a changed family.
+    (``gaintune tuner update``): same gains and number of context values, a changed family. A folder
+    without ``agent.zip`` (the shipped tuners, kept small) gives its actor from ``policy.npz``; the
+    critic then starts afresh. ``keep_agent`` writes ``agent.zip`` into the tuner folder.
     """
     from gaintune.search.agents import load_weights
     from gaintune.tuners.env import ContextBanditVecEnv
@@ -188,7 +190,10 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
     env = ContextBanditVecEnv(problem, s.n_envs, s.contexts_per_step, seed=s.seed)
     agent = _make_agent(env, s)
     if warm_start is not None:
-        load_weights(agent, Path(warm_start) / "agent.zip", field="tuner")
+        if (Path(warm_start) / "agent.zip").is_file():
+            load_weights(agent, Path(warm_start) / "agent.zip", field="tuner")
+        else:
+            _actor_from(agent, artefact.load(Path(warm_start)).policy)
         agent.num_timesteps = 0
         if hasattr(agent, "learning_starts"):  # the actor already answers: no random warm-up episodes
             agent.learning_starts = s.n_envs
@@ -228,7 +233,7 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
         training["warm_start"] = str(warm_start)
     art = Artefact(name or out.name, problem, policy, training, val,
                    meta={"versions": versions(), "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())},
-                   files={"agent.zip": _agent_bytes(agent)})
+                   files={"agent.zip": _agent_bytes(agent)} if keep_agent else {})
     artefact.save(out, art)
     ckpt.clear()
     return out
@@ -242,6 +247,22 @@ def _agent_bytes(agent: Any) -> bytes:
 
     with tempfile.TemporaryDirectory() as tmp:
         return save_agent(agent, Path(tmp) / "agent.zip").read_bytes()
+
+
+def _actor_from(agent: Any, policy: NumpyPolicy) -> None:
+    """Put the NumPy policy's weights into the agent's actor (and its target): a warm start without agent.zip."""
+    import torch
+
+    if not hasattr(agent.policy, "actor"):
+        raise SpecError("tuner", "a tuner without agent.zip warm-starts a TD3 agent only")
+    for mu in (agent.policy.actor.mu, agent.policy.actor_target.mu):
+        layers = [m for m in mu if isinstance(m, torch.nn.Linear)]
+        if [tuple(m.weight.shape) for m in layers] != [w.shape for w in policy.weights]:
+            raise SpecError("tuner", "the tuner's policy layers do not fit this agent's actor; retrain it")
+        with torch.no_grad():
+            for m, w, b in zip(layers, policy.weights, policy.biases, strict=True):
+                m.weight.copy_(torch.as_tensor(w, dtype=m.weight.dtype))
+                m.bias.copy_(torch.as_tensor(b, dtype=m.bias.dtype))
 
 
 def _warm_box(problem: TunerProblem, folder: str | Path) -> bool:

@@ -120,6 +120,7 @@ BODIES = {
                                 {"spec": spec, "gains": GAINS, "robust": None, "nonlinear": False}],
     "/v1/simulate": lambda spec: [{"spec": spec, "gains": GAINS},
                                   {"spec": spec, "gains": GAINS, "max_points": 500, "scenarios": ["step"]}],
+    "/v1/tuners": lambda spec: [{"spec": spec}, {"spec": spec, "episodes": 20000, "seed": 1}],
 }
 #: Bodies the generated types must reject: each line must be a TypeScript error (``@ts-expect-error``).
 REJECTED = {
@@ -132,6 +133,7 @@ REJECTED = {
     "/v1/tune": [{"loops": [{"type": "pid"}]}],
     "/v1/verify": [{"spec": MINIMAL}, {"spec": MINIMAL, "gains": {"loop0": {"Kp": "1"}}}],
     "/v1/simulate": [{"spec": MINIMAL}, {"spec": MINIMAL, "gains": GAINS, "max_points": "2000"}],
+    "/v1/tuners": [{"spec": MINIMAL, "episodes": "2000"}, {"family": "pid"}],
 }
 
 

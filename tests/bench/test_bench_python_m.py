@@ -8,7 +8,7 @@ import sys
 import pytest
 
 
-@pytest.mark.parametrize("name", ["policy", "constraints", "verify", "ablation"])
+@pytest.mark.parametrize("name", ["constraints", "verify", "ablation"])
 def test_bench_module_run_with_python_m_is_not_a_silent_no_op(name):
     """Regression: these modules had no ``__main__`` block, so ``python -m`` exited 0 having done nothing."""
     out = subprocess.run([sys.executable, "-m", f"gaintune.bench.{name}", "--help"], capture_output=True, text=True,
