@@ -59,10 +59,11 @@ def measure_update(base: str = "fotd_pi_ms1.4", episodes: int = 16_384, seed: in
     from gaintune.tuners.problems import SpecProblem
     from gaintune.tuners.train import TrainSettings, train
 
-    common = {"episodes": episodes, "seed": seed, "chunk": 1024, "validation": 8, "curve_contexts": 8}
+    common: dict[str, Any] = {"episodes": episodes, "seed": seed, "chunk": 1024, "validation": 8, "curve_contexts": 8}
     out: dict[str, Any] = {"base": base, "lag": LAG, "target": TARGET, "episodes": episodes, "seed": seed}
     with tempfile.TemporaryDirectory() as tmp:
-        for run, extra in (("cold", {}), ("update", {"noise_start": 0.05})):
+        runs: tuple[tuple[str, dict[str, Any]], ...] = (("cold", {}), ("update", {"noise_start": 0.05}))
+        for run, extra in runs:
             t0 = time.perf_counter()
             folder = train(SpecProblem(changed_spec()), Path(tmp) / run, TrainSettings(**common, **extra),
                            warm_start=artefact.resolve(base) if run == "update" else None, resume=False)

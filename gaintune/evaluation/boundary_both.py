@@ -51,7 +51,7 @@ def _outward(ev: Evaluator, t: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, n
                                    stability=False)
     lv, lg = lv.reshape(n, n_ladder), lg.reshape(n, n_ladder)
     bad = lv > 0
-    crosses = bad.any(axis=1)
+    crosses = np.asarray(bad.any(axis=1))
     first = np.argmax(bad, axis=1)  # the smallest infeasible scale on the ladder
     i = np.arange(n)
     prev = first - 1

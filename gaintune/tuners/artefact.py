@@ -56,7 +56,7 @@ class Artefact:
 
 def _npz_bytes(policy: NumpyPolicy) -> bytes:
     buf = io.BytesIO()
-    np.savez(buf, **policy.arrays())
+    np.savez(buf, *(), **policy.arrays())  # type: ignore[arg-type]  # numpy's stub takes **kwds as allow_pickle
     return buf.getvalue()
 
 

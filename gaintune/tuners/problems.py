@@ -107,6 +107,19 @@ class TunerProblem:
     box: GainBox | None = None
 
     def spec_at(self, context: Mapping[str, float]) -> TuningSpec:  # pragma: no cover - abstract
+        """The tuning problem of one context, gains bounded by the box."""
+        raise NotImplementedError
+
+    def context_of(self, params: Mapping[str, float]) -> dict[str, float]:  # pragma: no cover - abstract
+        """The context of a query's physical parameters (checked)."""
+        raise NotImplementedError
+
+    def physical_spec(self, params: Mapping[str, float]) -> TuningSpec:  # pragma: no cover - abstract
+        """The tuning problem of the plant a query names."""
+        raise NotImplementedError
+
+    def scale_answer(self, gains: Gains, params: Mapping[str, float]) -> Gains:  # pragma: no cover - abstract
+        """The policy's gains for the plant a query names."""
         raise NotImplementedError
 
     def features(self, context: Mapping[str, float]) -> np.ndarray:
