@@ -15,16 +15,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from gaintune.evaluation.boundary import loop_gain_exponents
+from gaintune.evaluation.boundary import alpha_floor, loop_gain_exponents
 from gaintune.evaluation.boundary_estimate import TOL, EstimateMove, _Bracket, _regula_falsi, onto_boundary_estimate
 from gaintune.evaluation.evaluator import Evaluator, Scores
+from gaintune.verification.quick import UNSTABLE_VIOLATION
 
 __all__ = ["BothMove", "onto_boundary", "OUTWARD_LADDER"]
 
 #: Loop-gain scales tried at once above 1: they bracket the boundary of a feasible interior candidate.
 OUTWARD_LADDER = (1.02, 1.1, 1.3, 1.7, 2.5, 4.0, 7.0)
 #: Rounds of the outward ladder, each starting from the last one's top.
-OUTWARD_ROUNDS = 3
+OUTWARD_ROUNDS = 4
 
 
 class BothMove(EstimateMove):
@@ -64,9 +65,38 @@ def _outward(ev: Evaluator, t: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, n
     return t * np.exp(x)[:, None] ** d, x > 0
 
 
+#: Loop-gain scales tried at once on an unstable candidate, to find a stable start for the inward move.
+STABILISE_LADDER = (0.5, 0.25, 0.1, 0.03, 0.01, 0.003)
+
+
+def _stabilised(ev: Evaluator, tuned: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Unstable rows scaled down to the largest stable scale of :data:`STABILISE_LADDER` (within the box).
+
+    :func:`onto_boundary_estimate` leaves an unstable candidate as it is; from a stable point the inward
+    move can bring it onto the boundary. Rows that no scale stabilises are left unchanged.
+    """
+    if not d.any():
+        return tuned
+    v = ev.requirement_scores(tuned)[0]
+    rows = np.nonzero(v >= UNSTABLE_VIOLATION)[0]
+    if not rows.size:
+        return tuned
+    t = tuned[rows]
+    floor = alpha_floor(ev.layout, t, d)
+    alphas = np.maximum(np.array(STABILISE_LADDER)[None, :], floor[:, None])  # (n, L)
+    n, n_l = alphas.shape
+    lv = ev.requirement_scores((t[:, None, :] * alphas[..., None] ** d).reshape(n * n_l, -1))[0].reshape(n, n_l)
+    stable = lv < UNSTABLE_VIOLATION
+    first = np.argmax(stable, axis=1)
+    ok = stable.any(axis=1)
+    out = tuned.copy()
+    out[rows[ok]] = t[ok] * alphas[np.nonzero(ok)[0], first[ok]][:, None] ** d
+    return out
+
+
 def _outward_all(ev: Evaluator, t: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_outward`, repeated from the ladder's top for rows it did not bring onto the boundary (at most
-    :data:`OUTWARD_ROUNDS` times: a scale of up to 7**3 = 343)."""
+    :data:`OUTWARD_ROUNDS` times: a scale of up to 7**4 = 2401)."""
     moved, did = _outward(ev, t, d)
     for _ in range(OUTWARD_ROUNDS - 1):
         g = ev.requirement_scores(moved, stability=False)[1]
@@ -79,6 +109,8 @@ def _outward_all(ev: Evaluator, t: np.ndarray, d: np.ndarray) -> tuple[np.ndarra
 
 def onto_boundary(ev: Evaluator, tuned: np.ndarray) -> BothMove:
     """Move infeasible candidates inward and feasible interior ones outward onto the requirement boundary.
+
+    An unstable candidate is first scaled down to a stable one (:func:`_stabilised`).
 
     Parameters
     ----------
@@ -93,6 +125,8 @@ def onto_boundary(ev: Evaluator, tuned: np.ndarray) -> BothMove:
         The gains (each row the lower-cost of where it was and where it moved), their violation,
         the scale applied, which rows moved, and their :class:`Scores`.
     """
+    given = np.atleast_2d(np.asarray(tuned, dtype=float))
+    tuned = _stabilised(ev, given, loop_gain_exponents(ev))
     inward = onto_boundary_estimate(ev, tuned)
     out = inward.tuned.copy()
     d = loop_gain_exponents(ev)
@@ -112,7 +146,9 @@ def onto_boundary(ev: Evaluator, tuned: np.ndarray) -> BothMove:
             alpha[rows[better]] = (moved[better] / out[rows[better]])[:, np.argmax(d)]
             out[rows[better]] = moved[better]
     scores = ev.evaluate(out)
-    repaired = inward.repaired | (alpha != 1.0)
-    res = BothMove(out, scores.violation, alpha, repaired)
+    if d.any():  # the scale applied to the given gains, stabilising step included
+        k = int(np.argmax(d))
+        alpha = out[:, k] / given[:, k]
+    res = BothMove(out, scores.violation, alpha, np.any(out != given, axis=1))
     res.scores = scores
     return res

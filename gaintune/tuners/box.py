@@ -57,6 +57,10 @@ def fit_box(problem: TunerProblem) -> GainBox:
             assert lo is not None and hi is not None and here == slots
             lo, hi = np.minimum(lo, b[:, 0]), np.maximum(hi, b[:, 1])
     assert slots is not None and lo is not None and hi is not None
-    box = GainBox(slots, lo, hi)
+    from gaintune.evaluation.boundary import loop_gain_exponents
+    from gaintune.evaluation.evaluator import Evaluator
+
+    axis = loop_gain_exponents(Evaluator(problem.spec_at(problem.centre())))
+    box = GainBox(slots, lo, hi, axis)
     problem.box = box
     return box

@@ -58,16 +58,31 @@ class ContextVar:
 
 @dataclass(frozen=True)
 class GainBox:
-    """The tuned gains, as ``(loop, gain)`` slots, and their log-scale bounds: where the action maps."""
+    """The tuned gains, as ``(loop, gain)`` slots, and their log-scale bounds: where the action maps.
+
+    ``scale_axis`` marks the gains the boundary move scales together (1 on Kp, Ki, Kd of a parallel
+    PID loop). The move sets their common scale for every answer, so the action's component along
+    that axis means nothing: :meth:`to_tuned` removes it (the mean log-gain over the axis is put at
+    the box's centre). Left in, a flat direction lets the actor drift into the saturated corner of
+    the box, where the controller's shape is frozen at the corner's.
+    """
 
     slots: tuple[tuple[str, str], ...]
     log_lo: np.ndarray
     log_hi: np.ndarray
+    scale_axis: np.ndarray | None = None
 
     def to_tuned(self, action: np.ndarray) -> np.ndarray:
-        """(B, d) tuned gains for actions in [-1, 1]^d (log-linear in the box)."""
+        """(B, d) tuned gains for actions in [-1, 1]^d (log-linear in the box, scale removed along the axis)."""
         a = np.clip(np.atleast_2d(np.asarray(action, dtype=float)), -1.0, 1.0)
-        return np.exp(self.log_lo + 0.5 * (a + 1.0) * (self.log_hi - self.log_lo))
+        x = self.log_lo + 0.5 * (a + 1.0) * (self.log_hi - self.log_lo)
+        ax = self.scale_axis
+        if ax is not None and ax.any():
+            on = ax > 0
+            centre = 0.5 * (self.log_lo + self.log_hi)
+            shift = np.mean(x[:, on] - centre[on], axis=1)
+            x = np.clip(x - shift[:, None] * ax, self.log_lo, self.log_hi)
+        return np.exp(x)
 
     def to_gains(self, tuned: np.ndarray) -> Gains:
         """One tuned vector as ``{loop: {gain: value}}``."""
@@ -77,13 +92,17 @@ class GainBox:
         return out
 
     def as_dict(self) -> dict[str, Any]:
-        return {"slots": [list(s) for s in self.slots], "lo": np.exp(self.log_lo).tolist(),
-                "hi": np.exp(self.log_hi).tolist()}
+        out: dict[str, Any] = {"slots": [list(s) for s in self.slots], "lo": np.exp(self.log_lo).tolist(),
+                               "hi": np.exp(self.log_hi).tolist()}
+        if self.scale_axis is not None:
+            out["scale_axis"] = self.scale_axis.tolist()
+        return out
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> GainBox:
+        axis = d.get("scale_axis")
         return cls(tuple((str(a), str(b)) for a, b in d["slots"]), np.log(np.asarray(d["lo"], float)),
-                   np.log(np.asarray(d["hi"], float)))
+                   np.log(np.asarray(d["hi"], float)), None if axis is None else np.asarray(axis, float))
 
 
 def _with_bounds(data: dict[str, Any], bounds: Mapping[tuple[str, str], tuple[float, float]]) -> dict[str, Any]:

@@ -216,7 +216,7 @@ def test_tuner_train_resumes_after_a_kill(tiny_settings: dict, tmp_path: Path) -
     assert res.exit_code == 0, res.output
     doc = json.loads((out / "tuner.json").read_text())
     assert doc["training"]["resumed"] == 1 and doc["training"]["episodes"] == 1024
-    assert [p["episodes"] for p in doc["training"]["curve"]] == [512, 1024]
+    assert [p["episodes"] for p in doc["training"]["curve"]] == [0, 512, 1024]  # 0: where the run started
     assert f"wrote tuner {out}" in res.stdout and "resumed 1x" in res.stdout and "KB" in res.stdout
     assert "validation on 2 held-out plants" in res.stdout
     assert Tuner.load(out).query({"K": 1.3}).verdict in ("pass", "fail")
