@@ -193,3 +193,27 @@ def test_spec_without_randomize_cannot_train_a_tuner():
     with pytest.raises(SpecError) as e:
         SpecProblem(spec)
     assert e.value.field == "randomize.params"
+
+
+def test_unstable_gains_are_scaled_to_a_stable_start_and_moved_onto_the_boundary():
+    """onto_boundary_estimate leaves an unstable candidate as it is; a tuner's answer must not."""
+    spec = problem_spec(family("fotd"), {"K": 1.0, "T": 1.0, "L": 0.5})
+    ev = Evaluator(spec)
+    wild = np.array([[40.0, 40.0]])
+    assert ev.requirement_scores(wild)[0][0] >= 10  # unstable
+    move = onto_boundary(ev, wild)
+    assert bool(move.scores.feasible[0]) and move.alpha[0] < 0.1 and move.repaired[0]
+
+
+def test_action_along_the_loop_gain_scale_changes_nothing_the_actor_could_drift_into():
+    p = FamilyProblem("fotd", "pi", 1.4)
+    from gaintune.tuners.box import fit_box
+
+    box = fit_box(p)
+    assert box.scale_axis is not None and box.scale_axis.tolist() == [1.0, 1.0]
+    a = np.array([[0.1, -0.2]])
+    along = 2 * 0.4 / (box.log_hi - box.log_lo)  # the same log-scale shift on every gain of the loop
+    np.testing.assert_allclose(box.to_tuned(a), box.to_tuned(a + along), rtol=1e-12)
+    ratio = box.to_tuned(a)[0]
+    assert ratio[1] / ratio[0] != pytest.approx(box.to_tuned(np.array([[0.1, 0.4]]))[0][1]
+                                                / box.to_tuned(np.array([[0.1, 0.4]]))[0][0])
