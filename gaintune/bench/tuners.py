@@ -45,7 +45,7 @@ from gaintune.bench.tuners_refs import (
     rule_gains,
 )
 from gaintune.bench.tuners_timing import fresh_process_timing, in_process_timing
-from gaintune.bench.tuners_update import measure_update, render_update, training_figures
+from gaintune.bench.tuners_update import measure_update, measure_warm_start, render_update, training_figures
 from gaintune.fmt import fmt
 
 __all__ = ["DEFAULT_TUNER", "MS_MAX", "TunerUnavailable", "load_tuner", "measure", "render", "main"]
@@ -387,6 +387,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _main_update(args: Any, out: Path, command: str) -> int:
     """``--update``: the learning-on figure alone (two trainings)."""
     r = measure_update(args.tuner or DEFAULT_TUNER["pi"], args.update_episodes)
+    r["warm_start"] = measure_warm_start()
     r["command"] = command
     md = render_update(r, command)
     print(md)

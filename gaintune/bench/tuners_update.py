@@ -3,10 +3,10 @@
 The changed family is the FOTD family with a sensor lag added, ``e^{-tau s}/(((1-tau) s + 1)(LAG s + 1))``
 in the time unit ``L + T`` (:func:`changed_spec`), PI, the same load-step problem and Ms limit, over the
 same range of ``tau``. Both runs train on it with the same settings and seed, one from scratch and one
-from the shipped tuner (its agent and gain box; the exploration starts lower, as ``tuner update``
-does). The figure is the number of training simulations until the training curve's median
-cost / per-context optimum (on fixed contexts, each scored against its own MIGO optimum) first
-reaches :data:`TARGET`, and their ratio.
+from the shipped tuner (``tuner update``: its actor and gain box, a lower starting exploration, and a
+fresh critic trained alone for its first episodes). The figure is the number of training simulations
+until the training curve's median cost / per-context optimum (on fixed contexts, each scored against
+its own MIGO optimum) first reaches :data:`TARGET`, and their ratio.
 """
 
 from __future__ import annotations
@@ -59,13 +59,12 @@ def measure_update(base: str = "fotd_pi_ms1.4", episodes: int = 16_384, seed: in
     from gaintune.tuners.problems import SpecProblem
     from gaintune.tuners.train import TrainSettings, train
 
-    common: dict[str, Any] = {"episodes": episodes, "seed": seed, "chunk": 1024, "validation": 8, "curve_contexts": 8}
+    common: dict[str, Any] = {"episodes": episodes, "seed": seed, "chunk": 512, "validation": 8, "curve_contexts": 8}
     out: dict[str, Any] = {"base": base, "lag": LAG, "target": TARGET, "episodes": episodes, "seed": seed}
     with tempfile.TemporaryDirectory() as tmp:
-        runs: tuple[tuple[str, dict[str, Any]], ...] = (("cold", {}), ("update", {"noise_start": 0.05}))
-        for run, extra in runs:
+        for run in ("cold", "update"):
             t0 = time.perf_counter()
-            folder = train(SpecProblem(changed_spec()), Path(tmp) / run, TrainSettings(**common, **extra),
+            folder = train(SpecProblem(changed_spec()), Path(tmp) / run, TrainSettings(**common),
                            warm_start=artefact.resolve(base) if run == "update" else None, resume=False)
             doc = artefact.load(folder)
             curve = doc.training["curve"]
@@ -113,4 +112,58 @@ def render_update(r: dict[str, Any], command: str) -> str:
     for run in ("cold", "update"):
         pts = ", ".join(f"({p['episodes']}, {p['sims']}, {p['median_ratio']:.4f})" for p in r[run]["curve"])
         lines.append(f"- {run}: {pts}")
+    w = r.get("warm_start")
+    if w:
+        rows = [[run, w[run]["sims_to_target"] if w[run]["sims_to_target"] is not None else "not reached",
+                 f"{w[run]['rl_ratio']:.4f}", f"{w[run]['final_ratio']:.4f}", f"{w[run]['wall_s']:.0f}"]
+                for run in ("cold", "warm_start")]
+        lines += ["", f"`tune --warm-start` on one changed plant (tau = {w['tau']}), budget {w['budget']}, seed "
+                  f"{w['seed']}; the agent from `tune` on the plant without the lag:", "",
+                  md_table(["search", f"sims to {w['target']} x optimum", "RL alone / optimum", "answer / optimum",
+                            "wall s"], rows), "",
+                  f"cold / warm-start simulations: {w['ratio']:.1f}x" if w["ratio"] else
+                  "cold / warm-start simulations: not comparable (a run did not reach the target)"]
     return "\n".join(lines) + "\n"
+
+
+def _sims_to_curve(curve: list[Any], target_cost: float) -> int | None:
+    """Simulations at the first point of a search curve whose feasible best cost is within ``target_cost``."""
+    for p in curve:
+        if p.feasible and p.best_cost <= target_cost:
+            return int(p.sims)
+    return None
+
+
+def measure_warm_start(tau: float = 0.3, budget: int = 3000, seed: int = 0) -> dict[str, Any]:
+    """``tune --warm-start`` against a cold ``tune`` on one changed plant: simulations to :data:`TARGET` x optimum.
+
+    The agent is trained by ``tune`` on the FOTD unit plant with this ``tau``; the changed plant is the
+    same with the sensor lag (:func:`changed_spec` at ``tau``). Both searches on it have the same spec,
+    budget and seed; the optimum is the changed plant's MIGO point (exact limit, as both specs aim).
+    """
+    from gaintune.baselines.migo_reference import migo_reference
+    from gaintune.evaluation.evaluator import Evaluator
+    from gaintune.search.tune import tune
+    from gaintune.tuners.families import FAMILIES, problem_spec
+    from gaintune.tuners.problems import SpecProblem
+
+    fam = FAMILIES["fotd"]
+    search = {"budget": budget, "seed": seed}
+    original = problem_spec(fam, fam.unit_params({"tau": tau})).model_copy(deep=True)
+    original = original.model_copy(update={"search": original.search.model_copy(update=search)})
+    changed = SpecProblem(changed_spec()).spec_at({"tau": tau})
+    changed = changed.model_copy(update={"search": changed.search.model_copy(update=search)})
+    ref = migo_reference(None, Evaluator(changed))
+    assert ref is not None
+    target = TARGET * float(ref["cost"])
+    out: dict[str, Any] = {"tau": tau, "budget": budget, "seed": seed, "optimum": ref["cost"], "target": TARGET}
+    with tempfile.TemporaryDirectory() as tmp:
+        tune(original, out_dir=tmp, verify=False)
+        for run, warm in (("cold", None), ("warm_start", Path(tmp) / "agent.zip")):
+            t0 = time.perf_counter()
+            r = tune(changed, verify=False, warm_start=warm)
+            out[run] = {"sims_to_target": _sims_to_curve(r.curve, target), "final_ratio": r.cost / ref["cost"],
+                        "rl_ratio": (r.rl_cost or math.inf) / ref["cost"], "wall_s": time.perf_counter() - t0}
+    c, w = out["cold"]["sims_to_target"], out["warm_start"]["sims_to_target"]
+    out["ratio"] = c / w if c and w else None
+    return out

@@ -1,6 +1,7 @@
 """A tuner on disk: a folder with ``tuner.json`` and ``policy.npz``, versioned, written atomically.
 
-``tuner.json`` holds the format name and version, the problem (family or spec), the context
+``tuner.json`` holds the format name and version, the problem (family or spec) and the spec of its
+central context, the context
 variables and their ranges, the gain box, the policy's layer shapes and activation and the
 SHA-256 of ``policy.npz``, the training record (algorithm, episodes, simulations, wall time,
 the training curve) and the held-out validation table (cost / per-context optimum, verdicts).
@@ -70,7 +71,10 @@ def save(out: str | Path, art: Artefact) -> Path:
     npz = _npz_bytes(art.policy)
     doc = {
         "format": FORMAT, "version": VERSION, "name": art.name, **art.meta,
-        "problem": art.problem.as_dict(), "box": art.problem.box.as_dict(),
+        "problem": art.problem.as_dict(),
+        # the tuning problem of the family's central context: what every context's spec looks like
+        "spec": art.problem.spec_at(art.problem.centre()).model_dump(mode="json", exclude_defaults=True),
+        "box": art.problem.box.as_dict(),
         "context": [{"name": v.name, "lo": v.lo, "hi": v.hi, "log": v.log} for v in art.problem.variables],
         "policy": {"file": "policy.npz", "sha256": hashlib.sha256(npz).hexdigest(), "activation": art.policy.activation,
                    "output": art.policy.output,
@@ -129,7 +133,8 @@ def load(folder: str | Path) -> Artefact:
     if policy.n_in != len(problem.variables) or policy.n_out != len(box.slots):
         raise SpecError("tuner", f"{folder}: the policy maps {policy.n_in} -> {policy.n_out} values but the tuner has "
                         f"{len(problem.variables)} context values and {len(box.slots)} gains; retrain it")
-    meta = {k: v for k, v in doc.items() if k not in ("problem", "box", "context", "policy", "training", "validation")}
+    meta = {k: v for k, v in doc.items()
+            if k not in ("problem", "spec", "box", "context", "policy", "training", "validation")}
     return Artefact(str(doc.get("name") or folder.name), problem, policy, doc.get("training") or {},
                     doc.get("validation") or {}, meta)
 

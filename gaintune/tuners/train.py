@@ -15,6 +15,7 @@ tuner folder.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -40,6 +41,10 @@ __all__ = ["TrainSettings", "train", "EXPORT_TOL"]
 
 #: Largest difference allowed between the NumPy policy and torch's deterministic action.
 EXPORT_TOL = 1e-6
+#: Largest starting exploration noise of an update (the warm policy already answers near the optimum).
+UPDATE_NOISE = 0.05
+#: Episodes of an update from a folder without agent.zip whose gradient steps train the fresh critic only.
+CRITIC_WARMUP = 512
 
 
 @dataclass(frozen=True)
@@ -183,8 +188,11 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
     from gaintune.tuners.env import ContextBanditVecEnv
 
     s = settings or TrainSettings()
+    if warm_start is not None:  # the policy already answers: explore near it
+        s = dataclasses.replace(s, noise_start=min(s.noise_start, UPDATE_NOISE))
     out = Path(out)
     start = _warm_box(problem, warm_start) if warm_start is not None else None
+    warmup = 0  # episodes whose gradient steps train the critic only (a fresh critic beside a trained actor)
     if start is None:
         fit_box(problem)
     env = ContextBanditVecEnv(problem, s.n_envs, s.contexts_per_step, seed=s.seed)
@@ -194,6 +202,7 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
             load_weights(agent, Path(warm_start) / "agent.zip", field="tuner")
         else:
             _actor_from(agent, artefact.load(Path(warm_start)).policy)
+            warmup = CRITIC_WARMUP
         agent.num_timesteps = 0
         if hasattr(agent, "learning_starts"):  # the actor already answers: no random warm-up episodes
             agent.learning_starts = s.n_envs
@@ -212,6 +221,11 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
     t0, base = time.perf_counter(), float(state["elapsed_s"])
     while state["episodes"] < s.episodes:
         chunk = min(s.chunk, s.episodes - int(state["episodes"]))
+        if state["episodes"] < warmup:
+            chunk = min(chunk, warmup - int(state["episodes"]))
+        # a random critic would drag a trained actor off its answer: hold the actor until the critic has data
+        if hasattr(agent, "policy_delay"):
+            agent.policy_delay = 10**9 if state["episodes"] < warmup else 2
         _set_noise(agent, s, int(state["episodes"]))
         agent.learn(chunk, reset_num_timesteps=False, callback=_progress_callback(on_progress, state, env, s, t0, base))
         state.update(episodes=int(agent.num_timesteps), sims=env.n_sims, elapsed_s=base + time.perf_counter() - t0)
