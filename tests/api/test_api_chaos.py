@@ -107,7 +107,9 @@ def test_stale_worker_overwrote_finished_job_artifacts_after_resume(tmp_path):
     frozen worker resumes, it stops and discards its attempt: the served agent and result do not change."""
     hold = tmp_path / "hold"
     hold.touch()
-    srv = Server(tmp_path, GAINTUNE_WORKERS="0", GAINTUNE_HEARTBEAT_TIMEOUT="2", GAINTUNE_TEST_HOLD_FILE=str(hold),
+    # the lease (5 s) outlasts freeze()'s retries on a loaded machine: a worker resumed by a retry after its lease
+    # expired could claim the re-queued job again (seen once at load 4: attempt 2 ran on the frozen worker)
+    srv = Server(tmp_path, GAINTUNE_WORKERS="0", GAINTUNE_HEARTBEAT_TIMEOUT="5", GAINTUNE_TEST_HOLD_FILE=str(hold),
                  **FAST)
     w1 = w2 = None
     try:
