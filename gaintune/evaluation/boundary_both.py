@@ -16,16 +16,15 @@ from __future__ import annotations
 import numpy as np
 
 from gaintune.evaluation.boundary import alpha_floor, loop_gain_exponents
-from gaintune.evaluation.boundary_estimate import TOL, EstimateMove, _Bracket, _regula_falsi, onto_boundary_estimate
+from gaintune.evaluation.boundary_estimate import EstimateMove, _Bracket, _regula_falsi
 from gaintune.evaluation.evaluator import Evaluator, Scores
-from gaintune.verification.quick import UNSTABLE_VIOLATION
 
-__all__ = ["BothMove", "onto_boundary", "OUTWARD_LADDER"]
+__all__ = ["BothMove", "onto_boundary", "SCAN"]
 
-#: Loop-gain scales tried at once above 1: they bracket the boundary of a feasible interior candidate.
-OUTWARD_LADDER = (1.02, 1.1, 1.3, 1.7, 2.5, 4.0, 7.0)
-#: Rounds of the outward ladder, each starting from the last one's top.
-OUTWARD_ROUNDS = 4
+#: Loop-gain scales scanned in one estimate (log-spaced, 1 included at index :data:`_ONE`): they bracket the
+#: boundary below and above the given gains, from an unstable start (1e-3) to a timid one (1e3).
+SCAN = np.geomspace(1e-3, 1e3, 31)
+_ONE = 15
 
 
 class BothMove(EstimateMove):
@@ -42,75 +41,58 @@ def _alpha_ceiling(ev: Evaluator, tuned: np.ndarray, d: np.ndarray) -> np.ndarra
     return np.maximum(lim, 1.0)
 
 
-def _outward(ev: Evaluator, t: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each feasible interior row of ``t`` moved out onto the boundary; (moved rows, which rows moved)."""
-    n = len(t)
-    x_top = np.log(_alpha_ceiling(ev, t, d))
-    xs = np.minimum(np.log(np.array(OUTWARD_LADDER))[None, :], x_top[:, None])  # (n, L)
-    n_ladder = xs.shape[1]
-    lv, lg = ev.requirement_scores((t[:, None, :] * np.exp(xs)[..., None] ** d).reshape(n * n_ladder, -1),
-                                   stability=False)
-    lv, lg = lv.reshape(n, n_ladder), lg.reshape(n, n_ladder)
-    bad = lv > 0
-    crosses = np.asarray(bad.any(axis=1))
-    first = np.argmax(bad, axis=1)  # the smallest infeasible scale on the ladder
-    i = np.arange(n)
-    prev = first - 1
-    xg = np.where(prev >= 0, xs[i, np.maximum(prev, 0)], 0.0)
-    gg = np.where(prev >= 0, lg[i, np.maximum(prev, 0)], -1.0)
-    br = _Bracket(t=t, xg=xg, gg=gg, xb=xs[i, first], gb=lg[i, first], found=crosses)
-    _regula_falsi(ev, br, d)
-    # no crossing below the box ceiling: the top of the ladder (still feasible) is the outward point
-    x = np.where(crosses, br.xg, xs[:, -1])
-    return t * np.exp(x)[:, None] ** d, x > 0
+def _take(scores: Scores, idx: np.ndarray) -> Scores:
+    """The scores of rows ``idx`` (cost, violation, flags and metrics; no traces)."""
+    return Scores(scores.cost[idx], scores.violation[idx], scores.diverged[idx], scores.tripped[idx],
+                  {k: v[idx] for k, v in scores.metrics.items()}, [])
 
 
-#: Loop-gain scales tried at once on an unstable candidate, to find a stable start for the inward move.
-STABILISE_LADDER = (0.5, 0.25, 0.1, 0.03, 0.01, 0.003)
+def _feasible_end(ok: np.ndarray) -> int | None:
+    """Index of the scan's feasible point to move from: the top of the feasible run that holds the given
+    gains, or, when they are infeasible, the largest feasible scale below them (None: no feasible scale)."""
+    if ok[_ONE]:
+        j = _ONE
+        while j + 1 < ok.size and ok[j + 1]:
+            j += 1
+        return j
+    below = np.nonzero(ok[:_ONE])[0]
+    return int(below[-1]) if below.size else None
 
 
-def _stabilised(ev: Evaluator, tuned: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Unstable rows scaled down to the largest stable scale of :data:`STABILISE_LADDER` (within the box).
-
-    :func:`onto_boundary_estimate` leaves an unstable candidate as it is; from a stable point the inward
-    move can bring it onto the boundary. Rows that no scale stabilises are left unchanged.
-    """
-    if not d.any():
-        return tuned
-    v = ev.requirement_scores(tuned)[0]
-    rows = np.nonzero(v >= UNSTABLE_VIOLATION)[0]
-    if not rows.size:
-        return tuned
-    t = tuned[rows]
-    floor = alpha_floor(ev.layout, t, d)
-    alphas = np.maximum(np.array(STABILISE_LADDER)[None, :], floor[:, None])  # (n, L)
-    n, n_l = alphas.shape
-    lv = ev.requirement_scores((t[:, None, :] * alphas[..., None] ** d).reshape(n * n_l, -1))[0].reshape(n, n_l)
-    stable = lv < UNSTABLE_VIOLATION
-    first = np.argmax(stable, axis=1)
-    ok = stable.any(axis=1)
-    out = tuned.copy()
-    out[rows[ok]] = t[ok] * alphas[np.nonzero(ok)[0], first[ok]][:, None] ** d
-    return out
+def _scan(ev: Evaluator, given: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[int | None]]:
+    """The scan's log scales (B, L), kept inside the box, with the estimate's verdict and shortfall at each."""
+    B = len(given)
+    lo = np.log(np.maximum(alpha_floor(ev.layout, given, d), 1e-300))
+    hi = np.log(_alpha_ceiling(ev, given, d))
+    xs = np.clip(np.log(SCAN)[None, :], lo[:, None], hi[:, None])
+    n = xs.shape[1]
+    # margins only (stability costs ~4x per row); the point the move lands on is checked in full
+    v, g = ev.requirement_scores((given[:, None, :] * np.exp(xs)[..., None] ** d).reshape(B * n, -1),
+                                 stability=False)
+    ok = v.reshape(B, n) <= 0
+    return xs, g.reshape(B, n), [_feasible_end(row) for row in ok]
 
 
-def _outward_all(ev: Evaluator, t: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_outward`, repeated from the ladder's top for rows it did not bring onto the boundary (at most
-    :data:`OUTWARD_ROUNDS` times: a scale of up to 7**4 = 2401)."""
-    moved, did = _outward(ev, t, d)
-    for _ in range(OUTWARD_ROUNDS - 1):
-        g = ev.requirement_scores(moved, stability=False)[1]
-        more = np.nonzero(did & (g < -TOL) & (np.log(_alpha_ceiling(ev, moved, d)) > 1e-9))[0]
-        if not more.size:
-            break
-        moved[more] = _outward(ev, moved[more], d)[0]
-    return moved, did
+def _largest_stable(ev: Evaluator, t: np.ndarray, d: np.ndarray, xs: np.ndarray, end: int | None) -> float:
+    """The largest scan scale at or below ``end`` that the full estimate (stability included) takes; 0 (the
+    given gains) when none does."""
+    if end is None:
+        return 0.0
+    cand = xs[: end + 1][::-1]
+    v = ev.requirement_scores(t[None, :] * np.exp(cand)[:, None] ** d)[0]
+    good = np.nonzero(v <= 0)[0]
+    return float(cand[good[0]]) if good.size else 0.0
 
 
 def onto_boundary(ev: Evaluator, tuned: np.ndarray) -> BothMove:
     """Move infeasible candidates inward and feasible interior ones outward onto the requirement boundary.
 
-    An unstable candidate is first scaled down to a stable one (:func:`_stabilised`).
+    One estimate scans :data:`SCAN` scales of each candidate's loop gain (inside the search box); the
+    boundary next to the given gains (above them when they are feasible, below when they are not, an
+    unstable start included) is bracketed there and closed by regula falsi to within
+    :data:`gaintune.evaluation.boundary_estimate.TOL`. A feasible candidate keeps the lower-cost of where it
+    was and where it moved (one batched evaluation of both). A candidate no scale makes feasible is left
+    as it is.
 
     Parameters
     ----------
@@ -122,33 +104,43 @@ def onto_boundary(ev: Evaluator, tuned: np.ndarray) -> BothMove:
     Returns
     -------
     BothMove
-        The gains (each row the lower-cost of where it was and where it moved), their violation,
-        the scale applied, which rows moved, and their :class:`Scores`.
+        The gains, their violation, the scale applied, which rows moved, and their :class:`Scores`.
     """
     given = np.atleast_2d(np.asarray(tuned, dtype=float))
-    tuned = _stabilised(ev, given, loop_gain_exponents(ev))
-    inward = onto_boundary_estimate(ev, tuned)
-    out = inward.tuned.copy()
+    B = len(given)
     d = loop_gain_exponents(ev)
-    v, g = ev.requirement_scores(out)
-    rows = np.nonzero((v <= 0) & (g < -TOL) & ~inward.repaired)[0]
-    alpha = inward.alpha.copy()
-    if rows.size and d.any():
-        moved, did = _outward_all(ev, out[rows], d)
-        rows, moved = rows[did], moved[did]
-        full_v = ev.requirement_scores(moved)[0]  # stability included: the moved point must hold in full
-        ok = full_v <= 0
-        rows, moved = rows[ok], moved[ok]
-        if rows.size:
-            both = ev.evaluate(np.vstack([out[rows], moved]))
-            k = rows.size
-            better = both.merit[k:] < both.merit[:k]
-            alpha[rows[better]] = (moved[better] / out[rows[better]])[:, np.argmax(d)]
-            out[rows[better]] = moved[better]
-    scores = ev.evaluate(out)
-    if d.any():  # the scale applied to the given gains, stabilising step included
-        k = int(np.argmax(d))
-        alpha = out[:, k] / given[:, k]
-    res = BothMove(out, scores.violation, alpha, np.any(out != given, axis=1))
-    res.scores = scores
+    if not d.any():
+        scores = ev.evaluate(given)
+        res = BothMove(given.copy(), scores.violation, np.ones(B), np.zeros(B, dtype=bool))
+        res.scores = scores
+        return res
+    xs, g, ends = _scan(ev, given, d)
+    x = np.zeros(B)
+    rows = [b for b, j in enumerate(ends) if j is not None and j + 1 < xs.shape[1] and xs[b, j + 1] > xs[b, j]]
+    for b, j in enumerate(ends):
+        if j is not None:
+            x[b] = xs[b, j]
+    if rows:
+        r = np.array(rows)
+        j = np.array([ends[b] for b in rows])
+        br = _Bracket(t=given[r], xg=xs[r, j].copy(), gg=g[r, j].copy(), xb=xs[r, j + 1].copy(), gb=g[r, j + 1].copy(),
+                      found=np.ones(r.size, dtype=bool))
+        _regula_falsi(ev, br, d)
+        x[r] = br.xg
+    moved = given * np.exp(x)[:, None] ** d
+    # the full estimate (stability included) decides; where it refuses the point, the largest scan point it takes
+    bad = np.nonzero(ev.requirement_scores(moved)[0] > 0)[0]
+    for b in bad:
+        x[b] = _largest_stable(ev, given[b], d, xs[b], ends[b])
+    moved = given * np.exp(x)[:, None] ** d
+    stay = np.array([ends[b] is not None and ends[b] >= _ONE and x[b] != 0.0 for b in range(B)], dtype=bool)
+    both = ev.evaluate(np.vstack([moved, given[stay]]))
+    pick = np.arange(B)
+    alt = B + np.arange(int(stay.sum()))
+    for k, b in zip(alt, np.nonzero(stay)[0], strict=True):
+        if both.merit[k] <= both.merit[b]:  # moving out did not lower the cost: keep the given gains
+            pick[b], x[b] = k, 0.0
+    out = given * np.exp(x)[:, None] ** d
+    res = BothMove(out, both.violation[pick], np.exp(x), x != 0.0)
+    res.scores = _take(both, pick)
     return res
