@@ -114,33 +114,37 @@ def onto_boundary(ev: Evaluator, tuned: np.ndarray) -> BothMove:
         res = BothMove(given.copy(), scores.violation, np.ones(B), np.zeros(B, dtype=bool))
         res.scores = scores
         return res
-    xs, g, ends = _scan(ev, given, d)
-    x = np.zeros(B)
-    rows = [b for b, j in enumerate(ends) if j is not None and j + 1 < xs.shape[1] and xs[b, j + 1] > xs[b, j]]
-    for b, j in enumerate(ends):
-        if j is not None:
-            x[b] = xs[b, j]
-    if rows:
-        r = np.array(rows)
-        j = np.array([ends[b] for b in rows])
-        br = _Bracket(t=given[r], xg=xs[r, j].copy(), gg=g[r, j].copy(), xb=xs[r, j + 1].copy(), gb=g[r, j + 1].copy(),
-                      found=np.ones(r.size, dtype=bool))
-        _regula_falsi(ev, br, d)
-        x[r] = br.xg
-    moved = given * np.exp(x)[:, None] ** d
-    # the full estimate (stability included) decides; where it refuses the point, the largest scan point it takes
-    bad = np.nonzero(ev.requirement_scores(moved)[0] > 0)[0]
-    for b in bad:
-        x[b] = _largest_stable(ev, given[b], d, xs[b], ends[b])
-    moved = given * np.exp(x)[:, None] ** d
-    stay = np.array([ends[b] is not None and ends[b] >= _ONE and x[b] != 0.0 for b in range(B)], dtype=bool)
-    both = ev.evaluate(np.vstack([moved, given[stay]]))
+    x, ends = _landing(ev, given, d)
+    # a feasible candidate moved outward keeps the given gains where the move did not lower the cost
+    stay = np.array([e is not None and e >= _ONE and x[b] != 0.0 for b, e in enumerate(ends)], dtype=np.bool_)
+    both = ev.evaluate(np.vstack([given * np.exp(x)[:, None] ** d, given[stay]]))
     pick = np.arange(B)
-    alt = B + np.arange(int(stay.sum()))
-    for k, b in zip(alt, np.nonzero(stay)[0], strict=True):
-        if both.merit[k] <= both.merit[b]:  # moving out did not lower the cost: keep the given gains
+    for k, b in zip(B + np.arange(int(stay.sum())), np.nonzero(stay)[0], strict=True):
+        if both.merit[k] <= both.merit[b]:
             pick[b], x[b] = k, 0.0
     out = given * np.exp(x)[:, None] ** d
     res = BothMove(out, both.violation[pick], np.exp(x), x != 0.0)
     res.scores = _take(both, pick)
     return res
+
+
+def _landing(ev: Evaluator, given: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, list[int | None]]:
+    """(log scale to apply per row, the scan's feasible end per row): the scan, the bracket closed by regula
+    falsi, and the full estimate's check of the landing point."""
+    xs, g, ends = _scan(ev, given, d)
+    x = np.zeros(len(given))
+    for b, e in enumerate(ends):
+        if e is not None:
+            x[b] = xs[b, e]
+    rows = [b for b, e in enumerate(ends) if e is not None and e + 1 < xs.shape[1] and xs[b, e + 1] > xs[b, e]]
+    if rows:
+        r = np.array(rows)
+        lo = np.array([ends[b] for b in rows], dtype=np.int64)
+        br = _Bracket(t=given[r], xg=xs[r, lo].copy(), gg=g[r, lo].copy(), xb=xs[r, lo + 1].copy(),
+                      gb=g[r, lo + 1].copy(), found=np.ones(r.size, dtype=np.bool_))
+        _regula_falsi(ev, br, d)
+        x[r] = br.xg
+    # the full estimate (stability included) decides; where it refuses the point, the largest scan point it takes
+    for row in np.nonzero(ev.requirement_scores(given * np.exp(x)[:, None] ** d)[0] > 0)[0].tolist():
+        x[row] = _largest_stable(ev, given[row], d, xs[row], ends[row])
+    return x, ends
