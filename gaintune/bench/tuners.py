@@ -348,8 +348,8 @@ def build_parser() -> BenchParser:
     ap.add_argument("--rules-only", action="store_true", help="AMIGO and SIMC against the reference only")
     ap.add_argument("--update", action="store_true",
                     help="instead: 'tuner update' vs a cold start on a changed family (writes tuners_update.*)")
-    ap.add_argument("--update-episodes", type=int_range(1024, 1_000_000), default=16_384,
-                    help="training episodes of each --update run (default 16384)")
+    ap.add_argument("--update-episodes", type=int_range(1024, 1_000_000), default=8192,
+                    help="training episodes of each --update run (default 8192)")
     add_out_argument(ap)
     return ap
 

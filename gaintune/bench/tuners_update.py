@@ -53,26 +53,46 @@ def sims_to(curve: list[dict[str, Any]], target: float = TARGET) -> int | None:
     return None
 
 
-def measure_update(base: str = "fotd_pi_ms1.4", episodes: int = 16_384, seed: int = 0) -> dict[str, Any]:
-    """Train cold and warm on :func:`changed_spec`; the simulations each needed to reach :data:`TARGET`."""
+def _base_with_agent(tmp: Path, seed: int) -> Path:
+    """A tuner of the FOTD PI Ms 1.4 family trained as ``gaintune tuner train --family fotd`` does, with its agent
+    (actor and critic) kept: what ``tuner update`` continues from a trained folder."""
+    from gaintune.tuners.problems import FamilyProblem
+    from gaintune.tuners.train import TrainSettings, train
+
+    return train(FamilyProblem("fotd", "pi", 1.4), tmp / "base", TrainSettings(seed=seed, validation=4), resume=False)
+
+
+def measure_update(base: str = "fotd_pi_ms1.4", episodes: int = 8192, seed: int = 0) -> dict[str, Any]:
+    """Train cold and warm on :func:`changed_spec`; the simulations each needed to reach :data:`TARGET`.
+
+    Two warm runs: from ``base`` (a shipped tuner: its actor only, the critic starts afresh) and from a
+    folder trained here with its agent kept (actor and critic).
+    """
     from gaintune.tuners import artefact
     from gaintune.tuners.problems import SpecProblem
     from gaintune.tuners.train import TrainSettings, train
 
-    common: dict[str, Any] = {"episodes": episodes, "seed": seed, "chunk": 512, "validation": 8, "curve_contexts": 8}
+    common: dict[str, Any] = {"episodes": episodes, "seed": seed, "chunk": 256, "validation": 8, "curve_contexts": 8}
     out: dict[str, Any] = {"base": base, "lag": LAG, "target": TARGET, "episodes": episodes, "seed": seed}
     with tempfile.TemporaryDirectory() as tmp:
-        for run in ("cold", "update"):
+        t0 = time.perf_counter()
+        trained = _base_with_agent(Path(tmp), seed)
+        out["base_training_s"] = time.perf_counter() - t0
+        starts = {"cold": None, "update": artefact.resolve(base), "update_with_agent": trained}
+        for run, start in starts.items():
             t0 = time.perf_counter()
-            folder = train(SpecProblem(changed_spec()), Path(tmp) / run, TrainSettings(**common),
-                           warm_start=artefact.resolve(base) if run == "update" else None, resume=False)
+            folder = train(SpecProblem(changed_spec()), Path(tmp) / run, TrainSettings(**common), warm_start=start,
+                           resume=False)
             doc = artefact.load(folder)
             curve = doc.training["curve"]
             out[run] = {"sims_to_target": sims_to(curve), "wall_s": time.perf_counter() - t0, "curve": curve,
                         "validation_median": doc.validation["median_ratio"],
                         "validation_worst": doc.validation["worst_ratio"]}
-    c, u = out["cold"]["sims_to_target"], out["update"]["sims_to_target"]
-    out["ratio"] = (c / u if c and u else (math.inf if c and u == 0 else None))
+    c = out["cold"]["sims_to_target"]
+    for run in ("update", "update_with_agent"):
+        u = out[run]["sims_to_target"]
+        out[f"ratio_{run}"] = c / u if c and u else (math.inf if c and u == 0 else None)
+    out["ratio"] = out["ratio_update"]
     return out
 
 
@@ -96,20 +116,23 @@ def render_update(r: dict[str, Any], command: str) -> str:
     from gaintune.bench.compare import md_table
 
     rows = []
-    for run in ("cold", "update"):
+    for run in ("cold", "update", "update_with_agent"):
         x = r[run]
         rows.append([run, x["sims_to_target"] if x["sims_to_target"] is not None else "not reached",
                      f"{x['wall_s']:.0f}", f"{x['validation_median']:.4f}", f"{x['validation_worst']:.4f}"])
-    ratio = r["ratio"]
     lines = [f"# {command}", "",
              f"Changed family: FOTD with a sensor lag {r['lag']} (L+T) added, PI, load step, Ms <= 1.4; cold start vs "
-             f"`tuner update` from `{r['base']}`, {r['episodes']:,} episodes each, seed {r['seed']}.", "",
+             f"`tuner update` from the shipped `{r['base']}` (actor only) and from a folder trained here with its "
+             f"agent (actor and critic; its training took {r['base_training_s']:.0f} s), {r['episodes']:,} "
+             f"episodes each, seed {r['seed']}, a curve point every 256 episodes.", "",
              md_table(["run", f"training sims to median ratio <= {r['target']}", "wall s", "validation median",
-                       "validation worst"], rows), "",
-             f"cold / update simulations: **{ratio:.1f}x**" if isinstance(ratio, float) and math.isfinite(ratio)
-             else f"cold / update simulations: {ratio}", "",
-             "Curves (episodes, sims, median ratio):", ""]
-    for run in ("cold", "update"):
+                       "validation worst"], rows), ""]
+    for run in ("update", "update_with_agent"):
+        ratio = r[f"ratio_{run}"]
+        lines.append(f"cold / {run} simulations: **{ratio:.1f}x**" if isinstance(ratio, float)
+                     and math.isfinite(ratio) else f"cold / {run} simulations: {ratio}")
+    lines += ["", "Curves (episodes, sims, median ratio):", ""]
+    for run in ("cold", "update", "update_with_agent"):
         pts = ", ".join(f"({p['episodes']}, {p['sims']}, {p['median_ratio']:.4f})" for p in r[run]["curve"])
         lines.append(f"- {run}: {pts}")
     w = r.get("warm_start")
