@@ -147,6 +147,18 @@ def _rule_gains(spec: TuningSpec, plant: Plant) -> dict[str, Gains]:
     return out
 
 
+def _box_start(spec: TuningSpec, plant: Plant) -> Gains:
+    """The start of the default search box (:func:`gaintune.evaluation.search_box.search_box`): a classical
+    rule detuned until feasible where one applies, else the box's geometric middle."""
+    from gaintune.evaluation.search_box import search_box
+
+    sb = search_box(spec, plant)
+    if sb.centre is not None:
+        return sb.centre
+    lay = sb.layout
+    return lay.to_dict(lay.full(np.exp(0.5 * (lay.log_lo + lay.log_hi))))
+
+
 def _evaluator(spec: TuningSpec, plant: Plant, starts: list[Gains]) -> Evaluator:
     """The true spec's evaluator; where the spec gives no bounds, its box spans every start gain set by
     ``BOUNDS_FACTOR`` each way (as a search's box spans its start)."""
@@ -265,8 +277,10 @@ def quick_tune(spec: TuningSpec, *, tuners_dir: str | Path | None = None, refine
     spec, defaults = scenario_defaults(spec, plant)
     start = tuner_start(spec, plant, tuners_dir)
     timing = {"model_and_tuner_s": time.perf_counter() - t0}
-    rule_gains = _rule_gains(spec, plant)
+    rule_gains = _rule_gains(spec, plant) if start.model.fotd is not None else {}
     starts = ({"tuner": start.gains} if start.gains is not None else {}) | rule_gains
+    if start.model.fotd is None:
+        starts["search box"] = _box_start(spec, plant)
     if not starts:
         raise SpecError("loops[0].type", f"no ready-made tuner fits this {start.model.family.upper()} "
                         f"{spec.loops[0].type.upper()} loop and neither AMIGO nor SIMC applies; {SEARCH_HINT}")

@@ -53,17 +53,22 @@ class LoopModel:
 
     family: str
     params: dict[str, float]
-    fotd: Fotd
+    fotd: Fotd | None
     #: The fit's sign of the path gain (the loop's direction is resolved separately).
     sign: int = 1
+    #: Why no model applies (family ``none``: unstable, oscillatory, ... paths).
+    reason: str = ""
 
     def text(self) -> str:
         """The model as one line, e.g. ``FOTD K=2 T=60 L=10.25 (half_rule fit)``."""
+        if self.fotd is None:
+            return f"no FOTD/SOTD/integrating model ({self.reason})"
         vals = " ".join(f"{k}={v:.4g}" for k, v in self.params.items())
         return f"{self.family.upper()} {vals} ({self.fotd.method} fit)"
 
     def as_dict(self) -> dict[str, Any]:
-        return {"family": self.family, "params": self.params, "fit": self.fotd.to_dict(), "text": self.text()}
+        fit = self.fotd.to_dict() if self.fotd is not None else None
+        return {"family": self.family, "params": self.params, "fit": fit, "text": self.text()}
 
 
 @dataclass(frozen=True)
@@ -218,7 +223,14 @@ def tuner_start(spec: TuningSpec, plant: Plant, tuners_dir: str | Path | None = 
     """
     ctype = spec.loops[0].type
     tuners = available_tuners(tuners_dir)
-    model = loop_model(spec, plant, sotd=any(t.family == "sotd" and t.ctype == ctype for t in tuners))
+    try:
+        model = loop_model(spec, plant, sotd=any(t.family == "sotd" and t.ctype == ctype for t in tuners))
+    except SpecError as exc:  # unstable, oscillatory, ...: no tuner's family; the search box's start serves
+        reason = exc.message.split(": ", 1)[-1].split(";")[0]
+        return TunerStart(LoopModel("none", {}, None, 1, reason), None, None,
+                          [f"no FOTD/SOTD/integrating model applies ({reason}): the answer starts from the search "
+                           "box's start (the best classical rule by the requirements, detuned until feasible, where "
+                           "one applies) and the refinement"])
     info = choose_tuner(tuners, model.family, ctype, spec.requirements.ms_max)
     if info is None:
         where = f"in {tuners_dir}" if tuners_dir is not None else "shipped with gaintune"

@@ -43,19 +43,19 @@ def test_a_problem_row_holds_the_ratio_the_verdict_and_the_rules(measured) -> No
     assert any("no ready-made tuner" in n for n in row["notes"])
 
 
-def test_a_refused_problem_is_a_row_with_the_message(measured) -> None:
+def test_a_problem_without_a_model_is_answered_from_the_search_box(measured) -> None:
     row = measured["rows"][1]
-    assert row["problem"] == "std_unstable_pi" and row["refused"].startswith("plant:")
-    assert "unstable" in row["refused"]
+    assert row["problem"] == "std_unstable_pi" and not row.get("refused")
+    assert row["source"].startswith("search box") and row["verdict"] == "pass" and "unstable" in row["model"]
 
 
-def test_summary_counts_a_refused_problem_as_not_passed(measured) -> None:
+def test_summary_counts_every_answered_problem(measured) -> None:
     s = measured["summary"]
-    assert s["problems"] == 2 and s["answered"] == 1 and s["refused"] == 1
-    assert s["reference_passes"] == 2 and s["passed_where_reference_passes"] == 1
+    assert s["problems"] == 2 and s["answered"] == 2 and s["refused"] == 0
+    assert s["reference_passes"] == 2 and s["passed_where_reference_passes"] == 2
     assert s["amigo"]["quick_not_worse_where_rule_passes"] == s["amigo"]["rule_passes"] == 1
     md = BQ.render({**measured, "loadavg": "-"}, "gaintune bench quick")
-    assert "| std_unstable_pi | refused |" in md and "1 / 2" in md
+    assert "| std_unstable_pi |" in md and "2 / 2" in md
 
 
 def test_summary_of_no_answer_has_no_figures() -> None:
