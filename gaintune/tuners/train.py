@@ -68,7 +68,7 @@ class TrainSettings:
     noise_end: float = 0.02
     learning_rate: float = 1e-3
     batch_size: int = 256
-    gradient_steps: int = 8
+    gradient_steps: int = 32
     net_arch: tuple[int, ...] = (64, 64)
     critic_arch: tuple[int, ...] = (256, 256)
     validation: int = 24
