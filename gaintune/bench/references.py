@@ -33,6 +33,7 @@ __all__ = [
     "compute_reference",
     "default_out_dir",
     "reference_summary",
+    "read_cache",
 ]
 
 
@@ -127,7 +128,8 @@ def default_out_dir() -> Path:
     return Path("bench") / "results"
 
 
-def _read_cache(path: Path) -> dict[str, Any]:
+def read_cache(path: Path) -> dict[str, Any]:
+    """A JSON cache of reference entries by key; empty when the file is missing or unreadable."""
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError):
@@ -153,7 +155,7 @@ def reference_for(
     if not refresh:
         files = [path] + sorted(p for p in out.glob("reference_*.json") if p != path)
         for f in files:
-            entry = _read_cache(f).get(key)
+            entry = read_cache(f).get(key)
             if entry is not None and _still_valid(problem, entry, evaluator):
                 if f != path:
                     _write_entry(path, key, entry)
@@ -193,7 +195,7 @@ def _still_valid(problem: BenchCase, entry: dict[str, Any], evaluator=None) -> b
 
 def _write_entry(path: Path, key: str, entry: dict[str, Any]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = _read_cache(path)
+    data = read_cache(path)
     # one entry per problem and suite file: an older key of the same problem is stale
     data = {k: v for k, v in data.items()
             if k == key or not isinstance(v, dict) or v.get("problem") != entry.get("problem")}

@@ -27,7 +27,8 @@ from typing import Any
 import numpy as np
 
 from gaintune.bench.compare import ratio
-from gaintune.bench.references import RESCORE_RTOL
+from gaintune.bench.references import RESCORE_RTOL, read_cache
+from gaintune.files import write_atomic
 
 __all__ = [
     "HELD_OUT_SEED",
@@ -143,20 +144,10 @@ def reference_key(case: Case) -> str:
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def _read_cache(path: Path) -> dict[str, Any]:
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}
-    return data if isinstance(data, dict) else {}
-
-
 def _write_cache(path: Path, key: str, entry: dict[str, Any]) -> None:
-    data = _read_cache(path)
+    data = read_cache(path)
     data[key] = entry
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
-    tmp.replace(path)  # a reader never sees half a file
+    write_atomic(path, json.dumps(data, indent=1, sort_keys=True) + "\n")  # a reader never sees half a file
 
 
 def _still_valid(case: Case, entry: Mapping[str, Any]) -> bool:
@@ -204,7 +195,7 @@ def reference_for_plant(case: Case, rules: Mapping[str, Mapping[str, Any]], out_
     """
     path = Path(out_dir) / CACHE_FILE
     key = reference_key(case)
-    entry = _read_cache(path).get(key)
+    entry = read_cache(path).get(key)
     if isinstance(entry, dict) and _still_valid(case, entry):
         return {**entry, "key": key, "cached": True}
     if entry is not None and log:

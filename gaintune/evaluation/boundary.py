@@ -31,7 +31,7 @@ import numpy as np
 if TYPE_CHECKING:  # pragma: no cover
     from gaintune.evaluation.evaluator import Evaluator
 
-__all__ = ["loop_gain_exponents", "alpha_floor"]
+__all__ = ["loop_gain_exponents", "alpha_floor", "alpha_ceiling"]
 
 
 def loop_gain_exponents(ev: Evaluator, loop: str | None = None) -> np.ndarray:
@@ -56,3 +56,13 @@ def alpha_floor(layout, tuned: np.ndarray, d: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         lim = np.where(d > 0, lo / tuned, np.where(d < 0, tuned / hi, -np.inf)).max(axis=1)
     return np.where(np.isfinite(lim), np.minimum(lim, 1.0), 0.0)
+
+
+def alpha_ceiling(layout, tuned: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(B,) largest alpha >= 1 that keeps each row of ``tuned * alpha**d`` inside the search box (the mirror of
+    :func:`alpha_floor`; inf where ``d`` moves nothing up)."""
+    hi = np.exp(layout.log_hi)
+    tuned = np.atleast_2d(tuned)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lim = np.where(d > 0, hi / tuned, np.inf).min(axis=1)
+    return np.maximum(lim, 1.0)

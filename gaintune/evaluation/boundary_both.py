@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gaintune.evaluation.boundary import alpha_floor, loop_gain_exponents
+from gaintune.evaluation.boundary import alpha_ceiling, alpha_floor, loop_gain_exponents
 from gaintune.evaluation.boundary_estimate import EstimateMove, _Bracket, _regula_falsi
 from gaintune.evaluation.evaluator import Evaluator, Scores
 
@@ -31,14 +31,6 @@ class BothMove(EstimateMove):
     """:class:`EstimateMove` plus the scores of the returned gains (the cost comparison evaluated them)."""
 
     scores: Scores
-
-
-def _alpha_ceiling(ev: Evaluator, tuned: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """(B,) largest alpha >= 1 that keeps ``tuned * alpha**d`` inside the search box."""
-    hi = np.exp(ev.layout.log_hi)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lim = np.where(d > 0, hi / tuned, np.inf).min(axis=1)
-    return np.maximum(lim, 1.0)
 
 
 def _take(scores: Scores, idx: np.ndarray) -> Scores:
@@ -63,7 +55,7 @@ def _scan(ev: Evaluator, given: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, 
     """The scan's log scales (B, L), kept inside the box, with the estimate's verdict and shortfall at each."""
     B = len(given)
     lo = np.log(np.maximum(alpha_floor(ev.layout, given, d), 1e-300))
-    hi = np.log(_alpha_ceiling(ev, given, d))
+    hi = np.log(alpha_ceiling(ev.layout, given, d))
     xs = np.clip(np.log(SCAN)[None, :], lo[:, None], hi[:, None])
     n = xs.shape[1]
     # margins only (stability costs ~4x per row); the point the move lands on is checked in full

@@ -16,7 +16,6 @@ rollout of ``n_steps`` steps still sees ``n_steps * contexts_per_step`` contexts
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import gymnasium as gym
@@ -131,7 +130,3 @@ class ContextBanditVecEnv(VecEnv):
             return self.num_envs
         return 1 if isinstance(indices, int) else len(list(indices))
 
-
-def log_ratio(a: float, b: float) -> float:
-    """log(a/b), for the training curve (nan when either is not positive)."""
-    return math.log(a / b) if a > 0 and b > 0 else float("nan")

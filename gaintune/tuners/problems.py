@@ -18,7 +18,7 @@ same for every context, stored with the tuner.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -175,13 +175,14 @@ class FamilyProblem(TunerProblem):
     def spec_at(self, context: Mapping[str, float]) -> TuningSpec:
         """The unit plant of this shape, its problem spec, gains bounded by the box."""
         spec = problem_spec(self.family, self.family.unit_params(context), self.ctype, self.ms_max)
-        return self._bounded(spec, 1.0, {})
+        return self._bounded(spec, {})
 
     def physical_spec(self, params: Mapping[str, float]) -> TuningSpec:
         """The problem of the real plant with physical ``params``, gains bounded by the box scaled to it."""
-        return self._bounded(problem_spec(self.family, params, self.ctype, self.ms_max), 1.0, params)
+        return self._bounded(problem_spec(self.family, params, self.ctype, self.ms_max), params)
 
-    def _bounded(self, spec: TuningSpec, _: float, params: Mapping[str, float]) -> TuningSpec:
+    def _bounded(self, spec: TuningSpec, params: Mapping[str, float]) -> TuningSpec:
+        """``spec`` with its gains bounded by the box, scaled to the plant ``params`` (the unit box when empty)."""
         if self.box is None:
             return spec
         lo = self.box.to_gains(np.exp(self.box.log_lo))
@@ -289,7 +290,3 @@ def problem_from_dict(d: Mapping[str, Any], box: GainBox | None = None) -> Tuner
     p.box = box
     return p
 
-
-def stack(rows: Sequence[np.ndarray]) -> np.ndarray:
-    """Rows as one float array (B, n)."""
-    return np.vstack([np.asarray(r, dtype=float) for r in rows])

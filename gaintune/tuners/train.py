@@ -191,10 +191,11 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
     if warm_start is not None:  # the policy already answers: explore near it
         s = dataclasses.replace(s, noise_start=min(s.noise_start, UPDATE_NOISE))
     out = Path(out)
-    start = _warm_box(problem, warm_start) if warm_start is not None else None
     warmup = 0  # episodes whose gradient steps train the critic only (a fresh critic beside a trained actor)
-    if start is None:
+    if warm_start is None:
         fit_box(problem)
+    else:
+        _warm_box(problem, warm_start)
     env = ContextBanditVecEnv(problem, s.n_envs, s.contexts_per_step, seed=s.seed)
     agent = _make_agent(env, s)
     if warm_start is not None:
@@ -279,7 +280,7 @@ def _actor_from(agent: Any, policy: NumpyPolicy) -> None:
                 m.bias.copy_(torch.as_tensor(b, dtype=m.bias.dtype))
 
 
-def _warm_box(problem: TunerProblem, folder: str | Path) -> bool:
+def _warm_box(problem: TunerProblem, folder: str | Path) -> None:
     """Give ``problem`` the gain box of the tuner at ``folder`` (its policy's actions mean the same gains)."""
     old = artefact.load(artefact.resolve(folder))
     assert old.problem.box is not None
@@ -292,7 +293,6 @@ def _warm_box(problem: TunerProblem, folder: str | Path) -> bool:
     slots = tuple((lp.name, g) for lp in probe.loops for g in lp.gains)
     if set(slots) != set(box.slots):
         raise SpecError("spec.loops", f"the tuner at {folder} tunes {list(box.slots)}; this spec {list(slots)}")
-    return True
 
 
 def _curve_set(problem: TunerProblem, s: TrainSettings) -> list[tuple[dict[str, float], float]]:
