@@ -145,13 +145,29 @@ def test_bad_pairings_are_refused(pairing, field, message):
     assert err.value.field == field
 
 
+def _rhp_closed_loop_poles(G: TfMatrix, kc: np.ndarray, ti: np.ndarray) -> float:
+    """Generalised Nyquist on exact delays: Z = k/2 - D/pi for det(I + G K) with k = 2 integrators (PI loops).
+
+    D is the phase change of det(I + G K)(jw) from w -> 0+ (asymptote -pi: det ~ c/s^2, c > 0 here)
+    to w -> inf (arg 1 = 0).
+    """
+    w = np.geomspace(1e-7, 1e3, 400_000)
+    GK = G.freqresp(w) * (kc * (1 + 1 / (ti * 1j * w[:, None])))[:, None, :]
+    phase = np.unwrap(np.angle(np.linalg.det(np.eye(2) + GK)))
+    phase -= 2 * np.pi * np.round((phase[0] + np.pi) / (2 * np.pi))  # the asymptote is -pi, not +pi
+    assert abs(phase[0] + np.pi) < 1e-3 and abs(phase[-1] - 2 * np.pi * np.round(phase[-1] / (2 * np.pi))) < 1e-3
+    return 1 - (phase[-1] - phase[0]) / np.pi
+
+
 def test_ziegler_nichols_settings_on_wood_berry_are_unstable_and_blt_is_stable(wb):
-    """The eigenvalue check separates the two: F = 1 (plain ZN per loop) destabilises the column."""
+    """Padé eigenvalues and a Nyquist count on exact delays agree: plain ZN per loop (F = 1) has 2 RHP poles."""
     ku = np.array([lp.ku for lp in wb.loops])
     pu = np.array([lp.pu for lp in wb.loops])
+    kc, ti = np.array([lp.kc for lp in wb.loops]), np.array([lp.ti for lp in wb.loops])
     assert not _closed_loop_stable(wood_berry(), (0, 1), ku / 2.2, pu / 1.2)
-    assert _closed_loop_stable(wood_berry(), (0, 1), np.array([lp.kc for lp in wb.loops]),
-                               np.array([lp.ti for lp in wb.loops]))
+    assert _rhp_closed_loop_poles(wood_berry(), ku / 2.2, pu / 1.2) == pytest.approx(2.0, abs=1e-3)
+    assert _closed_loop_stable(wood_berry(), (0, 1), kc, ti)
+    assert _rhp_closed_loop_poles(wood_berry(), kc, ti) == pytest.approx(0.0, abs=1e-3)
 
 
 def test_every_reference_row_converts_to_parallel_gains():
