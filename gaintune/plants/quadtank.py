@@ -53,7 +53,7 @@ ODE_OUTPUTS = {"y1": "kc*h1", "y2": "kc*h2"}
 
 @dataclass(frozen=True)
 class QuadTankParams:
-    """Physical parameters (Johansson 2000, Table I) and one valve setting."""
+    """Physical parameters (Johansson 2000) and one valve setting."""
 
     gamma1: float
     gamma2: float
@@ -75,7 +75,7 @@ class QuadTankParams:
 MIN_PHASE = QuadTankParams(gamma1=0.70, gamma2=0.60, k1=3.33, k2=3.35)
 NON_MIN_PHASE = QuadTankParams(gamma1=0.43, gamma2=0.34, k1=3.14, k2=3.29)
 
-#: The paper's measured operating points (Table II): levels h0 (cm), voltages v0 (V), and T (s).
+#: The paper's operating points: measured levels h0 (cm), pump voltages v0 (V), time constants T (s).
 PAPER_OPERATING_POINTS = {
     "min_phase": {"h0": (12.4, 12.7, 1.8, 1.4), "v0": (3.00, 3.00), "T": (62, 90, 23, 30)},
     "non_min_phase": {"h0": (12.6, 13.0, 4.8, 4.9), "v0": (3.15, 3.15), "T": (63, 91, 39, 56)},

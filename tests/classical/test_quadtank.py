@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from gaintune.classical.blt import _closed_loop_stable
+from gaintune.classical.mimo_references import QUADTANK_REFERENCES
 from gaintune.plants.expr import to_float
 from gaintune.plants.quadtank import (
     MIN_PHASE,
@@ -94,3 +96,14 @@ def test_bad_operating_points_are_refused():
         levels_point(MIN_PHASE, 0.0, 10.0)
     with pytest.raises(ValueError, match="negative pump voltage"):
         levels_point(MIN_PHASE, 20.0, 0.5)
+
+
+def test_the_papers_pi_stabilises_the_minimum_phase_tank_but_not_the_non_minimum_phase_one():
+    """Johansson's K = 3.0, Ti = 30 s and K = 2.7, Ti = 40 s on the linearisations at the paper's voltages."""
+    row = QUADTANK_REFERENCES[0]
+    kc = np.array([g["Kc"] for g in row.loops])
+    ti = np.array([g["Ti"] for g in row.loops])
+    G_min = linearise(MIN_PHASE, operating_point(MIN_PHASE, 3.0, 3.0))
+    G_nmp = linearise(NON_MIN_PHASE, operating_point(NON_MIN_PHASE, 3.15, 3.15))
+    assert _closed_loop_stable(G_min, (0, 1), kc, ti)
+    assert not _closed_loop_stable(G_nmp, (0, 1), kc, ti)
