@@ -12,8 +12,9 @@ fenced by its claim, exactly as a local worker does. The durability promise is t
   back can write nothing: its claim token no longer matches.
 
 The server joins the Ray cluster named by ``RAY_ADDRESS`` (``ray start --head`` on one machine, ``ray start
---address=HEAD:6379`` on the others), or starts a local Ray when it is unset. Tasks on other machines need
-the job store on PostgreSQL (``GAINTUNE_DB_URL``) and ``GAINTUNE_DATA_DIR`` on a file system they share.
+--address=HEAD:6379`` on the others); unset, Ray's default: a cluster running on this machine, else a new
+one. Tasks on other machines need the job store on PostgreSQL (``GAINTUNE_DB_URL``) and ``GAINTUNE_DATA_DIR``
+on a file system they share.
 """
 
 from __future__ import annotations

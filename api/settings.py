@@ -46,7 +46,8 @@ class Settings(BaseSettings):
         "(its process frozen mid-write) is closed by the server, which frees the row locks it held.")
     backend: Literal["local", "ray"] = Field(
         "local", description="Where job workers run: local worker processes, or Ray tasks (needs gaintune[ray]; "
-        "the cluster is RAY_ADDRESS, else a local Ray started by the server).")
+        "the cluster is RAY_ADDRESS; unset: Ray's default, a cluster already running on this machine, else a new "
+        "local one).")
 
     # ---------------------------------------------------------- workers
     workers: int = Field(1, ge=0, le=64,

@@ -78,9 +78,11 @@ def _kills(servers: list[Server], events: list[str], n_jobs: int, submit_all: Ca
     n_workers = sum(s.workers for s in servers)
     for k, ev in enumerate(events):
         target = k * max(0, n_jobs - 2 * n_workers) // max(1, len(events))
+        def ready(t: int = target) -> bool:
+            return _n_done(servers[0]) >= t and _all_busy(servers)
+
         try:
-            _wait(lambda t=target: _n_done(servers[0]) >= t and _all_busy(servers), 120,
-                  "every worker to be mid-job", 0.1)
+            _wait(ready, 120, "every worker to be mid-job", 0.1)
         except TimeoutError:
             log(f"  campaign: {ev} kill skipped: the workers were never all mid-job again")
             continue

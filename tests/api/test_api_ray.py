@@ -1,7 +1,7 @@
 """API jobs on Ray (``GAINTUNE_BACKEND=ray``): real servers whose job workers are Ray tasks on a local cluster.
 
-The cluster is ``RAY_ADDRESS``'s when set, else one this module starts (``ray.init(num_cpus=2)``) and the
-servers join. Jobs pause after their first progress report while the hold file exists
+The cluster is ``RAY_ADDRESS``'s when set, else one this module starts (``ray.init(address="local", num_cpus=2)``)
+and the servers join. Jobs pause after their first progress report while the hold file exists
 (``GAINTUNE_TEST_HOLD_FILE``), so each kill lands mid-job, provably.
 """
 
@@ -29,7 +29,7 @@ def ray_address():
     if os.environ.get("RAY_ADDRESS"):
         yield os.environ["RAY_ADDRESS"]
         return
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)  # a new cluster of our own
     try:
         yield ray.get_runtime_context().gcs_address
     finally:
