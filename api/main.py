@@ -116,6 +116,9 @@ async def lifespan(app: FastAPI):
         app.state.compute_pool = None
         if pool is not None:
             pool.shutdown()
+        close = getattr(store, "close", None)  # PostgreSQL: this process's connection pool
+        if close is not None:
+            close()
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:

@@ -221,3 +221,37 @@ def test_frozen_transaction_holding_a_job_row_blocks_no_other_job_and_is_closed_
     finally:
         frozen.close()
         store.close()
+
+
+@pytest.mark.parametrize("setting,module,extra", [({"db_url": "postgresql://h/db"}, "psycopg_pool", "postgres"),
+                                                  ({"backend": "ray"}, "ray", "ray")])
+def test_backend_without_its_extra_is_refused_naming_the_extra(monkeypatch, setting, module, extra):
+    import importlib.util
+
+    from gaintune_api.stores import missing_extra
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == module else real(name, *a))
+    msg = missing_extra(Settings(_env_file=None, **setting))
+    assert msg is not None and f"gaintune[{extra}]" in msg
+    assert missing_extra(Settings(_env_file=None)) is None
+
+
+def test_sqlite_database_written_before_hosts_gains_the_worker_host_column(tmp_path):
+    import sqlite3
+
+    from gaintune_api.job_store import JobStore
+
+    old = sqlite3.connect(tmp_path / "old.db")
+    old.executescript("CREATE TABLE jobs (seq INTEGER PRIMARY KEY AUTOINCREMENT, id TEXT NOT NULL UNIQUE, owner TEXT "
+                      "NOT NULL, idem_key TEXT, status TEXT NOT NULL, spec TEXT NOT NULL, spec_hash TEXT NOT NULL, "
+                      "spec_name TEXT NOT NULL, created_at REAL NOT NULL, updated_at REAL NOT NULL, started_at REAL, "
+                      "finished_at REAL, progress TEXT, result TEXT, error TEXT, cancel_requested_at REAL, claim TEXT,"
+                      " worker_pid INTEGER, heartbeat_at REAL, attempts INTEGER NOT NULL DEFAULT 0, artifacts TEXT,"
+                      " kind TEXT NOT NULL DEFAULT 'tune');")
+    old.close()
+    store = JobStore(tmp_path / "old.db")
+    store.init()
+    (job_id,) = _queue(store)
+    assert store.claim(DEAD_PID).worker_host == HOST
+
