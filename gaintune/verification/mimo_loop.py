@@ -1,0 +1,264 @@
+"""The MIMO feedback loop: plant, controller and loop pairing, and its responses.
+
+Convention (as MATLAB's ``feedback(G*K, eye(n))``): negative feedback ``u = K (r - y)`` with the
+plant ``G`` (p x m, :mod:`gaintune.lti.mimo`) and the controller ``K`` (m x p: plant outputs in,
+plant inputs out). The loop pairing names, per loop, the plant output it measures and the plant
+input it drives. Only those channels are in the loop: ``Gs = G[outputs, inputs]`` and
+``Ks = K[inputs, outputs]`` (both n x n, loop k on the diagonal). Then, at the plant outputs,
+``L_o = Gs Ks``, ``S_o = (I + L_o)^-1``, ``T_o = I - S_o``; at the plant inputs ``L_i = Ks Gs``,
+``S_i = (I + L_i)^-1``, ``T_i = I - S_i``.
+
+:func:`decentralised_pid` builds the usual controller, a PID law with a derivative filter on each
+loop, ``C(s) = Kp + Ki/s + Kd s/(Tf s + 1)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gaintune.lti.mimo import DelayedSS, MimoLti, TfEntry, TfMatrix
+
+__all__ = ["LoopPair", "PidLoop", "MimoLoop", "pid_entry", "decentralised_pid", "response", "hidden_modes",
+           "char_freqs", "closed_loop_matrix"]
+
+
+@dataclass(frozen=True)
+class LoopPair:
+    """One loop of the pairing: its name, the plant output it measures and the plant input it drives
+    (names, or indices into the plant's outputs and inputs)."""
+
+    name: str
+    output: str | int
+    input: str | int
+
+
+@dataclass(frozen=True)
+class PidLoop(LoopPair):
+    """A loop with its PID gains: ``C(s) = Kp + Ki/s + Kd s/(Tf s + 1)`` (Tf > 0 when Kd != 0)."""
+
+    Kp: float = 0.0
+    Ki: float = 0.0
+    Kd: float = 0.0
+    Tf: float = 0.0
+
+
+def pid_entry(Kp: float, Ki: float = 0.0, Kd: float = 0.0, Tf: float = 0.0) -> TfEntry:
+    """The transfer function ``Kp + Ki/s + Kd s/(Tf s + 1)`` as one entry (descending powers of s).
+
+    Raises
+    ------
+    ValueError
+        A non-finite gain, or a derivative without a filter (Tf <= 0: an improper controller).
+    """
+    g = {"Kp": Kp, "Ki": Ki, "Kd": Kd, "Tf": Tf}
+    bad = [k for k, v in g.items() if not np.isfinite(v)]
+    if bad:
+        raise ValueError(f"PID gain {bad[0]} = {g[bad[0]]} is not finite: give a finite number")
+    if Kd != 0 and not Tf > 0:
+        raise ValueError(f"PID with Kd = {Kd} needs a derivative filter Tf > 0 (got Tf = {Tf}): set Tf, e.g. Kd/Kp/10")
+    if Kd != 0:  # (Kp (Tf s + 1) s + Ki (Tf s + 1) + Kd s^2) / (s (Tf s + 1))
+        num = np.array([Kp * Tf + Kd, Kp + Ki * Tf, Ki])
+        den = np.array([Tf, 1.0, 0.0])
+        if Ki == 0:
+            num, den = num[:2], den[:2]
+        return TfEntry(num, den)
+    if Ki != 0:
+        return TfEntry(np.array([Kp, Ki]), np.array([1.0, 0.0]))
+    return TfEntry(np.array([float(Kp)]), np.array([1.0]))
+
+
+def _index(names: tuple[str, ...], key: str | int, what: str, loop: str) -> int:
+    """Index of ``key`` (a name or an index) among ``names``; ValueError naming the loop and the choices."""
+    if isinstance(key, int | np.integer) and not isinstance(key, bool):
+        if 0 <= int(key) < len(names):
+            return int(key)
+    elif key in names:
+        return names.index(str(key))
+    raise ValueError(f"loop {loop!r}: {what} {key!r} is not a plant {what}; choose one of {list(names)} "
+                     f"(or an index 0..{len(names) - 1})")
+
+
+def decentralised_pid(plant: MimoLti, loops: Sequence[PidLoop]) -> TfMatrix:
+    """The decentralised controller: an m x p transfer-function matrix, loop k's PID law from its
+    output to its input, zero elsewhere. Its inputs are named after the plant outputs, its outputs
+    after the plant inputs."""
+    p, m = plant.shape
+    zero = TfEntry(np.array([0.0]), np.array([1.0]))
+    rows = [[zero] * p for _ in range(m)]
+    for lp in loops:
+        i = _index(plant.outputs, lp.output, "output", lp.name)
+        j = _index(plant.inputs, lp.input, "input", lp.name)
+        rows[j][i] = pid_entry(lp.Kp, lp.Ki, lp.Kd, lp.Tf)
+    return TfMatrix(tuple(tuple(r) for r in rows), inputs=plant.outputs, outputs=plant.inputs)
+
+
+def response(sys: MimoLti, s: np.ndarray, rows: Sequence[int] | None = None,
+             cols: Sequence[int] | None = None) -> np.ndarray:
+    """``sys[rows, cols]`` at the complex points ``s``: (len(s), len(rows), len(cols)), exact delays
+    (any s, not only s = jw; all rows or columns when None)."""
+    s = np.asarray(s, dtype=complex).ravel()
+    p, m = sys.shape
+    r = list(range(p)) if rows is None else list(rows)
+    c = list(range(m)) if cols is None else list(cols)
+    if isinstance(sys, TfMatrix):
+        out = np.zeros((s.size, len(r), len(c)), dtype=complex)
+        for a, i in enumerate(r):
+            for b, j in enumerate(c):
+                e = sys.entries[i][j]
+                if not e.is_zero:
+                    out[:, a, b] = e.response(s)
+        return out
+    n = sys.A.shape[0]
+    G = np.broadcast_to(sys.D[np.ix_(r, c)].astype(complex), (s.size, len(r), len(c))).copy()
+    if n:
+        B = sys.B[:, c]
+        X = np.linalg.solve(s[:, None, None] * np.eye(n) - sys.A[None], np.broadcast_to(B, (s.size, n, len(c))))
+        G += sys.C[r][None] @ X
+    G *= np.exp(-s[:, None] * sys.output_delays[r][None, :])[:, :, None]
+    G *= np.exp(-s[:, None] * sys.input_delays[c][None, :])[:, None, :]
+    return G
+
+
+def hidden_modes(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> np.ndarray:
+    """The eigenvalues of A right of Re s = ``floor`` that (A, B) cannot reach or C cannot see (PBH
+    rank test, with multiplicity): feedback between these inputs and outputs cannot move them.
+
+    Only these matter to a stability count, and the rank test at each such eigenvalue stays well
+    conditioned where a full Kalman decomposition of a large entry-by-entry realisation does not."""
+    if not A.size:
+        return np.zeros(0, dtype=complex)
+    ev = np.linalg.eigvals(A)
+    n = A.shape[0]
+    scale = max(1.0, float(np.max(np.abs(ev))))
+    cand = ev[ev.real > floor * scale]
+    out: list[complex] = []
+    done = np.zeros(cand.size, dtype=bool)
+    for k, lam in enumerate(cand):
+        if done[k]:
+            continue
+        same = np.abs(cand - lam) <= 1e-6 * max(1.0, abs(lam))
+        done |= same
+        M = lam * np.eye(n) - A
+        deficits = []
+        for X in (np.hstack([M, B]), np.vstack([M, C])):
+            sv = np.linalg.svd(X, compute_uv=False)
+            deficits.append(int(np.sum(sv <= 1e-8 * max(1.0, float(sv[0]) if sv.size else 1.0))) + n - sv.size)
+        out += [complex(lam)] * min(int(same.sum()), sum(deficits))
+    return np.array(out, dtype=complex)
+
+
+def _check_controller(K: MimoLti, plant: MimoLti) -> None:
+    p, m = plant.shape
+    if K.shape != (m, p):
+        raise ValueError(f"controller: shape {K.shape} must be (plant inputs, plant outputs) = ({m}, {p})")
+
+
+@dataclass
+class MimoLoop:
+    """The loop: plant, controller and the resolved pairing (``outs[k]``, ``ins[k]``: loop k's channels)."""
+
+    plant: MimoLti
+    controller: MimoLti
+    names: list[str]
+    outs: list[int]
+    ins: list[int]
+    _real: dict[int, tuple[tuple, tuple]] = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def build(cls, plant: MimoLti, controller: MimoLti, pairing: Sequence[LoopPair]) -> MimoLoop:
+        """Resolve the pairing against the plant's names; every loop needs its own output and input."""
+        _check_controller(controller, plant)
+        if not pairing:
+            raise ValueError("pairing: at least one loop (name, output, input) is needed")
+        names = [lp.name for lp in pairing]
+        outs = [_index(plant.outputs, lp.output, "output", lp.name) for lp in pairing]
+        ins = [_index(plant.inputs, lp.input, "input", lp.name) for lp in pairing]
+        for what, idx, labels in (("output", outs, plant.outputs), ("input", ins, plant.inputs)):
+            dup = {labels[i] for i in idx if idx.count(i) > 1}
+            if dup:
+                raise ValueError(f"pairing: plant {what} {sorted(dup)[0]!r} is used by more than one loop; "
+                                 f"each loop needs its own {what}")
+        if len(set(names)) != len(names):
+            raise ValueError("pairing: loop names must be distinct")
+        loop = cls(plant, controller, names, outs, ins)
+        loop.check_controller_paths(np.array([0.1, 1.0, 10.0]))
+        return loop
+
+    @property
+    def n(self) -> int:
+        """Number of loops."""
+        return len(self.names)
+
+    def channels(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(Gs, Ks) at ``s``: (len(s), n, n) each, loop k on the diagonal."""
+        return response(self.plant, s, self.outs, self.ins), response(self.controller, s, self.ins, self.outs)
+
+    def check_controller_paths(self, w: np.ndarray) -> None:
+        """Refuse a controller path from or to a channel outside the pairing (it would close a loop
+        the pairing does not name), checked on the frequencies ``w``."""
+        K = np.abs(response(self.controller, 1j * np.asarray(w, dtype=float)))
+        inside = K[:, self.ins][:, :, self.outs]
+        with np.errstate(invalid="ignore"):
+            outside = float(np.nansum(K) - np.nansum(inside))
+        if outside > 1e-12 * max(1.0, float(np.nansum(inside))):
+            raise ValueError("controller: it has a path from an output or to an input that no loop of the pairing "
+                             "uses; add that loop to the pairing or remove the path")
+
+    def sensitivities(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(S_i, S_o) at ``s``: input- and output-side sensitivities (len(s), n, n)."""
+        Gs, Ks = self.channels(s)
+        eye = np.eye(self.n)
+        with np.errstate(all="ignore"):
+            Si = np.linalg.inv(eye + Ks @ Gs)
+            So = np.linalg.inv(eye + Gs @ Ks)
+        return Si, So
+
+    def realisations(self, pade_order: int) -> tuple[tuple, tuple]:
+        """Delay-free realisations (A, B, C, D) of the plant's loop channels (delays as Padé approximants
+        of ``pade_order``; 0 drops them) and of the controller's loop channels."""
+        if pade_order in self._real:
+            return self._real[pade_order]
+        P = self.plant.pade_ss(pade_order)
+        Kc = self.controller.pade_ss(0)
+        plant = (P.A, P.B[:, self.ins], P.C[self.outs], P.D[np.ix_(self.outs, self.ins)])
+        ctrl = (Kc.A, Kc.B[:, self.outs], Kc.C[self.ins], Kc.D[np.ix_(self.ins, self.outs)])
+        self._real[pade_order] = (plant, ctrl)
+        return plant, ctrl
+
+    def max_delay(self) -> float:
+        """The largest delay of the loop channels (0 without delays)."""
+        P = self.plant
+        if isinstance(P, TfMatrix):
+            return max((P.entries[i][j].delay for i in self.outs for j in self.ins), default=0.0)
+        assert isinstance(P, DelayedSS)
+        return float(P.input_delays[self.ins].max(initial=0.0) + P.output_delays[self.outs].max(initial=0.0))
+
+
+def char_freqs(loop: MimoLoop) -> np.ndarray:
+    """Characteristic frequencies (rad/s) of the loop: magnitudes of the plant's and the controller's
+    poles, of the controller's zeros (PID corners) and 1/T of the largest delay ([1.0] when none)."""
+    (Ap, _, _, _), (Ak, _, _, _) = loop.realisations(0)
+    f = [np.abs(np.linalg.eigvals(A)) for A in (Ap, Ak) if A.size]
+    K = loop.controller
+    if isinstance(K, TfMatrix):
+        f += [np.abs(np.roots(e.num)) for row in K.entries for e in row if not e.is_zero and e.num.size > 1]
+    T = loop.max_delay()
+    if T > 0:
+        f.append(np.array([1.0 / T]))
+    allf = np.concatenate(f) if f else np.zeros(0)
+    kept = allf[np.isfinite(allf) & (allf > 1e-12)]
+    return kept if kept.size else np.array([1.0])
+
+
+def closed_loop_matrix(plant: tuple, ctrl: tuple) -> np.ndarray:
+    """State matrix of u = K (r - y), y = G u, from the realisations (A, B, C, D) of G and K."""
+    A, B, C, D = plant
+    Ak, Bk, Ck, Dk = ctrl
+    n = D.shape[0]
+    E = np.linalg.inv(np.eye(n) + Dk @ D)  # u = E (Ck xk - Dk C x): the algebraic loop through both feedthroughs
+    Fx, Fk = -E @ Dk @ C, E @ Ck
+    Yx, Yk = C + D @ Fx, D @ Fk
+    return np.block([[A + B @ Fx, B @ Fk], [-Bk @ Yx, Ak - Bk @ Yk]])
