@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gaintune.lti.mimo import DelayedSS, MimoLti, TfEntry, TfMatrix
+from gaintune.lti.mimo import DelayedSS, MimoLti, TfEntry, TfMatrix, block_diag
 
 __all__ = ["LoopPair", "PidLoop", "MimoLoop", "pid_entry", "decentralised_pid", "response", "hidden_modes",
            "char_freqs", "closed_loop_matrix"]
@@ -95,6 +95,73 @@ def decentralised_pid(plant: MimoLti, loops: Sequence[PidLoop]) -> TfMatrix:
     return TfMatrix(tuple(tuple(r) for r in rows), inputs=plant.outputs, outputs=plant.inputs)
 
 
+_NZ_CACHE: dict[tuple, tuple[TfMatrix, list[tuple[int, int, TfEntry]], tuple]] = {}
+
+
+def _nonzero(sys: TfMatrix, rows: tuple[int, ...], cols: tuple[int, ...]) -> list[tuple[int, int, TfEntry]]:
+    """(row, column, entry) of the nonzero entries of ``sys[rows, cols]``, remembered per matrix object."""
+    return _nz_data(sys, rows, cols)[0]
+
+
+def _nz_data(sys: TfMatrix, rows: tuple[int, ...], cols: tuple[int, ...]) -> tuple[list, tuple]:
+    """The nonzero entries and their coefficients stacked for a vectorised evaluation: (row indices,
+    column indices, numerators and denominators padded to one length, delays)."""
+    key = (id(sys), rows, cols)
+    hit = _NZ_CACHE.get(key)
+    if hit is not None and hit[0] is sys:
+        return hit[1], hit[2]
+    nz = [(a, b, sys.entries[i][j]) for a, i in enumerate(rows) for b, j in enumerate(cols)
+          if not sys.entries[i][j].is_zero]
+    k = max([max(e.num.size, e.den.size) for _, _, e in nz], default=1)
+    num = np.array([np.pad(np.asarray(e.num, float), (k - e.num.size, 0)) for _, _, e in nz]).reshape(len(nz), k)
+    den = np.array([np.pad(np.asarray(e.den, float), (k - e.den.size, 0)) for _, _, e in nz]).reshape(len(nz), k)
+    stacked = (np.array([a for a, _, _ in nz], dtype=int), np.array([b for _, b, _ in nz], dtype=int), num, den,
+               np.array([e.delay for _, _, e in nz]))
+    if len(_NZ_CACHE) > 256:
+        _NZ_CACHE.clear()
+    _NZ_CACHE[key] = (sys, nz, stacked)
+    return nz, stacked
+
+
+def _tf_response(sys: TfMatrix, s: np.ndarray, rows: tuple[int, ...], cols: tuple[int, ...]) -> np.ndarray:
+    """``sys[rows, cols]`` at ``s``: every nonzero entry at once (Horner over the stacked coefficients)."""
+    _, (ra, cb, num, den, delay) = _nz_data(sys, rows, cols)
+    out = np.zeros((s.size, len(rows), len(cols)), dtype=complex)
+    if not ra.size:
+        return out
+    n = np.zeros((s.size, ra.size), dtype=complex)
+    d = np.zeros((s.size, ra.size), dtype=complex)
+    for c in range(num.shape[1]):
+        n = n * s[:, None] + num[:, c]
+        d = d * s[:, None] + den[:, c]
+    with np.errstate(all="ignore"):  # an integrator at s = 0: inf, as meant
+        v = n / d
+        if np.any(delay):
+            v = v * np.exp(-s[:, None] * delay[None, :])
+    out[:, ra, cb] = v
+    return out
+
+
+def _tf_realisation(sys: TfMatrix, rows: Sequence[int], cols: Sequence[int]) -> tuple:
+    """(A, B, C, D) of the delay-free ``sys[rows, cols]``, entry by entry (zero entries add nothing)."""
+    As, Bs, Cs = [], [], []
+    D = np.zeros((len(rows), len(cols)))
+    for a, b, e in _nonzero(sys, tuple(rows), tuple(cols)):
+        A, B, C, Dij = e.realisation()
+        if e.den.size > 1:  # a static entry's realisation has a dummy state
+            As.append(A)
+            Bc = np.zeros((A.shape[0], len(cols)))
+            Bc[:, b] = B[:, 0]
+            Cr = np.zeros((len(rows), A.shape[0]))
+            Cr[a, :] = C[0, :]
+            Bs.append(Bc)
+            Cs.append(Cr)
+        D[a, b] = Dij[0, 0]
+    if not As:
+        return np.zeros((0, 0)), np.zeros((0, len(cols))), np.zeros((len(rows), 0)), D
+    return block_diag(*As), np.vstack(Bs), np.hstack(Cs), D
+
+
 def response(sys: MimoLti, s: np.ndarray, rows: Sequence[int] | None = None,
              cols: Sequence[int] | None = None) -> np.ndarray:
     """``sys[rows, cols]`` at the complex points ``s``: (len(s), len(rows), len(cols)), exact delays
@@ -104,16 +171,10 @@ def response(sys: MimoLti, s: np.ndarray, rows: Sequence[int] | None = None,
     r = list(range(p)) if rows is None else list(rows)
     c = list(range(m)) if cols is None else list(cols)
     if isinstance(sys, TfMatrix):
-        out = np.zeros((s.size, len(r), len(c)), dtype=complex)
-        for a, i in enumerate(r):
-            for b, j in enumerate(c):
-                e = sys.entries[i][j]
-                if not e.is_zero:
-                    out[:, a, b] = e.response(s)
-        return out
+        return _tf_response(sys, s, tuple(r), tuple(c))
     n = sys.A.shape[0]
     G = np.broadcast_to(sys.D[np.ix_(r, c)].astype(complex), (s.size, len(r), len(c))).copy()
-    if n:
+    if n:  # (a pole exactly at some s gives inf/NaN there, as meant)
         B = sys.B[:, c]
         X = np.linalg.solve(s[:, None, None] * np.eye(n) - sys.A[None], np.broadcast_to(B, (s.size, n, len(c))))
         G += sys.C[r][None] @ X
@@ -166,6 +227,8 @@ class MimoLoop:
     outs: list[int]
     ins: list[int]
     _real: dict[int, tuple[tuple, tuple]] = field(default_factory=dict, repr=False)
+    _modal: tuple | None = field(default=None, repr=False)
+    _diag: bool | None = field(default=None, repr=False)
 
     @classmethod
     def build(cls, plant: MimoLti, controller: MimoLti, pairing: Sequence[LoopPair]) -> MimoLoop:
@@ -194,7 +257,37 @@ class MimoLoop:
 
     def channels(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(Gs, Ks) at ``s``: (len(s), n, n) each, loop k on the diagonal."""
-        return response(self.plant, s, self.outs, self.ins), response(self.controller, s, self.ins, self.outs)
+        return self._plant_channels(np.asarray(s, dtype=complex).ravel()), response(self.controller, s, self.ins,
+                                                                                    self.outs)
+
+    def _plant_channels(self, s: np.ndarray) -> np.ndarray:
+        """Gs at ``s``; a state-space plant through its eigendecomposition (one solve per frequency
+        costs far more for many loops), unless the eigenvectors are ill conditioned."""
+        P = self.plant
+        if not isinstance(P, DelayedSS) or P.A.shape[0] == 0:
+            return response(P, s, self.outs, self.ins)
+        if self._modal is None:
+            lam, V = np.linalg.eig(P.A)
+            ok = bool(np.linalg.cond(V) < 1e8)
+            self._modal = (ok, lam, P.C[self.outs] @ V if ok else None,
+                           np.linalg.solve(V, P.B[:, self.ins]) if ok else None)
+        ok, lam, CV, VB = self._modal
+        if not ok:
+            return response(P, s, self.outs, self.ins)
+        with np.errstate(all="ignore"):
+            G = (CV[None] * (1.0 / (s[:, None] - lam[None, :]))[:, None, :]) @ VB
+            G += P.D[np.ix_(self.outs, self.ins)][None]
+            G *= np.exp(-s[:, None] * P.output_delays[self.outs][None, :])[:, :, None]
+            G *= np.exp(-s[:, None] * P.input_delays[self.ins][None, :])[:, None, :]
+        return G
+
+    def diagonal_controller(self) -> bool:
+        """Whether the controller's loop channels are diagonal (decentralised loops), probed at 1e-2..1e2 rad/s."""
+        if self._diag is None:
+            K = np.abs(response(self.controller, 1j * np.logspace(-2, 2, 5), self.ins, self.outs))
+            off = K.sum() - np.trace(K, axis1=1, axis2=2).sum()
+            self._diag = bool(off <= 1e-12 * max(1.0, float(K.sum())))
+        return self._diag
 
     def check_controller_paths(self, w: np.ndarray) -> None:
         """Refuse a controller path from or to a channel outside the pairing (it would close a loop
@@ -207,13 +300,21 @@ class MimoLoop:
             raise ValueError("controller: it has a path from an output or to an input that no loop of the pairing "
                              "uses; add that loop to the pairing or remove the path")
 
+    def loop_gains(self, s: np.ndarray, side: str) -> np.ndarray:
+        """L at ``s``: ``Ks Gs`` (side "input") or ``Gs Ks`` ("output"), (len(s), n, n)."""
+        Gs, Ks = self.channels(s)
+        with np.errstate(all="ignore"):
+            if self.diagonal_controller():  # a row or column scaling, not a product
+                k = np.diagonal(Ks, axis1=1, axis2=2)
+                return k[:, :, None] * Gs if side == "input" else Gs * k[:, None, :]
+            return Ks @ Gs if side == "input" else Gs @ Ks
+
     def sensitivities(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(S_i, S_o) at ``s``: input- and output-side sensitivities (len(s), n, n)."""
-        Gs, Ks = self.channels(s)
         eye = np.eye(self.n)
         with np.errstate(all="ignore"):
-            Si = np.linalg.inv(eye + Ks @ Gs)
-            So = np.linalg.inv(eye + Gs @ Ks)
+            Si = np.linalg.inv(eye + self.loop_gains(s, "input"))
+            So = np.linalg.inv(eye + self.loop_gains(s, "output"))
         return Si, So
 
     def realisations(self, pade_order: int) -> tuple[tuple, tuple]:
@@ -222,9 +323,13 @@ class MimoLoop:
         if pade_order in self._real:
             return self._real[pade_order]
         P = self.plant.pade_ss(pade_order)
-        Kc = self.controller.pade_ss(0)
         plant = (P.A, P.B[:, self.ins], P.C[self.outs], P.D[np.ix_(self.outs, self.ins)])
-        ctrl = (Kc.A, Kc.B[:, self.outs], Kc.C[self.ins], Kc.D[np.ix_(self.ins, self.outs)])
+        K = self.controller
+        if isinstance(K, TfMatrix):  # only the entries in the loop (a big sparse matrix realises slowly)
+            ctrl = _tf_realisation(K, self.ins, self.outs)
+        else:
+            Kc = K.pade_ss(0)
+            ctrl = (Kc.A, Kc.B[:, self.outs], Kc.C[self.ins], Kc.D[np.ix_(self.ins, self.outs)])
         self._real[pade_order] = (plant, ctrl)
         return plant, ctrl
 

@@ -61,9 +61,12 @@ def _det_contour(loop: MimoLoop, ol: np.ndarray, eps: float, w_hi: float, T_spin
     dist = np.maximum(np.abs(up.real + eps), eps)
     w = np.concatenate([[0.0], np.logspace(np.log10(eps / 100), np.log10(w_hi), n_freq),
                         (up.imag[:, None] + dist[:, None] * _POLE_OFFSETS[None, :]).ravel()])
-    if T_spin > 0:  # the delays turn the phase by about T dw per interval
-        w = np.concatenate([w, np.linspace(0.0, w_hi, min(int(w_hi * T_spin / 0.5) + 2, 20000))])
     w = np.unique(w[(w >= 0) & (w <= w_hi)])
+    if T_spin > 0:  # the delays turn the phase by about T dw per interval, where det(I + L) is not near 1
+        with np.errstate(all="ignore"):
+            far = np.abs(det(w) - 1.0) > 0.1
+        w_top = float(w[np.nonzero(far)[0][-1]]) if far.any() else 0.0
+        w = np.unique(np.concatenate([w, np.linspace(0.0, w_top, min(int(w_top * T_spin / 0.5) + 2, 20000))]))
     phi = det(w)
     for _ in range(10):
         with np.errstate(all="ignore"):
@@ -93,7 +96,7 @@ def _nyquist(loop: MimoLoop, ol: np.ndarray, eps: float, cf: np.ndarray, notes: 
             break
         w_hi *= 10.0
     tail_ok = bool(np.all(_sigma_l(loop, w_hi * np.array([10.0, 1e2, 1e4]), eps) < tau))
-    w, phi = _det_contour(loop, ol, eps, w_hi, loop.n * loop.max_delay())
+    w, phi = _det_contour(loop, ol, eps, w_hi, 2.0 * loop.max_delay())
     with np.errstate(all="ignore"):
         far = complex(np.linalg.det(np.eye(loop.n) + _l_at(loop, -eps + 1j * w_hi * 1e4)))
     ang = np.unwrap(np.angle(phi))
@@ -166,8 +169,8 @@ def mimo_stability(loop: MimoLoop, pade_order: int | None = None) -> MimoStabili
     A = closed_loop_matrix(P, Kc)
     with np.errstate(all="ignore"):
         poles = np.linalg.eigvals(A) if A.size and np.all(np.isfinite(A)) else np.zeros(0, dtype=complex)
-    hid_p = hidden_modes(*P[:3], floor=-1e-6)
-    hid_k = hidden_modes(*Kc[:3], floor=-1e-6)  # e.g. the empty state of a static entry: an artefact
+    hid_p = hidden_modes(P[0], P[1], P[2], -1e-6)
+    hid_k = hidden_modes(Kc[0], Kc[1], Kc[2], -1e-6)  # artefacts of the controller's realisation
     poles = _drop(poles, np.concatenate([hid_p, hid_k]))
     bad, marginal = _split_hidden(hid_p)
     _hidden_notes(bad, marginal, notes)
