@@ -90,6 +90,12 @@ def analysis_grid(loop: MimoLoop) -> np.ndarray:
         w_spin = float(w[np.nonzero(big)[0][-1]]) if big.any() else 0.0
         n = min(int(w_spin * T / 0.5) + 2, _SPIN_MAX)
         w = np.unique(np.concatenate([w, np.linspace(lo, w_spin, n)])) if w_spin > lo else w
+    # not on an open-loop pole of the imaginary axis (L is infinite there: a NaN would poison the peaks)
+    poles = np.concatenate([np.linalg.eigvals(A) for A in (r[0] for r in loop.realisations(0)) if A.size]
+                           or [np.zeros(0, dtype=complex)])
+    axis = np.abs(poles.imag[np.abs(poles.real) <= 1e-12 * np.maximum(1.0, np.abs(poles))])
+    if axis.size:
+        w = w[np.all(np.abs(w[:, None] - axis[None, :]) > 1e-9 * np.maximum(axis[None, :], 1e-300), axis=1)]
     return w
 
 
@@ -140,8 +146,8 @@ def mimo_report(plant: MimoLti, controller: MimoLti, pairing: Sequence[LoopPair]
     if not stab.stable:
         disks = [MultiloopDisk(0.0, 0.0, None, 1.0, 1.0, 0.0, 0.0, sigma) for _ in disks]
         notes.append("the closed loop is unstable: multiloop disk margins are 0")
-    peaks = [sigma_peak(fn, grid, X) for fn, X in (
-        (S_in, Si), (lambda ww: eye - S_in(ww), eye - Si), (S_out, So), (lambda ww: eye - S_out(ww), eye - So))]
+    peaks = [sigma_peak(fn, g0, X) for fn, X in (
+        (S_in, Si0), (lambda ww: eye - S_in(ww), eye - Si0), (S_out, So0), (lambda ww: eye - S_out(ww), eye - So0))]
     return MimoMargins(loop.names, [plant.inputs[j] for j in loop.ins], [plant.outputs[i] for i in loop.outs],
                        stab, breaks[: loop.n], breaks[loop.n:], peaks[0], peaks[1], peaks[2], peaks[3],
                        disks[0], disks[1], (float(grid[0]), float(grid[-1])), int(grid.size), notes)

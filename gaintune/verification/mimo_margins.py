@@ -216,7 +216,7 @@ def multiloop_disk(S_at: Callable[[np.ndarray], np.ndarray], w: np.ndarray, S: n
     return MultiloopDisk(alpha, 1.0 / lb if lb > 0 else math.inf, float(wz), *disk_range(alpha, sigma), sigma=sigma)
 
 
-def _zoom_mu(S_at: Callable[[np.ndarray], np.ndarray], w: np.ndarray, i: int, sigma: float, rounds: int = 3,
+def _zoom_mu(S_at: Callable[[np.ndarray], np.ndarray], w: np.ndarray, i: int, sigma: float, rounds: int = 6,
              pts: int = 8) -> tuple[float, np.ndarray]:
     """The frequency of the mu peak near grid point i, by the Osborne bound: (w, M there)."""
     w_best = float(w[i])
