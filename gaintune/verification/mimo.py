@@ -25,7 +25,7 @@ from gaintune.verification.mimo_stability import MimoStability, mimo_stability
 
 __all__ = ["MimoMargins", "MimoLine", "REQUIREMENTS", "mimo_report", "analysis_grid", "judge"]
 
-#: Log-grid points per decade.
+#: Log-grid points per decade: 200/n (n loops), at least 40: each point costs an n x n inverse.
 _PER_DECADE = 40
 #: Phase crossings are resolved (the grid follows the delays' phase spin) while some loop-at-a-time
 #: |L| is above this level (a crossing below it has GM > 26 dB and binds no practical requirement).
@@ -82,7 +82,8 @@ def analysis_grid(loop: MimoLoop) -> np.ndarray:
         if not top > MAG_FLOOR:
             break
         hi *= 10.0
-    w = np.logspace(math.log10(lo), math.log10(hi), int(_PER_DECADE * math.log10(hi / lo)) + 1)
+    per_decade = max(_PER_DECADE, 200 // loop.n)
+    w = np.logspace(math.log10(lo), math.log10(hi), int(per_decade * math.log10(hi / lo)) + 1)
     T = 2.0 * loop.max_delay()
     if T > 0:
         with np.errstate(all="ignore"):

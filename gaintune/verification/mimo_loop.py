@@ -270,15 +270,19 @@ class MimoLoop:
             lam, V = np.linalg.eig(P.A)
             ok = bool(np.linalg.cond(V) < 1e8)
             self._modal = (ok, lam, P.C[self.outs] @ V if ok else None,
-                           np.linalg.solve(V, P.B[:, self.ins]) if ok else None)
-        ok, lam, CV, VB = self._modal
+                           np.linalg.solve(V, P.B[:, self.ins]) if ok else None,
+                           P.D[np.ix_(self.outs, self.ins)], P.output_delays[self.outs], P.input_delays[self.ins])
+        ok, lam, CV, VB, D, d_out, d_in = self._modal
         if not ok:
             return response(P, s, self.outs, self.ins)
         with np.errstate(all="ignore"):
             G = (CV[None] * (1.0 / (s[:, None] - lam[None, :]))[:, None, :]) @ VB
-            G += P.D[np.ix_(self.outs, self.ins)][None]
-            G *= np.exp(-s[:, None] * P.output_delays[self.outs][None, :])[:, :, None]
-            G *= np.exp(-s[:, None] * P.input_delays[self.ins][None, :])[:, None, :]
+            if np.any(D):
+                G += D[None]
+            if np.any(d_out):
+                G *= np.exp(-s[:, None] * d_out[None, :])[:, :, None]
+            if np.any(d_in):
+                G *= np.exp(-s[:, None] * d_in[None, :])[:, None, :]
         return G
 
     def diagonal_controller(self) -> bool:

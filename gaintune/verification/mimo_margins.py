@@ -146,10 +146,11 @@ def _lower(M: np.ndarray, d: np.ndarray) -> float:
     return lb
 
 
-def mu_bounds(M: np.ndarray, d0: np.ndarray | None = None) -> tuple[float, float, np.ndarray]:
+def mu_bounds(M: np.ndarray, d0: np.ndarray | None = None, gap: float = 5e-3) -> tuple[float, float, np.ndarray]:
     """(upper, lower, d): bounds of mu(M) for a diagonal complex perturbation and the optimal scaling.
 
-    The upper bound minimises sigma_max(D M D^-1) over log D (BFGS from ``d0``, default Osborne's)."""
+    The upper bound minimises sigma_max(D M D^-1) over log D (BFGS from ``d0``, default Osborne's);
+    when the bounds at ``d0`` are already within ``gap`` (relative) they are returned as they are."""
     from scipy.optimize import minimize
 
     n = M.shape[0]
@@ -159,7 +160,7 @@ def mu_bounds(M: np.ndarray, d0: np.ndarray | None = None) -> tuple[float, float
     x0 = np.log(d[1:] / d[0])
     ub0 = float(np.linalg.norm(d[:, None] * M / d[None, :], ord=2))
     lb0 = _lower(M, d)
-    if ub0 <= lb0 * (1.0 + 1e-3):  # the bounds meet (within 0.1 %) already
+    if ub0 <= lb0 * (1.0 + gap):  # the bounds meet (within gap) already
         return ub0, lb0, d / d[0]
 
     def f(x: np.ndarray) -> tuple[float, np.ndarray]:
@@ -169,7 +170,7 @@ def mu_bounds(M: np.ndarray, d0: np.ndarray | None = None) -> tuple[float, float
         return float(sv[0]), g[1:]
 
     # sigma_max is not smooth where it is repeated: a short run, the best point kept
-    res = minimize(f, x0, jac=True, method="BFGS", options={"gtol": 1e-7, "maxiter": 20})
+    res = minimize(f, x0, jac=True, method="BFGS", options={"gtol": 1e-7, "maxiter": 10})
     x = res.x if res.fun <= f(x0)[0] else x0
     dd = np.exp(np.concatenate([[0.0], x]))
     ub = min(float(res.fun), f(x0)[0])
@@ -276,10 +277,11 @@ def lat_rows(loop: MimoLoop, s: np.ndarray, outputs: bool = True) -> np.ndarray:
 
 
 class _RowsEvaluator(Evaluator):
-    """The loop-at-a-time rows as the SISO analysis' evaluator (it only calls it and reads spin_T)."""
+    """Loop-at-a-time rows as the SISO analysis' evaluator (it only calls it and reads spin_T): every
+    row (``row`` None), or one: S_kk from one solve of (I + L) x = e_k, a third of an inverse."""
 
-    def __init__(self, loop: MimoLoop, outputs: bool):  # no cascade: the SISO set-up does not apply
-        self.loop, self.outputs = loop, outputs
+    def __init__(self, loop: MimoLoop, outputs: bool, row: int | None = None):  # no cascade here
+        self.loop, self.outputs, self.row = loop, outputs, row
         #: the delays a loop-at-a-time response can carry: its own channel and a return through another
         self.spin_T = 2.0 * loop.max_delay()
         self.calls = 0
@@ -289,23 +291,33 @@ class _RowsEvaluator(Evaluator):
         self.calls += 1
         w = np.asarray(w, dtype=float)
         self.points += w.size
-        return lat_rows(self.loop, -shift + 1j * w, self.outputs)
+        s = -shift + 1j * w
+        if self.row is None:
+            return lat_rows(self.loop, s, self.outputs)
+        k, n = self.row % self.loop.n, self.loop.n
+        side = "output" if self.row >= n else "input"
+        e = np.zeros((s.size, n, 1))
+        e[:, k, 0] = 1.0
+        with np.errstate(all="ignore"):
+            x = np.linalg.solve(np.eye(n) + self.loop.loop_gains(s, side), e)
+            return (1.0 / x[:, k, 0] - 1.0)[None, :]
 
 
 def loop_at_a_time(loop: MimoLoop, w: np.ndarray, L: np.ndarray | None = None) -> list[BreakFigures]:
     """Margins at every plant input (rows 0..n-1, break point ``plant_input``) and output
     (``plant_output``), each with all other loops closed; ``L``: :func:`lat_rows` on ``w`` when known.
+    Each break point is analysed on its own (its zooms evaluate only its own row).
 
     With a diagonal controller (decentralised loops) breaking loop k at its plant input or at its
     plant output opens the same SISO loop (``C_k`` in series either way): it is analysed once, copied."""
     diag = loop.diagonal_controller()
-    ev = _RowsEvaluator(loop, outputs=not diag)
     if L is None:
-        L = ev(w)
+        L = lat_rows(loop, 1j * np.asarray(w, dtype=float), not diag)
     L0 = lat_rows(loop, np.zeros(1), not diag)[:, 0]
-    names = [(nm, "plant_input") for nm in loop.names]
+    names = [(nm, "plant_input") for nm in loop.names] + [(nm, "plant_output") for nm in loop.names]
+    rows = loop.n if diag else 2 * loop.n
+    figs = [row_margins(_RowsEvaluator(loop, not diag, r), w, L[r : r + 1], [names[r]], L0[r : r + 1])[0]
+            for r in range(rows)]
     if diag:
-        figs = row_margins(ev, w, L[: loop.n], names, L0)
-        return figs + [replace(f, break_point="plant_output", crossings=[replace(c) for c in f.crossings])
-                       for f in figs]
-    return row_margins(ev, w, L, names + [(nm, "plant_output") for nm in loop.names], L0)
+        figs += [replace(f, break_point="plant_output", crossings=[replace(c) for c in f.crossings]) for f in figs]
+    return figs
