@@ -183,31 +183,45 @@ def response(sys: MimoLti, s: np.ndarray, rows: Sequence[int] | None = None,
     return G
 
 
-def hidden_modes(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> np.ndarray:
-    """The eigenvalues of A right of Re s = ``floor`` that (A, B) cannot reach or C cannot see (PBH
-    rank test, with multiplicity): feedback between these inputs and outputs cannot move them.
+def _rank(X: np.ndarray, scale: float, tol: float = 1e-7) -> int:
+    """Numerical rank of X: singular values above ``tol * scale``."""
+    if X.size == 0 or scale <= 0:
+        return 0
+    return int(np.sum(np.linalg.svd(X, compute_uv=False) > tol * scale))
 
-    Only these matter to a stability count, and the rank test at each such eigenvalue stays well
-    conditioned where a full Kalman decomposition of a large entry-by-entry realisation does not."""
+
+def hidden_modes(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> np.ndarray:
+    """The eigenvalues of A right of Re s = ``floor`` |lambda|max that (A, B) cannot reach or C cannot
+    see: feedback between these inputs and outputs cannot move them.
+
+    Eigenvector (PBH) test on the balanced realisation, per cluster of equal eigenvalues: the
+    eigenvectors' rank minus the rank of C V (of W^H B for the left ones). A defective cluster
+    (a Jordan chain) has nearly parallel eigenvectors, rank 1, and is not mistaken for hidden.
+    Only these eigenvalues matter to a stability count, and the test stays well conditioned on
+    the badly scaled Padé realisations where a Kalman decomposition does not."""
     if not A.size:
         return np.zeros(0, dtype=complex)
-    ev = np.linalg.eigvals(A)
-    n = A.shape[0]
-    scale = max(1.0, float(np.max(np.abs(ev))))
-    cand = ev[ev.real > floor * scale]
+    from scipy.linalg import eig, matrix_balance
+
+    Ab, T = matrix_balance(A, permute=False)
+    t = np.diag(T)
+    Bb, Cb = B / t[:, None], C * t[None, :]
+    lam, vl, vr = eig(Ab, left=True, right=True)
+    scale = max(1.0, float(np.max(np.abs(lam))))
+    idx = np.nonzero(lam.real > floor * scale)[0]
+    nb, nc = float(np.linalg.norm(Bb, 2)) if Bb.size else 0.0, float(np.linalg.norm(Cb, 2)) if Cb.size else 0.0
     out: list[complex] = []
-    done = np.zeros(cand.size, dtype=bool)
-    for k, lam in enumerate(cand):
-        if done[k]:
+    done: set[int] = set()
+    for k in idx:
+        if int(k) in done:
             continue
-        same = np.abs(cand - lam) <= 1e-6 * max(1.0, abs(lam))
-        done |= same
-        M = lam * np.eye(n) - A
-        deficits = []
-        for X in (np.hstack([M, B]), np.vstack([M, C])):
-            sv = np.linalg.svd(X, compute_uv=False)
-            deficits.append(int(np.sum(sv <= 1e-8 * max(1.0, float(sv[0]) if sv.size else 1.0))) + n - sv.size)
-        out += [complex(lam)] * min(int(same.sum()), sum(deficits))
+        cl = [int(j) for j in idx if abs(lam[j] - lam[k]) <= 1e-6 * max(1.0, abs(lam[k]))]
+        done.update(cl)
+        V = vr[:, cl] / np.linalg.norm(vr[:, cl], axis=0)
+        W = vl[:, cl] / np.linalg.norm(vl[:, cl], axis=0)
+        rv, rw = _rank(V, 1.0, 1e-6), _rank(W, 1.0, 1e-6)
+        deficit = (rv - _rank(Cb @ V, nc)) + (rw - _rank(W.conj().T @ Bb, nb))
+        out += [complex(lam[k])] * min(len(cl), deficit)
     return np.array(out, dtype=complex)
 
 

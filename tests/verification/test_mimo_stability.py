@@ -131,3 +131,18 @@ def test_controller_of_the_wrong_shape_is_refused():
     with pytest.raises(ValueError, match=r"shape \(1, 2\)"):
         MimoLoop.build(wood_berry(), TfMatrix(((entry([1], [1]), entry([1], [1])),), inputs=("xD", "xB"),
                                               outputs=("reflux",)), blt_loops())
+
+
+def test_integrating_plant_modes_are_not_taken_for_hidden_modes():
+    """Regression: a rank test scaled by the Padé states (entries ~1e7) flagged the controllable,
+    observable integrators of 1/s and 1/s^2 as hidden, and dropped three real closed-loop poles."""
+    plant = TfMatrix(((entry([1], [1, 0], 0.1), entry([0.3], [1, 1], 0.2)),
+                      (entry([-0.2], [1, 1], 0.1), entry([2], [1, 0, 0], 0.05))), inputs=("a", "b"), outputs=("x", "y"))
+    for factor, rhp in ((1.0, 0), (10.0, 4)):
+        loops = [PidLoop("l1", "x", "a", Kp=factor, Ki=0.1 * factor),
+                 PidLoop("l2", "y", "b", Kp=factor, Ki=0.05 * factor, Kd=1.5 * factor, Tf=0.05)]
+        st = mimo_stability(_loop(plant, loops))
+        assert st.hidden_modes.size == 0 and not st.notes
+        assert st.rhp_poles == st.nyquist_rhp == rhp
+        n_plant = MimoLoop.build(plant, decentralised_pid(plant, loops), loops).realisations(6)[0][0].shape[0]
+        assert st.poles.size == n_plant + 3  # controller states: PI 1, PID 2
