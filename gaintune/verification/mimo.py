@@ -78,7 +78,7 @@ def analysis_grid(loop: MimoLoop) -> np.ndarray:
     lo, hi = float(cf.min()) / 100.0, float(cf.max()) * 100.0
     for _ in range(3):
         with np.errstate(all="ignore"):
-            top = np.nanmax(np.abs(lat_rows(loop, np.array([1j * hi]))))
+            top = np.nanmax(np.abs(lat_rows(loop, np.array([1j * hi]), not loop.diagonal_controller())))
         if not top > MAG_FLOOR:
             break
         hi *= 10.0
@@ -87,7 +87,7 @@ def analysis_grid(loop: MimoLoop) -> np.ndarray:
     T = 2.0 * loop.max_delay()
     if T > 0:
         with np.errstate(all="ignore"):
-            big = np.nanmax(np.abs(lat_rows(loop, 1j * w)), axis=0) > _SPIN_LEVEL
+            big = np.nanmax(np.abs(lat_rows(loop, 1j * w, not loop.diagonal_controller())), axis=0) > _SPIN_LEVEL
         w_spin = float(w[np.nonzero(big)[0][-1]]) if big.any() else 0.0
         n = min(int(w_spin * T / 0.5) + 2, _SPIN_MAX)
         w = np.unique(np.concatenate([w, np.linspace(lo, w_spin, n)])) if w_spin > lo else w
@@ -128,10 +128,10 @@ def mimo_report(plant: MimoLti, controller: MimoLti, pairing: Sequence[LoopPair]
     eye = np.eye(loop.n)
 
     def S_in(ww: np.ndarray) -> np.ndarray:
-        return loop.sensitivities(1j * ww)[0]
+        return loop.sensitivity(1j * ww, "input")
 
     def S_out(ww: np.ndarray) -> np.ndarray:
-        return loop.sensitivities(1j * ww)[1]
+        return loop.sensitivity(1j * ww, "output")
 
     with np.errstate(all="ignore"):
         L = np.concatenate([1.0 / np.diagonal(Si, axis1=1, axis2=2).T - 1.0,

@@ -123,12 +123,11 @@ def _nz_data(sys: TfMatrix, rows: tuple[int, ...], cols: tuple[int, ...]) -> tup
     return nz, stacked
 
 
-def _tf_response(sys: TfMatrix, s: np.ndarray, rows: tuple[int, ...], cols: tuple[int, ...]) -> np.ndarray:
-    """``sys[rows, cols]`` at ``s``: every nonzero entry at once (Horner over the stacked coefficients)."""
+def _tf_values(sys: TfMatrix, s: np.ndarray, rows: tuple[int, ...], cols: tuple[int, ...]
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(row indices, column indices, values (len(s), entries)) of the nonzero entries of
+    ``sys[rows, cols]`` at ``s``, all at once (Horner over the stacked coefficients)."""
     _, (ra, cb, num, den, delay) = _nz_data(sys, rows, cols)
-    out = np.zeros((s.size, len(rows), len(cols)), dtype=complex)
-    if not ra.size:
-        return out
     n = np.zeros((s.size, ra.size), dtype=complex)
     d = np.zeros((s.size, ra.size), dtype=complex)
     for c in range(num.shape[1]):
@@ -138,7 +137,15 @@ def _tf_response(sys: TfMatrix, s: np.ndarray, rows: tuple[int, ...], cols: tupl
         v = n / d
         if np.any(delay):
             v = v * np.exp(-s[:, None] * delay[None, :])
-    out[:, ra, cb] = v
+    return ra, cb, v
+
+
+def _tf_response(sys: TfMatrix, s: np.ndarray, rows: tuple[int, ...], cols: tuple[int, ...]) -> np.ndarray:
+    """``sys[rows, cols]`` at ``s`` (len(s), len(rows), len(cols))."""
+    out = np.zeros((s.size, len(rows), len(cols)), dtype=complex)
+    ra, cb, v = _tf_values(sys, s, rows, cols)
+    if ra.size:
+        out[:, ra, cb] = v
     return out
 
 
@@ -201,6 +208,9 @@ def hidden_modes(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> n
     the badly scaled Padé realisations where a Kalman decomposition does not."""
     if not A.size:
         return np.zeros(0, dtype=complex)
+    ev = np.linalg.eigvals(A)
+    if not np.any(ev.real > floor * max(1.0, float(np.max(np.abs(ev))))):
+        return np.zeros(0, dtype=complex)  # nothing to test (the eigenvectors cost far more)
     from scipy.linalg import eig, matrix_balance
 
     Ab, T = matrix_balance(A, permute=False)
@@ -283,19 +293,20 @@ class MimoLoop:
         if self._modal is None:
             lam, V = np.linalg.eig(P.A)
             ok = bool(np.linalg.cond(V) < 1e8)
+            D, d_out, d_in = P.D[np.ix_(self.outs, self.ins)], P.output_delays[self.outs], P.input_delays[self.ins]
             self._modal = (ok, lam, P.C[self.outs] @ V if ok else None,
                            np.linalg.solve(V, P.B[:, self.ins]) if ok else None,
-                           P.D[np.ix_(self.outs, self.ins)], P.output_delays[self.outs], P.input_delays[self.ins])
+                           D if np.any(D) else None, d_out if np.any(d_out) else None, d_in if np.any(d_in) else None)
         ok, lam, CV, VB, D, d_out, d_in = self._modal
         if not ok:
             return response(P, s, self.outs, self.ins)
         with np.errstate(all="ignore"):
             G = (CV[None] * (1.0 / (s[:, None] - lam[None, :]))[:, None, :]) @ VB
-            if np.any(D):
+            if D is not None:
                 G += D[None]
-            if np.any(d_out):
+            if d_out is not None:
                 G *= np.exp(-s[:, None] * d_out[None, :])[:, :, None]
-            if np.any(d_in):
+            if d_in is not None:
                 G *= np.exp(-s[:, None] * d_in[None, :])[:, None, :]
         return G
 
@@ -320,12 +331,26 @@ class MimoLoop:
 
     def loop_gains(self, s: np.ndarray, side: str) -> np.ndarray:
         """L at ``s``: ``Ks Gs`` (side "input") or ``Gs Ks`` ("output"), (len(s), n, n)."""
+        s = np.asarray(s, dtype=complex).ravel()
+        if self.diagonal_controller():  # a row or column scaling, not a product
+            Gs = self._plant_channels(s)
+            K = self.controller
+            if isinstance(K, TfMatrix):
+                k = np.zeros((s.size, self.n), dtype=complex)
+                ra, _, v = _tf_values(K, s, tuple(self.ins), tuple(self.outs))
+                k[:, ra] = v
+            else:
+                k = np.diagonal(response(K, s, self.ins, self.outs), axis1=1, axis2=2)
+            with np.errstate(all="ignore"):
+                return k[:, :, None] * Gs if side == "input" else Gs * k[:, None, :]
         Gs, Ks = self.channels(s)
         with np.errstate(all="ignore"):
-            if self.diagonal_controller():  # a row or column scaling, not a product
-                k = np.diagonal(Ks, axis1=1, axis2=2)
-                return k[:, :, None] * Gs if side == "input" else Gs * k[:, None, :]
             return Ks @ Gs if side == "input" else Gs @ Ks
+
+    def sensitivity(self, s: np.ndarray, side: str) -> np.ndarray:
+        """S at ``s`` on one side ("input" or "output"), (len(s), n, n)."""
+        with np.errstate(all="ignore"):
+            return np.linalg.inv(np.eye(self.n) + self.loop_gains(s, side))
 
     def sensitivities(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(S_i, S_o) at ``s``: input- and output-side sensitivities (len(s), n, n)."""
