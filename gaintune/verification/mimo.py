@@ -39,11 +39,11 @@ class MimoMargins:
     """Everything :func:`mimo_report` computes; break figures are those of the SISO analysis."""
 
     loops: list[str]
-    inputs: list[str]  # plant input each loop drives
+    inputs: list[str]  # plant input each loop names (loops of one cascade share it)
     outputs: list[str]  # plant output each loop measures
     stability: MimoStability
-    input_breaks: list[BreakFigures]  # loop k broken at its plant input, the others closed
-    output_breaks: list[BreakFigures]  # loop k broken at its plant output
+    input_breaks: list[BreakFigures]  # one per driven input (``break_inputs``), the others closed
+    output_breaks: list[BreakFigures]  # loop k broken at its measured output
     ms_input: Peak  # peak sigma_max(S_i)
     mt_input: Peak
     ms_output: Peak  # peak sigma_max(S_o)
@@ -53,6 +53,7 @@ class MimoMargins:
     band: tuple[float, float]
     grid_points: int
     notes: list[str] = field(default_factory=list)
+    break_inputs: list[str] = field(default_factory=list)  # the input of each input break
 
     @property
     def ms(self) -> float:
@@ -82,7 +83,7 @@ def analysis_grid(loop: MimoLoop) -> np.ndarray:
         if not top > MAG_FLOOR:
             break
         hi *= 10.0
-    per_decade = max(_PER_DECADE, 200 // loop.n)
+    per_decade = max(_PER_DECADE, 200 // max(loop.n_in, loop.n_out))
     w = np.logspace(math.log10(lo), math.log10(hi), int(per_decade * math.log10(hi / lo)) + 1)
     T = 2.0 * loop.max_delay()
     if T > 0:
@@ -125,7 +126,7 @@ def mimo_report(plant: MimoLti, controller: MimoLti, pairing: Sequence[LoopPair]
     grid = analysis_grid(loop) if w is None else np.asarray(w, dtype=float)
     s = 1j * grid
     Si, So = loop.sensitivities(s)
-    eye = np.eye(loop.n)
+    eye_i, eye_o = np.eye(loop.n_in), np.eye(loop.n_out)
 
     def S_in(ww: np.ndarray) -> np.ndarray:
         return loop.sensitivity(1j * ww, "input")
@@ -148,10 +149,12 @@ def mimo_report(plant: MimoLti, controller: MimoLti, pairing: Sequence[LoopPair]
         disks = [MultiloopDisk(0.0, 0.0, None, 1.0, 1.0, 0.0, 0.0, sigma) for _ in disks]
         notes.append("the closed loop is unstable: multiloop disk margins are 0")
     peaks = [sigma_peak(fn, g0, X) for fn, X in (
-        (S_in, Si0), (lambda ww: eye - S_in(ww), eye - Si0), (S_out, So0), (lambda ww: eye - S_out(ww), eye - So0))]
-    return MimoMargins(loop.names, [plant.inputs[j] for j in loop.ins], [plant.outputs[i] for i in loop.outs],
-                       stab, breaks[: loop.n], breaks[loop.n:], peaks[0], peaks[1], peaks[2], peaks[3],
-                       disks[0], disks[1], (float(grid[0]), float(grid[-1])), int(grid.size), notes)
+        (S_in, Si0), (lambda ww: eye_i - S_in(ww), eye_i - Si0), (S_out, So0),
+        (lambda ww: eye_o - S_out(ww), eye_o - So0))]
+    return MimoMargins(loop.names, [plant.inputs[j] for j in loop.loop_ins], [plant.outputs[i] for i in loop.loop_outs],
+                       stab, breaks[: loop.n_in], breaks[loop.n_in:], peaks[0], peaks[1], peaks[2], peaks[3],
+                       disks[0], disks[1], (float(grid[0]), float(grid[-1])), int(grid.size), notes,
+                       [plant.inputs[j] for j in loop.ins])
 
 
 # ------------------------------------------------------------------ requirements
@@ -201,15 +204,20 @@ def _side_values(rep: MimoMargins, figure: str, target: str) -> list[tuple[float
 
 
 def _break_values(rep: MimoMargins, figure: str, target: str) -> list[tuple[float, str]]:
-    sel = []
+    picked: list[BreakFigures] = []
     for k, name in enumerate(rep.loops):
-        for f, chan in ((rep.input_breaks[k], rep.inputs[k]), (rep.output_breaks[k], rep.outputs[k])):
-            if target in ("all", name, chan):
-                sel.append((float(getattr(f, figure)), f"{f.loop}/{f.break_point}"))
-    if not sel:
+        if target in ("all", name, rep.outputs[k]):
+            picked.append(rep.output_breaks[k])
+    for k, chan in enumerate(rep.break_inputs):
+        users = [nm for nm, inp in zip(rep.loops, rep.inputs, strict=True) if inp == chan]
+        if target in ("all", chan) or target in users:
+            picked.append(rep.input_breaks[k])
+    if not picked:
         raise ValueError(f"requirement target {target!r} is not a loop, plant input or output of the pairing; "
-                         f"choose 'all' or one of {rep.loops + rep.inputs + rep.outputs}")
-    return sel
+                         f"choose 'all' or one of {rep.loops + rep.break_inputs + rep.outputs}")
+    order = {id(f): i for i, f in enumerate(rep.input_breaks + rep.output_breaks)}
+    picked.sort(key=lambda f: order[id(f)])  # inputs first, as the report lists them
+    return [(float(getattr(f, figure)), f"{f.loop}/{f.break_point}") for f in picked]
 
 
 def judge(rep: MimoMargins, requirements: Mapping[str, float | Mapping[str, float]]) -> list[MimoLine]:

@@ -243,11 +243,18 @@ def _check_controller(K: MimoLti, plant: MimoLti) -> None:
 
 @dataclass
 class MimoLoop:
-    """The loop: plant, controller and the resolved pairing (``outs[k]``, ``ins[k]``: loop k's channels)."""
+    """The loop: plant, controller and the resolved pairing.
+
+    ``loop_outs[k]``, ``loop_ins[k]``: loop k's output and input; ``outs`` and ``ins``: the measured
+    outputs and the driven inputs, each once, in the order of the loops. Each output is measured by
+    one loop; several loops may name the same input (a cascade: its chain ends at that input), so
+    the loop channels need not be square."""
 
     plant: MimoLti
     controller: MimoLti
     names: list[str]
+    loop_outs: list[int]
+    loop_ins: list[int]
     outs: list[int]
     ins: list[int]
     _real: dict[int, tuple[tuple, tuple]] = field(default_factory=dict, repr=False)
@@ -256,28 +263,42 @@ class MimoLoop:
 
     @classmethod
     def build(cls, plant: MimoLti, controller: MimoLti, pairing: Sequence[LoopPair]) -> MimoLoop:
-        """Resolve the pairing against the plant's names; every loop needs its own output and input."""
+        """Resolve the pairing against the plant's names; each output is measured by one loop only."""
         _check_controller(controller, plant)
         if not pairing:
             raise ValueError("pairing: at least one loop (name, output, input) is needed")
         names = [lp.name for lp in pairing]
-        outs = [_index(plant.outputs, lp.output, "output", lp.name) for lp in pairing]
-        ins = [_index(plant.inputs, lp.input, "input", lp.name) for lp in pairing]
-        for what, idx, labels in (("output", outs, plant.outputs), ("input", ins, plant.inputs)):
-            dup = {labels[i] for i in idx if idx.count(i) > 1}
-            if dup:
-                raise ValueError(f"pairing: plant {what} {sorted(dup)[0]!r} is used by more than one loop; "
-                                 f"each loop needs its own {what}")
+        louts = [_index(plant.outputs, lp.output, "output", lp.name) for lp in pairing]
+        lins = [_index(plant.inputs, lp.input, "input", lp.name) for lp in pairing]
+        dup = {plant.outputs[i] for i in louts if louts.count(i) > 1}
+        if dup:
+            raise ValueError(f"pairing: plant output {sorted(dup)[0]!r} is measured by more than one loop; "
+                             "each loop needs its own output")
         if len(set(names)) != len(names):
             raise ValueError("pairing: loop names must be distinct")
-        loop = cls(plant, controller, names, outs, ins)
+        ins = list(dict.fromkeys(lins))
+        loop = cls(plant, controller, names, louts, lins, list(louts), ins)
         loop.check_controller_paths(np.array([0.1, 1.0, 10.0]))
         return loop
 
     @property
-    def n(self) -> int:
-        """Number of loops."""
-        return len(self.names)
+    def n_out(self) -> int:
+        """Number of measured outputs (= loops)."""
+        return len(self.outs)
+
+    @property
+    def n_in(self) -> int:
+        """Number of driven inputs."""
+        return len(self.ins)
+
+    @property
+    def n_small(self) -> int:
+        """The smaller side: det(I + Ks Gs) = det(I + Gs Ks) is taken there."""
+        return min(self.n_in, self.n_out)
+
+    def input_label(self, k: int) -> str:
+        """Name of input break k: the loop driving input ``ins[k]`` (loops sharing it joined by '+')."""
+        return "+".join(nm for nm, j in zip(self.names, self.loop_ins, strict=True) if j == self.ins[k])
 
     def channels(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(Gs, Ks) at ``s``: (len(s), n, n) each, loop k on the diagonal."""
@@ -311,7 +332,10 @@ class MimoLoop:
         return G
 
     def diagonal_controller(self) -> bool:
-        """Whether the controller's loop channels are diagonal (decentralised loops), probed at 1e-2..1e2 rad/s."""
+        """Whether the loops are decentralised: one input per loop and the controller's loop channels
+        diagonal (probed at 1e-2..1e2 rad/s)."""
+        if self._diag is None and self.n_in != self.n_out:
+            self._diag = False
         if self._diag is None:
             K = np.abs(response(self.controller, 1j * np.logspace(-2, 2, 5), self.ins, self.outs))
             off = K.sum() - np.trace(K, axis1=1, axis2=2).sum()
@@ -336,7 +360,7 @@ class MimoLoop:
             Gs = self._plant_channels(s)
             K = self.controller
             if isinstance(K, TfMatrix):
-                k = np.zeros((s.size, self.n), dtype=complex)
+                k = np.zeros((s.size, self.n_in), dtype=complex)
                 ra, _, v = _tf_values(K, s, tuple(self.ins), tuple(self.outs))
                 k[:, ra] = v
             else:
@@ -350,15 +374,11 @@ class MimoLoop:
     def sensitivity(self, s: np.ndarray, side: str) -> np.ndarray:
         """S at ``s`` on one side ("input" or "output"), (len(s), n, n)."""
         with np.errstate(all="ignore"):
-            return np.linalg.inv(np.eye(self.n) + self.loop_gains(s, side))
+            return np.linalg.inv(np.eye(self.n_in if side == "input" else self.n_out) + self.loop_gains(s, side))
 
     def sensitivities(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(S_i, S_o) at ``s``: input- and output-side sensitivities (len(s), n, n)."""
-        eye = np.eye(self.n)
-        with np.errstate(all="ignore"):
-            Si = np.linalg.inv(eye + self.loop_gains(s, "input"))
-            So = np.linalg.inv(eye + self.loop_gains(s, "output"))
-        return Si, So
+        return self.sensitivity(s, "input"), self.sensitivity(s, "output")
 
     def realisations(self, pade_order: int) -> tuple[tuple, tuple]:
         """Delay-free realisations (A, B, C, D) of the plant's loop channels (delays as Padé approximants
@@ -405,8 +425,8 @@ def closed_loop_matrix(plant: tuple, ctrl: tuple) -> np.ndarray:
     """State matrix of u = K (r - y), y = G u, from the realisations (A, B, C, D) of G and K."""
     A, B, C, D = plant
     Ak, Bk, Ck, Dk = ctrl
-    n = D.shape[0]
-    E = np.linalg.inv(np.eye(n) + Dk @ D)  # u = E (Ck xk - Dk C x): the algebraic loop through both feedthroughs
+    # u = E (Ck xk - Dk C x): the algebraic loop through both feedthroughs
+    E = np.linalg.inv(np.eye(D.shape[1]) + Dk @ D)
     Fx, Fk = -E @ Dk @ C, E @ Ck
     Yx, Yk = C + D @ Fx, D @ Fk
     return np.block([[A + B @ Fx, B @ Fk], [-Bk @ Yx, Ak - Bk @ Yk]])

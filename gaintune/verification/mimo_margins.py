@@ -264,11 +264,11 @@ def sigma_peak(X_at: Callable[[np.ndarray], np.ndarray], w: np.ndarray, X: np.nd
 
 
 def lat_rows(loop: MimoLoop, s: np.ndarray, outputs: bool = True) -> np.ndarray:
-    """Loop-at-a-time responses (2n, len(s)): rows 0..n-1 at the plant inputs, n..2n-1 at the outputs
+    """Loop-at-a-time responses (rows, len(s)): the n_in plant inputs, then the n_out plant outputs
     (only the input rows when ``outputs`` is False)."""
     if not outputs:
         with np.errstate(all="ignore"):
-            Si = np.linalg.inv(np.eye(loop.n) + loop.loop_gains(s, "input"))
+            Si = np.linalg.inv(np.eye(loop.n_in) + loop.loop_gains(s, "input"))
             return 1.0 / np.diagonal(Si, axis1=1, axis2=2).T - 1.0
     Si, So = loop.sensitivities(s)
     with np.errstate(all="ignore"):
@@ -294,8 +294,10 @@ class _RowsEvaluator(Evaluator):
         s = -shift + 1j * w
         if self.row is None:
             return lat_rows(self.loop, s, self.outputs)
-        k, n = self.row % self.loop.n, self.loop.n
-        side = "output" if self.row >= n else "input"
+        ni = self.loop.n_in
+        side = "output" if self.row >= ni else "input"
+        k = self.row - ni if side == "output" else self.row
+        n = self.loop.n_out if side == "output" else ni
         e = np.zeros((s.size, n, 1))
         e[:, k, 0] = 1.0
         with np.errstate(all="ignore"):
@@ -304,8 +306,9 @@ class _RowsEvaluator(Evaluator):
 
 
 def loop_at_a_time(loop: MimoLoop, w: np.ndarray, L: np.ndarray | None = None) -> list[BreakFigures]:
-    """Margins at every plant input (rows 0..n-1, break point ``plant_input``) and output
-    (``plant_output``), each with all other loops closed; ``L``: :func:`lat_rows` on ``w`` when known.
+    """Margins at every driven plant input (break point ``plant_input``, named after the loop that
+    drives it) and measured output (``plant_output``, named after its loop), all other channels
+    closed; ``L``: :func:`lat_rows` on ``w`` when known.
     Each break point is analysed on its own (its zooms evaluate only its own row).
 
     With a diagonal controller (decentralised loops) breaking loop k at its plant input or at its
@@ -314,8 +317,9 @@ def loop_at_a_time(loop: MimoLoop, w: np.ndarray, L: np.ndarray | None = None) -
     if L is None:
         L = lat_rows(loop, 1j * np.asarray(w, dtype=float), not diag)
     L0 = lat_rows(loop, np.zeros(1), not diag)[:, 0]
-    names = [(nm, "plant_input") for nm in loop.names] + [(nm, "plant_output") for nm in loop.names]
-    rows = loop.n if diag else 2 * loop.n
+    names = ([(loop.input_label(k), "plant_input") for k in range(loop.n_in)]
+             + [(nm, "plant_output") for nm in loop.names])
+    rows = loop.n_in if diag else loop.n_in + loop.n_out
     figs = [row_margins(_RowsEvaluator(loop, not diag, r), w, L[r : r + 1], [names[r]], L0[r : r + 1])[0]
             for r in range(rows)]
     if diag:

@@ -7,7 +7,8 @@ Two independent methods (negative feedback ``u = K (r - y)``, :mod:`.mimo_loop`)
 * **Generalised Nyquist count** on the exact delays: along s = -eps + jw, with
   chi_cl(s) = chi_ol(s) det(I + L(s)), the closed-loop roots right of the contour are
   Z = P - (change of arg det(I + L) for w from 0 to inf) / pi, P the open-loop poles right of it
-  (plant and controller, delay-free); conjugate symmetry gives the lower half. The contour runs up
+  (plant and controller, delay-free); conjugate symmetry gives the lower half. L is taken on the
+  smaller side (det(I + Ks Gs) = det(I + Gs Ks)), of size n. The contour runs up
   to where sigma_max(L) < sin(pi / 2n) / 2, so that each eigenvalue of I + L stays within a small
   angle of 1 and the principal angle closes the tail (checked on the grid and one far point).
 
@@ -50,12 +51,11 @@ class MimoStability:
 def _det_contour(loop: MimoLoop, ol: np.ndarray, eps: float, w_hi: float, T_spin: float,
                  n_freq: int = 400) -> tuple[np.ndarray, np.ndarray]:
     """det(I + L) along s = -eps + jw, 0 <= w <= w_hi, refined until its phase steps stay below 0.3 rad."""
-    eye = np.eye(loop.n)
+    eye = np.eye(loop.n_small)
 
     def det(w: np.ndarray) -> np.ndarray:
-        Gs, Ks = loop.channels(-eps + 1j * w)
         with np.errstate(all="ignore"):
-            return np.linalg.det(eye + Gs @ Ks)
+            return np.linalg.det(eye + _l_small(loop, -eps + 1j * w))
 
     up = ol[ol.imag > 0]
     dist = np.maximum(np.abs(up.real + eps), eps)
@@ -82,14 +82,13 @@ def _det_contour(loop: MimoLoop, ol: np.ndarray, eps: float, w_hi: float, T_spin
 
 def _sigma_l(loop: MimoLoop, w: np.ndarray, eps: float) -> np.ndarray:
     """An upper bound of sigma_max(L) (its Frobenius norm) at s = -eps + jw."""
-    Gs, Ks = loop.channels(-eps + 1j * np.asarray(w, dtype=float))
     with np.errstate(all="ignore"):
-        return np.linalg.norm(Gs @ Ks, axis=(1, 2))
+        return np.linalg.norm(_l_small(loop, -eps + 1j * np.asarray(w, dtype=float)), axis=(1, 2))
 
 
 def _nyquist(loop: MimoLoop, ol: np.ndarray, eps: float, cf: np.ndarray, notes: list[str]) -> int | None:
     """Closed-loop roots right of Re s = -eps by the generalised Nyquist criterion (exact delays)."""
-    tau = 0.5 * math.sin(math.pi / (2 * loop.n))
+    tau = 0.5 * math.sin(math.pi / (2 * loop.n_small))
     w_hi = 100.0 * float(cf.max())
     for _ in range(8):
         if _sigma_l(loop, np.array([w_hi]), eps)[0] < tau:
@@ -98,7 +97,7 @@ def _nyquist(loop: MimoLoop, ol: np.ndarray, eps: float, cf: np.ndarray, notes: 
     tail_ok = bool(np.all(_sigma_l(loop, w_hi * np.array([10.0, 1e2, 1e4]), eps) < tau))
     w, phi = _det_contour(loop, ol, eps, w_hi, 2.0 * loop.max_delay())
     with np.errstate(all="ignore"):
-        far = complex(np.linalg.det(np.eye(loop.n) + _l_at(loop, -eps + 1j * w_hi * 1e4)))
+        far = complex(np.linalg.det(np.eye(loop.n_small) + _l_small(loop, np.array([-eps + 1j * w_hi * 1e4]))[0]))
     ang = np.unwrap(np.angle(phi))
     turn = ang[-1] - ang[0] + float(np.angle(far / phi[-1]))
     P = int(np.sum(ol.real > -eps))
@@ -116,10 +115,9 @@ def _nyquist(loop: MimoLoop, ol: np.ndarray, eps: float, cf: np.ndarray, notes: 
     return z
 
 
-def _l_at(loop: MimoLoop, s: complex) -> np.ndarray:
-    """L_o = Gs Ks at one point s."""
-    Gs, Ks = loop.channels(np.array([s]))
-    return (Gs @ Ks)[0]
+def _l_small(loop: MimoLoop, s: np.ndarray) -> np.ndarray:
+    """The loop gain on the smaller side (Ks Gs at the inputs or Gs Ks at the outputs) at ``s``."""
+    return loop.loop_gains(s, "input" if loop.n_in <= loop.n_out else "output")
 
 
 def _drop(values: np.ndarray, remove: np.ndarray) -> np.ndarray:

@@ -7,11 +7,12 @@ import math
 import control
 import numpy as np
 import pytest
-from mimo_fixtures import PAIRS, blt_loops, diagonal_plant, satellite, static_controller, wood_berry
+from mimo_fixtures import PAIRS, blt_loops, diagonal_plant, entry, satellite, static_controller, wood_berry
 from scipy.optimize import minimize_scalar
 
+from gaintune.lti.mimo import TfMatrix
 from gaintune.verification.mimo import judge, mimo_report
-from gaintune.verification.mimo_loop import MimoLoop, PidLoop, decentralised_pid
+from gaintune.verification.mimo_loop import LoopPair, MimoLoop, PidLoop, decentralised_pid
 from gaintune.verification.mimo_margins import disk_range, mu_bounds, multiloop_disk
 
 
@@ -219,3 +220,22 @@ def test_wood_berry_disk_margins_match_slycot_ab13md_where_it_is_installed():
     rep = mimo_report(plant, K, loops)
     assert rep.disk_output.alpha == pytest.approx(control.disk_margins(G * Kc, w)[0], rel=1e-4)
     assert rep.disk_input.alpha == pytest.approx(control.disk_margins(Kc * G, w)[0], rel=1e-4)
+
+
+def test_cascade_sharing_one_input_breaks_at_the_input_and_at_each_measurement():
+    """Position P (1) around speed P (4) on one motor input: u = 4 (1 (r - pos) - speed), so
+    K = [4, 4] from (pos, speed) and the plant-input loop is 4/(s(s+1)) + 4/(s+1) = 4/s:
+    GM inf, PM 90 deg at 4 rad/s, delay margin pi/8, disk margin 2."""
+    plant = TfMatrix(((entry([1], [1, 1, 0]),), (entry([1], [1, 1]),)), inputs=("u",), outputs=("pos", "speed"))
+    K = TfMatrix(((entry([4.0], [1]), entry([4.0], [1])),), inputs=("pos", "speed"), outputs=("u",))
+    pairing = [LoopPair("position", "pos", "u"), LoopPair("speed", "speed", "u")]
+    rep = mimo_report(plant, K, pairing)
+    assert rep.stability.stable and rep.stability.agree
+    (fi,) = rep.input_breaks
+    assert fi.loop == "position+speed" and math.isinf(fi.gm_db)
+    assert fi.pm_deg == pytest.approx(90.0, abs=1e-6) and fi.pm_freq == pytest.approx(4.0, rel=1e-8)
+    assert fi.delay_margin == pytest.approx(math.pi / 8, rel=1e-8)
+    assert rep.disk_input.alpha == pytest.approx(2.0, rel=1e-6)
+    assert [f.loop for f in rep.output_breaks] == ["position", "speed"]
+    lines = judge(rep, {"pm_min_deg": {"u": 80.0, "speed": 30.0}})
+    assert all(q.passed for q in lines) and lines[0].where == "position+speed/plant_input"

@@ -103,7 +103,7 @@ def test_marginal_mode_no_loop_sees_is_noted_not_failed():
 
 
 @pytest.mark.parametrize(("pairing", "match"), [
-    ([LoopPair("a", "xD", "reflux"), LoopPair("b", "xD", "steam")], "used by more than one loop"),
+    ([LoopPair("a", "xD", "reflux"), LoopPair("b", "xD", "steam")], "measured by more than one loop"),
     ([LoopPair("a", "xQ", "reflux")], "output 'xQ' is not a plant output"),
     ([LoopPair("a", "xD", 5)], "input 5 is not a plant input"),
     ([], "at least one loop"),
