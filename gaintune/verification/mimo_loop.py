@@ -3,8 +3,9 @@
 Convention (as MATLAB's ``feedback(G*K, eye(n))``): negative feedback ``u = K (r - y)`` with the
 plant ``G`` (p x m, :mod:`gaintune.lti.mimo`) and the controller ``K`` (m x p: plant outputs in,
 plant inputs out). The loop pairing names, per loop, the plant output it measures and the plant
-input it drives. Only those channels are in the loop: ``Gs = G[outputs, inputs]`` and
-``Ks = K[inputs, outputs]`` (both n x n, loop k on the diagonal). Then, at the plant outputs,
+input it drives (loops of one cascade share the input their chain ends at). Only those channels
+are in the loop: ``Gs = G[outputs, inputs]`` and ``Ks = K[inputs, outputs]`` (loop k on the
+diagonal when every loop has its own input). Then, at the plant outputs,
 ``L_o = Gs Ks``, ``S_o = (I + L_o)^-1``, ``T_o = I - S_o``; at the plant inputs ``L_i = Ks Gs``,
 ``S_i = (I + L_i)^-1``, ``T_i = I - S_i``.
 
