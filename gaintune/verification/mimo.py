@@ -101,6 +101,15 @@ def analysis_grid(loop: MimoLoop) -> np.ndarray:
     return w
 
 
+def _user_grid(w: np.ndarray) -> np.ndarray:
+    """A given grid: its finite positive frequencies, sorted (w = 0 is added where it matters)."""
+    g = np.unique(np.asarray(w, dtype=float).ravel())
+    g = g[np.isfinite(g) & (g > 0)]
+    if g.size < 2:
+        raise ValueError("w: give at least two finite positive frequencies (rad/s), or None for the default grid")
+    return g
+
+
 def mimo_report(plant: MimoLti, controller: MimoLti, pairing: Sequence[LoopPair], w: np.ndarray | None = None,
                 sigma: float = 0.0, pade_order: int | None = None) -> MimoMargins:
     """Verify the MIMO loop ``u = K (r - y)``.
@@ -123,7 +132,7 @@ def mimo_report(plant: MimoLti, controller: MimoLti, pairing: Sequence[LoopPair]
     """
     loop = MimoLoop.build(plant, controller, pairing)
     stab = mimo_stability(loop, pade_order)
-    grid = analysis_grid(loop) if w is None else np.asarray(w, dtype=float)
+    grid = analysis_grid(loop) if w is None else _user_grid(w)
     s = 1j * grid
     Si, So = loop.sensitivities(s)
     eye_i, eye_o = np.eye(loop.n_in), np.eye(loop.n_out)

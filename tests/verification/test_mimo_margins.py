@@ -239,3 +239,12 @@ def test_cascade_sharing_one_input_breaks_at_the_input_and_at_each_measurement()
     assert [f.loop for f in rep.output_breaks] == ["position", "speed"]
     lines = judge(rep, {"pm_min_deg": {"u": 80.0, "speed": 30.0}})
     assert all(q.passed for q in lines) and lines[0].where == "position+speed/plant_input"
+
+
+def test_given_grid_keeps_positive_frequencies_and_refuses_an_empty_one():
+    plant, loops = wood_berry(), blt_loops()
+    K = decentralised_pid(plant, loops)
+    rep = mimo_report(plant, K, loops, w=np.concatenate([[0.0, -1.0, np.nan], np.logspace(-3, 1, 800)]))
+    assert rep.grid_points == 800 and rep.ms_output.value == pytest.approx(2.0996, abs=2e-3)
+    with pytest.raises(ValueError, match="at least two finite positive frequencies"):
+        mimo_report(plant, K, loops, w=[0.0, -1.0])
