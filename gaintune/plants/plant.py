@@ -154,7 +154,9 @@ def _tf_matrices(tf: TransferFunctionSpec, p: dict[str, float]):
     num = np.trim_zeros(num, "f") if np.any(num) else np.array([0.0])
     if len(num) > len(den):
         raise SpecError(
-            "plant.tf", f"improper transfer function (numerator degree {len(num)-1} > denominator degree {len(den)-1})"
+            "plant.tf", f"improper transfer function (numerator degree {len(num)-1} > denominator degree "
+            f"{len(den)-1}): a plant needs at least as many poles as zeros; give the denominator degree >= "
+            f"{len(num)-1}, e.g. with a fast lag (equal degrees, a biproper plant, are accepted)"
         )
     if len(den) - 1 > MAX_ORDER:
         raise SpecError("plant.tf.den", f"plant order {len(den)-1} exceeds the limit of {MAX_ORDER}")

@@ -48,7 +48,11 @@ FiniteParams = Annotated[dict[str, float], AfterValidator(_finite_params)]
 
 
 class TransferFunctionSpec(_Model):
-    """A SISO transfer function num(s)/den(s).
+    """A SISO transfer function num(s)/den(s), proper: at most as many zeros as poles.
+    A biproper one (equal degrees: direct feedthrough, e.g. 3(s+10)/(s+2)) needs no delay:
+    the output is sampled before the control update, so its feedthrough sees the input
+    held over the previous sample, u[k-1] (u[k-1-d] after d samples of delay; docs/simulation.md).
+    More zeros than poles is refused.
 
     ``num``/``den`` are coefficient lists in descending powers of s (numbers or
     parameter expressions), or one polynomial expression in ``s`` such as
@@ -73,7 +77,8 @@ class StateSpaceSpec(_Model):
     A: list[list[Coef]]
     B: list[list[Coef]]
     C: list[list[Coef]]
-    D: list[list[Coef]] | None = Field(None, description="Defaults to zeros.")
+    D: list[list[Coef]] | None = Field(None, description="Defaults to zeros. Feedthrough is sampled with the "
+                                       "previous input held: y[k] = C x[k] + D u[k-1-d] (docs/simulation.md).")
     outputs: list[str] | None = Field(None, description="One name per row of C; default y0, y1, ...")
     states: list[str] | None = Field(None, description="One name per state; default x0, x1, ...")
 

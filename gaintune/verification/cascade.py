@@ -273,8 +273,9 @@ class Cascade:
         """Closed-loop transition matrices (B, N, N) of the sampled loop, as the simulator steps it.
 
         States: plant x[k], past inputs u[k-1] .. u[k-m], integrator sums and derivative-filter
-        states. Signals are rows over the states plus a coefficient of u[k] (only feedthrough
-        without delay gives one), solved for at the end as in :meth:`closed_loop_A`.
+        states. Signals are rows over the states plus a coefficient of u[k], solved for at the
+        end as in :meth:`closed_loop_A` (the sampled plant gives none: its feedthrough sees
+        u[k-1-d], the input held before the update).
         """
         Bsz = self.batch
         n, m = sp.n, sp.buffer_len

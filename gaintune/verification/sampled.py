@@ -2,8 +2,11 @@
 
 The simulator (:mod:`gaintune.sim.kernel`) runs, at every step k (sample time dt):
 
-1. outputs ``y[k] = C x[k] + D u[k - dD]`` (``dD = d`` for LTI plants, ``d + 1`` for
-   nonlinear ones, whose output map sees the previous held input);
+1. outputs ``y[k] = C x[k] + D u[k - dD]`` with ``dD = d + 1``: the output is sampled
+   before the control update, with the previous input still held (the standard
+   sampled-data convention; a nonlinear plant's output map sees that input too). A
+   biproper plant's feedthrough D thus reaches the controller one sample late through the
+   hold, and the loop has no algebraic loop even without a delay;
 2. the controllers, outer loop first, from ``y[k]`` and the setpoint at step k; the
    innermost output is ``u[k]``. There is **no** implicit sample of delay between
    measurement and actuation: ``u[k]`` is computed from ``y[k]`` and held from t_k to
@@ -247,7 +250,7 @@ def sample_plant(lin: LinearModel, dt: float, compute_delay: int = 0, nonlinear:
         else:
             d = int(math.floor(delay / dt + 1e-9))
             Ad, G0, G1, frac = np.zeros((0, 0)), np.zeros(0), np.zeros(0), 0.0
-        sp = SampledPlant(lin, dt, Ad, G0, G1, d + c, frac, d + c, "zoh", c, delay)
+        sp = SampledPlant(lin, dt, Ad, G0, G1, d + c, frac, d + c + 1, "zoh", c, delay)
     _check_finite(sp, A)
     if len(_CACHE) > 512:
         _CACHE.clear()

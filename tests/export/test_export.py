@@ -101,6 +101,14 @@ def test_c_header_matches_simulator_dc_motor_cascade(tmp_path) -> None:
 
 
 @needs_gcc
+def test_c_header_matches_simulator_on_a_biproper_plant(tmp_path) -> None:
+    """3(s+10)/(s+2) without a delay: the simulator's feedthrough timing leaves the controller law unchanged."""
+    spec = load_spec({"plant": {"tf": {"num": "3*(s+10)", "den": "s+2"}}, "loops": [{"type": "pi"}],
+                      "scenario": {"dt": 0.01, "horizon": 3.0}})
+    assert _c_matches_trace(tmp_path, spec, {"loop0": {"Kp": 0.1, "Ki": 2.0}}) < 1e-9
+
+
+@needs_gcc
 def test_c_header_ideal_form_matches(tmp_path) -> None:
     d = load_spec(load_model("lag_n").example_spec()).model_dump()
     d["loops"][0].update(form="ideal", gains={}, filter={"N": 8.0, "Tf": None})

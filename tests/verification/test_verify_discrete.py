@@ -174,8 +174,14 @@ def test_gm_binding_labels_the_binding_margin():
                   {"loop0": {"Kp": 200.0, "Ki": 20.0}}, nonlinear=False)
     f = fig(cond)
     assert cond.stability.stable and f.gm_binding == "reduction" and f.gm_db == f.gm_lower_db < f.gm_upper_db
-    # a first-order lag has a GM at the Nyquist frequency once sampled (L(-1) < 0); a lead does not
-    none = verify(spec_of({"tf": {"num": [1, 2], "den": [1, 1]}}, [{"type": "p"}], 0.01), {"loop0": {"Kp": 0.5}},
+    # a first-order lag has a GM at the Nyquist frequency once sampled (L(-1) < 0), and so has a lead
+    # (s+2)/(s+1) = 1 + 1/(s+1): its feedthrough reaches the controller one sample late, L(-1) = -Kp (1 + tanh(dt/2))
+    lead = verify(spec_of({"tf": {"num": [1, 2], "den": [1, 1]}}, [{"type": "p"}], 0.01), {"loop0": {"Kp": 0.5}},
+                  nonlinear=False)
+    assert fig(lead).gm_binding == "increase" and fig(lead).gm_freq == pytest.approx(math.pi / 0.01, rel=1e-12)
+    assert fig(lead).gm_db == pytest.approx(20 * math.log10(1 / (0.5 * (1 + math.tanh(0.005)))), rel=1e-9)
+    # the sampled double integrator dt^2/2 (z+1)/(z-1)^2 has L(-1) = 0 and phase -180 - theta/2: no crossing
+    none = verify(spec_of({"tf": {"num": [1], "den": [1, 0, 0]}}, [{"type": "p"}], 0.01), {"loop0": {"Kp": 0.5}},
                   nonlinear=False)
     assert fig(none).gm_binding == "none" and math.isinf(fig(none).gm_db)
 

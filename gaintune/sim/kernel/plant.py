@@ -71,7 +71,11 @@ def outputs_tape(S, C, m, mt, n, un, uL, xa, inp, h_op, h_a, h_b, h_o, h_c, wh, 
 
 @nb.njit(cache=True, inline="always")
 def outputs_lti(S, C, m, b0, un, uL, xa, shared_plant, has_sig, has_D, Cm, Dm, dist_out_loops, buf, pos, M, dsteps):
-    """True measured outputs of an LTI plant, ``Cm x + Dm u[k-d]``, plus the output disturbance."""
+    """True measured outputs of an LTI plant, ``Cm x + Dm u[k-1-d]``, plus the output disturbance.
+
+    The output is sampled before the control update (the input held just before t_k), so
+    the feedthrough sees ``u[k-1-d]``: no algebraic loop, even without a delay.
+    """
     for l in range(uL):
         dl = dist_out_loops[l]
         yt = (LP0 + l * N_P + P_YT) * C
@@ -91,10 +95,10 @@ def outputs_lti(S, C, m, b0, un, uL, xa, shared_plant, has_sig, has_D, Cm, Dm, d
             else:
                 for j in range(m):
                     S[yt + j] += Cm[l, i, b0 + j] * S[xi + j]
-        if has_D:  # feedthrough sees only delayed inputs (d >= 1 is enforced)
+        if has_D:  # the input held before this sample's update: u[k-1-d] (M >= d + 2 rows)
             for j in range(m):
                 b = b0 + j
-                idd = pos - dsteps[b]
+                idd = pos - 1 - dsteps[b]
                 S[yt + j] += Dm[l, b] * (buf[_U(idd + M if idd < 0 else idd) * C + j] + S[F_DIN * C + j])
 
 
