@@ -293,7 +293,11 @@ def _print_plant(m) -> None:
     o = Table(title="Signals")
     for c in ("signal", "unit", "description"):
         o.add_column(c)
-    o.add_row("input u", m.input.unit, m.input.description)
+    if m.inputs:  # several inputs
+        for k, s in m.inputs.items():
+            o.add_row(f"input {k}", s.unit, s.description)
+    else:
+        o.add_row("input u", m.input.unit, m.input.description)
     for k, s in m.outputs.items():
         o.add_row(f"output {k}", s.unit, s.description)
     out.print(o)

@@ -49,6 +49,7 @@ class ModelDef(BaseModel):
     description: str = ""
     parameters: dict[str, ParamDoc] = Field(default_factory=dict)
     input: SignalDoc = Field(default_factory=SignalDoc)
+    inputs: dict[str, SignalDoc] = Field(default_factory=dict, description="Plants with several inputs.")
     outputs: dict[str, SignalDoc] = Field(default_factory=dict)
     plant: PlantSpec
     example: dict[str, Any] = Field(default_factory=dict)

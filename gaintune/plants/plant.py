@@ -189,7 +189,8 @@ def _ss_matrices(ss: StateSpaceSpec, p: dict[str, float]):
     if n > MAX_ORDER:
         raise SpecError("plant.ss.A", f"plant order {n} exceeds the limit of {MAX_ORDER}")
     if B.shape != (n, 1):
-        raise SpecError("plant.ss.B", f"must be {n}x1 (one actuator input), got {B.shape[0]}x{B.shape[1]}")
+        raise SpecError("plant.ss.B", f"must be {n}x1 (one actuator input), got {B.shape[0]}x{B.shape[1]}; "
+                           "for a plant with several inputs name them: ss.inputs, one per column of B")
     if C.shape[1] != n:
         raise SpecError("plant.ss.C", f"must have {n} columns to match A, got {C.shape[1]}")
     q = C.shape[0]
@@ -325,6 +326,10 @@ def build_plant(spec: PlantSpec) -> Plant:
     """
     if spec.model is not None:
         spec = _resolve_model(spec)
+    from gaintune.plants.mimo import build_mimo_plant, is_mimo_plant_spec
+
+    if is_mimo_plant_spec(spec):  # several inputs: the shared MIMO form (gaintune.lti.mimo)
+        return build_mimo_plant(spec)  # type: ignore[return-value]  # a MimoPlant stands in where its forms apply
     params = dict(spec.params)
     if spec.ode is not None:
         ode = spec.ode
