@@ -46,6 +46,7 @@ from gaintune.evaluation.evaluator import Evaluator
 from gaintune.plants import build_plant
 from gaintune.plants.plant import Plant
 from gaintune.sim import Simulator
+from gaintune.sim.mimo import needs_mimo
 from gaintune.spec import Gains, TuningSpec
 from gaintune.spec.backoff import BackoffSpec
 
@@ -131,7 +132,8 @@ def search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
 
 def _search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
     plain = GainLayout(spec, plant.states, plant=plant)
-    rules = rule_candidates(spec, plant)
+    # the classical rules are single-input: several inputs or a loop graph start from the Sobol sample
+    rules = {} if needs_mimo(spec, plant) else rule_candidates(spec, plant)
     if not rules and (any(lp.is_lq for lp in spec.loops) or plain.n_tuned == 0):
         return SearchBox(plain, None, None, False)
     ev = Evaluator(spec, Simulator(spec, plant, plain))
