@@ -99,6 +99,9 @@ def _validate_mimo(spec: TuningSpec, plant) -> None:
 
     mp = as_mimo(plant)
     inputs = mp.input_names
+    if len(inputs) > 1 and all(lp.drives is None for lp in spec.loops):
+        raise SpecError("loops", f"the plant has {len(inputs)} inputs ({_known(inputs)}): say what each loop "
+                        "drives (drives: <input> or drives: loop:<name>)")
 
     def need_input(name: str | None, field: str) -> None:
         if name is not None and name not in inputs:

@@ -128,6 +128,9 @@ def plant_channels(lti, dt: float, act_delay: np.ndarray):
     for the disturbance path (plant delay only).
     """
     blocks, chans = [], []  # (A,), (block, input, B column, plant delay)
+    # a disturbance passes a transfer-function entry's delay (part of that path), but enters a state-space
+    # plant after its input delay, as in the single-input simulator
+    dist_delay = isinstance(lti, TfMatrix)
     if isinstance(lti, TfMatrix):
         Cs = []
         for i, row in enumerate(lti.entries):
@@ -159,7 +162,7 @@ def plant_channels(lti, dt: float, act_delay: np.ndarray):
     for c, (blk, j, bcol, delay) in enumerate(chans):
         s0, n = starts[blk], sizes[blk]
         A, Bc = blocks[blk][None], bcol.reshape(1, n, 1)
-        for tag, d in (("u", delay + act_delay[j]), ("d", delay)):
+        for tag, d in (("u", delay + act_delay[j]), ("d", delay if dist_delay else 0.0)):
             a_d, g0, g1, steps = discretize(A, Bc, dt, np.array([d]))
             Ad[s0:s0 + n, s0:s0 + n] = a_d[0]
             out[f"G0{tag}"][c, s0:s0 + n] = g0[0]

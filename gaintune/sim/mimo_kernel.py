@@ -15,7 +15,8 @@ kernel (:mod:`gaintune.sim.kernel`) does:
 6. the exact ZOH update ``x[k+1] = Ad x[k] + sum_c (G0_c u_c[k-d_c] + G1_c u_c[k-d_c-1])`` over
    the plant's channels c (one per transfer-function entry, or per input of a state-space
    plant), each with its own fractional delay; an input disturbance passes the same channels
-   with the path's own delay (not the actuator's).
+   with a transfer-function entry's delay (not the actuator's; a state-space plant's input delay
+   neither, as in the single-input simulator).
 """
 
 from __future__ import annotations

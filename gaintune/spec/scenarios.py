@@ -71,8 +71,9 @@ class DisturbanceSpec(ProfileSpec):
     entry: Literal["input", "output"] = "input"
     input: str | None = Field(
         None, exclude_if=lambda v: v is None,
-        description="Plants with several inputs: the input it is added to (it passes through that input's "
-        "paths, their delays included, not the actuator's); default: the first input.")
+        description="Plants with several inputs: the input it is added to, after the actuator and its delay (a "
+        "transfer-function matrix: it passes each entry's delay; state space: it enters after the input "
+        "delay, as for a single input); default: the first input.")
 
 
 class ScenarioSpec(_Model):
