@@ -65,7 +65,7 @@ class Simulator:
                 return MimoSimulator(spec, built, layout)
             plant = built
             obj = super().__new__(cls)
-            obj._built = built
+            obj._built = built  # type: ignore[attr-defined]  # read once by __init__
             return obj
         return super().__new__(cls)
 

@@ -173,3 +173,9 @@ def test_ties_share_one_tuned_gain() -> None:
     with pytest.raises(GainError) as info:
         layout.from_dict({"a": {"Kp": 0.5, "Ki": 0.1}, "b": {"Kp": -0.7, "Ki": -0.2}})
     assert info.value.field == "gains.b.Kp" and "tied to a.Kp" in info.value.message
+
+
+def test_example_spec_edits_do_not_leak_into_the_model_cache() -> None:
+    first = load_model("wood_berry").example_spec()
+    first["loops"][0]["drives"] = "loop:xB"
+    assert load_model("wood_berry").example_spec()["loops"][0]["drives"] == "R"
