@@ -18,6 +18,7 @@ import numpy as np
 from gaintune.errors import SpecError
 from gaintune.lti.mimo import DelayedSS, TfEntry, TfMatrix
 from gaintune.plants import expr
+from gaintune.plants.coefs import coef_matrix, poly
 from gaintune.spec import MAX_ORDER, PlantSpec, SignalSpec, TfEntrySpec
 
 __all__ = ["MimoPlant", "is_mimo_plant_spec", "build_mimo_plant", "as_mimo", "MAX_MIMO_STATES"]
@@ -115,12 +116,10 @@ class MimoPlant:
 
 
 def _entry(e: TfEntrySpec | float, p: dict[str, float], where: str) -> TfEntry:
-    from gaintune.plants.plant import _poly  # the SISO coefficient parser, one rule for both
-
     if not isinstance(e, TfEntrySpec):
         return TfEntry(np.array([0.0]), np.array([1.0]), 0.0)
-    num = _poly(e.num, p, f"{where}.num")
-    den = _poly(e.den, p, f"{where}.den")
+    num = poly(e.num, p, f"{where}.num")
+    den = poly(e.den, p, f"{where}.den")
     if den[0] == 0:
         raise SpecError(f"{where}.den", "leading denominator coefficient is zero; drop leading zeros")
     num = np.trim_zeros(num, "f") if np.any(num) else np.array([0.0])
@@ -145,12 +144,10 @@ def _build_lti(spec: PlantSpec, p: dict[str, float], inputs: tuple[str, ...],
                      for i, row in enumerate(spec.tf_matrix.entries))
         return TfMatrix(rows, inputs, outputs)
     assert spec.ss is not None
-    from gaintune.plants.plant import _coef_matrix
-
     ss = spec.ss
-    A = _coef_matrix(ss.A, p, "plant.ss.A")
-    B = _coef_matrix(ss.B, p, "plant.ss.B")
-    C = _coef_matrix(ss.C, p, "plant.ss.C")
+    A = coef_matrix(ss.A, p, "plant.ss.A")
+    B = coef_matrix(ss.B, p, "plant.ss.B")
+    C = coef_matrix(ss.C, p, "plant.ss.C")
     n, m = A.shape[0], B.shape[1]
     if A.shape != (n, n):
         raise SpecError("plant.ss.A", f"must be square, got {A.shape[0]}x{A.shape[1]}")
@@ -160,7 +157,7 @@ def _build_lti(spec: PlantSpec, p: dict[str, float], inputs: tuple[str, ...],
         raise SpecError("plant.ss.B", f"must have {n} rows to match A, got {B.shape[0]}")
     if C.shape[1] != n:
         raise SpecError("plant.ss.C", f"must have {n} columns to match A, got {C.shape[1]}")
-    D = np.zeros((C.shape[0], m)) if ss.D is None else _coef_matrix(ss.D, p, "plant.ss.D")
+    D = np.zeros((C.shape[0], m)) if ss.D is None else coef_matrix(ss.D, p, "plant.ss.D")
     if D.shape != (C.shape[0], m):
         raise SpecError("plant.ss.D", f"must be {C.shape[0]}x{m}, got {D.shape[0]}x{D.shape[1]}")
     if np.any(D):

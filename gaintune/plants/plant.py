@@ -21,7 +21,9 @@ import numpy as np
 
 from gaintune.errors import SpecError
 from gaintune.plants import expr
-from gaintune.spec import MAX_ORDER, Coef, OdeSpec, PlantSpec, StateSpaceSpec, TransferFunctionSpec
+from gaintune.plants.coefs import coef_matrix as _coef_matrix
+from gaintune.plants.coefs import poly as _poly
+from gaintune.spec import MAX_ORDER, OdeSpec, PlantSpec, StateSpaceSpec, TransferFunctionSpec
 
 if TYPE_CHECKING:  # pragma: no cover
     import casadi as ca
@@ -120,28 +122,6 @@ class Plant:
 
 
 # ------------------------------------------------------------------- LTI
-
-
-def _coef_matrix(rows: list[list[Coef]], p: dict[str, float], field: str) -> np.ndarray:
-    if not rows or not all(isinstance(r, list) for r in rows):
-        raise SpecError(field, "must be a non-empty list of rows")
-    width = len(rows[0])
-    if any(len(r) != width for r in rows):
-        raise SpecError(field, "rows have different lengths")
-    out = np.array([[expr.to_float(v, p, f"{field}[{i}][{j}]") for j, v in enumerate(r)] for i, r in enumerate(rows)])
-    if not np.all(np.isfinite(out)):
-        raise SpecError(field, "contains NaN or inf; give finite numbers")
-    return out
-
-
-def _poly(value: list[Coef] | str, p: dict[str, float], field: str) -> np.ndarray:
-    if isinstance(value, str):
-        coefs = expr.to_polynomial(value, p, field)
-    else:
-        coefs = np.array([expr.to_float(v, p, f"{field}[{i}]") for i, v in enumerate(value)], dtype=float)
-    if not np.all(np.isfinite(coefs)):
-        raise SpecError(field, "contains NaN or inf coefficients; give finite numbers")
-    return coefs
 
 
 def _tf_matrices(tf: TransferFunctionSpec, p: dict[str, float]):

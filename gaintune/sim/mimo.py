@@ -28,7 +28,7 @@ from gaintune.sim import draws as draws_mod
 from gaintune.sim.build import discretize, profile_pieces
 from gaintune.sim.draws import Draws
 from gaintune.sim.mimo_kernel import MIMO_METRICS, mimo_kernel
-from gaintune.sim.simulator import SimResult
+from gaintune.sim.result import SimResult
 from gaintune.spec import ProfileSpec, ScenarioSpec, TuningSpec, check_delay_samples
 from gaintune.spec.mimo import drive_target, is_graph
 

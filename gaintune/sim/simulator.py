@@ -14,7 +14,6 @@ True
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -27,19 +26,10 @@ from gaintune.sim.build import SimSetup
 from gaintune.sim.draws import Draws
 from gaintune.sim.kernel import METRICS, run_kernel
 from gaintune.sim.kernel_args import KernelArgs
+from gaintune.sim.result import SimResult
 from gaintune.spec import ScenarioSpec, TuningSpec
 
 __all__ = ["Simulator", "SimResult", "KernelArgs", "METRICS", "simulate"]
-
-
-@dataclass
-class SimResult:
-    """Metrics (each (B,)) for one scenario, and traces when requested."""
-
-    scenario: str
-    metrics: dict[str, np.ndarray]
-    t: np.ndarray | None = None
-    traces: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 class Simulator:
