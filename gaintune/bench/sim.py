@@ -244,8 +244,8 @@ def measure_memory(name: str, impl: str, batch: int) -> dict[str, Any]:
 # ------------------------------------------------------------------ report
 
 
-def run_benchmark(cases=CASES + MIMO_CASES, batches=(1, 4096), repeat: int = 5, min_time: float = 0.3, memory: bool = True,
-                  numpy_baseline: bool = True) -> dict[str, Any]:
+def run_benchmark(cases=CASES + MIMO_CASES, batches=(1, 4096), repeat: int = 5, min_time: float = 0.3,
+                  memory: bool = True, numpy_baseline: bool = True) -> dict[str, Any]:
     import numba
 
     rows = []
