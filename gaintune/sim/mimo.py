@@ -27,7 +27,7 @@ from gaintune.plants.mimo import MimoPlant, as_mimo
 from gaintune.sim import draws as draws_mod
 from gaintune.sim.build import discretize, profile_pieces
 from gaintune.sim.draws import Draws
-from gaintune.sim.mimo_kernel import MIMO_METRICS, mimo_kernel
+from gaintune.sim.mimo_kernel import LANES, MIMO_METRICS, mimo_kernel
 from gaintune.sim.result import SimResult
 from gaintune.spec import ProfileSpec, ScenarioSpec, TuningSpec, check_delay_samples
 from gaintune.spec.mimo import drive_target, is_graph
@@ -361,7 +361,8 @@ class MimoSimulator:
         eff_out = np.zeros((m, B))
         shape = (n, B) if traces else (0, B)
         tr_y, tr_sp, tr_u = np.zeros((L, *shape)), np.zeros((L, *shape)), np.zeros((m, *shape))
-        args = (n, dt, pa["pidx"], pa["Ad"], pa["bstart"], pa["bsize"], pa["Cm"], pa["ch_blk"], pa["ch_src"],
+        args = (*_chunks(pa["pidx"]), n, dt, pa["pidx"], pa["Ad"], pa["bstart"], pa["bsize"], pa["Cm"],
+                pa["ch_blk"], pa["ch_src"],
                 pa["ch_du"], pa["G0u"], pa["G1u"], pa["ch_dd"], pa["G0d"], pa["G1d"], sg["dist_on"],
                 self.arch.meas, self.arch.parent, sg["root_row"], ca["kp"], ca["ki"], ca["kd"], ca["tf"], ca["kb"],
                 ca["bw"], ca["cw"], ca["lo"], ca["hi"], ca["aw"], np.ascontiguousarray(self.arch.W), ca["direct"],
@@ -369,7 +370,7 @@ class MimoSimulator:
                 sg["ref"], sg["dist"], sg["roots"], sg["step_root"], sg["target"], sg["k_step"], sg["k_load"],
                 s.max_abs_error or np.inf, s.max_abs_output or np.inf, xb, s.divergence_bound, s.action == "hold",
                 out, chain_out, eff_out, traces, tr_y, tr_sp, tr_u)
-        _run_threaded(B, args)
+        _run_threaded(args)
         return self._result(sc, out, chain_out, eff_out, traces, tr_y, tr_sp, tr_u)
 
     def _result(self, sc: ScenarioSpec, out, chain_out, eff_out, traces, tr_y, tr_sp, tr_u) -> SimResult:
@@ -398,13 +399,24 @@ _POOL_LOCK = threading.Lock()
 _POOL: list = []
 
 
-def _run_threaded(B: int, args: tuple) -> None:
-    """Run the kernel over the batch on ``NUMBA_NUM_THREADS`` threads (it releases the GIL), each a slice."""
+def _chunks(pidx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(cand, chunk_start): the candidates grouped by plant, cut into chunks of at most LANES."""
+    cand = np.argsort(pidx, kind="stable").astype(np.int64)
+    starts: list[int] = []
+    edges = np.flatnonzero(np.diff(pidx[cand])) + 1
+    for lo, hi in zip(np.r_[0, edges], np.r_[edges, len(cand)], strict=True):
+        starts.extend(range(int(lo), int(hi), LANES))
+    return cand, np.array([*starts, len(cand)], dtype=np.int64)
+
+
+def _run_threaded(args: tuple) -> None:
+    """Run the kernel's chunks on ``NUMBA_NUM_THREADS`` threads (it releases the GIL), each a contiguous range."""
     import numba as nb
 
-    n = min(max(1, int(nb.config.NUMBA_NUM_THREADS)), max(1, B // 64))  # type: ignore[attr-defined]
+    n_chunks = len(args[1]) - 1
+    n = min(max(1, int(nb.config.NUMBA_NUM_THREADS)), n_chunks)  # type: ignore[attr-defined]
     if n == 1:
-        mimo_kernel(0, B, *args)
+        mimo_kernel(0, n_chunks, *args)
         return
     from concurrent.futures import ThreadPoolExecutor
 
@@ -412,7 +424,7 @@ def _run_threaded(B: int, args: tuple) -> None:
         if not _POOL or _POOL[0][0] != os.getpid():
             _POOL[:] = [(os.getpid(), ThreadPoolExecutor(max_workers=n, thread_name_prefix="gaintune-mimo"))]
         pool = _POOL[0][1]
-    edges = [B * i // n for i in range(n + 1)]
+    edges = [n_chunks * i // n for i in range(n + 1)]
     futures = [pool.submit(mimo_kernel, lo, hi, *args) for lo, hi in zip(edges[1:-1], edges[2:], strict=True)]
     mimo_kernel(edges[0], edges[1], *args)
     for f in futures:
