@@ -106,6 +106,7 @@ __all__ = [
     "MAX_ORDER",
     "MAX_BUDGET",
     "MAX_LOOPS",
+    "MAX_GRAPH_LOOPS",
     "Coef",
     "TransferFunctionSpec",
     "StateSpaceSpec",
