@@ -40,6 +40,7 @@ import numpy as np
 
 from gaintune.cache import LRU
 from gaintune.classical import BOUNDS_FACTOR, auto_bounds, rule_candidates
+from gaintune.classical.mimo_rules import loop_rule_candidates
 from gaintune.controllers.layout import GainLayout
 from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.evaluation.evaluator import Evaluator
@@ -132,8 +133,8 @@ def search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
 
 def _search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
     plain = GainLayout(spec, plant.states, plant=plant)
-    # the classical rules are single-input: several inputs or a loop graph start from the Sobol sample
-    rules = {} if needs_mimo(spec, plant) else rule_candidates(spec, plant)
+    # several inputs or a loop graph: the single-input rules loop by loop, where each loop has its own path
+    rules = loop_rule_candidates(spec, plant) if needs_mimo(spec, plant) else rule_candidates(spec, plant)
     if not rules and (any(lp.is_lq for lp in spec.loops) or plain.n_tuned == 0):
         return SearchBox(plain, None, None, False)
     ev = Evaluator(spec, Simulator(spec, plant, plain))
