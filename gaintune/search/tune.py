@@ -341,7 +341,7 @@ def _tune(spec: TuningSpec, options: TuneOptions) -> TuneResult:
         result.verification = verify_gains(spec, result.gains, plant=problem.plant, layout=problem.layout)
     # TODO(MIMO verification): verify MIMO answers with gaintune.verification.mimo* once merged; until then
     # a MIMO result carries no verdict (not accepted), and closed-loop stability counted in the search only
-    if options.baselines and not mimo:
+    if options.baselines:
         from gaintune.baselines import run_baseline
 
         for method in ("simc", "amigo", "zn_step", "imc"):

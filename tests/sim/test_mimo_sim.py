@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 import control
@@ -151,3 +152,56 @@ def test_disturbance_at_the_feed_input_passes_its_paths() -> None:
     assert np.all(yd[:int(round((10.0 + 3.4 + 3.0) / 0.1)) + 1] == 0.0)
     assert abs(yd[-1]) < 0.1 * np.max(np.abs(yd)) and abs(yb[-1]) < 0.1 * np.max(np.abs(yb))
     assert res.metrics["load_iae"][0] > 0
+
+
+def test_actuators_entry_matches_the_single_input_actuator() -> None:
+    """`actuators: {u: ...}` on a loop graph saturates and rate-limits as `actuator:` does on one loop."""
+    loop = {"name": "a", "type": "pid", "anti_windup": "clamping"}
+    siso = Simulator(load_spec({**SISO, "loops": [loop]}))
+    act = {"u": {"limits": SISO["actuator"]["limits"], "rate_limit": SISO["actuator"]["rate_limit"]}}
+    graph = Simulator(load_spec({**{k: v for k, v in SISO.items() if k != "actuator"}, "actuators": act,
+                                 "loops": [{**loop, "drives": "u"}]}))
+    full = siso.layout.from_dict({"a": {"Kp": 3.0, "Ki": 1.0, "Kd": 0.5}})[None]
+    a, b = siso.run(full).metrics, graph.run(full).metrics
+    assert a["sat_frac"][0] > 0  # the limits are active
+    for name in ("iae", "effort", "tv", "peak_u", "sat_frac"):
+        np.testing.assert_allclose(b[name], a[name], rtol=1e-9, err_msg=name)
+
+
+def test_actuator_delay_adds_to_every_path_from_its_input() -> None:
+    """An actuator delay of 0.35 min on R is the plant with 0.35 min more on G11 and G21 (no disturbance)."""
+    spec = wood_berry(dt=0.1, horizon=80.0, actuators={"R": {"delay": 0.35}})
+    data = load_model("wood_berry").example_spec()
+    tfm = copy.deepcopy(load_model("wood_berry").plant.tf_matrix.model_dump(mode="json"))
+    for row in tfm["entries"]:
+        row[0]["delay"] += 0.35
+    data.update(plant={"tf_matrix": tfm},
+                scenarios=[{**sc, "dt": 0.1, "horizon": 80.0} for sc in data["scenarios"]])
+    shifted = load_spec(data)
+    a, b = Simulator(spec), Simulator(shifted)
+    for i in (0, 1):
+        ma, mb = a.run(blt_full(a), scenario=i).metrics, b.run(blt_full(b), scenario=i).metrics
+        np.testing.assert_allclose(ma["iae"], mb["iae"], rtol=1e-9)
+
+
+def test_static_decoupler_is_the_plant_times_its_matrix() -> None:
+    """Loops through a decoupler W on plant B equal the same loops on plant B W without one."""
+    A = [[-1.0, 0.2], [0.0, -0.5]]
+    B = np.array([[1.0, 0.3], [0.4, 1.0]])
+    W = np.array([[1.0, -0.3], [-0.4, 1.0]])
+    base = {"loops": [{"name": "a", "measure": "y1", "drives": "u1", "type": "pi"},
+                      {"name": "b", "measure": "y2", "drives": "u2", "type": "pi"}],
+            "scenarios": [{"name": "s", "dt": 0.05, "horizon": 20.0, "reference": {"loop": "a"}}],
+            "requirements": {"mks_max": None}}
+
+    def ss(Bm):
+        return {"ss": {"A": A, "B": Bm.tolist(), "C": [[1, 0], [0, 1]], "inputs": ["u1", "u2"],
+                       "outputs": ["y1", "y2"]}}
+
+    dec = Simulator(load_spec({**base, "plant": ss(B), "decoupler": {"inputs": ["u1", "u2"], "matrix": W.tolist()}}))
+    folded = Simulator(load_spec({**base, "plant": ss(B @ W)}))
+    gains = {"a": {"Kp": 1.5, "Ki": 1.0}, "b": {"Kp": 0.8, "Ki": 0.5}}
+    a = dec.run(dec.layout.from_dict(gains)[None]).metrics
+    b = folded.run(folded.layout.from_dict(gains)[None]).metrics
+    for name in ("iae", "iae.a", "ise"):
+        np.testing.assert_allclose(a[name], b[name], rtol=1e-9, err_msg=name)
