@@ -53,3 +53,15 @@ def test_bad_mimo_spec_is_422_naming_the_field(client: TestClient, change, loc: 
     body = r.json()
     assert "Traceback" not in r.text
     assert any(e["loc"].startswith(loc) for e in body["errors"]), body["errors"]
+
+
+def test_simulate_takes_a_mimo_spec(client: TestClient) -> None:
+    spec = wood_berry()
+    gains = {"xD": {"Kp": 0.375, "Ki": 0.375 / 8.29}, "xB": {"Kp": -0.075, "Ki": -0.075 / 23.6}}
+    r = client.post("/v1/simulate", json={"spec": spec, "gains": gains, "max_points": 50})
+    assert r.status_code == 200, r.text
+    scs = r.json()["scenarios"]
+    assert [s["name"] for s in scs] == ["step_xD", "step_xB"]
+    tr, m = scs[0]["traces"], scs[0]["metrics"]
+    assert {"y.xD", "y.xB", "u.R", "u.S"} <= set(tr) and len(tr["y.xD"]) <= 50
+    assert m["iae"] == m["iae.xD"] + m["iae.xB"] and m["diverged"] is False
