@@ -51,6 +51,28 @@ def _scenario(sc, res, idx: np.ndarray, stride: int, limits) -> dict:
             "traces": {k: _array(arr[0, idx]) for k, arr in res.traces.items()}, "metrics": metrics}
 
 
+def _simulator(spec, plant, layout):
+    """(simulator, layout) of ``spec``: the verification context's, or for several inputs or a loop graph
+    (no single-input linear model) the MIMO simulator's."""
+    from gaintune.plants import build_plant
+    from gaintune.sim.mimo import needs_mimo
+
+    p = plant if plant is not None else build_plant(spec.plant)
+    if needs_mimo(spec, p):
+        from gaintune.controllers.layout import GainLayout
+        from gaintune.sim import Simulator
+
+        lay = layout if layout is not None else GainLayout(spec, p.states, plant=p)
+        return Simulator(spec, p, lay), lay
+    from gaintune.verification.context import spec_context
+
+    ctx = spec_context(spec, p, layout)
+    sim = ctx.simulator(spec)
+    if sim is None:
+        raise RuntimeError("the simulator (gaintune.sim) is not available")
+    return sim, ctx.layout
+
+
 def simulate_payload(spec, gains, chosen: list[int], max_points: int, plant=None, layout=None) -> bytes:
     """Traces and metrics of ``gains`` on the chosen scenarios, as the JSON of :class:`SimulateResponse`.
 
@@ -59,20 +81,15 @@ def simulate_payload(spec, gains, chosen: list[int], max_points: int, plant=None
     """
     import orjson
 
-    from gaintune.verification.context import spec_context
-
-    ctx = spec_context(spec, plant, layout)
-    full = ctx.layout.from_dict(gains)
-    sim = ctx.simulator(spec)
-    if sim is None:
-        raise RuntimeError("the simulator (gaintune.sim) is not available")
+    sim, lay = _simulator(spec, plant, layout)
+    full = lay.from_dict(gains)
     out = []
     for i in chosen:
         res = sim.run(full[None, :], scenario=i, traces=True)
         sc = sim.spec.scenarios[i]  # dt/horizon derived from the plant where the spec left them out
         idx, stride = decimate(len(res.t), max_points)
         out.append(_scenario(sc, res, idx, stride, spec.actuator.limits))
-    body = {"gains": ctx.layout.to_dict(full), "max_points": max_points, "scenarios": out}
+    body = {"gains": lay.to_dict(full), "max_points": max_points, "scenarios": out}
     return orjson.dumps(body, option=orjson.OPT_SERIALIZE_NUMPY)
 
 

@@ -129,9 +129,14 @@ def check_spec(spec: TuningSpec, settings: Settings, purpose: Purpose, *, prefix
         if purpose == "tune":
             layout.require_tuned()
         if purpose in ("tune", "simulate"):
-            from gaintune.sim.build import SimSetup
+            from gaintune.sim.mimo import MimoSimulator, needs_mimo
 
-            SimSetup.build(spec, plant, layout)
+            if needs_mimo(spec, plant):  # several inputs or a loop graph: its loops resolved against the plant
+                MimoSimulator(spec, plant, layout)
+            else:
+                from gaintune.sim.build import SimSetup
+
+                SimSetup.build(spec, plant, layout)
     except ApiError:
         raise
     except (GaintuneError, ValidationError) as exc:

@@ -116,20 +116,31 @@ def _run_rule(spec: TuningSpec, method: str, ev: Any) -> BaselineResult:
     from gaintune.plants import build_plant
 
     plant = getattr(ev, "plant", None) or build_plant(spec.plant)
-    try:
-        res = tune_classical(spec, plant, method)
-    except NoModelError as exc:
-        return BaselineResult(method=method, reason=str(exc))
-    out = BaselineResult(
-        method=method,
-        gains=res.gains,
-        fotd={k: m.to_dict() for k, m in res.fotd.items()},
-        ultimate={k: {"Ku": v[0], "Pu": v[1]} for k, v in res.ultimate.items()},
-        details={"pid_ideal": {k: {"Kc": p.Kc, "Ti": p.Ti, "Td": p.Td} for k, p in res.pid.items()}},
-    )
-    if ev is not None:
+    from gaintune.sim.mimo import needs_mimo
+
+    if needs_mimo(spec, plant):  # several inputs or a loop graph: the rule loop by loop, on each loop's own path
+        from gaintune.classical.mimo_rules import loop_rule_candidates
+
+        gains = loop_rule_candidates(spec, plant).get(method)
+        if gains is None:
+            return BaselineResult(method=method, reason=f"{method} does not apply loop by loop here (every loop must "
+                                  "drive a plant input on a path the rule can model; no chains, ties or decoupler)")
+        out = BaselineResult(method=method, gains=gains, details={"per_loop": True})
+    else:
+        try:
+            res = tune_classical(spec, plant, method)
+        except NoModelError as exc:
+            return BaselineResult(method=method, reason=str(exc))
+        out = BaselineResult(
+            method=method,
+            gains=res.gains,
+            fotd={k: m.to_dict() for k, m in res.fotd.items()},
+            ultimate={k: {"Ku": v[0], "Pu": v[1]} for k, v in res.ultimate.items()},
+            details={"pid_ideal": {k: {"Kc": p.Kc, "Ti": p.Ti, "Td": p.Td} for k, p in res.pid.items()}},
+        )
+    if ev is not None and out.gains is not None:
         before = int(getattr(ev, "n_sims", 0))
-        tuned = _tuned_from_gains(ev.layout, res.gains)
+        tuned = _tuned_from_gains(ev.layout, out.gains)
         sc = ev.evaluate(tuned[None, :])
         out.cost = _finite(float(sc.cost[0]))
         out.violation, out.feasible = float(sc.violation[0]), bool(sc.feasible[0])

@@ -13,6 +13,10 @@ Cases (each 2,000 time steps):
   ``models/dc_motor.yaml`` (its ``example``), dt = 1 ms over 2 s.
 * ``water_tank``: the nonlinear tank of ``models/water_tank.yaml`` (casadi tape, RK4),
   PI level control, dt = 0.1 s over 200 s.
+* ``wood_berry``: the 2 x 2 Wood-Berry column with delays (``models/wood_berry.yaml``, its
+  ``example``: two PI loops, the step on xD) on the MIMO simulator (:mod:`gaintune.sim.mimo`),
+  dt = 0.1 min over 200 min, around Luyben's BLT gains. It has no prebuilt-argument path and no
+  NumPy baseline: its ``kernel`` figures are those of the full ``Simulator.run``.
 
 Each batch holds distinct gain sets (nominal gains times a seeded log-uniform
 factor in [0.74, 1.35]). Reported per case and batch size:
@@ -57,7 +61,7 @@ from gaintune.bench.numpy_rollout import numpy_rollout, prepare_numpy
 if TYPE_CHECKING:  # pragma: no cover
     from gaintune.spec import Gains
 
-__all__ = ["CASES", "main", "numpy_rollout", "make_case", "run_benchmark"]
+__all__ = ["CASES", "MIMO_CASES", "main", "numpy_rollout", "make_case", "run_benchmark"]
 
 LAG3_SPEC: dict[str, Any] = {
     "name": "lag3_pid",
@@ -72,8 +76,12 @@ NOMINAL_GAINS: dict[str, Gains] = {
     "lag3_pid": {"main": {"Kp": 2.0, "Ki": 1.0, "Kd": 1.0}},
     "dc_motor": {"position": {"Kp": 20.0}, "speed": {"Kp": 0.5, "Ki": 0.5}, "current": {"Kp": 5.0, "Ki": 2000.0}},
     "water_tank": {"level": {"Kp": 1.0, "Ki": 0.05}},
+    "wood_berry": {"xD": {"Kp": 0.375, "Ki": 0.375 / 8.29}, "xB": {"Kp": -0.075, "Ki": -0.075 / 23.6}},
 }
-CASES = tuple(NOMINAL_GAINS)
+#: The MIMO cases (gaintune.sim.mimo): timed through Simulator.run only.
+MIMO_CASES = ("wood_berry",)
+#: The single-input cases, with the NumPy baseline.
+CASES = tuple(k for k in NOMINAL_GAINS if k not in MIMO_CASES)
 
 
 def case_spec(name: str) -> dict[str, Any]:
@@ -81,7 +89,10 @@ def case_spec(name: str) -> dict[str, Any]:
         return json.loads(json.dumps(LAG3_SPEC))
     from gaintune.plants.library import load_model
 
-    return load_model(name).example_spec()
+    spec = load_model(name).example_spec()
+    if name == "wood_berry":  # one scenario (the step on xD) of 2,000 steps, as the other cases
+        spec["scenarios"] = [{**spec["scenarios"][0], "horizon": 200.0}]
+    return spec
 
 
 @dataclass
@@ -125,6 +136,8 @@ def time_case(
     """Interleaved timings of kernel-only, full ``Simulator.run`` and the NumPy loop for one case and batch."""
     from gaintune.sim.kernel import METRICS, run_kernel
 
+    if name in MIMO_CASES:
+        return _time_mimo(name, batch, repeat, min_time)
     case = make_case(name, batch)
     sim, full = case.sim, case.full
     args = sim.kernel_args(full)  # prebuilt once: the timed kernel calls skip the array assembly
@@ -153,6 +166,22 @@ def time_case(
         "kernel_ms_per_sim": 1e3 * k / batch, "run_ms_per_sim": 1e3 * r / batch,
         "overhead_frac": (r - k) / r, "speedup_vs_numpy": n / k, "numpy_iae_max_rel_diff": agree,
         "diverged": int(np.sum(out_k[METRICS.index("diverged")] != 0)),
+    }
+
+
+def _time_mimo(name: str, batch: int, repeat: int, min_time: float) -> dict[str, Any]:
+    """Timings of a MIMO case: the full ``Simulator.run`` (no prebuilt-argument path, no NumPy baseline)."""
+    case = make_case(name, batch)
+    sim, full = case.sim, case.full
+    diverged = int(np.sum(sim.run(full).metrics["diverged"]))
+    r = float(np.median([_per_call(lambda: sim.run(full), min_time) for _ in range(repeat)]))
+    nan = float("nan")
+    return {
+        "case": name, "batch": batch, "steps": sim.spec.scenarios[0].n_steps,
+        "kernel_s": r, "run_s": r, "numpy_s": nan,
+        "kernel_sims_per_s": batch / r, "run_sims_per_s": batch / r, "numpy_sims_per_s": nan,
+        "kernel_ms_per_sim": 1e3 * r / batch, "run_ms_per_sim": 1e3 * r / batch,
+        "overhead_frac": nan, "speedup_vs_numpy": nan, "numpy_iae_max_rel_diff": nan, "diverged": diverged,
     }
 
 
@@ -215,8 +244,8 @@ def measure_memory(name: str, impl: str, batch: int) -> dict[str, Any]:
 # ------------------------------------------------------------------ report
 
 
-def run_benchmark(cases=CASES, batches=(1, 4096), repeat: int = 5, min_time: float = 0.3, memory: bool = True,
-                  numpy_baseline: bool = True) -> dict[str, Any]:
+def run_benchmark(cases=CASES + MIMO_CASES, batches=(1, 4096), repeat: int = 5, min_time: float = 0.3,
+                  memory: bool = True, numpy_baseline: bool = True) -> dict[str, Any]:
     import numba
 
     rows = []
@@ -227,7 +256,8 @@ def run_benchmark(cases=CASES, batches=(1, 4096), repeat: int = 5, min_time: flo
                 mk = measure_memory(name, "kernel", B)
                 row["kernel_peak_mb"] = mk["peak_delta_mb"]
                 row["memory_method"] = mk["method"]
-                row["numpy_peak_mb"] = measure_memory(name, "numpy", B)["peak_delta_mb"] if numpy_baseline else np.nan
+                with_numpy = numpy_baseline and name not in MIMO_CASES
+                row["numpy_peak_mb"] = measure_memory(name, "numpy", B)["peak_delta_mb"] if with_numpy else np.nan
             rows.append(row)
     return {
         "machine": {"cpus": os.cpu_count(),
@@ -265,7 +295,7 @@ def markdown(result: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = BenchParser(prog="gaintune bench sim", description="Closed-loop simulations per second: kernel vs NumPy.")
-    ap.add_argument("--case", nargs="+", choices=CASES, default=list(CASES))
+    ap.add_argument("--case", nargs="+", choices=CASES + MIMO_CASES, default=list(CASES + MIMO_CASES))
     ap.add_argument("--batch", nargs="+", type=int_range(1, MAX_BATCH), default=[1, 4096],
                     help=f"batch sizes, 1 .. {MAX_BATCH:,} (default 1 4096)")
     ap.add_argument("--repeat", type=positive_int, default=5, help="interleaved repetitions (median reported)")

@@ -134,6 +134,10 @@ def _round_up(x: float) -> float:
 
 def plant_scale(spec: TuningSpec, plant: Plant) -> PlantScale:
     """The plant-derived ``dt`` and horizon (counted from the last event) of ``spec``'s scenarios."""
+    from gaintune.plants.mimo import MimoPlant
+
+    if isinstance(plant, MimoPlant):
+        return _scale_of(spec, plant, _mimo_paths(spec, plant), math.inf)
     lin = plant.linearize()
     delay = float(lin.delay)
     if spec.randomize.delay is not None:
@@ -151,6 +155,35 @@ def plant_scale(spec: TuningSpec, plant: Plant) -> PlantScale:
     if plant.kind == "nonlinear" and A.size:
         fastest = float(np.max(np.abs(np.linalg.eigvals(A)), initial=0.0))
         dt_max = RK4_SPAN / fastest if fastest > 0 else math.inf
+    return _scale_of(spec, plant, loops, dt_max)
+
+
+def _mimo_paths(spec: TuningSpec, plant) -> list[LoopScale]:
+    """Each loop's path of a MIMO plant: from the input its chain ends on to the output it measures."""
+    from gaintune.lti.mimo import TfMatrix
+    from gaintune.spec.mimo import chain_input
+
+    lti = plant.lti()
+    out = []
+    for i, lp in enumerate(spec.loops):
+        name = lp.name or f"loop{i}"
+        j = plant.input_names.index(chain_input(spec, i) or plant.input_names[0])
+        o = plant.outputs.index(lp.measure or plant.outputs[0])
+        if isinstance(lti, TfMatrix):
+            e = lti.entries[o][j]
+            if e.is_zero:
+                out.append(LoopScale(name, 0.0, 0.0, "no path from its input"))
+                continue
+            A, B, C, D = e.realisation()
+            out.append(_path_scale(name, StateSpace(A, B, C, D), e.delay))
+        else:
+            sys = StateSpace(lti.A, lti.B[:, j:j + 1], lti.C[o:o + 1, :], lti.D[o:o + 1, j:j + 1])
+            out.append(_path_scale(name, sys, float(lti.input_delays[j])))
+    return out
+
+
+def _scale_of(spec: TuningSpec, plant, loops: list[LoopScale], dt_max: float) -> PlantScale:
+    """dt and horizon from the loops' path scales (see :func:`plant_scale`)."""
     slow = max(loops, key=lambda s: s.settle)
     if not slow.settle > 0:
         why = "the plant has no time scale (no lag, no delay)"

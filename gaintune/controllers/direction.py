@@ -235,6 +235,39 @@ def _loop_rule(spec: TuningSpec, lin: Any, meas: list[int], i: int) -> tuple[int
     )
 
 
+def _is_mimo(spec: TuningSpec, plant: Any) -> bool:
+    from gaintune.plants.mimo import MimoPlant
+
+    return isinstance(plant, MimoPlant) or any(lp.drives is not None for lp in spec.loops)
+
+
+def _mimo_direction(spec: TuningSpec, plant: Any, i: int) -> LoopDirection:
+    """Loop i's action on a MIMO plant (or a loop graph): the sign of the static gain from the input its chain
+    ends on to its output; for a loop driving another loop's setpoint, of the ratio of the two loops' gains
+    (the inner loop closed)."""
+    from gaintune.plants.mimo import as_mimo
+    from gaintune.spec.mimo import chain_input, drive_target
+
+    mp = as_mimo(plant)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        G = mp.lti().dcgain()
+    names, loop = spec.loop_names, spec.loops[i]
+    j = mp.input_names.index(chain_input(spec, i) or mp.input_names[0])
+    o = mp.outputs.index(loop.measure or mp.outputs[0])
+    gain, what = float(G[o, j]), f"static gain {mp.input_names[j]} -> {mp.outputs[o]}"
+    kind, target = drive_target(loop.drives) if loop.drives is not None else ("input", "")
+    if loop.drives is None and i + 1 < len(spec.loops):
+        kind, target = "loop", names[i + 1]
+    if kind == "loop":
+        inner = spec.loops[names.index(target)]
+        o2 = mp.outputs.index(inner.measure or mp.outputs[0])
+        gain = gain / float(G[o2, j]) if G[o2, j] != 0 else float("nan")
+        what = f"static gain from the setpoint of {target} to {mp.outputs[o]}, {target} closed"
+    if not np.isfinite(gain) or gain == 0:
+        raise _undecided(i, f"the {what} is {_g(gain)}")
+    return LoopDirection(1 if gain > 0 else -1, "auto", "static_gain", gain, f"{what} {_g(gain)}")
+
+
 def _corners(spec: TuningSpec, plant: Any) -> list[dict[str, float]]:
     box = {k: d.box for k, d in spec.randomize.params.items() if k in plant.params}
     if not box:
@@ -258,6 +291,9 @@ def _compute(spec: TuningSpec, plant: Any) -> tuple[LoopDirection, ...]:
             out[i] = LoopDirection(sign, "set", "set", None, f"set by loops[{i}].direction: {loop.direction}")
         else:
             auto.append(i)
+    if auto and _is_mimo(spec, plant):  # several inputs or a loop graph: the sign of the loop's path at s = 0
+        out = [_mimo_direction(spec, plant, i) if i in auto else d for i, d in enumerate(out)]
+        auto = []
     if auto:
         lin = plant.linearize()
         meas = measured_indices(spec, lin.outputs)
@@ -297,7 +333,7 @@ _CACHE: dict[str, tuple[LoopDirection, ...]] = {}
 
 
 def _key(spec: TuningSpec) -> str:
-    loops = [(lp.measure, lp.type, lp.direction) for lp in spec.loops]
+    loops = [(lp.measure, lp.type, lp.direction, lp.drives) for lp in spec.loops]
     box = {k: d.box for k, d in spec.randomize.params.items()}
     return json.dumps([spec.plant.model_dump(mode="json"), loops, box], sort_keys=True, default=str)
 

@@ -175,6 +175,8 @@ class GainLayout:
                     )
                 slots.append(GainSlot(i, loop.name or f"loop{i}", name, tuned, value, (bounds[0], bounds[1]), sign))
         self.slots = slots
+        #: (follower, leader) slot pairs of spec.ties: a follower takes its leader's value (one tuned gain)
+        self.ties: list[tuple[int, int]] = self._tie(spec)
         self.tuned_idx = np.array([k for k, s in enumerate(slots) if s.tuned], dtype=int)
         self.log_lo = np.log(np.array([slots[k].bounds[0] for k in self.tuned_idx], dtype=float))
         self.log_hi = np.log(np.array([slots[k].bounds[1] for k in self.tuned_idx], dtype=float))
@@ -185,6 +187,26 @@ class GainLayout:
         self._free = self.tuned_signs == 0  # tuned entries searched as they are (k_* of LQ loops)
         self._any_free = bool(self._free.any())
         self._all_positive = bool(np.all(self.tuned_signs == 1))
+
+    def _tie(self, spec: TuningSpec) -> list[tuple[int, int]]:
+        """Make every tied gain after the first of its tie follow the first (spec.ties), in place."""
+        index = {f"{s.loop_name}.{s.name}": k for k, s in enumerate(self.slots)}
+        pairs = []
+        for tie in spec.ties or []:
+            lead = index[tie[0]]  # names checked by the spec (gaintune.spec.mimo)
+            for ref in tie[1:]:
+                k = index[ref]
+                s, ld = self.slots[k], self.slots[lead]
+                self.slots[k] = GainSlot(s.loop, s.loop_name, s.name, False, None, ld.bounds, s.sign)
+                pairs.append((k, lead))
+        return pairs
+
+    def _follow(self, out: np.ndarray) -> np.ndarray:
+        """Tied gains set from their leaders (the follower's own sign: opposite directions share a magnitude)."""
+        for k, lead in self.ties:
+            f, ld = self.slots[k].sign, self.slots[lead].sign
+            out[..., k] = out[..., lead] * (f * ld if f and ld else 1.0)
+        return out
 
     # ------------------------------------------------------------ directions
     def _sign_message(self, loop: int, name: str, value: float) -> str:
@@ -256,7 +278,7 @@ class GainLayout:
             out[..., self.tuned_idx] = np.abs(tuned)
         else:
             out[..., self.tuned_idx] = np.where(self._free, tuned, self.tuned_signs * np.abs(tuned))
-        return out
+        return self._follow(out) if self.ties else out
 
     def tuned_of(self, full: np.ndarray) -> np.ndarray:
         """The search vector (magnitudes) of signed full gain vectors: (..., n_gains) -> (..., n_tuned)."""
@@ -298,7 +320,10 @@ class GainLayout:
         if unknown_loops:
             raise GainError(field, f"unknown loop(s) {sorted(unknown_loops)}; loops are {sorted(loops)}")
         out = np.empty(self.n_gains)
+        followers = {k for k, _ in self.ties}
         for k, slot in enumerate(self.slots):
+            if k in followers:
+                continue
             given = gains.get(slot.loop_name, {})
             if not isinstance(given, dict):
                 raise GainError(f"{field}.{slot.loop_name}", "must be a mapping {gain_name: value}")
@@ -327,4 +352,15 @@ class GainLayout:
             if slot.sign != 0 and not (v * slot.sign > 0 or (v == 0 and off_ok)):
                 raise GainError(f"{field}.{slot.loop_name}.{slot.name}", self._sign_message(slot.loop, slot.name, v))
             out[k] = v
-        return out
+        return self._tied_from(gains, out, field) if self.ties else out
+
+    def _tied_from(self, gains: dict, out: np.ndarray, field: str) -> np.ndarray:
+        """Tied gains of ``gains``: left out, or equal to what their leader gives (else GainError)."""
+        given = self._follow(out.copy())
+        for k, lead in self.ties:
+            s, ld = self.slots[k], self.slots[lead]
+            v = gains.get(s.loop_name, {}).get(s.name) if isinstance(gains.get(s.loop_name), dict) else None
+            if v is not None and not (isinstance(v, (int, float)) and math.isclose(float(v), given[k], rel_tol=1e-9)):
+                raise GainError(f"{field}.{s.loop_name}.{s.name}", f"is tied to {ld.loop_name}.{ld.name} "
+                                f"({given[k]:g}); give that value or leave it out")
+        return given

@@ -81,7 +81,8 @@ class GainProblem:
         self.plant = plant
         self.sim = Simulator(spec, plant, self.layout)
         self.evaluator = Evaluator(spec, self.sim)
-        self.lin = plant.linearize()
+        # the single-input linear model (None for several inputs or a loop graph: gaintune.sim.mimo)
+        self.lin = None if self.evaluator.is_mimo else plant.linearize()
         self.k = spec.search.robust.samples
         self.randomized = spec.randomize.active
         self.obs_size = draws_mod.context_size(spec)

@@ -43,6 +43,8 @@ from gaintune.sim.draws import Draws
 from gaintune.spec import ObjectiveSpec, ScenarioSpec, TuningSpec
 
 __all__ = [
+    "is_mimo_sim",
+    "mimo_requirement_scores",
     "DIVERGED_COST",
     "INFEASIBLE_MERIT",
     "DIVERGED_VIOLATION",
@@ -140,6 +142,25 @@ def aggregate(costs: np.ndarray, how: str, alpha: float = 0.2) -> np.ndarray:
     return np.sort(costs, axis=1)[:, -k:].mean(axis=1)
 
 
+def is_mimo_sim(sim: object) -> bool:
+    """Whether ``sim`` is the MIMO simulator (:class:`gaintune.sim.mimo.MimoSimulator`)."""
+    from gaintune.sim.mimo import MimoSimulator
+
+    return isinstance(sim, MimoSimulator)
+
+
+def mimo_requirement_scores(ev: Evaluator, tuned: np.ndarray, stability: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """(violation, shortfall) of B gain sets of a MIMO spec, each (B,).
+
+    The MIMO frequency-domain requirements (``mimo_ms_max``, ``disk_margin_min``, loop-at-a-time
+    margins) come from the MIMO verification (gaintune.verification.mimo*): TODO, wired in when it is
+    merged. Until then this is 0 (feasible) and -1 (inside): closed-loop stability counts through
+    the time response, where a diverged simulation adds DIVERGED_VIOLATION (:meth:`Evaluator.evaluate`).
+    """
+    B = tuned.shape[0]
+    return np.zeros(B), np.full(B, -1.0)
+
+
 class Evaluator:
     """Batched cost and requirement violation of tuned-gain vectors for one spec.
 
@@ -224,6 +245,8 @@ class Evaluator:
         """
         from gaintune.verification.quick import noise_limit_array, requirement_scores
 
+        if is_mimo_sim(self.sim):
+            return mimo_requirement_scores(self, np.atleast_2d(np.asarray(tuned, dtype=float)), stability)
         if self._noise_limit is None:  # a property of the spec and the nominal plant: resolved once, then aimed
             aim = self.spec.requirements.backoff.aim
             self._noise_limit = np.array([aim("mks_max", x) for x in noise_limit_array(self.spec, self.plant)])
@@ -235,6 +258,11 @@ class Evaluator:
         short = np.max([x[1] for x in vs], axis=0)
         return (np.nan_to_num(v, nan=DIVERGED_VIOLATION, posinf=DIVERGED_VIOLATION),
                 np.nan_to_num(short, nan=DIVERGED_VIOLATION, posinf=DIVERGED_VIOLATION))
+
+    @property
+    def is_mimo(self) -> bool:
+        """Whether this evaluator's simulator is the MIMO one (several inputs, or a loop graph)."""
+        return is_mimo_sim(self.sim)
 
     def evaluate(
         self, tuned: np.ndarray, draws: Draws | None = None, traces: bool = False, violation: np.ndarray | None = None

@@ -40,12 +40,14 @@ import numpy as np
 
 from gaintune.cache import LRU
 from gaintune.classical import BOUNDS_FACTOR, auto_bounds, rule_candidates
+from gaintune.classical.mimo_rules import loop_rule_candidates
 from gaintune.controllers.layout import GainLayout
 from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.evaluation.evaluator import Evaluator
 from gaintune.plants import build_plant
 from gaintune.plants.plant import Plant
 from gaintune.sim import Simulator
+from gaintune.sim.mimo import needs_mimo
 from gaintune.spec import Gains, TuningSpec
 from gaintune.spec.backoff import BackoffSpec
 
@@ -131,7 +133,8 @@ def search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
 
 def _search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
     plain = GainLayout(spec, plant.states, plant=plant)
-    rules = rule_candidates(spec, plant)
+    # several inputs or a loop graph: the single-input rules loop by loop, where each loop has its own path
+    rules = loop_rule_candidates(spec, plant) if needs_mimo(spec, plant) else rule_candidates(spec, plant)
     if not rules and (any(lp.is_lq for lp in spec.loops) or plain.n_tuned == 0):
         return SearchBox(plain, None, None, False)
     ev = Evaluator(spec, Simulator(spec, plant, plain))

@@ -42,6 +42,12 @@ def validate_against_plant(spec: TuningSpec, plant: Plant) -> None:
     SpecError
         Naming the offending field, the unknown name and the names that are valid.
     """
+    from gaintune.plants.mimo import MimoPlant
+
+    if isinstance(plant, MimoPlant) or any(lp.drives is not None for lp in spec.loops):
+        _validate_mimo(spec, plant)
+        if isinstance(plant, MimoPlant):
+            return
     for i, loop in enumerate(spec.loops):
         if loop.measure is not None and loop.measure not in plant.outputs:
             raise SpecError(
@@ -84,3 +90,39 @@ def validate_against_plant(spec: TuningSpec, plant: Plant) -> None:
             f"the operating-point input u0 = {nominal.u0:.6g} lies outside {list(limits)}; "
             "the plant cannot be held at its operating point",
         )
+
+
+def _validate_mimo(spec: TuningSpec, plant) -> None:
+    """The names a MIMO spec (or a loop graph) uses, against the built plant's inputs, outputs and states."""
+    from gaintune.plants.mimo import as_mimo
+    from gaintune.spec.mimo import drive_target
+
+    mp = as_mimo(plant)
+    inputs = mp.input_names
+    if len(inputs) > 1 and all(lp.drives is None for lp in spec.loops):
+        raise SpecError("loops", f"the plant has {len(inputs)} inputs ({_known(inputs)}): say what each loop "
+                        "drives (drives: <input> or drives: loop:<name>)")
+
+    def need_input(name: str | None, field: str) -> None:
+        if name is not None and name not in inputs:
+            raise SpecError(field, f"plant has no input {name!r}; inputs: {_known(inputs)}")
+
+    for i, loop in enumerate(spec.loops):
+        if loop.measure is not None and loop.measure not in mp.outputs:
+            raise SpecError(f"loops[{i}].measure", f"plant has no output {loop.measure!r}; outputs: "
+                            f"{_known(mp.outputs)}")
+        if loop.drives is not None and drive_target(loop.drives)[0] == "input":
+            need_input(drive_target(loop.drives)[1], f"loops[{i}].drives")
+    for name in spec.actuators or {}:
+        need_input(name, f"actuators.{name}")
+    for k, name in enumerate(spec.decoupler.inputs if spec.decoupler is not None else []):
+        need_input(name, f"decoupler.inputs[{k}]")
+    for s, sc in enumerate(spec.scenarios):
+        need_input(sc.disturbance.input, f"scenarios[{s}].disturbance.input")
+    for name in spec.randomize.params:
+        if name not in mp.params:
+            raise SpecError(f"randomize.params.{name}", f"plant has no parameter {name!r}; parameters: "
+                            f"{_known(mp.param_names)}")
+    for name in spec.safety.state_bounds:
+        if name not in mp.states:
+            raise SpecError(f"safety.state_bounds.{name}", f"plant has no state {name!r}; states: {_known(mp.states)}")

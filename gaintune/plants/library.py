@@ -8,6 +8,7 @@ scenarios) that makes it tunable as is.
 
 from __future__ import annotations
 
+import copy
 import os
 from functools import lru_cache
 from pathlib import Path
@@ -49,6 +50,7 @@ class ModelDef(BaseModel):
     description: str = ""
     parameters: dict[str, ParamDoc] = Field(default_factory=dict)
     input: SignalDoc = Field(default_factory=SignalDoc)
+    inputs: dict[str, SignalDoc] = Field(default_factory=dict, description="Plants with several inputs.")
     outputs: dict[str, SignalDoc] = Field(default_factory=dict)
     plant: PlantSpec
     example: dict[str, Any] = Field(default_factory=dict)
@@ -56,7 +58,8 @@ class ModelDef(BaseModel):
     def example_spec(self) -> dict[str, Any]:
         """A complete spec dict using this model with its example loops."""
         spec: dict[str, Any] = {"name": self.name, "plant": {"model": {"name": self.name}}}
-        spec.update(self.example)
+        # a deep copy: the model is cached (load_model), and a caller's edit of the spec must not change it
+        spec.update(copy.deepcopy(self.example))
         spec.setdefault("loops", [{"type": "pid"}])
         return spec
 

@@ -21,7 +21,9 @@ import numpy as np
 
 from gaintune.errors import SpecError
 from gaintune.plants import expr
-from gaintune.spec import MAX_ORDER, Coef, OdeSpec, PlantSpec, StateSpaceSpec, TransferFunctionSpec
+from gaintune.plants.coefs import coef_matrix as _coef_matrix
+from gaintune.plants.coefs import poly as _poly
+from gaintune.spec import MAX_ORDER, OdeSpec, PlantSpec, StateSpaceSpec, TransferFunctionSpec
 
 if TYPE_CHECKING:  # pragma: no cover
     import casadi as ca
@@ -122,28 +124,6 @@ class Plant:
 # ------------------------------------------------------------------- LTI
 
 
-def _coef_matrix(rows: list[list[Coef]], p: dict[str, float], field: str) -> np.ndarray:
-    if not rows or not all(isinstance(r, list) for r in rows):
-        raise SpecError(field, "must be a non-empty list of rows")
-    width = len(rows[0])
-    if any(len(r) != width for r in rows):
-        raise SpecError(field, "rows have different lengths")
-    out = np.array([[expr.to_float(v, p, f"{field}[{i}][{j}]") for j, v in enumerate(r)] for i, r in enumerate(rows)])
-    if not np.all(np.isfinite(out)):
-        raise SpecError(field, "contains NaN or inf; give finite numbers")
-    return out
-
-
-def _poly(value: list[Coef] | str, p: dict[str, float], field: str) -> np.ndarray:
-    if isinstance(value, str):
-        coefs = expr.to_polynomial(value, p, field)
-    else:
-        coefs = np.array([expr.to_float(v, p, f"{field}[{i}]") for i, v in enumerate(value)], dtype=float)
-    if not np.all(np.isfinite(coefs)):
-        raise SpecError(field, "contains NaN or inf coefficients; give finite numbers")
-    return coefs
-
-
 def _tf_matrices(tf: TransferFunctionSpec, p: dict[str, float]):
     num = _poly(tf.num, p, "plant.tf.num")
     den = _poly(tf.den, p, "plant.tf.den")
@@ -191,7 +171,8 @@ def _ss_matrices(ss: StateSpaceSpec, p: dict[str, float]):
     if n > MAX_ORDER:
         raise SpecError("plant.ss.A", f"plant order {n} exceeds the limit of {MAX_ORDER}")
     if B.shape != (n, 1):
-        raise SpecError("plant.ss.B", f"must be {n}x1 (one actuator input), got {B.shape[0]}x{B.shape[1]}")
+        raise SpecError("plant.ss.B", f"must be {n}x1 (one actuator input), got {B.shape[0]}x{B.shape[1]}; "
+                           "for a plant with several inputs name them: ss.inputs, one per column of B")
     if C.shape[1] != n:
         raise SpecError("plant.ss.C", f"must have {n} columns to match A, got {C.shape[1]}")
     q = C.shape[0]
@@ -327,6 +308,10 @@ def build_plant(spec: PlantSpec) -> Plant:
     """
     if spec.model is not None:
         spec = _resolve_model(spec)
+    from gaintune.plants.mimo import build_mimo_plant, is_mimo_plant_spec
+
+    if is_mimo_plant_spec(spec):  # several inputs: the shared MIMO form (gaintune.lti.mimo)
+        return build_mimo_plant(spec)  # type: ignore[return-value]  # a MimoPlant stands in where its forms apply
     params = dict(spec.params)
     if spec.ode is not None:
         ode = spec.ode

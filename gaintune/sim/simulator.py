@@ -14,7 +14,7 @@ True
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -26,19 +26,10 @@ from gaintune.sim.build import SimSetup
 from gaintune.sim.draws import Draws
 from gaintune.sim.kernel import METRICS, run_kernel
 from gaintune.sim.kernel_args import KernelArgs
+from gaintune.sim.result import SimResult
 from gaintune.spec import ScenarioSpec, TuningSpec
 
 __all__ = ["Simulator", "SimResult", "KernelArgs", "METRICS", "simulate"]
-
-
-@dataclass
-class SimResult:
-    """Metrics (each (B,)) for one scenario, and traces when requested."""
-
-    scenario: str
-    metrics: dict[str, np.ndarray]
-    t: np.ndarray | None = None
-    traces: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 class Simulator:
@@ -53,7 +44,22 @@ class Simulator:
         Reuse already-built objects (optional).
     """
 
+    def __new__(cls, spec: TuningSpec, plant: Plant | None = None, layout: GainLayout | None = None) -> Any:
+        # the one dispatch: several inputs, or loops wired as a graph, run on the MIMO simulator, which
+        # has this interface (gaintune.sim.mimo); every caller (evaluator, search, API) stays as it is
+        if cls is Simulator:
+            from gaintune.sim.mimo import MimoSimulator, needs_mimo
+
+            built = plant if plant is not None else build_plant(spec.plant)
+            if needs_mimo(spec, built):
+                return MimoSimulator(spec, built, layout)
+            obj = super().__new__(cls)
+            obj._built = built  # type: ignore[attr-defined]  # read once by __init__
+            return obj
+        return super().__new__(cls)
+
     def __init__(self, spec: TuningSpec, plant: Plant | None = None, layout: GainLayout | None = None) -> None:
+        plant = plant or getattr(self, "_built", None)
         self.plant = plant or build_plant(spec.plant)
         self.spec = spec = resolve_scenarios(spec, self.plant)
         self.layout = layout or GainLayout(spec, self.plant.states)

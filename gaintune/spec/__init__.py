@@ -66,6 +66,15 @@ from gaintune.spec.base import (
 )
 from gaintune.spec.design import DesignSpec, expand_design
 from gaintune.spec.loops import GAIN_NAMES, ActuatorSpec, DerivativeFilterSpec, Gains, GainSpec, LoopSpec
+from gaintune.spec.mimo import (
+    MAX_GRAPH_LOOPS,
+    ActuatorsEntrySpec,
+    DecouplerSpec,
+    SignalSpec,
+    TfEntrySpec,
+    TfMatrixSpec,
+    check_architecture,
+)
 from gaintune.spec.names import ident_key, name_problem
 from gaintune.spec.plant import (
     Coef,
@@ -80,6 +89,7 @@ from gaintune.spec.scenarios import (
     DisturbanceSpec,
     ObjectiveSpec,
     ProfileSpec,
+    ReferenceSpec,
     RequirementsSpec,
     ScenarioDefault,
     ScenarioSpec,
@@ -96,6 +106,7 @@ __all__ = [
     "MAX_ORDER",
     "MAX_BUDGET",
     "MAX_LOOPS",
+    "MAX_GRAPH_LOOPS",
     "Coef",
     "TransferFunctionSpec",
     "StateSpaceSpec",
@@ -107,6 +118,12 @@ __all__ = [
     "LoopSpec",
     "ActuatorSpec",
     "ProfileSpec",
+    "ReferenceSpec",
+    "SignalSpec",
+    "TfEntrySpec",
+    "TfMatrixSpec",
+    "ActuatorsEntrySpec",
+    "DecouplerSpec",
     "ScenarioSpec",
     "ScenarioDefault",
     "ObjectiveSpec",
@@ -137,8 +154,21 @@ class TuningSpec(_Model):
     )
     description: str = ""
     plant: PlantSpec
-    loops: list[LoopSpec] = Field(min_length=1, max_length=MAX_LOOPS)
+    # a single cascade holds at most MAX_LOOPS loops (checked with the graph); chains side by side more
+    loops: list[LoopSpec] = Field(min_length=1, max_length=MAX_GRAPH_LOOPS)
     actuator: ActuatorSpec = Field(default_factory=ActuatorSpec)
+    # the MIMO fields are left out of dumps while unset, so single-chain specs hash as before
+    actuators: dict[str, ActuatorsEntrySpec] | None = Field(
+        None, exclude_if=lambda v: v is None,
+        description="Plants with several inputs: the actuator of each input, keyed by input name (an input left "
+        "out is unlimited, without delay).")
+    ties: list[list[str]] | None = Field(
+        None, exclude_if=lambda v: v is None,
+        description="Gains tuned as one value: each tie lists <loop>.<gain> of one kind and unit, e.g. "
+        "[[j1.Kp, j2.Kp, j3.Kp]]; the first gain's settings (bounds, value) apply to all.")
+    decoupler: DecouplerSpec | None = Field(
+        None, exclude_if=lambda v: v is None,
+        description="A fixed static decoupler u = W v between the loops' outputs and the plant inputs.")
     scenarios: list[ScenarioSpec] = Field(default_factory=lambda: [ScenarioSpec()], min_length=1)
     objective: ObjectiveSpec = Field(default_factory=ObjectiveSpec)
     requirements: RequirementsSpec = Field(default_factory=RequirementsSpec)
@@ -196,9 +226,10 @@ class TuningSpec(_Model):
             raise ValueError(f"loop names must be unique, got {names}")
         self._check_identifiers()
         for i, loop in enumerate(self.loops):
-            if loop.is_lq and i != len(self.loops) - 1:
+            if loop.is_lq and i != len(self.loops) - 1 and loop.drives is None:
                 raise ValueError(f"loops[{i}]: an {loop.type} loop must be the innermost (last) loop")
         self._check_delay_steps()
+        check_architecture(self)
         mks = self.requirements.mks_max
         if isinstance(mks, dict) and set(mks) - set(names):
             raise _error_at(("requirements", "mks_max"), f"unknown loop(s) {sorted(set(mks) - set(names))}; the loops "

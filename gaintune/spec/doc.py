@@ -19,6 +19,9 @@ _SECTIONS: list[tuple[str, type[BaseModel]]] = [
     ("spec (top level)", S.TuningSpec),
     ("plant", S.PlantSpec),
     ("plant.tf", S.TransferFunctionSpec),
+    ("plant.tf_matrix", S.TfMatrixSpec),
+    ("plant.tf_matrix.entries[i][j]", S.TfEntrySpec),
+    ("plant.tf_matrix.inputs[j], .outputs[i], plant.ss.inputs[j]", S.SignalSpec),
     ("plant.ss", S.StateSpaceSpec),
     ("plant.ode", S.OdeSpec),
     ("plant.model", S.ModelRefSpec),
@@ -26,8 +29,10 @@ _SECTIONS: list[tuple[str, type[BaseModel]]] = [
     ("loops[i].gains.<name>", S.GainSpec),
     ("loops[i].filter", S.DerivativeFilterSpec),
     ("actuator", S.ActuatorSpec),
+    ("actuators.<input>", S.ActuatorsEntrySpec),
+    ("decoupler", S.DecouplerSpec),
     ("scenarios[i]", S.ScenarioSpec),
-    ("scenarios[i].reference", S.ProfileSpec),
+    ("scenarios[i].reference", S.ReferenceSpec),
     ("scenarios[i].disturbance", S.DisturbanceSpec),
     ("objective", S.ObjectiveSpec),
     ("requirements", S.RequirementsSpec),
@@ -86,6 +91,22 @@ def render_markdown() -> str:
         "in a `tf` plant, the Laplace variable `s`. "
         "Keys: every section takes only the keys listed below; an unknown key is refused, naming the keys that "
         "section takes and the closest match (`requirements.ms`: did you mean ms_max?).",
+        "",
+        "Several inputs and loop graphs: a plant with several inputs is a `plant.tf_matrix` (a delay per entry) "
+        "or a `plant.ss` with named `inputs` (and `input_delays`), or a built-in model of that form "
+        "(`wood_berry`, `quadruple_tank_min`, `quadruple_tank_nmp`). Each loop then says what it drives: a plant "
+        "input (`drives: R`) or the setpoint of another loop (`drives: loop:<name>`); loops side by side form "
+        f"chains (at most {S.MAX_GRAPH_LOOPS} loops in all), each chain's outer loop follows a reference when a "
+        "scenario names it (`reference: {loop: <name>, ...}`; the other chains hold their operating point). "
+        "Without `drives` anywhere the loops are one cascade, outer first, as before. `actuators` gives each "
+        "input its saturation, rate limit, delay and safe value; `ties` makes several gains one tuned value; "
+        "`decoupler` puts a fixed matrix between the loops and the inputs; `scenarios[i].disturbance.input` names "
+        "the input a disturbance enters. Refused with the field named: a matrix whose rows or entries do not "
+        "match the outputs and inputs, a loop that drives an unknown input or loop, a cycle of drives, two loops "
+        "driving one input, a tie between gains of different kinds or units, an unknown output. The cost sums "
+        "every chain's outer error (`iae` = the sum of `iae.<outer loop>`). Not yet: state-feedback loops, "
+        "output disturbances, measurement noise, fallback gains and randomisation other than `randomize.params` "
+        "in a MIMO spec (each refused by name). See docs/simulation.md.",
         "",
     ]
     for title, model in _SECTIONS:

@@ -76,6 +76,11 @@ class LoopSpec(_Model):
         ),
     )
     measure: str | None = Field(None, description="Plant output this loop measures; default: the first output.")
+    drives: str | None = Field(
+        None, exclude_if=lambda v: v is None,
+        description="What this loop's output drives: a plant input (drives: R) or the setpoint of another loop "
+        "(drives: loop:<name>). Left out on every loop: the loops are one cascade, outer first, the innermost "
+        "driving the (only) input.")
     type: Literal["p", "pi", "pd", "pid", "lqr", "lqi"] = "pid"
     form: Literal["parallel", "ideal"] = "parallel"
     gains: dict[str, GainSpec] = Field(

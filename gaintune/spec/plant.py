@@ -12,6 +12,7 @@ from typing import Annotated, Any
 from pydantic import AfterValidator, Field, field_validator, model_validator
 
 from gaintune.spec.base import _error_at, _finite, _Model
+from gaintune.spec.mimo import SignalSpec, TfMatrixSpec
 
 __all__ = [
     "Coef",
@@ -72,7 +73,11 @@ class TransferFunctionSpec(_Model):
 
 
 class StateSpaceSpec(_Model):
-    """dx/dt = A x + B u, y = C x + D u with one actuator input and named outputs."""
+    """dx/dt = A x + B u, y = C x + D u with named outputs; B has one column per input.
+
+    With one column (and no ``inputs``) this is a single-input plant; with ``inputs`` (one named
+    input per column of B, each with its unit) and optional ``input_delays`` it is a MIMO plant.
+    """
 
     A: list[list[Coef]]
     B: list[list[Coef]]
@@ -81,6 +86,36 @@ class StateSpaceSpec(_Model):
                                        "previous input held: y[k] = C x[k] + D u[k-1-d] (docs/simulation.md).")
     outputs: list[str] | None = Field(None, description="One name per row of C; default y0, y1, ...")
     states: list[str] | None = Field(None, description="One name per state; default x0, x1, ...")
+    # the new fields are left out of dumps while unset, so single-input specs hash as before
+    inputs: list[SignalSpec] | None = Field(
+        None, exclude_if=lambda v: v is None,
+        description="MIMO: one named input per column of B ({name, unit} or a name).")
+    input_delays: list[Coef] | None = Field(
+        None, exclude_if=lambda v: v is None, description="MIMO: a delay in seconds per input (default 0).")
+    output_units: list[str] | None = Field(
+        None, exclude_if=lambda v: v is None, description="The unit of each output, in the order of C's rows.")
+
+    @model_validator(mode="after")
+    def _mimo_names(self) -> StateSpaceSpec:
+        if self.inputs is not None:
+            names = [s.name for s in self.inputs]
+            if len(set(names)) != len(names):
+                raise _error_at(("inputs",), f"input names must be unique, {names}", names)
+            if self.B and len(self.B[0]) != len(self.inputs):
+                raise _error_at(("inputs",), f"names {len(self.inputs)} inputs but B has {len(self.B[0])} "
+                                "columns; give one input per column of B", names)
+        if self.input_delays is not None:
+            m = len(self.inputs) if self.inputs is not None else (len(self.B[0]) if self.B else 0)
+            if len(self.input_delays) != m:
+                raise _error_at(("input_delays",), f"gives {len(self.input_delays)} delays for {m} inputs; give "
+                                "one per input", self.input_delays)
+            _check_coefs(self.input_delays, "delay")
+        return self
+
+    @property
+    def is_mimo(self) -> bool:
+        """Whether this is the several-input form (named ``inputs``, or ``input_delays``)."""
+        return self.inputs is not None or self.input_delays is not None
 
     @field_validator("A", "B", "C", "D")
     @classmethod
@@ -137,9 +172,12 @@ class ModelRefSpec(_Model):
 
 
 class PlantSpec(_Model):
-    """Exactly one of ``tf``, ``ss``, ``ode`` or ``model``, plus delay and parameters."""
+    """Exactly one of ``tf``, ``tf_matrix``, ``ss``, ``ode`` or ``model``, plus delay and parameters."""
 
     tf: TransferFunctionSpec | None = None
+    tf_matrix: TfMatrixSpec | None = Field(
+        None, exclude_if=lambda v: v is None,
+        description="A transfer-function matrix with named inputs and outputs and a delay per entry (MIMO).")
     ss: StateSpaceSpec | None = None
     ode: OdeSpec | None = None
     model: ModelRefSpec | str | None = None
@@ -160,11 +198,14 @@ class PlantSpec(_Model):
 
     @model_validator(mode="after")
     def _exactly_one(self) -> PlantSpec:
-        given = [k for k in ("tf", "ss", "ode", "model") if getattr(self, k) is not None]
+        given = [k for k in ("tf", "tf_matrix", "ss", "ode", "model") if getattr(self, k) is not None]
         if len(given) != 1:
             raise ValueError(
-                f"plant needs exactly one of tf, ss, ode or model; got {given or 'none'}"
+                f"plant needs exactly one of tf, tf_matrix, ss, ode or model; got {given or 'none'}"
             )
+        if self.delay is not None and (self.tf_matrix is not None or (self.ss is not None and self.ss.is_mimo)):
+            raise _error_at(("delay",), "a plant with several inputs has its delays per path: give each entry "
+                            "its delay (tf_matrix) or ss.input_delays, and drop plant.delay", self.delay)
         if isinstance(self.model, str):
             self.model = ModelRefSpec(name=self.model)
         self._check_param_names()
@@ -176,7 +217,7 @@ class PlantSpec(_Model):
         if self.ode is not None:
             taken = {name: f"ode.states[{i}]" for i, name in enumerate(self.ode.states)}
             taken[self.ode.input] = "ode.input"
-        elif self.tf is not None:
+        elif self.tf is not None or self.tf_matrix is not None:
             taken["s"] = "the Laplace variable s of tf expressions"
         for name in self.params:
             if name in taken:

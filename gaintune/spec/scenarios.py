@@ -15,7 +15,8 @@ from pydantic import Field, field_validator, model_validator
 from gaintune.spec.backoff import BackoffSpec
 from gaintune.spec.base import MAX_STEPS, _finite, _Model
 
-__all__ = ["ProfileSpec", "DisturbanceSpec", "ScenarioSpec", "ScenarioDefault", "ObjectiveSpec", "RequirementsSpec"]
+__all__ = ["ProfileSpec", "ReferenceSpec", "DisturbanceSpec", "ScenarioSpec", "ScenarioDefault", "ObjectiveSpec",
+           "RequirementsSpec"]
 
 
 class ProfileSpec(_Model):
@@ -54,11 +55,25 @@ class ProfileSpec(_Model):
         return self
 
 
+class ReferenceSpec(ProfileSpec):
+    """The reference profile; with several chains of loops, ``loop`` names the chain it steps."""
+
+    loop: str | None = Field(
+        None, exclude_if=lambda v: v is None,
+        description="The outer loop whose setpoint follows this profile (several chains: the others hold "
+        "their operating point); default: the first loop.")
+
+
 class DisturbanceSpec(ProfileSpec):
     """A load disturbance; ``entry`` says where it enters the plant."""
 
     kind: Literal["step", "ramp", "impulse", "sequence", "none"] = "none"
     entry: Literal["input", "output"] = "input"
+    input: str | None = Field(
+        None, exclude_if=lambda v: v is None,
+        description="Plants with several inputs: the input it is added to, after the actuator and its delay (a "
+        "transfer-function matrix: it passes each entry's delay; state space: it enters after the input "
+        "delay, as for a single input); default: the first input.")
 
 
 class ScenarioSpec(_Model):
@@ -78,7 +93,7 @@ class ScenarioSpec(_Model):
     horizon: float | None = Field(
         None, description="Simulated time in seconds. Omitted: derived from the plant (10 x its settling scale, "
         "after the last reference or disturbance event; docs/simulation.md).")
-    reference: ProfileSpec = Field(default_factory=ProfileSpec)
+    reference: ReferenceSpec = Field(default_factory=ReferenceSpec)
     disturbance: DisturbanceSpec = Field(default_factory=DisturbanceSpec)
     noise_std: float = Field(0.0, ge=0, description="Std of white measurement noise on every measured output.")
     weight: float = Field(1.0, ge=0, description="Weight of this scenario in the combined cost.")
@@ -160,6 +175,9 @@ class ScenarioDefault(_Model):
 # ------------------------------------------------------- objective and reqs
 
 
+#: MIMO limits, judged by the MIMO verification as given (no back-off is defined for them yet).
+_MIMO_LIMITS = ("mimo_ms_max", "mimo_mt_max", "disk_margin_min", "disk_margin_at")
+
 _REMOVED_OBJECTIVE_FIELDS = ("margin_weight", "divergence_penalty", "trip_penalty")
 
 
@@ -208,6 +226,18 @@ class RequirementsSpec(_Model):
         "the plant where nothing in it bounds the loop's speed (a delay-free, stable path of relative degree "
         "<= 1): Mks <= 10/|static gain|, so the design no longer follows the sample time; no limit elsewhere. "
         "null: no limit.")
+    mimo_ms_max: float | None = Field(
+        None, gt=1, exclude_if=lambda v: v is None,
+        description="Several loops: maximum peak of the largest singular value of the sensitivity S (MIMO Ms).")
+    mimo_mt_max: float | None = Field(
+        None, gt=0, exclude_if=lambda v: v is None,
+        description="Several loops: maximum peak of the largest singular value of T (MIMO Mt).")
+    disk_margin_min: float | None = Field(
+        None, gt=0, exclude_if=lambda v: v is None,
+        description="Several loops: minimum multiloop disk margin (all channels perturbed at once), at the "
+        "plant inputs, outputs or both (disk_margin_at).")
+    disk_margin_at: Literal["inputs", "outputs", "all"] = Field(
+        "all", exclude_if=lambda v: v == "all", description="Where disk_margin_min applies.")
     # the default is left out of dumps, so specs and hashes written before the field existed stay as they were
     backoff: BackoffSpec = Field(
         default_factory=BackoffSpec, exclude_if=lambda b: b == BackoffSpec(),
@@ -221,8 +251,8 @@ class RequirementsSpec(_Model):
         b = self.backoff
         if not b.active:
             return self
-        new: dict[str, Any] = {k: b.aim(k, v) for k, v in self.model_dump(exclude={"mks_max", "backoff"}).items()
-                               if v is not None}
+        plain = self.model_dump(exclude={"mks_max", "backoff", *_MIMO_LIMITS})
+        new: dict[str, Any] = {k: b.aim(k, v) for k, v in plain.items() if v is not None}
         mks = self.mks_max
         if isinstance(mks, dict):
             new["mks_max"] = {k: None if v is None else b.aim("mks_max", v) for k, v in mks.items()}

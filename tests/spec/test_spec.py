@@ -139,7 +139,7 @@ def test_ode_param_clashing_with_state() -> None:
 @pytest.mark.parametrize(
     "plant, fragments",
     [
-        ({}, ("plant", "exactly one of tf, ss, ode or model")),
+        ({}, ("plant", "exactly one of tf, tf_matrix, ss, ode or model")),
         ({**TF3, "ss": SS_OK}, ("plant", "exactly one")),
         ({**TF3, "delay": -0.5}, ("plant.delay", ">= 0")),
         ({**TF3, "delay": float("inf")}, ("plant.delay", "finite")),

@@ -1,0 +1,53 @@
+"""Searching a MIMO spec: the per-loop classical start, the search box, CMA-ES through the one Evaluator."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gaintune.baselines import run_baseline
+from gaintune.classical.mimo_rules import loop_rule_candidates
+from gaintune.evaluation.search_box import search_box
+from gaintune.plants import build_plant
+from gaintune.plants.library import load_model
+from gaintune.spec import load_spec
+
+
+def wood_berry(**extra):
+    return load_spec({**load_model("wood_berry").example_spec(), **extra})
+
+
+def test_wood_berry_rules_loop_by_loop_carry_each_loops_sign() -> None:
+    spec = wood_berry()
+    rules = loop_rule_candidates(spec, build_plant(spec.plant))
+    assert {"simc", "amigo"} <= set(rules)
+    for gains in rules.values():
+        assert gains["xD"]["Kp"] > 0 and gains["xB"]["Kp"] < 0 and gains["xB"]["Ki"] < 0
+    # SIMC on G11 = 12.8 e^{-s}/(16.7 s + 1), theta = 1 min + dt/2 (the sample-and-hold), tau_c = theta:
+    # Kc = tau / (K (tau_c + theta)), Ti = min(tau, 8 theta)
+    theta = 1.0 + 0.1 / 2
+    np.testing.assert_allclose(rules["simc"]["xD"]["Kp"], 16.7 / (12.8 * 2 * theta), rtol=1e-9)
+    np.testing.assert_allclose(rules["simc"]["xD"]["Kp"] / rules["simc"]["xD"]["Ki"], 8 * theta, rtol=1e-9)
+
+
+def test_chains_and_ties_have_no_per_loop_rules() -> None:
+    spec = wood_berry(ties=[["xD.Ki", "xB.Ki"]])
+    assert loop_rule_candidates(spec, build_plant(spec.plant)) == {}
+
+
+def test_search_box_centres_on_a_scaled_rule() -> None:
+    spec = wood_berry()
+    box = search_box(spec, build_plant(spec.plant))
+    assert box.source is not None and box.source.split()[0] in {"simc", "amigo", "imc", "zn_step", "zn_ultimate"}
+    assert box.feasible and box.sims < 500  # rules x scales x 2 scenarios, not a Sobol sample
+
+
+def test_cmaes_tunes_every_wood_berry_gain_jointly() -> None:
+    spec = wood_berry()
+    amigo = run_baseline(spec, "amigo")  # the rule loop by loop, scored on the whole plant
+    assert amigo.gains == loop_rule_candidates(spec, build_plant(spec.plant))["amigo"] and amigo.feasible
+    res = run_baseline(spec, "cmaes", budget=300, seed=0)
+    assert res.n_sims <= 300 and res.feasible
+    assert set(res.gains) == {"xD", "xB"} and res.gains["xB"]["Kp"] < 0
+    box = search_box(spec, build_plant(spec.plant))
+    centre_cost = box.candidates[box.source][2]
+    assert res.cost <= centre_cost
