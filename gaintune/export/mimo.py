@@ -15,23 +15,11 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from gaintune.export.common import Gains, _version
+from gaintune.export.common import Gains, _version, is_mimo
 from gaintune.export.verdict import _Stamp
 from gaintune.spec import TuningSpec
 
 __all__ = ["is_mimo", "mimo_architecture", "mimo_payload"]
-
-
-def is_mimo(spec: TuningSpec) -> bool:
-    """Whether ``spec`` runs on the MIMO simulator (several plant inputs, a loop graph, actuators or a decoupler)."""
-    from gaintune.plants import build_plant
-    from gaintune.sim.mimo import needs_mimo
-
-    if spec.plant.tf_matrix is not None or spec.actuators is not None or spec.decoupler is not None:
-        return True
-    if any(lp.drives is not None for lp in spec.loops):
-        return True
-    return needs_mimo(spec, build_plant(spec.plant))
 
 
 def _actuator(spec: TuningSpec, name: str, n_inputs: int) -> dict[str, Any]:

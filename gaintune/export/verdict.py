@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from gaintune.export.common import ExportError, Gains, _check_dt, _fmt_dt, _same_dt
+from gaintune.export.common import ExportError, Gains, _check_dt, _fmt_dt, _same_dt, is_mimo
 from gaintune.spec import MAX_STEPS, TuningSpec
 from gaintune.verification.report import VerificationReport
 
@@ -148,12 +148,11 @@ def verdict_at_dt(
 def verify_if_possible(spec: TuningSpec, gains: Gains, **kwargs: Any) -> tuple[VerificationReport | None, str | None]:
     """``(report, None)`` from :func:`gaintune.verification.verify`; ``(None, why)`` for a MIMO spec it cannot verify.
 
-    A spec with several plant inputs or a loop graph (:func:`gaintune.export.mimo.is_mimo`) has no
+    A spec with several plant inputs or a loop graph (:func:`gaintune.export.common.is_mimo`) has no
     verdict until the verification covers it: its gains are then unverified (never accepted, never
     exported as firmware), and ``why`` says so. Any other spec's errors are raised as they are.
     """
     from gaintune.errors import SpecError
-    from gaintune.export.mimo import is_mimo
     from gaintune.verification import verify
 
     try:
