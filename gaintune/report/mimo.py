@@ -192,7 +192,7 @@ def build_mimo_context(result: Any, *, command: str | None = None, margins: Any 
     """
     from gaintune.export.mimo import mimo_architecture
     from gaintune.plants import build_plant
-    from gaintune.report.context import _repro, _search_section
+    from gaintune.report.context import _repro, _requirements, _search_section
     from gaintune.sim import Simulator
 
     spec = TuningSpec.model_validate(result.spec)
@@ -226,6 +226,7 @@ def build_mimo_context(result: Any, *, command: str | None = None, margins: Any 
         "metrics": metric_rows,
         "time": figs,
         "margins": mimo_margin_tables(margins),
+        "requirements": _requirements(rep) if rep is not None and not isinstance(rep, dict) else [],
         "search": _search_section(result, spec),
         "repro": _repro(result, command),
         "fmt": _fmt,

@@ -150,3 +150,17 @@ def test_tune_out_writes_the_mimo_report_and_exports_and_report_export_read_it(t
     assert exp.exit_code == 3 and "not verified" in exp.output and "Traceback" not in exp.output
     exp = run.invoke(cli.app, ["export", str(out / "result.json"), "-f", "matlab", "--allow-unverified"])
     assert exp.exit_code == 0 and "loop_names = {'xD', 'xB'};" in exp.output and "accepted = false;" in exp.output
+
+
+def test_mimo_report_shows_the_verdict_and_requirement_lines_the_verification_carries() -> None:
+    from gaintune.verification.report import RequirementLine, VerificationReport
+
+    line = RequirementLine(requirement="mimo_ms_max", figure="ms", limit=2.1, value=1.93, margin=0.17, passed=True,
+                           loop="all")
+    rep = VerificationReport.model_construct(verdict="pass", reasons=[], requirements=[line])
+    res = _result(load_model("wood_berry").example_spec())
+    res.verification = rep
+    html = render_html(res)
+    summary, margins = _section(html, "summary"), _section(html, "mimo-margins")
+    assert ">PASS<" in summary and "NOT VERIFIED" not in summary and 'class="failed"' not in html
+    assert 'id="requirements"' in margins and "mimo_ms_max" in margins and "1.93" in margins
