@@ -9,6 +9,7 @@ and its outputs on the right edge (each with the loops that measure it).
 from __future__ import annotations
 
 import itertools
+from dataclasses import dataclass
 from html import escape
 from typing import Any
 
@@ -51,6 +52,19 @@ def _box(x: float, y: float, w: float, h: float, fill: str) -> str:
             'stroke="#344054" stroke-width="1.2"/>')
 
 
+@dataclass(frozen=True)
+class _Geo:
+    """Where things are: the plant's and the decoupler's x, the y of each chain row, input and output port."""
+
+    x_plant: float
+    x_dec: float | None
+    span: float
+    y_row: list[float]
+    y_in: list[float]
+    y_out: list[float]
+    marker: str
+
+
 def loop_map_svg(arch: dict[str, Any]) -> str:
     """The loop map of ``arch`` (:func:`gaintune.export.mimo.mimo_architecture`) as an ``<svg>`` element."""
     loops, inputs, outputs = arch["loops"], arch["inputs"], arch["outputs"]
@@ -58,73 +72,80 @@ def loop_map_svg(arch: dict[str, Any]) -> str:
     K = max(len(c) for c in chains)
     dec = arch.get("decoupler")
     n_rows = max(len(chains), len(inputs), len(outputs))
-    height = TOP + n_rows * ROW_H + 20
+    span = n_rows * ROW_H
     x_after = LEFT + K * (BOX_W + GAP)
-    x_dec = x_after if dec else None
     x_plant = x_after + (DEC_W + GAP if dec else 0) + 8 * len(chains)
-    width = x_plant + PLANT_W + 14 + PORT_LABEL_W
-    marker = f"lm{next(_ids)}_arrow"
+    g = _Geo(x_plant=x_plant, x_dec=x_after if dec else None, span=span,
+             y_row=[TOP + (r + 0.5) * span / len(chains) for r in range(len(chains))],
+             y_in=[TOP + (j + 0.5) * span / len(inputs) for j in range(len(inputs))],
+             y_out=[TOP + (i + 0.5) * span / len(outputs) for i in range(len(outputs))],
+             marker=f"lm{next(_ids)}_arrow")
+    width, height = x_plant + PLANT_W + 14 + PORT_LABEL_W, TOP + span + 20
     parts = [
         f'<svg xmlns="http://www.w3.org/2000/svg" class="loopmap" viewBox="0 0 {width:.0f} {height:.0f}" '
         f'role="img" aria-label="loop map" font-family="DejaVu Sans, Arial, sans-serif">',
-        f'<defs><marker id="{marker}" viewBox="0 0 10 10" refX="9" refY="5" markerWidth="7" markerHeight="7" '
+        f'<defs><marker id="{g.marker}" viewBox="0 0 10 10" refX="9" refY="5" markerWidth="7" markerHeight="7" '
         'orient="auto-start-reverse"><path d="M0,0 L10,5 L0,10 z" fill="#344054"/></marker></defs>',
     ]
-    span = n_rows * ROW_H
-    y_in = [TOP + (j + 0.5) * span / len(inputs) for j in range(len(inputs))]
-    y_out = [TOP + (i + 0.5) * span / len(outputs) for i in range(len(outputs))]
-    y_row = [TOP + (r + 0.5) * span / len(chains) for r in range(len(chains))]
     dec_inputs = set(dec["inputs"]) if dec else set()
     for r, chain in enumerate(chains):
-        yc = y_row[r]
-        parts.append(_text(8, yc - 6, "r", anchor="start", size=11, fill="#667085"))
-        parts.append(_text(8, yc + 9, loops[chain[0]]["name"], anchor="start", size=11, fill="#667085"))
-        parts.append(_arrow([(LEFT - 26, yc), (LEFT, yc)], marker))
-        for k, pos in enumerate(chain):
-            lp = loops[pos]
-            x = LEFT + k * (BOX_W + GAP)
-            parts.append(f'<g class="loop" data-loop="{escape(lp["name"])}">')
-            parts.append(_box(x, yc - BOX_H / 2, BOX_W, BOX_H, "#eef4ff"))
-            parts.append(_text(x + BOX_W / 2, yc - 4, f"{lp['name']} ({lp['type'].upper()})", weight="bold"))
-            parts.append(_text(x + BOX_W / 2, yc + 13, f"measures {lp['measure']}", size=11, fill="#475467"))
-            parts.append("</g>")
-            if k + 1 < len(chain):
-                parts.append(_arrow([(x + BOX_W, yc), (x + BOX_W + GAP, yc)], marker))
-                parts.append(_text(x + BOX_W + GAP / 2, yc - 6, "sp", size=10, fill="#667085"))
-        last = loops[chain[-1]]
-        x_end = LEFT + (len(chain) - 1) * (BOX_W + GAP) + BOX_W
-        j = last["drive_index"]
-        if j < 0:
-            continue
-        if dec and inputs[j]["name"] in dec_inputs:
-            assert x_dec is not None
-            parts.append(_arrow([(x_end, yc), (x_dec, yc)], marker))
-        else:
-            x_turn = x_plant - 10 - 8 * r
-            parts.append(_arrow([(x_end, yc), (x_turn, yc), (x_turn, y_in[j]), (x_plant, y_in[j])], marker))
-    if dec:
-        assert x_dec is not None
-        parts.append(_box(x_dec, TOP + 4, DEC_W, span - 8, "#fef7e6"))
-        parts.append(_text(x_dec + DEC_W / 2, TOP + span / 2 - 4, "decoupler", weight="bold"))
-        parts.append(_text(x_dec + DEC_W / 2, TOP + span / 2 + 12, "u = W v", size=11, fill="#475467"))
-        for j, inp in enumerate(inputs):
-            if inp["name"] in dec_inputs:
-                parts.append(_arrow([(x_dec + DEC_W, y_in[j]), (x_plant, y_in[j])], marker))
-    parts.append(_box(x_plant, TOP, PLANT_W, span, "#f2f4f7"))
-    parts.append(_text(x_plant + PLANT_W / 2, TOP + span / 2, "plant", size=13, weight="bold"))
+        parts += _chain(g, r, [loops[k] for k in chain], inputs, dec_inputs)
+    parts += _plant(g, loops, inputs, outputs, dec_inputs)
+    parts.append("</svg>")
+    return "\n".join(parts)
+
+
+def _chain(g: _Geo, r: int, chain: list[dict[str, Any]], inputs: list[dict[str, Any]],
+           dec_inputs: set[str]) -> list[str]:
+    """Row ``r``: the reference, the chain's loop boxes outer to inner, the arrow to its input or the decoupler."""
+    yc, m = g.y_row[r], g.marker
+    parts = [_text(8, yc - 6, "r", anchor="start", size=11, fill="#667085"),
+             _text(8, yc + 9, chain[0]["name"], anchor="start", size=11, fill="#667085"),
+             _arrow([(LEFT - 26, yc), (LEFT, yc)], m)]
+    for k, lp in enumerate(chain):
+        x = LEFT + k * (BOX_W + GAP)
+        parts += [f'<g class="loop" data-loop="{escape(lp["name"])}">',
+                  _box(x, yc - BOX_H / 2, BOX_W, BOX_H, "#eef4ff"),
+                  _text(x + BOX_W / 2, yc - 4, f"{lp['name']} ({lp['type'].upper()})", weight="bold"),
+                  _text(x + BOX_W / 2, yc + 13, f"measures {lp['measure']}", size=11, fill="#475467"), "</g>"]
+        if k + 1 < len(chain):
+            parts += [_arrow([(x + BOX_W, yc), (x + BOX_W + GAP, yc)], m),
+                      _text(x + BOX_W + GAP / 2, yc - 6, "sp", size=10, fill="#667085")]
+    x_end = LEFT + (len(chain) - 1) * (BOX_W + GAP) + BOX_W
+    j = chain[-1]["drive_index"]
+    if j < 0:
+        return parts
+    if g.x_dec is not None and inputs[j]["name"] in dec_inputs:
+        parts.append(_arrow([(x_end, yc), (g.x_dec, yc)], m))
+    else:  # elbows side by side, one per row, so that they do not overlap
+        x_turn = g.x_plant - 10 - 8 * r
+        parts.append(_arrow([(x_end, yc), (x_turn, yc), (x_turn, g.y_in[j]), (g.x_plant, g.y_in[j])], m))
+    return parts
+
+
+def _plant(g: _Geo, loops: list[dict[str, Any]], inputs: list[dict[str, Any]], outputs: list[dict[str, Any]],
+           dec_inputs: set[str]) -> list[str]:
+    """The decoupler (if any), the plant box, its input ports and its outputs with the loops measuring each."""
+    parts, m, x0 = [], g.marker, g.x_plant
+    if g.x_dec is not None:
+        xd = g.x_dec
+        parts += [_box(xd, TOP + 4, DEC_W, g.span - 8, "#fef7e6"),
+                  _text(xd + DEC_W / 2, TOP + g.span / 2 - 4, "decoupler", weight="bold"),
+                  _text(xd + DEC_W / 2, TOP + g.span / 2 + 12, "u = W v", size=11, fill="#475467")]
+        parts += [_arrow([(xd + DEC_W, g.y_in[j]), (x0, g.y_in[j])], m)
+                  for j, inp in enumerate(inputs) if inp["name"] in dec_inputs]
+    parts += [_box(x0, TOP, PLANT_W, g.span, "#f2f4f7"),
+              _text(x0 + PLANT_W / 2, TOP + g.span / 2, "plant", size=13, weight="bold")]
     for j, inp in enumerate(inputs):
         label = inp["name"] + ("" if inp["driven_by"] or inp["name"] in dec_inputs else " (no loop)")
-        parts.append(_text(x_plant + 6, y_in[j] + 4, label, anchor="start", size=11))
+        parts.append(_text(x0 + 6, g.y_in[j] + 4, label, anchor="start", size=11))
     measured: dict[str, list[str]] = {}
     for lp in loops:
         measured.setdefault(lp["measure"], []).append(lp["name"])
     for i, o in enumerate(outputs):
-        parts.append(_text(x_plant + PLANT_W - 6, y_out[i] + 4, o["name"], anchor="end", size=11))
-        by = measured.get(o["name"])
-        parts.append(_arrow([(x_plant + PLANT_W, y_out[i]), (x_plant + PLANT_W + 14, y_out[i])], marker,
-                            dashed=not by))
-        parts.append(_text(x_plant + PLANT_W + 18, y_out[i] + 4,
-                           f"measured by {', '.join(by)}" if by else "not measured", anchor="start", size=11,
-                           fill="#475467"))
-    parts.append("</svg>")
-    return "\n".join(parts)
+        y, by = g.y_out[i], measured.get(o["name"])
+        parts += [_text(x0 + PLANT_W - 6, y + 4, o["name"], anchor="end", size=11),
+                  _arrow([(x0 + PLANT_W, y), (x0 + PLANT_W + 14, y)], m, dashed=not by),
+                  _text(x0 + PLANT_W + 18, y + 4, f"measured by {', '.join(by)}" if by else "not measured",
+                        anchor="start", size=11, fill="#475467")]
+    return parts
