@@ -160,3 +160,15 @@ def test_siso_export_unchanged_by_the_mimo_dispatch() -> None:
     text = export_gains(spec, gains, "c", verdict="pass")
     assert "static inline double gt_step(gt_state *s, double r, const double y[GT_N_LOOPS])" in text
     assert "GT_N_CHAINS" not in text and "ARCHITECTURE" not in export_gains(spec, gains, "python", verdict="pass")
+
+
+@needs_gcc
+def test_c_header_matches_mimo_simulator_quadruple_tank_with_tied_gains(tmp_path) -> None:
+    """A state-space plant with named inputs, and one tuned Kp serving both loops (a tie)."""
+    d = load_model("quadruple_tank_min").example_spec()
+    d["ties"] = [["y1.Kp", "y2.Kp"]]
+    spec = load_spec(d)
+    gains = {"y1": {"Kp": 3.0, "Ki": 0.1}, "y2": {"Kp": 3.0, "Ki": 0.0675}}
+    text = export_gains(spec, gains, "c", verdict="pass")
+    assert "#define GT_Y1_KP 3.0" in text and "#define GT_Y2_KP 3.0" in text
+    assert _c_vs_sim(tmp_path, spec, gains) <= TOL
