@@ -242,12 +242,14 @@ def reverify_result(result, path: Path) -> None:
     dropped when it disagrees with the fresh one. ``verification_set_aside`` keeps why a stored
     verification was set aside on reading, or says that the file's verdict was not taken.
     """
+    from gaintune.export.verdict import verify_if_possible
     from gaintune.spec import TuningSpec
-    from gaintune.verification import verify
 
     claimed = result.verdict
-    result.verification = verify(TuningSpec.model_validate(result.spec), result.gains)
-    if result.verification_set_aside is None:
+    result.verification, why = verify_if_possible(TuningSpec.model_validate(result.spec), result.gains)
+    if why is not None:  # a MIMO architecture the verification does not cover: no verdict
+        result.verification_set_aside = why
+    elif result.verification_set_aside is None:
         result.verification_set_aside = "a verdict stored in a result file is not taken as it is"
     if result.diagnosis is not None and result.diagnosis.status != result.verdict:
         result.diagnosis = None

@@ -51,11 +51,12 @@ def _checked_at_dt(result, dt: float | None, *, allow_unverified: bool) -> tuple
         was = f" (the result file claims {result.verdict.upper()}; a stored verdict is not used)"
     else:
         was = ""
-    err.print(f"re-verified at dt = {at:g} s{was}: {'PASS' if verdict == 'pass' else 'FAILED'}",
+    outcome = {"pass": "PASS", "fail": "FAILED", None: "NOT VERIFIED"}.get(verdict, str(verdict))
+    err.print(f"re-verified at dt = {at:g} s{was}: {outcome}",
               markup=False, highlight=False)
     if verdict != "pass" and not allow_unverified:
         reason = first_reason(report) or "no reason recorded in the verification report"
-        label = "FAILED verification" if verdict == "fail" else f"are not verified (verdict: {verdict})"
+        label = "FAILED verification" if verdict == "fail" else "are not verified"
         hint = ("" if _close(at, vdt) or result.verdict is None
                 else f" They were verified at dt = {vdt:g} s ({result.verdict}), not at this sample time.")
         err.print(

@@ -146,16 +146,6 @@ def _gains_line(gains: dict[str, dict[str, float]] | None) -> str:
                      f"{loop}: " + ", ".join(f"{k} {_f(v, 4)}" for k, v in g.items()) for loop, g in gains.items())
 
 
-def _is_mimo_result(result) -> bool:
-    """Whether ``result`` is of a spec with several inputs or a loop graph (gaintune.sim.mimo)."""
-    from gaintune.plants import build_plant
-    from gaintune.sim.mimo import needs_mimo
-    from gaintune.spec import TuningSpec
-
-    spec = TuningSpec.model_validate(result.spec)
-    return needs_mimo(spec, build_plant(spec.plant))
-
-
 def _write_outputs(result, out_dir: Path, console: Console | _Console = out) -> None:
     """result.json, report.html and the gain exports in ``out_dir``, each written atomically.
 
@@ -168,10 +158,6 @@ def _write_outputs(result, out_dir: Path, console: Console | _Console = out) -> 
 
     out_dir.mkdir(parents=True, exist_ok=True)
     write_atomic(out_dir / "result.json", result.model_dump_json(indent=2))
-    if _is_mimo_result(result):
-        console.print(f"wrote {out_dir / 'result.json'}; the report and the gain exports (C, MATLAB) do not cover "
-                      "plants with several inputs or loop graphs yet", markup=False, highlight=False)
-        return
     render_report(result, out_dir / "report.html")
     paths = write_exports(result, out_dir)
     console.print(f"wrote {out_dir / 'result.json'}, {out_dir / 'report.html'}, " + ", ".join(str(p) for p in paths))

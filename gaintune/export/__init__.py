@@ -18,6 +18,9 @@ hold the rest:
   discrete-time law for one sample time ``dt``;
 * :mod:`gaintune.export.matlab`: the MATLAB/Octave file;
 * :mod:`gaintune.export.schedule`: a gain schedule's C header, MATLAB file and JSON, from plain tables;
+* :mod:`gaintune.export.mimo`, :mod:`~gaintune.export.mimo_c`, :mod:`~gaintune.export.mimo_matlab`: a spec with
+  several plant inputs or a loop graph: the whole architecture (every loop, the wiring, the decoupler,
+  the actuators) in every format;
 * :mod:`gaintune.export.common`: :class:`ExportError` and helpers the modules share.
 
 Example
@@ -43,6 +46,9 @@ from gaintune.export.c import to_c
 from gaintune.export.coefficients import discrete_pid_tf, loop_coefficients
 from gaintune.export.common import ExportError, Gains, _check_dt, _one_line, _version
 from gaintune.export.matlab import to_matlab
+from gaintune.export.mimo import is_mimo, mimo_payload
+from gaintune.export.mimo_c import to_c_mimo
+from gaintune.export.mimo_matlab import to_matlab_mimo
 from gaintune.export.verdict import (
     _spec_verified_dt,
     _Stamp,
@@ -86,6 +92,8 @@ def _clean(x: Any) -> Any:
 
 
 def _payload(spec: TuningSpec, gains: Gains, st: _Stamp) -> dict[str, Any]:
+    if is_mimo(spec):
+        return mimo_payload(spec, gains, st)
     coefs = loop_coefficients(spec, gains)
     return {
         "spec": spec.name,
@@ -119,7 +127,13 @@ def to_python(spec: TuningSpec, gains: Gains, st: _Stamp, dt: float) -> str:
         f"REASONS = {st.reasons if st.verdict == 'fail' else []!r}\n"
         f"GAINS = {json.dumps(gains, indent=4)}\n"
         f"LOOPS = {_pyrepr(p['loops'])}\n"
+        + (f"ARCHITECTURE = {_pyrepr(_wiring(p))}\n" if "architecture" in p else "")
     )
+
+
+def _wiring(p: dict[str, Any]) -> dict[str, Any]:
+    """The wiring of a MIMO payload (the loops themselves are LOOPS)."""
+    return {k: p[k] for k in ("evaluation_order", "chains", "inputs", "outputs", "W", "decoupler")}
 
 
 def _pyrepr(x: Any) -> str:
@@ -161,9 +175,9 @@ def export_gains(
     if fmt == "yaml":
         return f"# {_one_line(st.banner())}\n" + yaml.safe_dump(_payload(spec, gains, st), sort_keys=False)
     if fmt == "c":
-        return to_c(spec, gains, st, dt, prefix)
+        return to_c_mimo(spec, gains, st, dt, prefix) if is_mimo(spec) else to_c(spec, gains, st, dt, prefix)
     if fmt == "matlab":
-        return to_matlab(spec, gains, st, dt)
+        return to_matlab_mimo(spec, gains, st, dt) if is_mimo(spec) else to_matlab(spec, gains, st, dt)
     return to_python(spec, gains, st, dt)
 
 

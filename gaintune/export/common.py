@@ -10,11 +10,11 @@ import math
 from typing import Any
 
 from gaintune.errors import GaintuneError
-from gaintune.spec import Gains
+from gaintune.spec import Gains, TuningSpec
 from gaintune.spec.names import ident as _ident
 from gaintune.spec.names import unsafe_char
 
-__all__ = ["ExportError", "Gains"]
+__all__ = ["ExportError", "Gains", "is_mimo"]
 
 
 
@@ -72,3 +72,15 @@ def _unique_idents(names: list[str], style: str) -> None:
             raise ExportError(f"loops.{i}.name", f"loop name {name!r} and {seen[key]!r} both become the identifier "
                                                  f"{key}; rename one so they differ after non-alphanumerics become _")
         seen[key] = name
+
+
+def is_mimo(spec: TuningSpec) -> bool:
+    """Whether ``spec`` runs on the MIMO simulator (several plant inputs, a loop graph, actuators or a decoupler)."""
+    from gaintune.plants import build_plant
+    from gaintune.sim.mimo import needs_mimo
+
+    if spec.plant.tf_matrix is not None or spec.actuators is not None or spec.decoupler is not None:
+        return True
+    if any(lp.drives is not None for lp in spec.loops):
+        return True
+    return needs_mimo(spec, build_plant(spec.plant))

@@ -18,11 +18,12 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from gaintune.export.common import ExportError, Gains, _check_dt, _fmt_dt, _same_dt
+from gaintune.export.common import ExportError, Gains, _check_dt, _fmt_dt, _same_dt, is_mimo
 from gaintune.spec import MAX_STEPS, TuningSpec
 from gaintune.verification.report import VerificationReport
 
-__all__ = ["verified_dt", "spec_at_dt", "stored_verdict_holds", "verdict_at_dt", "result_verdict_at_dt", "first_reason"]
+__all__ = ["verified_dt", "spec_at_dt", "stored_verdict_holds", "verdict_at_dt", "result_verdict_at_dt", "first_reason",
+           "verify_if_possible"]
 
 
 def verified_dt(spec: TuningSpec) -> float:
@@ -111,8 +112,11 @@ def verdict_at_dt(
     stored: VerificationReport | dict[str, Any] | None = None,
     robust: bool | None = None,
     max_steps: int | None = None,
-) -> tuple[str, dict[str, Any] | None]:
+) -> tuple[str | None, dict[str, Any] | None]:
     """The verdict of ``gains`` at sample time ``dt`` and the report it comes from (JSON form).
+
+    The verdict is None (unverified, with the reason in the report's ``reasons``) for a MIMO spec
+    the verification does not cover (:func:`verify_if_possible`).
 
     ``stored`` is the verification already done on ``spec`` (a report or its JSON form,
     e.g. ``TuneResult.verification``). It is returned (in JSON form; a dict as it is) when
@@ -135,14 +139,32 @@ def verdict_at_dt(
     target = spec_at_dt(spec, dt, max_steps=max_steps)
     if robust is None and held is not None and "robust" in held:
         robust = held["robust"] is not None  # as the stored verification did
-    from gaintune.verification import verify
-
-    report = verify(target, gains, robust=robust)
+    report, why = verify_if_possible(target, gains, robust=robust)
+    if report is None:
+        return None, {"verdict": None, "reasons": [why]}
     return report.verdict, json.loads(report.model_dump_json())
 
 
+def verify_if_possible(spec: TuningSpec, gains: Gains, **kwargs: Any) -> tuple[VerificationReport | None, str | None]:
+    """``(report, None)`` from :func:`gaintune.verification.verify`; ``(None, why)`` for a MIMO spec it cannot verify.
+
+    A spec with several plant inputs or a loop graph (:func:`gaintune.export.common.is_mimo`) has no
+    verdict until the verification covers it: its gains are then unverified (never accepted, never
+    exported as firmware), and ``why`` says so. Any other spec's errors are raised as they are.
+    """
+    from gaintune.errors import SpecError
+    from gaintune.verification import verify
+
+    try:
+        return verify(spec, gains, **kwargs), None
+    except SpecError as exc:
+        if not is_mimo(spec):
+            raise
+        return None, f"not verified: the verification does not cover this MIMO architecture ({exc.message})"
+
+
 def result_verdict_at_dt(result: Any, dt: float | None = None, *,
-                         max_steps: int | None = None) -> tuple[str, dict[str, Any] | None]:
+                         max_steps: int | None = None) -> tuple[str | None, dict[str, Any] | None]:
     """:func:`verdict_at_dt` for a :class:`~gaintune.search.result.TuneResult` (its stored verification included)."""
     spec = TuningSpec.model_validate(result.spec)
     return verdict_at_dt(spec, result.gains, dt, stored=result.verification, max_steps=max_steps)

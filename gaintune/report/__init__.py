@@ -1,7 +1,8 @@
 """Self-contained HTML report of a tuning result (PDF on request via headless Chromium).
 
 Sections: 1 Summary, 2 Time responses, 3 Frequency, 4 Robustness, 5 Search,
-6 Baselines, 7 Reproducibility. Plots are inline SVG (matplotlib, Agg), so the
+6 Baselines, 7 Reproducibility. A MIMO spec has its own page (:mod:`gaintune.report.mimo`): Summary,
+Loop map, Loops, Time responses, MIMO margins, Search, Reproducibility. Plots are inline SVG (matplotlib, Agg), so the
 page is one file that works offline.
 
 Examples
@@ -73,20 +74,34 @@ def load_verification(data: Any):
 
 
 def render_html(result: Any, *, command: str | None = None) -> str:
-    """The report of ``result`` (a :class:`~gaintune.search.result.TuneResult`) as one HTML string."""
+    """The report of ``result`` (a :class:`~gaintune.search.result.TuneResult`) as one HTML string.
+
+    A MIMO spec (several plant inputs or a loop graph) gets the MIMO report
+    (:mod:`gaintune.report.mimo`: loop map, every loop, per-chain responses, MIMO margins).
+    """
     import jinja2
 
-    from gaintune.report.context import build_context
+    from gaintune.export.mimo import is_mimo
+    from gaintune.spec import TuningSpec
 
-    ctx = build_context(result, command=command)
-    if result.verification is not None and getattr(result, "verification_set_aside", None):
-        ctx["verified_now"] = True  # verified again after the stored verdict was set aside (gaintune report)
+    template = "report.html.j2"
+    if is_mimo(TuningSpec.model_validate(result.spec)):
+        from gaintune.report.mimo import build_mimo_context
+
+        ctx = build_mimo_context(result, command=command)
+        template = "report_mimo.html.j2"
+    else:
+        from gaintune.report.context import build_context
+
+        ctx = build_context(result, command=command)
+        if result.verification is not None and getattr(result, "verification_set_aside", None):
+            ctx["verified_now"] = True  # verified again after the stored verdict was set aside (gaintune report)
     env = jinja2.Environment(
         loader=jinja2.FileSystemLoader(str(Path(__file__).parent / "templates")),
         autoescape=jinja2.select_autoescape(["html", "j2"]),
     )
     ctx.update(generated=datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), version=_version())
-    return env.get_template("report.html.j2").render(**ctx)
+    return env.get_template(template).render(**ctx)
 
 
 def render_report(result: Any, path: str | os.PathLike, *, pdf: bool = False, command: str | None = None) -> Path:
