@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import sys
 from collections import Counter
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -83,12 +84,28 @@ def run_local(jobs: list[dict[str, Any]], on_record: OnRecord, *, workers: int, 
 
 def import_ray() -> Any:
     """The ``ray`` module, or a GaintuneError naming the extra to install."""
+    if "ray" not in sys.modules:
+        _token_auth_if_token()  # Ray reads RAY_AUTH_MODE once, when it is imported
     try:
         import ray
     except ImportError:
         raise GaintuneError("backend", "the ray backend needs Ray: pip install 'gaintune[ray]' (or use --backend "
                                        "local)") from None
     return ray
+
+
+def _token_auth_if_token() -> None:
+    """Send this machine's Ray token when it has one and RAY_AUTH_MODE is unset, as ``ray start`` does.
+
+    A cluster started with token authentication (Ray's default where a token exists) refuses a
+    client without it; a cluster without authentication ignores the token. A local cluster
+    (``ray.init()`` without an address) uses token authentication by default anyway."""
+    from pathlib import Path
+
+    has_token = os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH") or \
+        (Path.home() / ".ray" / "auth_token").is_file()
+    if "RAY_AUTH_MODE" not in os.environ and has_token:
+        os.environ["RAY_AUTH_MODE"] = "token"
 
 
 def connect(ray: Any, address: str | None, workers: int | None) -> bool:
@@ -107,7 +124,8 @@ def connect(ray: Any, address: str | None, workers: int | None) -> bool:
         if address or os.environ.get("RAY_ADDRESS"):
             ray.init(address=address, **quiet)
         else:
-            ray.init(num_cpus=workers or cpus_here(), **quiet)
+            # "local": a new cluster for this sweep, never one another program left running here
+            ray.init(address="local", num_cpus=workers or cpus_here(), **quiet)
     except (ConnectionError, ValueError, RuntimeError) as exc:
         where = address or os.environ.get("RAY_ADDRESS")
         raise GaintuneError("address", f"cannot reach a Ray cluster at {where}: {exc}; start one with 'ray start "

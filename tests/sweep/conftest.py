@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from pathlib import Path
 from typing import Any
@@ -35,12 +36,11 @@ def grid_fleet(folder: Path, gains: list[float], name: str = "fleet.yaml") -> Pa
 @pytest.fixture(scope="session")
 def ray_cluster():
     """A Ray cluster for the session: the one at $RAY_ADDRESS (CI starts it), else a local one of 2 CPUs."""
-    ray = pytest.importorskip("ray") if not os.environ.get("CI") else __import__("ray")
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    if os.environ.get("RAY_ADDRESS"):
-        ray.init(address=os.environ["RAY_ADDRESS"], include_dashboard=False, logging_level="ERROR",
-                 log_to_driver=False)
-    else:
-        ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+    from gaintune.sweep.backends import connect, import_ray
+
+    if importlib.util.find_spec("ray") is None and not os.environ.get("CI"):  # CI installs it: never skipped there
+        pytest.skip("ray is not installed (pip install 'gaintune[ray]')")
+    ray = import_ray()
+    connect(ray, None, 2)  # as the sweep connects: $RAY_ADDRESS, else a local cluster
     yield ray
     ray.shutdown()
