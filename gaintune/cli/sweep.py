@@ -78,7 +78,11 @@ def _run_with_bar(fleet: Path, out_dir: Path, options: Any) -> Any:
             bar.update(task, completed=report.ran + report.refused,
                        outcomes=", ".join(f"{k} {v}" for k, v in sorted(report.counts.items())))
 
-        return run_sweep(fleet, out_dir, options, on_record=on_record, on_start=on_start)
+        try:
+            return run_sweep(fleet, out_dir, options, on_record=on_record, on_start=on_start)
+        except KeyboardInterrupt:
+            err.print(f"interrupted: the finished items are kept in {out_dir}; the same command resumes", markup=False)
+            raise typer.Exit(130) from None
 
 
 @sweep_app.command("run")

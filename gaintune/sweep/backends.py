@@ -6,7 +6,8 @@ as it arrives; the driver alone writes the store.
 * :func:`run_local`: a :class:`~concurrent.futures.ProcessPoolExecutor` of spawned worker
   processes (spawned, not forked: the driver may hold torch and numba threads). A pool broken
   by a worker that died is replaced and its unfinished items submitted again, each at most
-  ``retries`` more times; then the item is recorded ``crashed``.
+  ``retries`` more times; then the item is recorded ``crashed``. On Linux the workers die with
+  the driver.
 * :func:`run_ray`: one Ray task per item with ``num_cpus`` = CPUs per task; Ray retries a task
   whose worker died (``max_retries``). ``address`` names a running cluster (``auto``, or
   ``HOST:PORT``); without one (and without ``RAY_ADDRESS``) a local cluster is started for the
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 import sys
 from collections import Counter
 from collections.abc import Callable
@@ -38,6 +40,21 @@ def cpus_here() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not Linux
         return os.cpu_count() or 1
+
+
+def _die_with_driver(driver: int) -> None:
+    """Worker initializer (Linux): SIGKILL this worker when the driver dies.
+
+    Without it, the workers of a killed driver run on through the items already queued to them
+    (up to workers + 1), results nobody records, while the restarted sweep runs them again."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1: PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # pragma: no cover - not Linux: such workers finish their queue
+        return
+    if os.getppid() != driver:  # the driver died before the line above
+        os._exit(1)
 
 
 def _drain(pool: ProcessPoolExecutor, jobs: list[dict[str, Any]], on_record: OnRecord,
@@ -65,7 +82,8 @@ def run_local(jobs: list[dict[str, Any]], on_record: OnRecord, *, workers: int, 
     todo = list(jobs)
     ctx = multiprocessing.get_context("spawn")
     while todo:
-        pool = ProcessPoolExecutor(max_workers=max(1, min(workers, len(todo))), mp_context=ctx)
+        pool = ProcessPoolExecutor(max_workers=max(1, min(workers, len(todo))), mp_context=ctx,
+                                   initializer=_die_with_driver, initargs=(os.getpid(),))
         try:
             lost = _drain(pool, todo, on_record, hook)
         finally:

@@ -25,7 +25,7 @@ FINISHED = ("done", "error")
 DB_NAME, DIR_NAME = "sweep.db", "results"
 
 _COLUMNS = {"sims": "INTEGER", "seed": "INTEGER", "pid": "INTEGER", "cost": "REAL", "wall_s": "REAL",
-            "started": "REAL", "finished": "REAL"}
+            "cpu_s": "REAL", "started": "REAL", "finished": "REAL"}
 
 
 class Store(Protocol):

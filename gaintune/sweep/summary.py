@@ -20,8 +20,8 @@ from gaintune.sweep.store import existing_store
 __all__ = ["COLUMNS", "summary_rows", "totals", "write_csv", "write_parquet"]
 
 #: The fixed columns of a summary row (the gain columns follow).
-COLUMNS = ("index", "label", "key", "kind", "status", "verdict", "cost", "sims", "seed", "wall_s", "host", "error",
-           "note", "gains")
+COLUMNS = ("index", "label", "key", "kind", "status", "verdict", "cost", "sims", "seed", "wall_s", "cpu_s", "host",
+           "error", "note", "gains")
 
 
 def summary_rows(out: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
@@ -87,6 +87,6 @@ def write_parquet(rows: list[dict[str, Any]], path: Path) -> None:
         raise GaintuneError("parquet", "writing Parquet needs pyarrow: pip install 'gaintune[parquet]' "
                                        "(or use --csv)") from None
     cols = _columns(rows)
-    numeric = {"cost", "wall_s"} | (set(cols) - set(COLUMNS))
+    numeric = {"cost", "wall_s", "cpu_s"} | (set(cols) - set(COLUMNS))
     arrays = {c: pa.array([r.get(c) for r in rows], type=pa.float64() if c in numeric else None) for c in cols}
     pq.write_table(pa.table(arrays), path)

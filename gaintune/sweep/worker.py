@@ -23,7 +23,7 @@ __all__ = ["RECORD_FIELDS", "Hook", "run_item", "error_record"]
 
 #: The fields of one result record, in the store's column order.
 RECORD_FIELDS = ("key", "label", "kind", "status", "error", "verdict", "cost", "gains", "sims", "seed", "note",
-                 "wall_s", "started", "finished", "host", "pid")
+                 "wall_s", "cpu_s", "started", "finished", "host", "pid")
 
 #: How long a held attempt waits for its gate at most (a test that forgot it must not hang).
 GATE_TIMEOUT_S = 300.0
@@ -124,7 +124,7 @@ def run_item(job: dict[str, Any], hook: Hook | None = None) -> dict[str, Any]:
     hook.mark("start", job["key"])
     hook.wait()
     started = time.time()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         _threads(int(job.get("cpus", 1)))
         answer = _run_tune(job["doc"]) if job["kind"] == "tune" else _run_query(job["doc"])
@@ -136,8 +136,8 @@ def run_item(job: dict[str, Any], hook: Hook | None = None) -> dict[str, Any]:
     else:
         rec = error_record(job, "done", "")
         rec.update(answer, error=None)
-    rec.update(wall_s=time.perf_counter() - t0, started=started, finished=time.time(), host=socket.gethostname(),
-               pid=os.getpid())
+    rec.update(wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0, started=started,
+               finished=time.time(), host=socket.gethostname(), pid=os.getpid())
     hook.mark("done", job["key"])
     return rec
 

@@ -140,3 +140,9 @@ def test_ray_backend_without_ray_installed_exits_2_naming_the_extra(tmp_path, mo
 def test_summary_of_a_folder_without_a_sweep_exits_2(tmp_path):
     res = runner.invoke(cli.app, ["sweep", "summary", str(tmp_path)])
     assert res.exit_code == 2 and "holds no sweep" in res.output
+
+
+def test_a_sweep_folder_of_the_other_store_kind_exits_2(tmp_path):
+    (tmp_path / "out" / "results").mkdir(parents=True)  # a --store dir sweep was here
+    res = runner.invoke(cli.app, ["sweep", str(grid_fleet(tmp_path, [1.0])), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 2 and "error: store: " in res.output and "--store dir" in res.output, res.output
