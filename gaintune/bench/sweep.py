@@ -39,7 +39,7 @@ import yaml
 from gaintune.bench.arguments import BenchParser, add_out_argument, budget_int, int_range, resolve_out
 from gaintune.bench.compare import md_table, write_outputs
 
-__all__ = ["main", "fleet_doc", "projection"]
+__all__ = ["main", "fleet_doc", "projection", "noop", "ray_task_overhead"]
 
 #: The valve every item varies (PI on K exp(-L s)/(T s + 1)).
 VALVE: dict[str, Any] = {
@@ -62,13 +62,32 @@ def fleet_doc(n: int, budget: int) -> dict[str, Any]:
 
 
 def _answers(out: Path) -> dict[str, tuple]:
+    """key -> (status, verdict, cost, gains, wall s, CPU s) of the sweep folder ``out``."""
     from gaintune.sweep.store import SqliteStore
 
     store = SqliteStore(out / "sweep.db")
     try:
-        return {r["key"]: (r["status"], r["verdict"], r["cost"], r["gains"], r["wall_s"]) for r in store.records()}
+        return {r["key"]: (r["status"], r["verdict"], r["cost"], r["gains"], r["wall_s"], r["cpu_s"])
+                for r in store.records()}
     finally:
         store.close()
+
+
+def _median(out: Path, column: int) -> float:
+    return statistics.median(v[column] for v in _answers(out).values() if v[column] is not None)
+
+
+def noop() -> None:
+    """A task that does nothing: what Ray costs per task, whatever the task."""
+
+
+def ray_task_overhead(ray: Any, n: int = 400) -> float:
+    """Ray's wall seconds per task x the cluster's CPUs, over ``n`` tasks that do nothing (workers warm)."""
+    task = ray.remote(noop).options(num_cpus=1)
+    ray.get([task.remote() for _ in range(8)])  # the workers are up
+    t0 = time.perf_counter()
+    ray.get([task.remote() for _ in range(n)])
+    return (time.perf_counter() - t0) * float(ray.cluster_resources().get("CPU", 1.0)) / n
 
 
 def _timed(fleet: Path, out: Path, **options: Any) -> float:
@@ -91,13 +110,15 @@ def local_vs_ray(fleet: Path, tmp: Path, address: str | None) -> dict[str, Any]:
     try:
         res["ray_cpus"] = ray.cluster_resources().get("CPU")
         res["ray_2_s"] = _timed(fleet, tmp / "ray2", backend="ray")
+        res["ray_task_overhead_s"] = ray_task_overhead(ray)
     finally:
         ray.shutdown()
     res["local_1_s"] = _timed(fleet, tmp / "local1", workers=1)
     a, b = _answers(tmp / "local2"), _answers(tmp / "ray2")
     res["identical"] = {k: v[:4] for k, v in a.items()} == {k: v[:4] for k, v in b.items()}
-    warm = sorted(v[4] for v in _answers(tmp / "local1").values())
-    res["item_s_median"] = statistics.median(warm)  # one worker: items one after another, on a core of their own
+    res["item_s_median"] = _median(tmp / "local1", 4)  # one worker: items one after another
+    for name in ("local2", "ray2", "local1"):  # CPU seconds: the steady figure on a shared machine
+        res[f"item_cpu_s_{name}"] = _median(tmp / name, 5)
     res["ray_overhead_of_ray_wall"] = (res["ray_2_s"] - res["local_2_s"]) / res["ray_2_s"]
     res["ray_overhead_of_local_wall"] = (res["ray_2_s"] - res["local_2_s"]) / res["local_2_s"]
     res["speedup_1_to_2"] = res["local_1_s"] / res["local_2_s"]
@@ -188,12 +209,13 @@ def projection(item_s: float, overhead_s: float, loops: int = 10_000, nodes: int
     Parameters
     ----------
     item_s
-        One item's wall time on a core of its own (measured: the median item on 1 worker).
+        One item's wall time on a core of its own (measured: an item's median CPU seconds; the items
+        are single-threaded).
     overhead_s
-        Ray's extra CPU seconds per item (measured: the Ray sweep's extra wall time x its CPUs / items).
+        Ray's cost per task in CPU seconds (measured: empty tasks on the same cluster).
     start_s
-        Fixed cost of a sweep: connecting, the workers' imports (measured: the local sweep's wall time
-        less its items' share).
+        Fixed cost of a sweep: the cluster connection and a worker's start with its imports (measured:
+        the Ray cluster's start, and the 1-worker sweep's wall time less its items').
     """
     cpus = nodes * cores
     waves = math.ceil(loops / cpus)
@@ -210,6 +232,9 @@ def _markdown(res: dict[str, Any]) -> str:
                                                        f"Ray's wall time ({100 * a['ray_overhead_of_local_wall']:.1f}"
                                                        " % of local's); same answers: " + str(a["identical"])],
         ["(a) ray cluster start (not in the row above)", a["ray_start_s"], "-"],
+        ["(a) item CPU s, median: local 2 / ray 2 / local 1", None,
+         f"{a['item_cpu_s_local2']:.2f} / {a['item_cpu_s_ray2']:.2f} / {a['item_cpu_s_local1']:.2f}; Ray per task "
+         f"(empty tasks): {1e3 * a['ray_task_overhead_s']:.1f} ms of a CPU"],
         ["(b) local, 1 worker", a["local_1_s"], f"speed-up 1 -> 2 workers: {a['speedup_1_to_2']:.2f}x"],
         ["(c) ray, a worker killed mid-sweep", None, f"lost {c['lost']}, finished twice {c['finished_twice']}, "
                                                      f"{c['attempts']} attempts for {c['items']} items"],
@@ -217,7 +242,7 @@ def _markdown(res: dict[str, Any]) -> str:
                                                          f"those {d['finished_rerun']}, in-flight rerun "
                                                          f"{d['inflight_rerun']}, complete {d['complete']}"],
         ["(e) projection: 10,000 loops, 32 x 16 cores", p["wall_s"],
-         f"{p['waves']} waves x ({p['item_s']:.2f} s + {p['overhead_s']:.2f} s) + {p['start_s']:.1f} s"],
+         f"{p['waves']} waves x ({p['item_s']:.2f} s + {p['overhead_s']:.3f} s) + {p['start_s']:.1f} s start"],
     ]
     head = (f"{res['problems']} problems, budget {res['budget']}; load average {res['load_before']} -> "
             f"{res['load_after']}\n\n")
@@ -252,10 +277,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         a = local_vs_ray(fleet, tmp, args.address)
         c = ray_worker_kill(small, tmp, args.kill_problems, args.address)
         d = driver_kill(small, tmp, args.kill_problems)
-    start = max(a["local_2_s"] - args.problems * a["item_s_median"] / 2, 0.0)
-    overhead = max(a["ray_2_s"] - a["local_2_s"], 0.0) * 2 / args.problems
+    # a core of its own per item: its CPU seconds; a worker's start: the 1-worker sweep less its items
+    start = max(a["local_1_s"] - args.problems * a["item_s_median"], 0.0)
     res = {"problems": args.problems, "budget": args.budget, "a": a, "c": c, "d": d,
-           "e": projection(a["item_s_median"], overhead, start_s=start),
+           "e": projection(a["item_cpu_s_local1"], a["ray_task_overhead_s"], start_s=start + a["ray_start_s"]),
            "load_before": [round(x, 2) for x in load0], "load_after": [round(x, 2) for x in os.getloadavg()]}
     md = _markdown(res)
     print(md)
