@@ -55,6 +55,9 @@ class SqliteStore:
         self.path = path
         self._db = sqlite3.connect(path, timeout=30.0)
         self._db.execute("PRAGMA journal_mode=WAL")
+        # a commit survives the driver's death without an fsync each (an OS crash may lose the last few,
+        # which then run again): 0.2 ms a record instead of 2.1 ms here, so one driver keeps up with 512 workers
+        self._db.execute("PRAGMA synchronous=NORMAL")
         cols = ", ".join(f"{c} {_COLUMNS.get(c, 'TEXT')}" + (" PRIMARY KEY" if c == "key" else "")
                          for c in RECORD_FIELDS)
         with self._db:
