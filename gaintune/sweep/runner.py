@@ -18,7 +18,7 @@ from typing import Any, Literal
 from gaintune.errors import GaintuneError
 from gaintune.sweep.backends import cpus_here, run_local, run_ray
 from gaintune.sweep.fleet import Item, expand, load_fleet
-from gaintune.sweep.store import DB_NAME, DIR_NAME, open_store
+from gaintune.sweep.store import DB_NAME, DIR_NAME, Store, open_store
 from gaintune.sweep.worker import Hook, error_record
 
 __all__ = ["MANIFEST", "SweepOptions", "SweepReport", "plan", "run_sweep", "read_manifest"]
@@ -124,6 +124,22 @@ def _dispatch(jobs: list[dict[str, Any]], record: Callable[[dict[str, Any]], Non
         run_local(jobs, record, workers=workers, hook=options.hook, retries=options.retries)
 
 
+def _recorder(store: Store, report: SweepReport,
+              on_record: Callable[[dict[str, Any], SweepReport], None] | None) -> Callable[[dict[str, Any]], None]:
+    """What the backends call with each record: store it (once), count it, tell ``on_record``."""
+
+    def record(rec: dict[str, Any]) -> None:
+        if store.put(rec):
+            report.ran += 1
+            report.count(rec)
+        else:
+            report.refused += 1
+        if on_record is not None:
+            on_record(rec, report)
+
+    return record
+
+
 def run_sweep(fleet_path: str | Path, out: str | Path, options: SweepOptions | None = None,
               on_record: Callable[[dict[str, Any], SweepReport], None] | None = None,
               on_start: Callable[[SweepReport, int], None] | None = None) -> SweepReport:
@@ -163,24 +179,15 @@ def run_sweep(fleet_path: str | Path, out: str | Path, options: SweepOptions | N
         _write_manifest(out, name, Path(fleet_path).resolve(), items)
         finished = store.finished_keys()
         report = SweepReport(name=name, items=len(items), skipped=sum(i.key in finished for i in items))
-
-        def record(rec: dict[str, Any]) -> None:
-            if store.put(rec):
-                report.ran += 1
-                report.count(rec)
-            else:
-                report.refused += 1
-            if on_record is not None:
-                on_record(rec, report)
-
+        record = _recorder(store, report, on_record)
         todo = [i for i in items if i.key not in finished]
-        jobs = [{"key": i.key, "label": i.label, "kind": i.kind, "doc": i.doc, "cpus": options.cpus_per_task}
-                for i in todo if i.error is None]
         if on_start is not None:
             on_start(report, len(todo))
         for i in todo:
             if i.error is not None:  # an invalid document: recorded failed without running
                 record(error_record({"key": i.key, "label": i.label, "kind": i.kind}, "error", i.error))
+        jobs = [{"key": i.key, "label": i.label, "kind": i.kind, "doc": i.doc, "cpus": options.cpus_per_task}
+                for i in todo if i.error is None]
         if jobs:
             _dispatch(jobs, record, options)
         report.wall_s = time.perf_counter() - t0
