@@ -27,7 +27,7 @@ LAYERS: dict[str, int] = {
     "gaintune.search": 9,
     "gaintune.export": 10,
     "gaintune.tuners": 11, "gaintune.report": 11,
-    "gaintune.bench": 12,
+    "gaintune.bench": 12, "gaintune.sweep": 12,
     "gaintune.cli": 13, "gaintune_api": 13,
     "gaintune": 14, "gaintune.__main__": 14,
 }

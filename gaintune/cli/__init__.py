@@ -58,6 +58,7 @@ from gaintune.cli.output import (
     _simulation_json,
     _write_outputs,  # noqa: F401 - gaintune.cli._write_outputs, used by tests
 )
+from gaintune.cli.sweep import sweep_app
 from gaintune.cli.tuner import tuner_app
 
 # the commands call _get_tune through this module, so gaintune.cli._get_tune can be replaced (tests do)
@@ -80,6 +81,7 @@ plants_app = typer.Typer(help="Built-in plant models: list them, or show one.", 
 app.add_typer(plants_app, name="plants")
 app.add_typer(bench_app, name="bench")
 app.add_typer(tuner_app, name="tuner")
+app.add_typer(sweep_app, name="sweep")
 
 
 # --------------------------------------------------------------- commands

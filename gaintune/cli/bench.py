@@ -33,6 +33,8 @@ BENCH = {
               "answer time.",
     "quick": "`tune --quick` on the standard suite's SISO problems against the cached reference and AMIGO/SIMC, with "
              "its wall time.",
+    "sweep": "Fleet sweeps: local processes vs Ray (overhead), 1 vs 2 workers, a Ray worker and the driver killed, "
+             "a 10,000-loop cluster projection.",
     "api": "REST API load test.",
     "chaos": "Chaos campaign against a real API server: worker/server kills, freezes, storage faults, reused "
              "connections.",
