@@ -228,6 +228,14 @@ class JobStore:
         return [JobRow.from_row(r) for r in rows], total
 
     @_db(write=False)
+    def finished_tuners(self, owner: str, limit: int) -> builtins.list[JobRow]:
+        """``owner``'s succeeded tuner-training jobs (kind ``tuner``), newest first, at most ``limit``."""
+        rows = self._conn().execute(
+            f"SELECT {_COLS} FROM jobs WHERE owner=? AND kind='tuner' AND status='succeeded' ORDER BY seq DESC "
+            "LIMIT ?", (owner, limit)).fetchall()
+        return [JobRow.from_row(r) for r in rows]
+
+    @_db(write=False)
     def counts(self) -> dict[str, int]:
         """The number of jobs in each status (every status listed, 0 included)."""
         out = {s: 0 for s in STATUSES}

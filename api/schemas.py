@@ -250,7 +250,7 @@ class TunerPublic(BaseModel):
 
 
 class TunerList(BaseModel):
-    """The ready-made tuners."""
+    """The ready-made tuners, then those the caller's jobs trained (``job:{id}``)."""
 
     items: list[TunerPublic]
 

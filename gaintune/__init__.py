@@ -44,12 +44,13 @@ def _one_blas_thread() -> None:
     gaintune's linear algebra is on tiny matrices (a 2x2 to 20x20 expm, eigenvalues of a loop), where
     OpenBLAS's worker threads only add wake-up and spin costs: on the 2-core CI machine under load a 2x2
     ``scipy.linalg.expm`` took 5.2 ms with the default threads and 0.010 ms with one. Set before numpy
-    loads through the environment; when numpy is already loaded, through threadpoolctl.
+    loads through the environment; when numpy is already loaded, through threadpoolctl for the BLAS
+    libraries loaded so far, and the environment still for those loaded later (scipy bundles its own).
     """
     if "OPENBLAS_NUM_THREADS" in os.environ or "MKL_NUM_THREADS" in os.environ:
         return
+    os.environ["OPENBLAS_NUM_THREADS"] = os.environ["MKL_NUM_THREADS"] = "1"
     if "numpy" not in sys.modules:
-        os.environ["OPENBLAS_NUM_THREADS"] = os.environ["MKL_NUM_THREADS"] = "1"
         return
     from threadpoolctl import threadpool_limits
 

@@ -74,16 +74,27 @@ def _job_tuner(job_id: str, store: Any, files: Any, owner: str) -> tuple[Path, s
     return files.job_dir(row.id), f"job:{row.id}:{hashlib.sha256(''.join(digests).encode()).hexdigest()[:16]}"
 
 
-@router.get("/tuners", response_model=TunerList, summary="The ready-made tuners")
-async def list_tuners(request: Request, owner: OwnerDep) -> TunerList:
+#: Most job-trained tuners ``GET /v1/tuners`` lists (the newest).
+MAX_LISTED_JOBS = 200
+
+
+@router.get("/tuners", response_model=TunerList, summary="The ready-made tuners, and those your jobs trained")
+async def list_tuners(request: Request, owner: OwnerDep, store: StoreDep) -> TunerList:
     """Each ready-made tuner: family, controller, Ms limit, context ranges (FOTD: L/T), held-out validation
-    (cost / per-plant optimum, passes), training record and folder size. As ``gaintune tuner list --json``."""
+    (cost / per-plant optimum, passes), training record and folder size. As ``gaintune tuner list --json``.
+    Then the tuners this API key's finished ``POST /v1/tuners`` jobs trained, newest first, named ``job:{id}``
+    (the name their queries take)."""
     from gaintune.tuners.listing import shipped
 
     st = request.app.state
     if getattr(st, "tuner_list", None) is None:  # the installed tuners do not change while the server runs
         st.tuner_list = TunerList(items=[TunerPublic.model_validate(s) for s in await run_compute(request, shipped)])
-    return st.tuner_list
+    import anyio
+
+    jobs = await anyio.to_thread.run_sync(store.finished_tuners, owner, MAX_LISTED_JOBS)  # a DB read: off the loop
+    trained = [TunerPublic.model_validate({**r["tuner"], "name": f"job:{row.id}"})
+               for row in jobs if (r := loads(row.result)) and isinstance(r.get("tuner"), dict)]
+    return TunerList(items=[*st.tuner_list.items, *trained])
 
 
 @router.post("/tuners/{name}/query", response_model=TunerAnswerPublic,

@@ -350,6 +350,17 @@ def build_parser() -> BenchParser:
                     help="instead: 'tuner update' vs a cold start on a changed family (writes tuners_update.*)")
     ap.add_argument("--update-episodes", type=int_range(1024, 1_000_000), default=8192,
                     help="training episodes of each --update run (default 8192)")
+    ap.add_argument("--shipped-only", action="store_true",
+                    help="with --update: only the cold start and the update from the shipped tuner (skips training a "
+                         "base with its agent, as long as a shipped tuner's training, and the tune --warm-start runs)")
+    ap.add_argument("--algo-compare", action="store_true",
+                    help="instead: TD3 vs PPO trained on one family at equal episodes (writes tuners_algo.*)")
+    ap.add_argument("--algo-episodes", type=int_range(256, 1_000_000), default=4096,
+                    help="training episodes of each --algo-compare run (default 4096)")
+    ap.add_argument("--algo-family", choices=("fotd", "sotd", "ipd"), default="fotd",
+                    help="family of --algo-compare (default fotd; controller --ctype, Ms <= 1.4)")
+    ap.add_argument("--algo-contexts", type=int_range(1, 1000), default=16,
+                    help="held-out contexts each --algo-compare tuner is scored on (default 16)")
     add_out_argument(ap)
     return ap
 
@@ -365,6 +376,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = shlex.join(["gaintune", "bench", "tuners", *argv])
     if args.update:
         return _main_update(args, out, command)
+    if args.algo_compare:
+        return _main_algo(args, out, command)
     load0 = [round(x, 2) for x in os.getloadavg()]
     try:
         result = measure(held_out_plants(args.plants, args.seed), out, ctype=args.ctype, tuner_name=name,
@@ -386,12 +399,31 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _main_update(args: Any, out: Path, command: str) -> int:
     """``--update``: the learning-on figure alone (two trainings)."""
-    r = measure_update(args.tuner or DEFAULT_TUNER["pi"], args.update_episodes)
-    r["warm_start"] = measure_warm_start()
+    load0 = [round(x, 2) for x in os.getloadavg()]
+    r = measure_update(args.tuner or DEFAULT_TUNER["pi"], args.update_episodes, with_agent=not args.shipped_only)
+    if not args.shipped_only:
+        r["warm_start"] = measure_warm_start()
     r["command"] = command
+    r["loadavg"] = f"{load0} at the start, {[round(x, 2) for x in os.getloadavg()]} at the end"
     md = render_update(r, command)
     print(md)
     _, mp = write_outputs(r, out, "tuners_update", md)
+    print(f"wrote {mp}")
+    return 0
+
+
+def _main_algo(args: Any, out: Path, command: str) -> int:
+    """``--algo-compare``: TD3 vs PPO at equal episodes on one family."""
+    from gaintune.bench.tuners_algo import measure_algo_compare, render_algo_compare
+
+    load0 = [round(x, 2) for x in os.getloadavg()]
+    r = measure_algo_compare(args.algo_family, args.ctype, 1.4, args.algo_episodes, args.algo_contexts,
+                             log=lambda m: print(m, file=sys.stderr, flush=True))
+    r["command"] = command
+    r["loadavg"] = f"{load0} at the start, {[round(x, 2) for x in os.getloadavg()]} at the end"
+    md = render_algo_compare(r, command)
+    print(md)
+    _, mp = write_outputs(r, out, "tuners_algo", md)
     print(f"wrote {mp}")
     return 0
 

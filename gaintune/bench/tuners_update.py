@@ -62,11 +62,12 @@ def _base_with_agent(tmp: Path, seed: int) -> Path:
     return train(FamilyProblem("fotd", "pi", 1.4), tmp / "base", TrainSettings(seed=seed, validation=4), resume=False)
 
 
-def measure_update(base: str = "fotd_pi_ms1.4", episodes: int = 8192, seed: int = 0) -> dict[str, Any]:
+def measure_update(base: str = "fotd_pi_ms1.4", episodes: int = 8192, seed: int = 0,
+                   with_agent: bool = True) -> dict[str, Any]:
     """Train cold and warm on :func:`changed_spec`; the simulations each needed to reach :data:`TARGET`.
 
-    Two warm runs: from ``base`` (a shipped tuner: its actor only, the critic starts afresh) and from a
-    folder trained here with its agent kept (actor and critic).
+    Two warm runs: from ``base`` (a shipped tuner: its actor and, when the folder has ``critic.npz``, its
+    critic; else a fresh critic) and, with ``with_agent``, from a folder trained here with its agent kept.
     """
     from gaintune.tuners import artefact
     from gaintune.tuners.problems import SpecProblem
@@ -74,11 +75,13 @@ def measure_update(base: str = "fotd_pi_ms1.4", episodes: int = 8192, seed: int 
 
     common: dict[str, Any] = {"episodes": episodes, "seed": seed, "chunk": 256, "validation": 8, "curve_contexts": 8}
     out: dict[str, Any] = {"base": base, "lag": LAG, "target": TARGET, "episodes": episodes, "seed": seed}
+    out["base_has_critic"] = artefact.critic_sha256(artefact.resolve(base)) is not None
     with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
-        trained = _base_with_agent(Path(tmp), seed)
-        out["base_training_s"] = time.perf_counter() - t0
-        starts = {"cold": None, "update": artefact.resolve(base), "update_with_agent": trained}
+        starts: dict[str, Path | None] = {"cold": None, "update": artefact.resolve(base)}
+        if with_agent:
+            t0 = time.perf_counter()
+            starts["update_with_agent"] = _base_with_agent(Path(tmp), seed)
+            out["base_training_s"] = time.perf_counter() - t0
         for run, start in starts.items():
             t0 = time.perf_counter()
             folder = train(SpecProblem(changed_spec()), Path(tmp) / run, TrainSettings(**common), warm_start=start,
@@ -89,7 +92,7 @@ def measure_update(base: str = "fotd_pi_ms1.4", episodes: int = 8192, seed: int 
                         "validation_median": doc.validation["median_ratio"],
                         "validation_worst": doc.validation["worst_ratio"]}
     c = out["cold"]["sims_to_target"]
-    for run in ("update", "update_with_agent"):
+    for run in [r for r in ("update", "update_with_agent") if r in out]:
         u = out[run]["sims_to_target"]
         out[f"ratio_{run}"] = c / u if c and u else (math.inf if c and u == 0 else None)
     out["ratio"] = out["ratio_update"]
@@ -115,24 +118,28 @@ def render_update(r: dict[str, Any], command: str) -> str:
     """The update measurement as Markdown."""
     from gaintune.bench.compare import md_table
 
+    runs = [run for run in ("cold", "update", "update_with_agent") if run in r]
     rows = []
-    for run in ("cold", "update", "update_with_agent"):
+    for run in runs:
         x = r[run]
         rows.append([run, x["sims_to_target"] if x["sims_to_target"] is not None else "not reached",
                      f"{x['wall_s']:.0f}", f"{x['validation_median']:.4f}", f"{x['validation_worst']:.4f}"])
+    shipped = "actor and critic arrays" if r.get("base_has_critic") else "actor only, a fresh critic"
+    agent = (f" and from a folder trained here with its agent (actor and critic; its training took "
+             f"{r['base_training_s']:.0f} s)" if "update_with_agent" in r else "")
     lines = [f"# {command}", "",
              f"Changed family: FOTD with a sensor lag {r['lag']} (L+T) added, PI, load step, Ms <= 1.4; cold start vs "
-             f"`tuner update` from the shipped `{r['base']}` (actor only) and from a folder trained here with its "
-             f"agent (actor and critic; its training took {r['base_training_s']:.0f} s), {r['episodes']:,} "
-             f"episodes each, seed {r['seed']}, a curve point every 256 episodes.", "",
+             f"`tuner update` from the shipped `{r['base']}` ({shipped}){agent}, {r['episodes']:,} "
+             f"episodes each, seed {r['seed']}, a curve point every 256 episodes."
+             + (f" Load average: {r['loadavg']}." if r.get("loadavg") else ""), "",
              md_table(["run", f"training sims to median ratio <= {r['target']}", "wall s", "validation median",
                        "validation worst"], rows), ""]
-    for run in ("update", "update_with_agent"):
+    for run in runs[1:]:
         ratio = r[f"ratio_{run}"]
         lines.append(f"cold / {run} simulations: **{ratio:.1f}x**" if isinstance(ratio, float)
                      and math.isfinite(ratio) else f"cold / {run} simulations: {ratio}")
     lines += ["", "Curves (episodes, sims, median ratio):", ""]
-    for run in ("cold", "update", "update_with_agent"):
+    for run in runs:
         pts = ", ".join(f"({p['episodes']}, {p['sims']}, {p['median_ratio']:.4f})" for p in r[run]["curve"])
         lines.append(f"- {run}: {pts}")
     w = r.get("warm_start")

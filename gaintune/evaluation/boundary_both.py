@@ -106,10 +106,16 @@ def onto_boundary(ev: Evaluator, tuned: np.ndarray) -> BothMove:
         res = BothMove(given.copy(), scores.violation, np.ones(B), np.zeros(B, dtype=bool))
         res.scores = scores
         return res
-    x, ends = _landing(ev, given, d)
+    x, ends, v_land, v_given = _landing(ev, given, d)
     # a feasible candidate moved outward keeps the given gains where the move did not lower the cost
     stay = np.array([e is not None and e >= _ONE and x[b] != 0.0 for b, e in enumerate(ends)], dtype=np.bool_)
-    both = ev.evaluate(np.vstack([given * np.exp(x)[:, None] ** d, given[stay]]))
+    # the landing's full estimate was computed by the move (the given gains' too, where they may stay)
+    v = np.concatenate([v_land, v_given[stay]])
+    unknown = np.isnan(v)
+    rows = np.vstack([given * np.exp(x)[:, None] ** d, given[stay]])
+    if unknown.any():
+        v[unknown] = ev.requirement_violation(rows[unknown])
+    both = ev.evaluate(rows, violation=v)
     pick = np.arange(B)
     for k, b in zip(B + np.arange(int(stay.sum())), np.nonzero(stay)[0], strict=True):
         if both.merit[k] <= both.merit[b]:
@@ -120,11 +126,14 @@ def onto_boundary(ev: Evaluator, tuned: np.ndarray) -> BothMove:
     return res
 
 
-def _landing(ev: Evaluator, given: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, list[int | None]]:
-    """(log scale to apply per row, the scan's feasible end per row): the scan, the bracket closed by regula
+def _landing(ev: Evaluator, given: np.ndarray,
+             d: np.ndarray) -> tuple[np.ndarray, list[int | None], np.ndarray, np.ndarray]:
+    """(log scale to apply per row, the scan's feasible end per row, the full estimate's violation at the
+    landing point and at the given gains (NaN where not computed)): the scan, the bracket closed by regula
     falsi, and the full estimate's check of the landing point."""
     xs, g, ends = _scan(ev, given, d)
-    x = np.zeros(len(given))
+    B = len(given)
+    x = np.zeros(B)
     for b, e in enumerate(ends):
         if e is not None:
             x[b] = xs[b, e]
@@ -136,7 +145,15 @@ def _landing(ev: Evaluator, given: np.ndarray, d: np.ndarray) -> tuple[np.ndarra
                       gb=g[r, lo + 1].copy(), found=np.ones(r.size, dtype=np.bool_))
         _regula_falsi(ev, br, d)
         x[r] = br.xg
-    # the full estimate (stability included) decides; where it refuses the point, the largest scan point it takes
-    for row in np.nonzero(ev.requirement_scores(given * np.exp(x)[:, None] ** d)[0] > 0)[0].tolist():
+    # the full estimate (stability included) decides; where it refuses the point, the largest scan point it takes.
+    # The given gains that may stay (feasible in the scan) are checked in the same call: the caller's cost
+    # comparison needs their violation (the estimate is row by row, so batching changes nothing).
+    keep = np.array([e is not None and e >= _ONE for e in ends], dtype=np.bool_)
+    v = ev.requirement_scores(np.vstack([given * np.exp(x)[:, None] ** d, given[keep]]))[0]
+    v_land, v_given = v[:B].copy(), np.full(B, np.nan)
+    v_given[keep] = v[B:]
+    for row in np.nonzero(v_land > 0)[0].tolist():
         x[row] = _largest_stable(ev, given[row], d, xs[row], ends[row])
-    return x, ends
+        # the largest scan point the full estimate takes is feasible; none: the given gains, not checked here
+        v_land[row] = 0.0 if x[row] != 0.0 else v_given[row]
+    return x, ends, v_land, v_given

@@ -162,7 +162,8 @@ class Simulator:
         sc = self.spec.scenarios[scenario] if isinstance(scenario, int) else scenario
         if draws is None and isinstance(scenario, int):
             # nominal draws: keyed without hashing them (the single-simulation case)
-            prep = self._memoised(("nominal", B, scenario), lambda: self._prepare(self.nominal_draws(B), sc))
+            # ... and shared with the same draws passed explicitly (an evaluator's nominal draws)
+            prep = self._memoised(("nominal", B, scenario), lambda: self._prepared(self.nominal_draws(B), sc))
         else:
             d = draws if draws is not None else self.nominal_draws(B)
             if len(d) != B:

@@ -6,7 +6,9 @@ variables and their ranges, the gain box, the policy's layer shapes and activati
 SHA-256 of ``policy.npz``, the training record (algorithm, episodes, simulations, wall time,
 the training curve) and the held-out validation table (cost / per-context optimum, verdicts).
 ``policy.npz`` holds plain float arrays, read with ``allow_pickle=False``: nothing in a tuner
-folder is executed, and NumPy evaluates the policy without torch.
+folder is executed, and NumPy evaluates the policy without torch. A TD3 tuner also holds its critic
+as arrays (``critic.npz``, :mod:`gaintune.tuners.critic`, its hash in ``tuner.json``), which only
+``gaintune tuner update`` reads.
 
 :func:`save` writes the folder next to its destination and renames it into place, so a reader
 sees the old tuner or the new one, never half of one. :func:`load` checks the format, the
@@ -32,7 +34,7 @@ from gaintune.files import read_bytes_bounded, write_atomic
 from gaintune.tuners.mlp import NumpyPolicy
 from gaintune.tuners.problems import GainBox, TunerProblem, problem_from_dict
 
-__all__ = ["FORMAT", "VERSION", "Artefact", "save", "load", "SHIPPED_DIR", "shipped_names", "resolve"]
+__all__ = ["FORMAT", "VERSION", "Artefact", "save", "load", "critic_sha256", "SHIPPED_DIR", "shipped_names", "resolve"]
 
 FORMAT = "gaintune-tuner"
 #: Bumped when the folder's meaning changes; :func:`load` refuses other versions.
@@ -81,6 +83,8 @@ def save(out: str | Path, art: Artefact) -> Path:
                    "layers": [list(w.shape) for w in art.policy.weights]},
         "training": art.training, "validation": art.validation,
     }
+    if "critic.npz" in art.files:  # a TD3 tuner's critic: what 'tuner update' continues from (no torch agent)
+        doc["critic"] = {"file": "critic.npz", "sha256": hashlib.sha256(art.files["critic.npz"]).hexdigest()}
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
         write_atomic(tmp / "policy.npz", npz)
@@ -134,9 +138,15 @@ def load(folder: str | Path) -> Artefact:
         raise SpecError("tuner", f"{folder}: the policy maps {policy.n_in} -> {policy.n_out} values but the tuner has "
                         f"{len(problem.variables)} context values and {len(box.slots)} gains; retrain it")
     meta = {k: v for k, v in doc.items()
-            if k not in ("problem", "spec", "box", "context", "policy", "training", "validation")}
+            if k not in ("problem", "spec", "box", "context", "policy", "training", "validation", "critic")}
     return Artefact(str(doc.get("name") or folder.name), problem, policy, doc.get("training") or {},
                     doc.get("validation") or {}, meta)
+
+
+def critic_sha256(folder: str | Path) -> str | None:
+    """The SHA-256 ``tuner.json`` records for the folder's ``critic.npz`` (None: the tuner has no critic)."""
+    crit = _doc(Path(folder)).get("critic")
+    return str(crit["sha256"]) if isinstance(crit, dict) and "sha256" in crit else None
 
 
 def shipped_names() -> list[str]:

@@ -4,9 +4,10 @@ Each entry of :data:`SHIPPED` is a family tuner (:class:`gaintune.tuners.problem
 or, for ``family = "spec"``, a spec tuner over the spec file ``gaintune/tuners/specs/<ctype>``
 (the water tank over its operating level, for gain schedules), trained with the default
 :class:`gaintune.tuners.train.TrainSettings` (seed 0) into ``gaintune/tuners/shipped/<name>``.
-The folders are small (the policy's arrays and tuner.json; no torch agent: ``gaintune tuner update``
-starts the actor from the arrays) and kept in the repository; ``tests/tuners/test_shipped.py``
-checks that every one loads with the code that reads it and answers a plant of its family.
+The folders are small (the policy's and the critic's arrays and tuner.json; no torch agent:
+``gaintune tuner update`` starts the actor and the critic from the arrays) and kept in the repository;
+``tests/tuners/test_shipped.py`` checks that every one loads with the code that reads it and answers a plant
+of its family.
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ def build(name: str, log=print) -> None:
             log(f"{name}: {done:,}/{total:,} episodes, {info['sims']:,} sims, {info['elapsed_s']:.0f} s, "
                 f"curve median ratio {info['median_ratio']:.4f}")
 
-    # no agent.zip: the folders stay small; 'tuner update' then starts the actor from policy.npz
+    # no agent.zip: the folders stay small; 'tuner update' then starts from policy.npz and critic.npz
     train(problem, SHIPPED_DIR / name, settings, name=name, on_progress=progress, keep_agent=False)
     log(f"{name}: done in {time.perf_counter() - t0:.0f} s")
 

@@ -26,7 +26,7 @@ from typing import Any
 from gaintune.errors import SpecError
 from gaintune.spec import TuningSpec, load_spec
 
-__all__ = ["Family", "FAMILIES", "problem_spec", "family"]
+__all__ = ["Family", "FAMILIES", "problem_spec", "problem_data", "family"]
 
 
 @dataclass(frozen=True)
@@ -143,15 +143,11 @@ def family(name: str) -> Family:
         raise SpecError("family", f"unknown family {name!r}; known: {', '.join(FAMILIES)}") from None
 
 
-def problem_spec(fam: Family, values: Mapping[str, float], ctype: str = "pi", ms_max: float = 1.4,
-                 name: str | None = None) -> TuningSpec:
-    """The tuning problem of one plant of ``fam``: unit load step at the input, load IAE, Ms <= ``ms_max``.
-
-    Sample time and horizon are derived from the plant (:mod:`gaintune.classical.timescale`), so a
-    plant with T = 60 s is simulated and verified at its own time scale.
-    """
+def problem_data(fam: Family, values: Mapping[str, float], ctype: str = "pi", ms_max: float = 1.4,
+                 name: str | None = None) -> dict[str, Any]:
+    """The spec data of :func:`problem_spec` (a dict :func:`gaintune.spec.load_spec` takes)."""
     v = fam.checked(values)
-    return load_spec({
+    return {
         "name": name or f"{fam.name}_{ctype}_ms{ms_max:g}",
         "plant": fam.plant(v),
         "loops": [{"name": "main", "type": ctype}],
@@ -159,4 +155,14 @@ def problem_spec(fam: Family, values: Mapping[str, float], ctype: str = "pi", ms
                        "disturbance": {"kind": "step", "entry": "input", "amplitude": 1.0, "time": 0.0}}],
         "objective": {"measure": "iae", "effort_weight": 0.0},
         "requirements": {"gm_min_db": None, "pm_min_deg": None, "ms_max": ms_max, "backoff": 0},
-    })
+    }
+
+
+def problem_spec(fam: Family, values: Mapping[str, float], ctype: str = "pi", ms_max: float = 1.4,
+                 name: str | None = None) -> TuningSpec:
+    """The tuning problem of one plant of ``fam``: unit load step at the input, load IAE, Ms <= ``ms_max``.
+
+    Sample time and horizon are derived from the plant (:mod:`gaintune.classical.timescale`), so a
+    plant with T = 60 s is simulated and verified at its own time scale.
+    """
+    return load_spec(problem_data(fam, values, ctype, ms_max, name))

@@ -26,7 +26,7 @@ import numpy as np
 
 from gaintune.errors import SpecError
 from gaintune.spec import Gains, RandomizeSpec, TuningSpec, load_spec
-from gaintune.tuners.families import Family, family, problem_spec
+from gaintune.tuners.families import Family, family, problem_data
 
 __all__ = ["ContextVar", "GainBox", "TunerProblem", "FamilyProblem", "SpecProblem", "problem_from_dict"]
 
@@ -174,24 +174,24 @@ class FamilyProblem(TunerProblem):
 
     def spec_at(self, context: Mapping[str, float]) -> TuningSpec:
         """The unit plant of this shape, its problem spec, gains bounded by the box."""
-        spec = problem_spec(self.family, self.family.unit_params(context), self.ctype, self.ms_max)
-        return self._bounded(spec, {})
+        return self._bounded(problem_data(self.family, self.family.unit_params(context), self.ctype, self.ms_max), {})
 
     def physical_spec(self, params: Mapping[str, float]) -> TuningSpec:
         """The problem of the real plant with physical ``params``, gains bounded by the box scaled to it."""
-        return self._bounded(problem_spec(self.family, params, self.ctype, self.ms_max), params)
+        return self._bounded(problem_data(self.family, params, self.ctype, self.ms_max), params)
 
-    def _bounded(self, spec: TuningSpec, params: Mapping[str, float]) -> TuningSpec:
-        """``spec`` with its gains bounded by the box, scaled to the plant ``params`` (the unit box when empty)."""
+    def _bounded(self, data: dict[str, Any], params: Mapping[str, float]) -> TuningSpec:
+        """The spec of ``data`` with its gains bounded by the box, scaled to the plant ``params`` (the unit box
+        when empty); validated once."""
         if self.box is None:
-            return spec
+            return load_spec(data)
         lo = self.box.to_gains(np.exp(self.box.log_lo))
         hi = self.box.to_gains(np.exp(self.box.log_hi))
         if params:
             lo = {k: self.family.scale_gains(v, params) for k, v in lo.items()}
             hi = {k: self.family.scale_gains(v, params) for k, v in hi.items()}
         bounds = {(lp, g): (lo[lp][g], hi[lp][g]) for lp, g in self.box.slots}
-        return load_spec(_with_bounds(spec.model_dump(mode="json", exclude_defaults=True), bounds))
+        return load_spec(_with_bounds(data, bounds))
 
     def context_of(self, params: Mapping[str, float]) -> dict[str, float]:
         """The shape of a physical plant (parameters checked by the family)."""

@@ -181,8 +181,9 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
     ``resume`` a checkpoint of the same problem and settings in ``.<out>.training`` is continued.
     ``warm_start`` is a tuner folder whose agent and gain box the training continues from
     (``gaintune tuner update``): same gains and number of context values, a changed family. A folder
-    without ``agent.zip`` (the shipped tuners, kept small) gives its actor from ``policy.npz``; the
-    critic then starts afresh. ``keep_agent`` writes ``agent.zip`` into the tuner folder.
+    without ``agent.zip`` (the shipped tuners, kept small) gives its actor from ``policy.npz`` and its
+    critic from ``critic.npz`` (a folder without either starts a fresh critic, trained alone first).
+    ``keep_agent`` writes ``agent.zip`` into the tuner folder; a TD3 tuner always gets ``critic.npz``.
     """
     from gaintune.search.agents import load_weights
     from gaintune.tuners.env import ContextBanditVecEnv
@@ -199,11 +200,7 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
     env = ContextBanditVecEnv(problem, s.n_envs, s.contexts_per_step, seed=s.seed)
     agent = _make_agent(env, s)
     if warm_start is not None:
-        if (Path(warm_start) / "agent.zip").is_file():
-            load_weights(agent, Path(warm_start) / "agent.zip", field="tuner")
-        else:
-            _actor_from(agent, artefact.load(Path(warm_start)).policy)
-            warmup = CRITIC_WARMUP
+        warmup = _warm_agent(agent, Path(warm_start))
         agent.num_timesteps = 0
         if hasattr(agent, "learning_starts"):  # the actor already answers: no random warm-up episodes
             agent.learning_starts = s.n_envs
@@ -248,10 +245,42 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
         training["warm_start"] = str(warm_start)
     art = Artefact(name or out.name, problem, policy, training, val,
                    meta={"versions": versions(), "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())},
-                   files={"agent.zip": _agent_bytes(agent)} if keep_agent else {})
+                   files=_files(agent, keep_agent))
     artefact.save(out, art)
     ckpt.clear()
     return out
+
+
+def _files(agent: Any, keep_agent: bool) -> dict[str, bytes]:
+    """The files beside the policy: the critic's arrays (TD3), and the agent when it is kept."""
+    from gaintune.tuners.critic import FILE, critic_bytes
+
+    crit = critic_bytes(agent)
+    files = {FILE: crit} if crit is not None else {}
+    if keep_agent:
+        files["agent.zip"] = _agent_bytes(agent)
+    return files
+
+
+def _warm_agent(agent: Any, folder: Path) -> int:
+    """Start ``agent`` from the tuner at ``folder``; returns the episodes whose gradient steps train the critic only.
+
+    The folder's agent when it has one (``agent.zip``); else its actor from ``policy.npz`` and its critic
+    from ``critic.npz`` (the shipped tuners); else the actor alone, and a fresh critic trained alone for
+    :data:`CRITIC_WARMUP` episodes first (a random critic would drag the trained actor off its answer).
+    """
+    from gaintune.search.agents import load_weights
+    from gaintune.tuners.critic import install_critic, read_critic
+
+    if (folder / "agent.zip").is_file():
+        load_weights(agent, folder / "agent.zip", field="tuner")
+        return 0
+    _actor_from(agent, artefact.load(folder).policy)
+    crit = read_critic(folder, artefact.critic_sha256(folder))
+    if crit is None:
+        return CRITIC_WARMUP
+    install_critic(agent, crit)
+    return 0
 
 
 def _agent_bytes(agent: Any) -> bytes:

@@ -32,9 +32,10 @@ from gaintune.tuners import artefact
 from gaintune.tuners.artefact import Artefact
 from gaintune.tuners.problems import FamilyProblem
 from gaintune.verification import verify
+from gaintune.verification.context import SpecContext
 from gaintune.verification.report import VerificationReport
 
-__all__ = ["Tuner", "TunerAnswer", "OutsideFamilyError", "settle"]
+__all__ = ["Tuner", "TunerAnswer", "OutsideFamilyError", "settle", "evaluator_context"]
 
 
 class OutsideFamilyError(ValueError):
@@ -144,6 +145,15 @@ class Tuner:
                            verification=report)
 
 
+def evaluator_context(ev: Evaluator) -> SpecContext:
+    """The verification context of ``ev``'s (resolved) spec: its plant, layout, linearisation and simulator.
+
+    :func:`verify` then analyses and simulates on the objects the evaluator built (its simulator's
+    discretisation and the sampled plant are warm) instead of building them again: the same checks.
+    """
+    return SpecContext(ev.spec.content_hash(), ev.plant, ev.layout, ev.plant.linearize(), _sim=ev.sim)
+
+
 def settle(ev: Evaluator, tuned: np.ndarray) -> tuple[np.ndarray, VerificationReport, float | None]:
     """Verify ``tuned``; an answer that fails is pulled inside by the exact verification and verified again.
 
@@ -154,14 +164,14 @@ def settle(ev: Evaluator, tuned: np.ndarray) -> tuple[np.ndarray, VerificationRe
     """
     from gaintune.evaluation.boundary_exact import onto_boundary_exact
 
-    lay = ev.layout
-    report = verify(ev.spec, lay.to_dict(lay.full(tuned)), plant=ev.plant, layout=lay, cache=False)
+    lay, ctx = ev.layout, evaluator_context(ev)
+    report = verify(ev.spec, lay.to_dict(lay.full(tuned)), context=ctx)
     if report.verdict == "pass":
         return tuned, report, None
     exact = onto_boundary_exact(ev, tuned)
     if exact.action != "pulled_inside":
         return tuned, report, None
-    report = verify(ev.spec, lay.to_dict(lay.full(exact.tuned)), plant=ev.plant, layout=lay, cache=False)
+    report = verify(ev.spec, lay.to_dict(lay.full(exact.tuned)), context=ctx)
     return exact.tuned, report, float(ev.evaluate(exact.tuned[None, :]).cost[0])
 
 

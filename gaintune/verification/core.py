@@ -16,6 +16,7 @@ from gaintune.plants.plant import LinearModel, Plant
 from gaintune.spec import TuningSpec, load_spec
 from gaintune.verification.analysis import analysis_dt, sampling_delay
 from gaintune.verification.cascade import build_cascade
+from gaintune.verification.context import SpecContext
 from gaintune.verification.freqresp import DelayModel
 from gaintune.verification.gains import coerce_gains, fixed_gain_overrides
 from gaintune.verification.report import VerificationReport
@@ -74,6 +75,7 @@ def verify(
     layout: GainLayout | None = None,
     cache: bool = True,
     spec_hash: str | None = None,
+    context: SpecContext | None = None,
 ) -> VerificationReport:
     """Verify frozen gains against the spec's requirements.
 
@@ -103,6 +105,10 @@ def verify(
         (:mod:`gaintune.verification.context`); a cached entry takes precedence over ``plant``/``layout``.
     spec_hash
         ``spec.content_hash()`` when the caller has computed it already (saves hashing the spec again).
+    context
+        The caller's :class:`gaintune.verification.context.SpecContext` of ``spec`` (its plant, layout,
+        linearisation and simulator, e.g. those an evaluator of the same spec built), used instead of the
+        cache when every scenario of ``spec`` has its dt and horizon: the same analysis on objects already built.
 
     Raises
     ------
@@ -113,7 +119,7 @@ def verify(
     """
     t0 = time.perf_counter()
     tspec = spec if isinstance(spec, TuningSpec) else load_spec(spec)
-    setup = prepare(tspec, gains, plant, layout, cache, spec_hash)
+    setup = prepare(tspec, gains, plant, layout, cache, spec_hash, context)
     found = Findings(notes=fixed_gain_overrides(setup.spec, setup.layout, setup.full))
     nom = nominal_analysis(setup, found)
     loops, mks = noise_figures(setup, nom, found)

@@ -227,6 +227,7 @@ def quick_margins(
     n_freq: int = 320,
     stability: bool = True,
     peaks: tuple[str, ...] = PEAKS,
+    crossings: bool = True,
 ) -> QuickMargins:
     """Batched margin estimates for full gain vectors ``full_gains`` (B, n_gains).
 
@@ -237,6 +238,8 @@ def quick_margins(
     ``peaks``: which of the peaks ``"ms"``, ``"mt"``, ``"mks"`` to estimate (the others are NaN);
     a caller that needs only some of them saves their cost (``mks`` needs the noise responses).
     ``stability=False``: skip the closed-loop stability check (every loop counts as stable).
+    ``crossings=False``: skip the gain and phase crossings (GM, PM, delay margin and crossover are NaN),
+    for a caller whose requirements name none of them.
     """
     full = np.atleast_2d(np.asarray(full_gains, dtype=float))
     lin = lin if lin is not None else plant.linearize()
@@ -258,8 +261,11 @@ def quick_margins(
         a1 = np.abs(1.0 + L)
         ms = _parabolic_peak(1.0 / a1) if "ms" in peaks else np.full((R, B), np.nan)
         mt = _parabolic_peak(aL / a1) if "mt" in peaks else np.full((R, B), np.nan)
-        pm_b, wc_b, dm_b = _gain_crossings(L, aL, w)
-        gm_b = _gain_margin(L, aL, L0, sp is not None)
+        if crossings:
+            pm_b, wc_b, dm_b = _gain_crossings(L, aL, w)
+            gm_b = _gain_margin(L, aL, L0, sp is not None)
+        else:
+            pm_b = wc_b = dm_b = gm_b = np.full((R, B), np.nan)
     if not stability:  # the caller checks stability elsewhere (gaintune.evaluation.boundary_estimate's final check)
         stable, max_re = np.ones(B, dtype=bool), np.full(B, -np.inf)
     elif sp is not None:  # closed-loop stability of the sampled loop: |z| < 1
@@ -322,7 +328,8 @@ def requirement_scores(
     req = spec.requirements
     peaks = tuple(name for name, needed in (("ms", req.ms_max is not None), ("mt", req.mt_max is not None),
                                              ("mks", bool(np.any(np.isfinite(noise_limit))))) if needed)
-    q = quick_margins(spec, plant, layout, full_gains, lin, stability=stability, peaks=peaks)
+    crossings = any(x is not None for x in (req.gm_min_db, req.pm_min_deg, req.dm_min, req.wc_min, req.wc_max))
+    q = quick_margins(spec, plant, layout, full_gains, lin, stability=stability, peaks=peaks, crossings=crossings)
     B = q.stable.shape[0]
     out = np.zeros(B)
     short = np.full(B, -np.inf)

@@ -73,8 +73,10 @@ class Setup:
 
 
 def prepare(spec: TuningSpec, gains: object, plant: Plant | None, layout: GainLayout | None, cache: bool,
-            spec_hash: str | None) -> Setup:
+            spec_hash: str | None, context: SpecContext | None = None) -> Setup:
     """Resolve the scenarios, build (or fetch from the cache) plant, layout and linearisation, check the gains.
+
+    ``context``: the caller's own :class:`SpecContext` of this (resolved) spec, used instead of the cache.
 
     Raises
     ------
@@ -87,7 +89,8 @@ def prepare(spec: TuningSpec, gains: object, plant: Plant | None, layout: GainLa
     report_hash = (spec_hash or given.content_hash()) if derived else None
     if derived:
         spec_hash = None  # the caller's hash was of the spec before its scenarios were filled in
-    ctx = spec_context(spec, plant, layout, spec_hash=spec_hash) if cache else None
+    ctx = context if context is not None and not derived else (
+        spec_context(spec, plant, layout, spec_hash=spec_hash) if cache else None)
     if ctx is not None:
         plant, layout, lin = ctx.plant, ctx.layout, ctx.lin
     else:

@@ -169,6 +169,22 @@ def test_tuner_job_trains_end_to_end_and_resumes_after_a_killed_attempt(client, 
         r = client.get(url)
         assert r.status_code == 409 and "trained a tuner" in r.json()["detail"], r.text
     assert client.get("/v1/jobs").json()["items"][0]["kind"] == "tuner"
+    listed = client.get("/v1/tuners").json()["items"]
+    assert listed[-1] == {**t, "name": f"job:{job['id']}"}  # the trained tuner, under the name its queries take
+
+
+def test_tuner_list_route_lists_the_tuners_this_keys_finished_jobs_trained(client, shipped: Path) -> None:
+    """A finished tuner job is listed as job:{id} after the ready-made tuners; a queued one, or another key's, not."""
+    store = client.app.state.store
+    theirs, _ = store.create("someone-else", "{}", "h", "lag2_family", idem_key=None, max_queue=100, kind="tuner")
+    mine = client.post("/v1/tuners", json={"spec": LAG2, "episodes": 64}).json()["id"]
+    queued = client.post("/v1/tuners", json={"spec": LAG2, "episodes": 65}).json()["id"]
+    summary = {**shipped_list()[1], "name": "lag2_family"}
+    for _ in (theirs.id, mine):  # claimed in the order they were queued
+        row = store.claim(os.getpid())
+        assert store.finish(row.id, row.claim, "succeeded", result={"kind": "tuner", "tuner": summary}) == "succeeded"
+    names = [i["name"] for i in client.get("/v1/tuners").json()["items"]]
+    assert names == ["always_fails", NAME, f"job:{mine}"] and f"job:{queued}" not in names
 
 
 def test_tuner_job_cancel_stops_the_training(make_client, tmp_path: Path, tiny_training: dict, monkeypatch) -> None:

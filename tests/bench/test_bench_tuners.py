@@ -142,7 +142,9 @@ def test_missing_tuner_core_exits_2_with_a_message_before_any_work(tmp_path, cap
 
 @pytest.mark.parametrize("args, option", [(["--plants", "0"], "--plants"), (["--ctype", "pd"], "--ctype"),
                                           (["--refine", "-3"], "--refine"), (["--fresh-runs", "x"], "--fresh-runs"),
-                                          (["--rules-only", "--tuner", "x"], "--tuner")])
+                                          (["--rules-only", "--tuner", "x"], "--tuner"),
+                                          (["--algo-compare", "--algo-episodes", "10"], "--algo-episodes"),
+                                          (["--algo-compare", "--algo-family", "sopdt"], "--algo-family")])
 def test_bench_tuners_bad_argument_exits_2_naming_it(args, option, tmp_path, capsys) -> None:
     with pytest.raises(SystemExit) as info:
         TB.main([*args, "--out", str(tmp_path)])
@@ -154,3 +156,25 @@ def test_fresh_process_timing_reports_a_failing_query_instead_of_raising() -> No
     assert fresh["runs"] == 1 and fresh["ok"] == 0 and fresh["median_s"] is None
     assert fresh["failures"][0]["code"] not in (0, None) and fresh["failures"][0]["error"]
     assert fresh["torch_imported"] in (True, False)  # the probe answers even when the command fails
+
+
+def test_update_render_of_a_shipped_only_run_lists_the_two_runs_and_says_the_critic_came_with_the_folder() -> None:
+    from gaintune.bench.tuners_update import render_update
+
+    curve = [{"episodes": 0, "sims": 0, "median_ratio": 1.05}, {"episodes": 256, "sims": 300, "median_ratio": 1.008}]
+    run = {"sims_to_target": 300, "wall_s": 10.0, "validation_median": 1.004, "validation_worst": 1.01, "curve": curve}
+    r = {"base": "fotd_pi_ms1.4", "lag": 0.2, "target": 1.01, "episodes": 1024, "seed": 0, "base_has_critic": True,
+         "cold": {**run, "sims_to_target": 1500}, "update": run, "ratio_update": 5.0, "ratio": 5.0}
+    md = render_update(r, "gaintune bench tuners --update --shipped-only")
+    assert "actor and critic arrays" in md and "cold / update simulations: **5.0x**" in md
+    assert "update_with_agent" not in md
+
+
+def test_algo_compare_render_gives_each_learners_held_out_ratios() -> None:
+    from gaintune.bench.tuners_algo import render_algo_compare
+
+    row = {"median_ratio": 1.0034, "worst_ratio": 1.0387, "passed": 16, "n": 16, "sims": 5388, "wall_s": 373.0}
+    r = {"family": "fotd", "ctype": "pi", "ms_max": 1.4, "episodes": 4096, "contexts": 16, "seed": 0,
+         "td3": row, "ppo": {**row, "median_ratio": 1.2363, "worst_ratio": 2.3129}}
+    md = render_algo_compare(r, "gaintune bench tuners --algo-compare")
+    assert "| td3 | 1.0034 | 1.0387 | 16/16 |" in md and "| ppo | 1.2363 | 2.3129 | 16/16 |" in md

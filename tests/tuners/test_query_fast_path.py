@@ -1,0 +1,63 @@
+"""The query's fast path gives what the full path gives: the verification reuses the evaluator's plant,
+layout, linearisation and simulator (``verify(..., context=...)``), and the boundary move reuses the
+requirement estimate it computed; verdicts, reports and costs equal those of a plain :func:`verify`
+and of a fresh evaluation of the answer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gaintune.evaluation.boundary_both import onto_boundary
+from gaintune.evaluation.evaluator import Evaluator
+from gaintune.tuners.tuner import Tuner, evaluator_context
+from gaintune.verification import verify
+
+#: FOTD plants over the family's range (L/T 0.05 to 10, time scales from 0.3 s to 200 s), and one PID tuner's.
+PLANTS = [("fotd_pi_ms1.4", {"K": 2.0, "T": 60.0, "L": 10.0}), ("fotd_pi_ms1.4", {"K": 0.3, "T": 1.0, "L": 0.05}),
+          ("fotd_pi_ms1.4", {"K": 7.0, "T": 0.3, "L": 3.0}), ("fotd_pi_ms2", {"K": 1.0, "T": 200.0, "L": 40.0}),
+          ("fotd_pid_ms1.4", {"K": 1.5, "T": 5.0, "L": 1.0}), ("fotd_pid_ms1.4", {"K": 4.0, "T": 2.0, "L": 0.2})]
+
+
+def _plain(report) -> dict:
+    """The report's content without its timing."""
+    d = report.model_dump(mode="json")
+    d.pop("elapsed_s")
+    return d
+
+
+@pytest.mark.parametrize(("name", "params"), PLANTS)
+def test_fast_query_verdict_and_cost_equal_the_full_verify(name, params):
+    tuner = Tuner.load(name)
+    ans = tuner.query(params)
+    spec = tuner.problem.physical_spec(params)
+    full = verify(spec, ans.gains, cache=False)  # from the spec alone: nothing reused
+    assert ans.verdict == full.verdict and ans.verification is not None
+    assert ans.verification.reasons == full.reasons
+    assert ans.verification.loops == full.loops and ans.verification.nonlinear == full.nonlinear
+    ev = Evaluator(spec)
+    lay = ev.layout
+    fresh = ev.evaluate(np.asarray(lay.from_dict(ans.gains), dtype=float)[lay.tuned_idx][None, :])
+    assert ans.cost == float(fresh.cost[0])
+    assert float(fresh.violation[0]) == 0.0 or ans.verdict == "fail"
+
+
+def test_verify_on_an_evaluators_context_gives_the_report_of_a_fresh_verify():
+    tuner = Tuner.load("fotd_pi_ms1.4")
+    spec = tuner.problem.physical_spec({"K": 2.0, "T": 60.0, "L": 10.0})
+    ev = Evaluator(spec)
+    gains = {"main": {"Kp": 0.2, "Ki": 0.02}}
+    reused = verify(ev.spec, gains, context=evaluator_context(ev))
+    assert _plain(reused) == _plain(verify(ev.spec, gains, cache=False))
+
+
+@pytest.mark.parametrize("scale", [0.05, 0.5, 3.0])
+def test_boundary_move_scores_equal_a_fresh_evaluation_of_its_answer(scale):
+    tuner = Tuner.load("fotd_pi_ms1.4")
+    spec = tuner.problem.physical_spec({"K": 1.0, "T": 10.0, "L": 2.0})
+    ev = Evaluator(spec)
+    start = np.array([[0.3 * scale, 0.05 * scale], [0.6 * scale, 0.02 * scale]])
+    move = onto_boundary(ev, start)
+    fresh = Evaluator(spec).evaluate(move.tuned)
+    np.testing.assert_array_equal(move.scores.violation, fresh.violation)
+    np.testing.assert_array_equal(move.scores.cost, fresh.cost)
