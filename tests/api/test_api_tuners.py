@@ -138,6 +138,8 @@ def test_tuner_job_trains_end_to_end_and_resumes_after_a_killed_attempt(client, 
     seen: list[int] = []
 
     def killed(done: int, total: int, info: dict) -> None:
+        # a worker heartbeats while it trains: without it a loaded machine let the lease run out mid-training
+        store.heartbeat(claimed.id, claimed.claim, None)
         if seen:
             raise SystemExit(137)
         if "ratio" in info:
