@@ -60,15 +60,16 @@ EXPLORATION_DIM = 3
 
 def exploration_log_std(dim: int) -> float:
     """Initial log std of the Gaussian policy for ``dim`` tuned gains: -1 up to :data:`EXPLORATION_DIM` gains,
-    then std shrinking as 1/sqrt(dim), so a sample's whole step (std x sqrt(dim)) stays that of a PID loop.
+    then 0.25 less per doubling of the gain count (-1.5 at 12 gains).
 
-    With a fixed std of e^-1 (a factor 3.5 in each gain) every one of 32 samples of the six-loop cascade's
-    12 gains missed a requirement, three quarters unstable (docs/search.md, "Scaling").
+    With e^-1 (a factor 3.5 on each gain) every one of 32 samples of the six-loop cascade's 12 gains
+    missed a requirement, three quarters unstable, and RL alone ended at 1.07-1.12 x the reference
+    optimum; at -1.5 it ends at 1.021-1.025, at -2 at 1.020-1.096 (docs/search.md, "Scaling").
 
-    >>> exploration_log_std(2), exploration_log_std(3), round(exploration_log_std(12), 3)
-    (-1.0, -1.0, -1.693)
+    >>> exploration_log_std(2), exploration_log_std(3), exploration_log_std(12), exploration_log_std(48)
+    (-1.0, -1.0, -1.5, -2.0)
     """
-    return -1.0 - 0.5 * float(np.log(max(dim, EXPLORATION_DIM) / EXPLORATION_DIM))
+    return -1.0 - 0.25 * float(np.log2(max(dim, EXPLORATION_DIM) / EXPLORATION_DIM))
 
 
 def agent_defaults(algo: str, n_envs: int, dim: int, budget_steps: int) -> dict[str, Any]:

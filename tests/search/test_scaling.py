@@ -34,16 +34,16 @@ def test_exploration_of_single_loops_is_unchanged():
 
 
 @pytest.mark.parametrize("dim", [4, 12, 30, 120])
-def test_exploration_shrinks_so_a_samples_whole_step_stays_that_of_a_pid_loop(dim):
-    step = math.exp(exploration_log_std(dim)) * math.sqrt(dim)
-    assert step == pytest.approx(math.exp(-1.0) * math.sqrt(EXPLORATION_DIM), rel=1e-12)
+def test_exploration_shrinks_by_a_quarter_per_doubling_of_the_gain_count(dim):
+    assert exploration_log_std(dim) == pytest.approx(-1.0 - 0.25 * math.log2(dim / EXPLORATION_DIM), rel=1e-12)
+    assert exploration_log_std(2 * dim) == pytest.approx(exploration_log_std(dim) - 0.25, rel=1e-12)
     assert exploration_log_std(dim) < exploration_log_std(dim - 1)
 
 
 @pytest.mark.parametrize("algo", ["ppo", "a2c"])
 def test_six_loop_cascade_policy_starts_with_the_scaled_exploration(algo):
     kw = agent_defaults(algo, 32, 12, 1000)
-    assert kw["policy_kwargs"]["log_std_init"] == pytest.approx(-1.0 - 0.5 * math.log(4.0))
+    assert kw["policy_kwargs"]["log_std_init"] == -1.5
 
 
 def test_agent_built_for_a_cascade_has_the_scaled_log_std():
