@@ -21,7 +21,8 @@ reward scale, charged to its budget); CMA-ES counts its own evaluations (its box
     gaintune bench scaling [--suite cascades --problems six_lag_cascade] [--spec FILE ...]
                            [--methods rl cmaes] [--seeds 0 1 2] [--budgets 2000 5000 10000 20000] [--out DIR]
 
-Writes ``scaling_<name>.md`` and ``scaling_<name>.json`` to ``--out``.
+Writes ``scaling_<problems>[-<methods>].md`` and ``.json`` to ``--out`` (the methods named unless they are
+``rl cmaes``).
 """
 
 from __future__ import annotations
@@ -226,6 +227,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     result["versions"] = versions()
     md = render_markdown(result, command)
     stem = "scaling_" + "-".join(p.name for p in problems)[:80]
+    if args.methods != ["rl", "cmaes"]:  # a run of other methods does not overwrite the default table
+        stem += "-" + "-".join(args.methods)
     jp, mp = write_outputs(result, Path(out), stem, md)
     print(md)
     print(f"wrote {jp} and {mp}", file=sys.stderr)
