@@ -28,6 +28,7 @@ BENCH = {
     "constraints": "Agreement of the searched requirement estimate with the verdict near the boundary.",
     "kernel": "The simulator kernel side by side with an earlier git revision of it.",
     "ablation": "RL agents and PPO settings side by side on 1/(s+1)^3 PID.",
+    "scaling": "Budget-to-quality curves of the RL search and CMA-ES on the six-loop cascade or any spec.",
     "startup": "End-to-end wall time of --help, import, verify and a 3,000-simulation tune, beside python -c pass.",
     "tuners": "Trained tuners on held-out FOTD plants against the per-plant optimum and AMIGO/SIMC, with their "
               "answer time.",

@@ -64,9 +64,12 @@ class GainProblem:
         (derived from the plant where left out; :attr:`scenario_defaults` records the choice).
     use_auto_bounds
         Centre log-scale bounds on a classical rule where the spec gives none.
+    per_loop_repair
+        The repair scales only the loops that miss a requirement at their own break point
+        (``onto_boundary_estimate(per_loop=True)``) instead of every loop together.
     """
 
-    def __init__(self, spec: TuningSpec, use_auto_bounds: bool = True) -> None:
+    def __init__(self, spec: TuningSpec, use_auto_bounds: bool = True, per_loop_repair: bool = False) -> None:
         plant = build_plant(spec.plant)
         validate_against_plant(spec, plant)
         # scenarios without dt/horizon get them from the plant; the records say what was chosen and why
@@ -90,6 +93,7 @@ class GainProblem:
         #: Project stable, infeasible samples onto the requirement boundary before scoring
         #: (gaintune.evaluation.boundary_estimate).
         self.repair = spec.search.repair
+        self.per_loop_repair = per_loop_repair
         #: Optional hook called as ``on_score(tuned, scored)`` after every env scoring (search monitor).
         self.on_score: Callable[[np.ndarray, Scored], None] | None = None
 
@@ -141,7 +145,7 @@ class GainProblem:
         tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
         if not self.repair:
             return tuned, None
-        r = onto_boundary_estimate(self.evaluator, tuned)
+        r = onto_boundary_estimate(self.evaluator, tuned, per_loop=self.per_loop_repair)
         return r.tuned, r.violation
 
     def score(self, tuned: np.ndarray, draws: Draws) -> Scored:

@@ -65,7 +65,7 @@ class EstimateMove:
     repaired: np.ndarray
 
 
-def onto_boundary_estimate(ev: Evaluator, tuned: np.ndarray) -> EstimateMove:
+def onto_boundary_estimate(ev: Evaluator, tuned: np.ndarray, per_loop: bool = False) -> EstimateMove:
     """Move each stable but infeasible candidate onto the requirement boundary (see the module docstring).
 
     The search estimate's signed shortfall ``g`` (<= 0 when every requirement holds) is solved for
@@ -78,6 +78,10 @@ def onto_boundary_estimate(ev: Evaluator, tuned: np.ndarray) -> EstimateMove:
         The search's evaluator (spec, layout and the requirement estimate).
     tuned
         (B, d) tuned gains.
+    per_loop
+        Scale only the loops whose own break point misses a requirement
+        (:func:`gaintune.evaluation.boundary_loops.loop_shortfalls`), every loop together where
+        that does not reach a feasible point; False: every loop together.
     """
     tuned = np.atleast_2d(np.asarray(tuned, dtype=float))
     v, g0 = ev.requirement_scores(tuned)
@@ -88,19 +92,48 @@ def onto_boundary_estimate(ev: Evaluator, tuned: np.ndarray) -> EstimateMove:
     rows = np.nonzero((v > 0) & (v < UNSTABLE_VIOLATION))[0]
     if not rows.size or not d.any():
         return EstimateMove(out, v_out, alpha, mask)
-    br = _ladder(ev, tuned[rows], d, g0[rows])
-    rows = rows[br.found]
-    br = br.subset(br.found)
-    _regula_falsi(ev, br, d)
-    moved = br.t * np.exp(br.xg)[:, None] ** d
-    fv = ev.requirement_scores(moved)[0]  # the full estimate, stability included, decides
-    ok = fv <= 0
-    rows = rows[ok]
-    out[rows] = moved[ok]
-    v_out[rows] = 0.0
-    alpha[rows] = np.exp(br.xg[ok])
-    mask[rows] = True
+    if per_loop:
+        dirs = _violating_loops(ev, tuned[rows], d)
+        done = _move(ev, tuned, rows, dirs, g0, (out, v_out, alpha, mask))
+        rows = rows[~done]  # where the violating loops alone do not get there: every loop together
+    if rows.size:
+        _move(ev, tuned, rows, np.broadcast_to(d, (rows.size, d.size)), g0, (out, v_out, alpha, mask))
     return EstimateMove(out, v_out, alpha, mask)
+
+
+def _violating_loops(ev: Evaluator, tuned: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(B, d) per-row direction: the exponents of the loops whose own break point misses a requirement
+    (every loop's, ``d``, on a row where no single loop is to blame)."""
+    from gaintune.evaluation.boundary_loops import loop_directions, loop_shortfalls
+
+    flags = loop_shortfalls(ev, tuned) > 0
+    dirs = np.minimum(flags.astype(float) @ loop_directions(ev), 1.0)
+    none = ~dirs.any(axis=1)
+    dirs[none] = d
+    return dirs
+
+
+def _move(ev: Evaluator, tuned: np.ndarray, rows: np.ndarray, dirs: np.ndarray, g0: np.ndarray,
+          into: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """Move ``tuned[rows]`` along their directions ``dirs`` (one row each) onto the boundary, writing the rows
+    that land feasibly into ``into`` = (gains, violation, alpha, moved); returns which of ``rows`` landed."""
+    out, v_out, alpha, mask = into
+    done = np.zeros(rows.size, dtype=bool)
+    br = _ladder(ev, tuned[rows], dirs, g0[rows])
+    found = np.nonzero(br.found)[0]
+    if not found.size:
+        return done
+    br, dirs = br.subset(br.found), dirs[br.found]
+    _regula_falsi(ev, br, dirs)
+    moved = br.t * np.exp(br.xg)[:, None] ** dirs
+    ok = ev.requirement_scores(moved)[0] <= 0  # the full estimate, stability included, decides
+    land = rows[found[ok]]
+    out[land] = moved[ok]
+    v_out[land] = 0.0
+    alpha[land] = np.exp(br.xg[ok])
+    mask[land] = True
+    done[found[ok]] = True
+    return done
 
 
 @dataclass
@@ -121,12 +154,15 @@ class _Bracket:
 
 
 def _ladder(ev: Evaluator, t: np.ndarray, d: np.ndarray, g0: np.ndarray) -> _Bracket:
-    """Bracket the boundary of each candidate in ``t`` with the :data:`LADDER` of scales, all in one estimate."""
+    """Bracket the boundary of each candidate in ``t`` with the :data:`LADDER` of scales, all in one estimate.
+
+    ``d``: the move's exponents, (n,) for every candidate or one row per candidate."""
     x_floor = np.log(alpha_floor(ev.layout, t, d))
     xs = np.maximum(np.log1p(-np.array(LADDER))[None, :], x_floor[:, None])  # (n, L)
     n, n_ladder = xs.shape
+    dd = np.broadcast_to(d, t.shape)[:, None, :]  # one direction per candidate
     # the root find checks margins only (stability is 2/3 of the estimate's cost); the answer is checked in full
-    lv, lg = ev.requirement_scores((t[:, None, :] * np.exp(xs)[..., None] ** d).reshape(n * n_ladder, -1),
+    lv, lg = ev.requirement_scores((t[:, None, :] * np.exp(xs)[..., None] ** dd).reshape(n * n_ladder, -1),
                                    stability=False)
     lv, lg = lv.reshape(n, n_ladder), lg.reshape(n, n_ladder)
     ok = lv <= 0
@@ -143,6 +179,7 @@ def _regula_falsi(ev: Evaluator, br: _Bracket, d: np.ndarray) -> None:
     A step whose secant is undefined, or whose infeasible end is unstable, bisects instead.
     """
     xg, gg, xb, gb = br.xg, br.gg, br.xb, br.gb
+    dd = np.broadcast_to(d, br.t.shape)  # one direction per candidate
     for _ in range(SECANT_STEPS):
         act = gg < -TOL  # rows whose feasible end is still too far inside
         if not act.any():
@@ -155,7 +192,7 @@ def _regula_falsi(ev: Evaluator, br: _Bracket, d: np.ndarray) -> None:
         w = xb - xg  # keep the trial strictly inside the bracket
         xm = np.clip(xm, xg + 0.02 * w, xb - 0.02 * w)
         a = np.nonzero(act)[0]
-        tv, tg = ev.requirement_scores(br.t[a] * np.exp(xm[a])[:, None] ** d, stability=False)
+        tv, tg = ev.requirement_scores(br.t[a] * np.exp(xm[a])[:, None] ** dd[a], stability=False)
         good = tv <= 0
         xg[a] = np.where(good, xm[a], xg[a])
         gg[a] = np.where(good, tg, gg[a])

@@ -39,7 +39,7 @@ from gaintune.search.eager_optim import install as _install_eager_optim
 from gaintune.search.eager_optim import optimizer_class as _eager_optimizer_class
 from gaintune.spec import TuningSpec
 
-__all__ = ["ALGOS", "agent_defaults", "make_agent", "load_agent", "load_weights"]
+__all__ = ["ALGOS", "agent_defaults", "exploration_log_std", "make_agent", "load_agent", "load_weights"]
 
 # The batched simulator owns the cores. torch's intra-op pool on top of numba's made each
 # PPO update 16x slower (measured: a 200-simulation search took 11.4 s instead of 0.7 s).
@@ -54,21 +54,40 @@ REPLAY_MAX = 1_000_000
 ALGOS: dict[str, type[BaseAlgorithm]] = {name: getattr(stable_baselines3, name.upper()) for name in ALGO_NAMES}
 
 
+#: Gain count up to which the policy's initial exploration is ``log_std_init = -1`` (a PID loop has 3).
+EXPLORATION_DIM = 3
+
+
+def exploration_log_std(dim: int) -> float:
+    """Initial log std of the Gaussian policy for ``dim`` tuned gains: -1 up to :data:`EXPLORATION_DIM` gains,
+    then 0.25 less per doubling of the gain count (-1.5 at 12 gains).
+
+    With e^-1 (a factor 3.5 on each gain) every one of 32 samples of the six-loop cascade's 12 gains
+    missed a requirement, three quarters unstable, and RL alone ended at 1.07-1.12 x the reference
+    optimum; at -1.5 it ends at 1.021-1.025, at -2 at 1.020-1.096 (docs/search.md, "Scaling").
+
+    >>> exploration_log_std(2), exploration_log_std(3), exploration_log_std(12), exploration_log_std(48)
+    (-1.0, -1.0, -1.5, -2.0)
+    """
+    return -1.0 - 0.25 * float(np.log2(max(dim, EXPLORATION_DIM) / EXPLORATION_DIM))
+
+
 def agent_defaults(algo: str, n_envs: int, dim: int, budget_steps: int) -> dict[str, Any]:
     """Documented default hyper-parameters per algorithm (see docs/search.md)."""
     net = [64, 64]
+    log_std = exploration_log_std(dim)
     if algo == "ppo":
         # one rollout = one step of every env; SB3's PPO needs a minibatch of 2 or more, so a single
         # env collects 2 steps per update
         return dict(
             n_steps=1 if n_envs > 1 else 2, batch_size=max(n_envs, 2), n_epochs=10, learning_rate=3e-3, gamma=0.0,
             gae_lambda=1.0, clip_range=0.2, ent_coef=0.0, vf_coef=0.5, max_grad_norm=0.5, normalize_advantage=True,
-            policy_kwargs=dict(net_arch=dict(pi=net, vf=net), log_std_init=-1.0, ortho_init=True),
+            policy_kwargs=dict(net_arch=dict(pi=net, vf=net), log_std_init=log_std, ortho_init=True),
         )
     if algo == "a2c":
         return dict(
             n_steps=1, learning_rate=3e-3, gamma=0.0, gae_lambda=1.0, ent_coef=0.0, normalize_advantage=True,
-            policy_kwargs=dict(net_arch=dict(pi=net, vf=net), log_std_init=-1.0),
+            policy_kwargs=dict(net_arch=dict(pi=net, vf=net), log_std_init=log_std),
         )
     off = dict(
         learning_rate=1e-3, buffer_size=min(max(budget_steps, 1000), REPLAY_MAX), learning_starts=min(4 * n_envs, 256),

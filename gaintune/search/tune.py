@@ -101,6 +101,8 @@ class TuneOptions:
         SB3 hyper-parameters replacing the defaults of :mod:`gaintune.search.agents`.
     command
         The command line recorded in the result's provenance.
+    per_loop_repair
+        The repair moves only the loops that miss a requirement (docs/search.md, "Scaling").
     """
 
     progress: Callable[[Progress], bool | None] | None = None
@@ -111,6 +113,7 @@ class TuneOptions:
     warm_start: str | Path | None = None
     agent_overrides: dict[str, Any] | None = None
     command: str = ""
+    per_loop_repair: bool = False
 
 
 def tune(
@@ -124,6 +127,7 @@ def tune(
     warm_start: str | Path | None = None,
     agent_overrides: dict[str, Any] | None = None,
     command: str = "",
+    per_loop_repair: bool = False,
 ) -> TuneResult:
     """Search the gains of ``spec`` with a stable-baselines3 agent and return the frozen, verified result.
 
@@ -149,6 +153,10 @@ def tune(
         SB3 hyper-parameters replacing the defaults of :mod:`gaintune.search.agents`.
     command
         The command line recorded in the result's provenance.
+    per_loop_repair
+        With ``search.repair``, move only the loops that miss a requirement at their own break
+        point onto the boundary (every loop together where that is not enough) instead of every
+        loop together (docs/search.md, "Scaling").
 
     Returns
     -------
@@ -169,7 +177,8 @@ def tune(
     ('pass', True)
     """
     options = TuneOptions(progress=progress, out_dir=out_dir, verify=verify, baselines=baselines, cancel=cancel,
-                          warm_start=warm_start, agent_overrides=agent_overrides, command=command)
+                          warm_start=warm_start, agent_overrides=agent_overrides, command=command,
+                          per_loop_repair=per_loop_repair)
     return _tune(spec, options)
 
 
@@ -315,7 +324,7 @@ def _polish(problem: GainProblem, plan: _Plan, answer: _Answer, verify: bool) ->
 def _tune(spec: TuningSpec, options: TuneOptions) -> TuneResult:
     """The steps of :func:`tune`: plan the budget, train, freeze, settle, polish, then build the result."""
     t0 = time.perf_counter()
-    problem = GainProblem(spec)
+    problem = GainProblem(spec, per_loop_repair=options.per_loop_repair)
     spec = problem.spec  # scenario dt/horizon derived from the plant where the spec left them out
     plan = _plan(problem)
     trained = _train(problem, plan, options)
