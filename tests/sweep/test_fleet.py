@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import TINY_SPEC, grid_fleet, write_fleet
+from sweep_fleets import TINY_SPEC, grid_fleet, write_fleet
 from typer.testing import CliRunner
 
 from gaintune import cli

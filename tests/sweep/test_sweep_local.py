@@ -14,7 +14,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
-from conftest import TINY_SPEC, grid_fleet, write_fleet
+from sweep_fleets import TINY_SPEC, grid_fleet, write_fleet
 from typer.testing import CliRunner
 
 from gaintune import cli

@@ -9,7 +9,7 @@ import threading
 import time
 from pathlib import Path
 
-from conftest import grid_fleet
+from sweep_fleets import grid_fleet
 
 from gaintune.sweep import SweepOptions, run_sweep
 from gaintune.sweep.store import SqliteStore
