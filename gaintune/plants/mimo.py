@@ -29,7 +29,8 @@ MAX_MIMO_STATES = 200
 
 def is_mimo_plant_spec(spec: PlantSpec) -> bool:
     """Whether ``spec`` (a resolved plant, not a model reference) has the several-input form."""
-    return spec.tf_matrix is not None or (spec.ss is not None and spec.ss.is_mimo)
+    return spec.tf_matrix is not None or (spec.ss is not None and spec.ss.is_mimo) or (
+        spec.ode is not None and spec.ode.is_mimo)
 
 
 @dataclass
@@ -53,7 +54,21 @@ class MimoPlant:
     params: dict[str, float]
     spec: PlantSpec
     _siso: Any = None  # a single-input plant viewed as MIMO (as_mimo)
+    ode: Any = None  # a several-input ODE: its casadi functions (gaintune.plants.mimo_ode.OdeFunctions)
     _cache: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def nonlinear(self) -> bool:
+        """Whether the plant is a nonlinear ODE (simulated as such, linearised for the analyses)."""
+        return self.ode is not None
+
+    def operating_point(self, values: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x0, u0, y0): the ODE's operating point, zeros for a linear plant (its signals are deviations)."""
+        if self.ode is None:
+            return np.zeros(self.order), np.zeros(len(self.inputs)), np.zeros(len(self.output_signals))
+        self.lti(values)
+        op = self._cache[("op", *sorted(self.with_params(values).items()))]
+        return op.x0, op.u0, op.y0
 
     @property
     def outputs(self) -> list[str]:
@@ -103,7 +118,17 @@ class MimoPlant:
         if hit is None:
             if len(self._cache) > 256:
                 self._cache.clear()
-            hit = self._cache[key] = _build_lti(self.spec, p, tuple(self.input_names), tuple(self.outputs))
+            if self.ode is not None:
+                from gaintune.plants.mimo_ode import linearize_mimo_ode
+
+                assert self.spec.ode is not None
+                pv = np.array([p[k] for k in self.params], dtype=float)
+                hit, op = linearize_mimo_ode(self.ode, self.spec.ode, p, pv, tuple(self.input_names),
+                                             tuple(self.outputs))
+                self._cache[("op", *key)] = op
+                self._cache[key] = hit
+            else:
+                hit = self._cache[key] = _build_lti(self.spec, p, tuple(self.input_names), tuple(self.outputs))
         return hit
 
     def linearize(self, values: dict[str, float] | None = None):
@@ -171,6 +196,9 @@ def _build_lti(spec: PlantSpec, p: dict[str, float], inputs: tuple[str, ...],
 
 
 def _signals(spec: PlantSpec) -> tuple[list[SignalSpec], list[SignalSpec]]:
+    if spec.ode is not None:
+        units = spec.ode.output_units or {}
+        return list(spec.ode.inputs or []), [SignalSpec(name=n, unit=units.get(n, "")) for n in spec.ode.outputs]
     if spec.tf_matrix is not None:
         return list(spec.tf_matrix.inputs), list(spec.tf_matrix.outputs)
     ss = spec.ss
@@ -196,6 +224,8 @@ def build_mimo_plant(spec: PlantSpec) -> MimoPlant:
     """
     inputs, outputs = _signals(spec)
     params = dict(spec.params)
+    if spec.ode is not None:
+        return _build_ode_plant(spec, inputs, outputs, params)
     lti = _build_lti(spec, params, tuple(s.name for s in inputs), tuple(s.name for s in outputs))
     if isinstance(lti, TfMatrix):
         states = [f"x_{outputs[i].name}_{inputs[j].name}_{k}" for i, row in enumerate(lti.entries)
@@ -209,6 +239,23 @@ def build_mimo_plant(spec: PlantSpec) -> MimoPlant:
         raise SpecError("plant", f"{len(states)} states in all exceeds the limit of {MAX_MIMO_STATES}")
     plant = MimoPlant(inputs, outputs, states, params, spec)
     plant._cache[tuple(sorted(params.items()))] = lti
+    return plant
+
+
+def _build_ode_plant(spec: PlantSpec, inputs: list[SignalSpec], outputs: list[SignalSpec],
+                     params: dict[str, float]) -> MimoPlant:
+    from gaintune.plants.mimo_ode import build_ode_functions
+
+    ode = spec.ode
+    assert ode is not None
+    if len(ode.states) > MAX_ORDER:
+        raise SpecError("plant.ode.states", f"plant order {len(ode.states)} exceeds the limit of {MAX_ORDER}")
+    for name in ode.outputs:
+        if not name.isidentifier():
+            raise SpecError("plant.ode.outputs", f"output name {name!r} must be an identifier")
+    plant = MimoPlant(inputs, outputs, list(ode.states), params, spec,
+                      ode=build_ode_functions(ode, params))
+    plant.lti()  # the operating point and the linearisation at nominal parameters: checked now
     return plant
 
 
