@@ -197,8 +197,8 @@ def _build_lti(spec: PlantSpec, p: dict[str, float], inputs: tuple[str, ...],
 
 def _signals(spec: PlantSpec) -> tuple[list[SignalSpec], list[SignalSpec]]:
     if spec.ode is not None:
-        units = spec.ode.output_units or {}
-        return list(spec.ode.inputs or []), [SignalSpec(name=n, unit=units.get(n, "")) for n in spec.ode.outputs]
+        ode_units = spec.ode.output_units or {}
+        return list(spec.ode.inputs or []), [SignalSpec(name=n, unit=ode_units.get(n, "")) for n in spec.ode.outputs]
     if spec.tf_matrix is not None:
         return list(spec.tf_matrix.inputs), list(spec.tf_matrix.outputs)
     ss = spec.ss

@@ -178,9 +178,9 @@ def _plant_signals(spec: TuningSpec) -> tuple[list[SignalSpec] | None, list[Sign
     if pl.tf is not None:
         return [SignalSpec(name="u")], [SignalSpec(name=pl.tf.output)]
     if pl.ode is not None:
-        units = pl.ode.output_units or {}
+        ode_units = pl.ode.output_units or {}
         return (pl.ode.inputs or [SignalSpec(name=pl.ode.input)],
-                [SignalSpec(name=n, unit=units.get(n, "")) for n in pl.ode.outputs])
+                [SignalSpec(name=n, unit=ode_units.get(n, "")) for n in pl.ode.outputs])
     return None, None
 
 
