@@ -267,13 +267,26 @@ def as_mimo(plant) -> MimoPlant:
     if isinstance(plant, MimoPlant):
         return plant
     if plant.kind != "lti":
-        raise SpecError("loops", "loops that say what they drive need a linear plant (tf, tf_matrix or ss) so "
-                        "far; for an ODE plant leave 'drives' out (one cascade)")
+        return _ode_as_mimo(plant)
     if np.any(plant.linearize().D):
         raise SpecError("plant", "loops that say what they drive need a strictly proper plant (no direct "
                         "feedthrough) so far")
     return MimoPlant([SignalSpec(name="u")], [SignalSpec(name=n) for n in plant.outputs], list(plant.states),
                      dict(plant.params), plant.spec, _siso=plant)
+
+
+def _ode_as_mimo(plant) -> MimoPlant:
+    """A single-input ODE plant as a one-input nonlinear MIMO plant (its casadi f, h take a 1-vector u)."""
+    from gaintune.plants.mimo_ode import OdeFunctions
+
+    ode = plant.spec.ode
+    if plant.delay() != 0:
+        raise SpecError("plant.delay", "an ODE plant in a loop graph (or with a state disturbance) takes its delay "
+                        "as the actuator's: drop plant.delay and set actuators.<input>.delay")
+    out = MimoPlant([SignalSpec(name=ode.input)], [SignalSpec(name=n) for n in plant.outputs], list(plant.states),
+                    dict(plant.params), plant.spec, ode=OdeFunctions(plant.f, plant.h))
+    out.lti()  # the operating point and the linearisation, checked now
+    return out
 
 
 def _siso_lti(plant, values: dict[str, float] | None) -> DelayedSS:

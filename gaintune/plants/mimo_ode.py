@@ -103,6 +103,10 @@ def ode_point(fn: OdeFunctions, ode: OdeSpec, p: dict[str, float], pv: np.ndarra
         bad = [n for n, v in zip(ode.input_names, u0, strict=True) if not np.isfinite(v)]
         if bad:
             raise SpecError(f"plant.ode.u0.{bad[0]}", "must be a finite number")
+    elif ode.u0 is not None:  # a single-input ODE viewed as MIMO
+        u0 = np.array([expr.to_float(ode.u0, p, "plant.ode.u0")])
+        if not np.isfinite(u0[0]):
+            raise SpecError("plant.ode.u0", f"must be a finite number, got {u0[0]}")
     else:
         u0 = _solve_u0(fn, ode, x0, pv)
     y0 = np.asarray(fn.h(x0, u0, pv), dtype=float).ravel()

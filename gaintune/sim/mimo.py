@@ -39,7 +39,8 @@ AW_CODES = {"none": 0, "clamping": 1, "back_calculation": 2}
 
 def needs_mimo(spec: TuningSpec, plant) -> bool:
     """Whether ``spec`` on ``plant`` runs on this simulator: a MIMO plant, or loops that say what they drive."""
-    return isinstance(plant, MimoPlant) or is_graph(spec) or spec.actuators is not None or spec.decoupler is not None
+    return (isinstance(plant, MimoPlant) or is_graph(spec) or spec.actuators is not None or spec.decoupler is not None
+            or any(sc.disturbance.state is not None for sc in spec.scenarios))
 
 
 @dataclass(frozen=True)

@@ -143,3 +143,14 @@ def test_loop_graph_direction_of_a_reversed_integrator_is_negative() -> None:
         {"name": "p", "measure": "pos", "drives": "u", "type": "pd"}]})
     (d,) = resolve_directions(spec, build_plant(spec.plant))
     assert d.sign == -1 and d.rule == "velocity_gain" and d.gain == pytest.approx(-2.0)
+
+
+def test_a_disturbance_at_an_unknown_state_of_a_model_is_refused_by_name() -> None:
+    from gaintune.plants.checks import validate_against_plant
+
+    d = load_model("quadruple_tank").example_spec()
+    d["scenarios"][0]["disturbance"] = {"kind": "step", "state": "h7"}
+    spec = TuningSpec.model_validate(d)  # a model's states are known once it is built
+    with pytest.raises(SpecError, match=r"scenarios\[0\]\.disturbance\.state") as exc:
+        validate_against_plant(spec, build_plant(spec.plant))
+    assert "h1, h2, h3, h4" in str(exc.value)
