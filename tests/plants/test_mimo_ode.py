@@ -154,3 +154,19 @@ def test_a_disturbance_at_an_unknown_state_of_a_model_is_refused_by_name() -> No
     with pytest.raises(SpecError, match=r"scenarios\[0\]\.disturbance\.state") as exc:
         validate_against_plant(spec, build_plant(spec.plant))
     assert "h1, h2, h3, h4" in str(exc.value)
+
+
+def test_mimo_verification_reads_the_nonlinear_tank_as_its_linearised_model() -> None:
+    from gaintune.verification.mimo import mimo_report
+    from gaintune.verification.mimo_loop import PidLoop, decentralised_pid
+
+    loops = [PidLoop("y1", "y1", 0, Kp=3.0, Ki=0.1), PidLoop("y2", "y2", 1, Kp=2.7, Ki=2.7 / 40)]
+    reps = []
+    for name in ("quadruple_tank", "quadruple_tank_min"):
+        lti = build_plant(PlantSpec(model=name)).lti()
+        reps.append(mimo_report(lti, decentralised_pid(lti, loops), loops))
+    nl, lin = reps
+    assert nl.stability.stable and lin.stability.stable
+    assert nl.ms_output.value == pytest.approx(lin.ms_output.value, rel=1e-9)
+    assert nl.disk_input.alpha == pytest.approx(lin.disk_input.alpha, rel=1e-9)
+    assert 0 < nl.disk_input.alpha < np.inf
