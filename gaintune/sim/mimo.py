@@ -28,6 +28,7 @@ from gaintune.sim import draws as draws_mod
 from gaintune.sim.build import discretize, profile_pieces
 from gaintune.sim.draws import Draws
 from gaintune.sim.mimo_kernel import LANES, MIMO_METRICS, mimo_kernel
+from gaintune.sim.mimo_ode import ode_rows, ode_tapes
 from gaintune.sim.result import SimResult
 from gaintune.spec import ProfileSpec, ScenarioSpec, TuningSpec, check_delay_samples
 from gaintune.spec.mimo import drive_target, is_graph
@@ -235,7 +236,7 @@ class MimoSimulator:
                 check_delay_samples(d, sc.resolved_dt, f"actuators.{self.mimo.input_names[j]}.delay")
         self._plants: dict[tuple, dict] = {}
         self._arrays: dict[tuple, dict] = {}
-        self._tapes = _ode_tapes(self.mimo)
+        self._tapes = ode_tapes(self.mimo)
         for i, sc in enumerate(spec.scenarios):
             self._dist_state(sc, i)
 
@@ -288,7 +289,7 @@ class MimoSimulator:
                     self._plants.clear()
                 values = dict(zip(self.mimo.param_names, r, strict=True))
                 if self.mimo.nonlinear:
-                    hit = _ode_rows(self.mimo, values, r)
+                    hit = ode_rows(self.mimo, values, r)
                 else:
                     hit = plant_channels(self.mimo.lti(values), dt, self._act_delays(), dstate)
                     hit.update({k: np.zeros(0) for k in ("Pq", "x_op", "u_op", "y_op")})  # ODE-only rows
@@ -442,31 +443,6 @@ class MimoSimulator:
                 res.traces[f"u.{name}"] = tr_u[j].T
             res.traces["u"] = tr_u[0].T
         return res
-
-
-def _ode_tapes(mimo: MimoPlant) -> tuple[tuple, tuple]:
-    """The kernel's tape arguments (op, a, b, o, c, n_work) for f and h; empty ones for a linear plant."""
-    if not mimo.nonlinear:
-        empty_i, empty_f = np.zeros(0, dtype=np.int64), np.zeros(0)
-        blank = (empty_i, empty_i, empty_i, empty_i, empty_f, 1)
-        return blank, blank
-    from gaintune.sim.tape import make_tape
-
-    out = []
-    for fn in (mimo.ode.f, mimo.ode.h):
-        t = make_tape(fn)
-        out.append((t.op, t.a, t.b, t.o, t.c, t.n_work))
-    return out[0], out[1]
-
-
-def _ode_rows(mimo: MimoPlant, values: dict[str, float], row: np.ndarray) -> dict:
-    """The kernel's plant arrays for a nonlinear plant at one parameter row: no channels, its operating point."""
-    x0, u0, y0 = mimo.operating_point(values)
-    n, p = len(x0), len(y0)
-    zi, zf = np.zeros(0, dtype=np.int64), np.zeros((0, n))
-    return dict(Ad=np.zeros((n, n)), Cm=np.zeros((p, n)), bstart=zi, bsize=zi, ch_blk=zi, ch_src=zi, ch_du=zi,
-                ch_dd=zi, G0u=zf, G1u=zf, G0d=zf, G1d=zf, Pq=np.asarray(row, dtype=float).reshape(-1),
-                x_op=x0, u_op=u0, y_op=y0)
 
 
 _POOL_LOCK = threading.Lock()
