@@ -28,29 +28,36 @@ def _rhs(x: np.ndarray, v: np.ndarray, dstate: np.ndarray) -> np.ndarray:
                      (-q[2] + (1 - P.gamma2) * f2) / A[2], (-q[3] + (1 - P.gamma1) * f1) / A[3]]) + dstate
 
 
-def _reference(gains: np.ndarray, dist_v1: float, dist_h3: float, ref_y1: float) -> np.ndarray:
-    """y (n, 2) deviations at the samples: PI (parallel, b = 1) on each loop, solve_ivp between samples."""
+def _reference(gains: np.ndarray, dist_v1: float, dist_h3: float, ref_y1: float, delay1: int = 0) -> np.ndarray:
+    """y (n, 2) deviations at the samples: PI (parallel, b = 1) on each loop, solve_ivp between samples;
+    pump 1 applies its command ``delay1`` samples late (0 before)."""
     op = qt.operating_point(P, 3.0, 3.0)
     x, v0 = np.array(op.h), np.array(op.v)
     y0 = P.kc * x[:2]
     kp, ki = gains[[0, 2]], gains[[1, 3]]
     integ, n = np.zeros(2), int(round(HORIZON / DT))
     ys = np.zeros((n, 2))
+    sent = []
     for k in range(n):
         y = P.kc * x[:2] - y0
         ys[k] = y
         e = np.array([ref_y1, 0.0]) - y
         integ = integ + ki * DT * e
-        v = v0 + kp * e + integ + np.array([dist_v1, 0.0])
+        cmd = kp * e + integ
+        sent.append(cmd[0])
+        cmd[0] = sent[k - delay1] if k >= delay1 else 0.0
+        v = v0 + cmd + np.array([dist_v1, 0.0])
         sol = solve_ivp(lambda t, z, v=v: _rhs(z, v, np.array([0, 0, dist_h3, 0])), (0.0, DT), x,
                         rtol=1e-11, atol=1e-12, method="DOP853")
         x = sol.y[:, -1]
     return ys
 
 
-def _spec(dist: dict, ref: float) -> TuningSpec:
+def _spec(dist: dict, ref: float, actuators: dict | None = None) -> TuningSpec:
     d = load_model("quadruple_tank").example_spec()
     d.pop("actuators")
+    if actuators is not None:
+        d["actuators"] = actuators
     d["scenarios"] = [{"name": "s", "dt": DT, "horizon": HORIZON,
                        "reference": {"loop": "y1", "kind": "step", "amplitude": ref} if ref else {"kind": "none"},
                        "disturbance": dist}]
@@ -80,6 +87,31 @@ def test_nonlinear_quadruple_tank_closed_loop_pi_matches_solve_ivp() -> None:
     want = _reference(gains, 0.0, 0.0, 1.0)
     assert want[-1, 0] == pytest.approx(1.0, abs=0.05)
     np.testing.assert_allclose(got, want, atol=1e-9)
+
+
+def test_nonlinear_actuator_delay_holds_the_command_whole_samples() -> None:
+    gains = np.array([3.0, 3.0 / 30, 2.7, 2.7 / 40])
+    spec = _spec({"kind": "none"}, 1.0, actuators={"v1": {"delay": 3 * DT}})
+    got = _sim_traces(spec, gains)
+    np.testing.assert_allclose(got, _reference(gains, 0.0, 0.0, 1.0, delay1=3), atol=1e-9)
+    assert np.max(np.abs(got - _reference(gains, 0.0, 0.0, 1.0))) > 1e-3  # the delay shows
+
+
+def test_randomised_parameters_give_each_candidate_its_own_operating_point() -> None:
+    from gaintune.sim import draws
+
+    d = load_model("quadruple_tank").example_spec()
+    d["randomize"] = {"params": {"gamma1": [0.65, 0.75], "k1": [3.2, 3.4]}}
+    sim = Simulator(TuningSpec.model_validate(d))
+    dr = draws.sample(sim.spec, sim.plant, np.random.default_rng(0), 8)
+    gains = np.tile([3.0, 0.1, 2.7, 0.0675], (8, 1))
+    iae = sim.run(gains, draws=dr).metrics["iae"]
+    for i in (0, 5):
+        params = dict(zip(sim.plant.param_names, dr.params[i], strict=True))
+        d["plant"] = {"model": {"name": "quadruple_tank", "params": {k: params[k] for k in ("gamma1", "k1")}}}
+        one = Simulator(TuningSpec.model_validate({**d, "randomize": {}})).run(gains[:1]).metrics["iae"][0]
+        assert iae[i] == pytest.approx(one, rel=1e-12)
+    assert np.ptp(iae) > 0.1
 
 
 def test_state_disturbance_on_a_linear_state_space_plant_enters_the_state_derivative() -> None:
