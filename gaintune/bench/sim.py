@@ -17,6 +17,9 @@ Cases (each 2,000 time steps):
   ``example``: two PI loops, the step on xD) on the MIMO simulator (:mod:`gaintune.sim.mimo`),
   dt = 0.1 min over 200 min, around Luyben's BLT gains. It has no prebuilt-argument path and no
   NumPy baseline: its ``kernel`` figures are those of the full ``Simulator.run``.
+* ``quadruple_tank``: the nonlinear quadruple tank (``models/quadruple_tank.yaml``, casadi tapes,
+  RK4) on the MIMO simulator, Johansson's PI on both loops, the step on y1, dt = 0.5 s over
+  1,000 s; timed as ``wood_berry``.
 
 Each batch holds distinct gain sets (nominal gains times a seeded log-uniform
 factor in [0.74, 1.35]). Reported per case and batch size:
@@ -77,9 +80,10 @@ NOMINAL_GAINS: dict[str, Gains] = {
     "dc_motor": {"position": {"Kp": 20.0}, "speed": {"Kp": 0.5, "Ki": 0.5}, "current": {"Kp": 5.0, "Ki": 2000.0}},
     "water_tank": {"level": {"Kp": 1.0, "Ki": 0.05}},
     "wood_berry": {"xD": {"Kp": 0.375, "Ki": 0.375 / 8.29}, "xB": {"Kp": -0.075, "Ki": -0.075 / 23.6}},
+    "quadruple_tank": {"y1": {"Kp": 3.0, "Ki": 3.0 / 30}, "y2": {"Kp": 2.7, "Ki": 2.7 / 40}},
 }
 #: The MIMO cases (gaintune.sim.mimo): timed through Simulator.run only.
-MIMO_CASES = ("wood_berry",)
+MIMO_CASES = ("wood_berry", "quadruple_tank")
 #: The single-input cases, with the NumPy baseline.
 CASES = tuple(k for k in NOMINAL_GAINS if k not in MIMO_CASES)
 
@@ -92,6 +96,8 @@ def case_spec(name: str) -> dict[str, Any]:
     spec = load_model(name).example_spec()
     if name == "wood_berry":  # one scenario (the step on xD) of 2,000 steps, as the other cases
         spec["scenarios"] = [{**spec["scenarios"][0], "horizon": 200.0}]
+    if name == "quadruple_tank":
+        spec["scenarios"] = [{**spec["scenarios"][0], "horizon": 1000.0}]
     return spec
 
 

@@ -241,31 +241,59 @@ def _is_mimo(spec: TuningSpec, plant: Any) -> bool:
     return isinstance(plant, MimoPlant) or any(lp.drives is not None for lp in spec.loops)
 
 
+def _entry_gain(lti: Any, o: int, j: int) -> PathGain | None:
+    """The low-frequency behaviour ``K s^m`` of the path from input j to output o of a MIMO form."""
+    from gaintune.lti.mimo import TfMatrix
+
+    if isinstance(lti, TfMatrix):
+        e = lti.entries[o][j]
+        if e.is_zero:
+            return None
+        A, B, C, D = e.realisation()
+        return path_gain(A, B[:, 0], C[0], float(D[0, 0]))
+    return path_gain(lti.A, lti.B[:, j], lti.C[o], float(lti.D[o, j]))
+
+
 def _mimo_direction(spec: TuningSpec, plant: Any, i: int) -> LoopDirection:
-    """Loop i's action on a MIMO plant (or a loop graph): the sign of the static gain from the input its chain
-    ends on to its output; for a loop driving another loop's setpoint, of the ratio of the two loops' gains
-    (the inner loop closed)."""
+    """Loop i's action on a MIMO plant (or a loop graph), read as the single-input rules read a cascade.
+
+    A loop driving an input: the path from the input its chain ends on to its output, ``K s^m``
+    (static gain for m = 0, velocity gain for an integrating path). A loop driving another loop's
+    setpoint: the ratio of its path to the inner loop's (the inner loop closed): static gains, or
+    velocity gains when the ratio integrates.
+    """
     from gaintune.plants.mimo import as_mimo
     from gaintune.spec.mimo import chain_input, drive_target
 
     mp = as_mimo(plant)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        G = mp.lti().dcgain()
+    lti = mp.lti()
     names, loop = spec.loop_names, spec.loops[i]
     j = mp.input_names.index(chain_input(spec, i) or mp.input_names[0])
     o = mp.outputs.index(loop.measure or mp.outputs[0])
-    gain, what = float(G[o, j]), f"static gain {mp.input_names[j]} -> {mp.outputs[o]}"
     kind, target = drive_target(loop.drives) if loop.drives is not None else ("input", "")
     if loop.drives is None and i + 1 < len(spec.loops):
         kind, target = "loop", names[i + 1]
+    gi = _entry_gain(lti, o, j)
+    path = f"from {mp.input_names[j]} to {mp.outputs[o]}"
+    if gi is None:
+        raise _undecided(i, f"the path {path} shows no readable response near s = 0")
+    order, coef = gi.order, gi.coef
     if kind == "loop":
         inner = spec.loops[names.index(target)]
         o2 = mp.outputs.index(inner.measure or mp.outputs[0])
-        gain = gain / float(G[o2, j]) if G[o2, j] != 0 else float("nan")
-        what = f"static gain from the setpoint of {target} to {mp.outputs[o]}, {target} closed"
-    if not np.isfinite(gain) or gain == 0:
-        raise _undecided(i, f"the {what} is {_g(gain)}")
-    return LoopDirection(1 if gain > 0 else -1, "auto", "static_gain", gain, f"{what} {_g(gain)}")
+        gn = _entry_gain(lti, o2, j)
+        if gn is None or gn.coef == 0:
+            raise _undecided(i, f"the inner loop's output {mp.outputs[o2]!r} shows no readable response to "
+                             f"{mp.input_names[j]}")
+        order, coef = gi.order - gn.order, gi.coef / gn.coef
+        path = f"from the setpoint of {target} to {mp.outputs[o]} ({target} closed)"
+    if order > 0 or not np.isfinite(coef) or coef == 0:
+        raise _undecided(i, f"the static gain {path} is zero")
+    if order == 0:
+        return LoopDirection(1 if coef > 0 else -1, "auto", "static_gain", coef, f"static gain {path} {_g(coef)}")
+    power = "s" if order == -1 else f"s^{-order}"
+    return LoopDirection(1 if coef > 0 else -1, "auto", "velocity_gain", coef,
+                         f"integrating path {path}, velocity gain {_g(coef)} (~ {_g(coef)}/{power})")
 
 
 def _corners(spec: TuningSpec, plant: Any) -> list[dict[str, float]]:

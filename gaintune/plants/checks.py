@@ -44,7 +44,8 @@ def validate_against_plant(spec: TuningSpec, plant: Plant) -> None:
     """
     from gaintune.plants.mimo import MimoPlant
 
-    if isinstance(plant, MimoPlant) or any(lp.drives is not None for lp in spec.loops):
+    if isinstance(plant, MimoPlant) or any(lp.drives is not None for lp in spec.loops) or any(
+            sc.disturbance.state is not None for sc in spec.scenarios):
         _validate_mimo(spec, plant)
         if isinstance(plant, MimoPlant):
             return
@@ -119,6 +120,9 @@ def _validate_mimo(spec: TuningSpec, plant) -> None:
         need_input(name, f"decoupler.inputs[{k}]")
     for s, sc in enumerate(spec.scenarios):
         need_input(sc.disturbance.input, f"scenarios[{s}].disturbance.input")
+        if sc.disturbance.state is not None and sc.disturbance.state not in mp.states:
+            raise SpecError(f"scenarios[{s}].disturbance.state", f"plant has no state {sc.disturbance.state!r}; "
+                            f"states: {_known(mp.states)}")
     for name in spec.randomize.params:
         if name not in mp.params:
             raise SpecError(f"randomize.params.{name}", f"plant has no parameter {name!r}; parameters: "

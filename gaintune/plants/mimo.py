@@ -29,7 +29,8 @@ MAX_MIMO_STATES = 200
 
 def is_mimo_plant_spec(spec: PlantSpec) -> bool:
     """Whether ``spec`` (a resolved plant, not a model reference) has the several-input form."""
-    return spec.tf_matrix is not None or (spec.ss is not None and spec.ss.is_mimo)
+    return spec.tf_matrix is not None or (spec.ss is not None and spec.ss.is_mimo) or (
+        spec.ode is not None and spec.ode.is_mimo)
 
 
 @dataclass
@@ -53,7 +54,21 @@ class MimoPlant:
     params: dict[str, float]
     spec: PlantSpec
     _siso: Any = None  # a single-input plant viewed as MIMO (as_mimo)
+    ode: Any = None  # a several-input ODE: its casadi functions (gaintune.plants.mimo_ode.OdeFunctions)
     _cache: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def nonlinear(self) -> bool:
+        """Whether the plant is a nonlinear ODE (simulated as such, linearised for the analyses)."""
+        return self.ode is not None
+
+    def operating_point(self, values: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x0, u0, y0): the ODE's operating point, zeros for a linear plant (its signals are deviations)."""
+        if self.ode is None:
+            return np.zeros(self.order), np.zeros(len(self.inputs)), np.zeros(len(self.output_signals))
+        self.lti(values)
+        op = self._cache[("op", *sorted(self.with_params(values).items()))]
+        return op.x0, op.u0, op.y0
 
     @property
     def outputs(self) -> list[str]:
@@ -103,7 +118,17 @@ class MimoPlant:
         if hit is None:
             if len(self._cache) > 256:
                 self._cache.clear()
-            hit = self._cache[key] = _build_lti(self.spec, p, tuple(self.input_names), tuple(self.outputs))
+            if self.ode is not None:
+                from gaintune.plants.mimo_ode import linearize_mimo_ode
+
+                assert self.spec.ode is not None
+                pv = np.array([p[k] for k in self.params], dtype=float)
+                hit, op = linearize_mimo_ode(self.ode, self.spec.ode, p, pv, tuple(self.input_names),
+                                             tuple(self.outputs))
+                self._cache[("op", *key)] = op
+                self._cache[key] = hit
+            else:
+                hit = self._cache[key] = _build_lti(self.spec, p, tuple(self.input_names), tuple(self.outputs))
         return hit
 
     def linearize(self, values: dict[str, float] | None = None):
@@ -171,6 +196,9 @@ def _build_lti(spec: PlantSpec, p: dict[str, float], inputs: tuple[str, ...],
 
 
 def _signals(spec: PlantSpec) -> tuple[list[SignalSpec], list[SignalSpec]]:
+    if spec.ode is not None:
+        ode_units = spec.ode.output_units or {}
+        return list(spec.ode.inputs or []), [SignalSpec(name=n, unit=ode_units.get(n, "")) for n in spec.ode.outputs]
     if spec.tf_matrix is not None:
         return list(spec.tf_matrix.inputs), list(spec.tf_matrix.outputs)
     ss = spec.ss
@@ -196,6 +224,8 @@ def build_mimo_plant(spec: PlantSpec) -> MimoPlant:
     """
     inputs, outputs = _signals(spec)
     params = dict(spec.params)
+    if spec.ode is not None:
+        return _build_ode_plant(spec, inputs, outputs, params)
     lti = _build_lti(spec, params, tuple(s.name for s in inputs), tuple(s.name for s in outputs))
     if isinstance(lti, TfMatrix):
         states = [f"x_{outputs[i].name}_{inputs[j].name}_{k}" for i, row in enumerate(lti.entries)
@@ -212,6 +242,23 @@ def build_mimo_plant(spec: PlantSpec) -> MimoPlant:
     return plant
 
 
+def _build_ode_plant(spec: PlantSpec, inputs: list[SignalSpec], outputs: list[SignalSpec],
+                     params: dict[str, float]) -> MimoPlant:
+    from gaintune.plants.mimo_ode import build_ode_functions
+
+    ode = spec.ode
+    assert ode is not None
+    if len(ode.states) > MAX_ORDER:
+        raise SpecError("plant.ode.states", f"plant order {len(ode.states)} exceeds the limit of {MAX_ORDER}")
+    for name in ode.outputs:
+        if not name.isidentifier():
+            raise SpecError("plant.ode.outputs", f"output name {name!r} must be an identifier")
+    plant = MimoPlant(inputs, outputs, list(ode.states), params, spec,
+                      ode=build_ode_functions(ode, params))
+    plant.lti()  # the operating point and the linearisation at nominal parameters: checked now
+    return plant
+
+
 def as_mimo(plant) -> MimoPlant:
     """A single-input LTI plant (a :class:`gaintune.plants.plant.Plant`) as a one-input MIMO plant.
 
@@ -220,13 +267,26 @@ def as_mimo(plant) -> MimoPlant:
     if isinstance(plant, MimoPlant):
         return plant
     if plant.kind != "lti":
-        raise SpecError("loops", "loops that say what they drive need a linear plant (tf, tf_matrix or ss) so "
-                        "far; for an ODE plant leave 'drives' out (one cascade)")
+        return _ode_as_mimo(plant)
     if np.any(plant.linearize().D):
         raise SpecError("plant", "loops that say what they drive need a strictly proper plant (no direct "
                         "feedthrough) so far")
     return MimoPlant([SignalSpec(name="u")], [SignalSpec(name=n) for n in plant.outputs], list(plant.states),
                      dict(plant.params), plant.spec, _siso=plant)
+
+
+def _ode_as_mimo(plant) -> MimoPlant:
+    """A single-input ODE plant as a one-input nonlinear MIMO plant (its casadi f, h take a 1-vector u)."""
+    from gaintune.plants.mimo_ode import OdeFunctions
+
+    ode = plant.spec.ode
+    if plant.delay() != 0:
+        raise SpecError("plant.delay", "an ODE plant in a loop graph (or with a state disturbance) takes its delay "
+                        "as the actuator's: drop plant.delay and set actuators.<input>.delay")
+    out = MimoPlant([SignalSpec(name=ode.input)], [SignalSpec(name=n) for n in plant.outputs], list(plant.states),
+                    dict(plant.params), plant.spec, ode=OdeFunctions(plant.f, plant.h))
+    out.lti()  # the operating point and the linearisation, checked now
+    return out
 
 
 def _siso_lti(plant, values: dict[str, float] | None) -> DelayedSS:

@@ -252,6 +252,7 @@ def _linearize_ode(plant: Plant, p: dict[str, float]) -> LinearModel:
         if not np.isfinite(v):
             raise SpecError(f"plant.ode.x0.{s}", f"must be a finite number, got {v}")
     if ode.u0 is not None:
+        assert not isinstance(ode.u0, dict)  # a map is refused by the spec unless there are several inputs
         u0 = expr.to_float(ode.u0, p, "plant.ode.u0")
         if not np.isfinite(u0):
             raise SpecError("plant.ode.u0", f"must be a finite number, got {u0}")

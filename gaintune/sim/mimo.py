@@ -28,6 +28,7 @@ from gaintune.sim import draws as draws_mod
 from gaintune.sim.build import discretize, profile_pieces
 from gaintune.sim.draws import Draws
 from gaintune.sim.mimo_kernel import LANES, MIMO_METRICS, mimo_kernel
+from gaintune.sim.mimo_ode import ode_rows, ode_tapes
 from gaintune.sim.result import SimResult
 from gaintune.spec import ProfileSpec, ScenarioSpec, TuningSpec, check_delay_samples
 from gaintune.spec.mimo import drive_target, is_graph
@@ -39,7 +40,8 @@ AW_CODES = {"none": 0, "clamping": 1, "back_calculation": 2}
 
 def needs_mimo(spec: TuningSpec, plant) -> bool:
     """Whether ``spec`` on ``plant`` runs on this simulator: a MIMO plant, or loops that say what they drive."""
-    return isinstance(plant, MimoPlant) or is_graph(spec) or spec.actuators is not None or spec.decoupler is not None
+    return (isinstance(plant, MimoPlant) or is_graph(spec) or spec.actuators is not None or spec.decoupler is not None
+            or any(sc.disturbance.state is not None for sc in spec.scenarios))
 
 
 @dataclass(frozen=True)
@@ -120,12 +122,13 @@ def _decoupled(spec: TuningSpec, inputs: list[str], drives: np.ndarray, W: np.nd
 # ----------------------------------------------------------------- the plant
 
 
-def plant_channels(lti, dt: float, act_delay: np.ndarray):
+def plant_channels(lti, dt: float, act_delay: np.ndarray, dist_state: int = -1):
     """Discretised blocks and channels of one plant form (see :mod:`gaintune.sim.mimo_kernel`).
 
     Returns a dict of Ad (N, N), C (p, N), block starts and sizes, and per channel its block,
     source input, and (delay steps, G0, G1) for the actuator path (plant + actuator delay) and
-    for the disturbance path (plant delay only).
+    for the disturbance path (plant delay only). ``dist_state`` >= 0 (state space only) adds a
+    channel with source ``m`` (the state disturbance) into that state's derivative.
     """
     blocks, chans = [], []  # (A,), (block, input, B column, plant delay)
     # a disturbance passes a transfer-function entry's delay (part of that path), but enters a state-space
@@ -146,6 +149,8 @@ def plant_channels(lti, dt: float, act_delay: np.ndarray):
             raise SpecError("plant", "output delays are not supported by the simulator; give input delays")
         blocks.append(lti.A)
         chans = [(0, j, lti.B[:, j], float(lti.input_delays[j])) for j in range(lti.shape[1])]
+        if dist_state >= 0:
+            chans.append((0, lti.shape[1], np.eye(lti.A.shape[0])[dist_state], 0.0))
     sizes = np.array([a.shape[0] for a in blocks], dtype=np.int64)
     starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
     N, p = int(sizes.sum()), lti.shape[0]
@@ -162,7 +167,8 @@ def plant_channels(lti, dt: float, act_delay: np.ndarray):
     for c, (blk, j, bcol, delay) in enumerate(chans):
         s0, n = starts[blk], sizes[blk]
         A, Bc = blocks[blk][None], bcol.reshape(1, n, 1)
-        for tag, d in (("u", delay + act_delay[j]), ("d", delay if dist_delay else 0.0)):
+        act = act_delay[j] if j < len(act_delay) else 0.0
+        for tag, d in (("u", delay + act), ("d", delay if dist_delay else 0.0)):
             a_d, g0, g1, steps = discretize(A, Bc, dt, np.array([d]))
             Ad[s0:s0 + n, s0:s0 + n] = a_d[0]
             out[f"G0{tag}"][c, s0:s0 + n] = g0[0]
@@ -230,6 +236,21 @@ class MimoSimulator:
                 check_delay_samples(d, sc.resolved_dt, f"actuators.{self.mimo.input_names[j]}.delay")
         self._plants: dict[tuple, dict] = {}
         self._arrays: dict[tuple, dict] = {}
+        self._tapes = ode_tapes(self.mimo)
+        for i, sc in enumerate(spec.scenarios):
+            self._dist_state(sc, i)
+
+    def _dist_state(self, sc: ScenarioSpec, where: int | None) -> int:
+        """Index of the state the scenario's disturbance enters (-1: none); SpecError naming the field."""
+        name = sc.disturbance.state
+        if name is None or sc.disturbance.kind == "none":
+            return -1
+        field = f"scenarios[{where}].disturbance.state" if where is not None else "disturbance.state"
+        if isinstance(self.mimo.lti(), TfMatrix):
+            raise SpecError(field, "a transfer-function matrix has no named states; disturb an input instead")
+        if name not in self.mimo.states:
+            raise SpecError(field, f"the plant has no state {name!r}; states: {', '.join(self.mimo.states)}")
+        return self.mimo.states.index(name)
 
     def nominal_draws(self, n: int = 1) -> Draws:
         """The nominal plant and scenario, ``n`` times."""
@@ -247,27 +268,39 @@ class MimoSimulator:
                                     "safe_value": a.safe_value})
         return None
 
+    def _ode_delays(self, dt: float) -> np.ndarray:
+        """Whole-sample actuator delays of a nonlinear plant (its RK4 holds each input over a sample)."""
+        if not self.mimo.nonlinear:
+            return np.zeros(0, dtype=np.int64)
+        return np.round(self._act_delays() / dt).astype(np.int64)  # as the single-input nonlinear path
+
     def _act_delays(self) -> np.ndarray:
         return np.array([getattr(self._actuator(j), "delay", 0.0) or 0.0 for j in range(len(self.mimo.inputs))])
 
-    def _plant_arrays(self, params: np.ndarray, dt: float) -> dict:
+    def _plant_arrays(self, params: np.ndarray, dt: float, dstate: int) -> dict:
         """Channels of the plant at each distinct parameter row, stacked: (P, ...) and the row of each candidate."""
         rows, pidx = np.unique(np.atleast_2d(params), axis=0, return_inverse=True)
         per = []
         for r in rows:
-            key = (float(dt), *map(float, r))
+            key = (float(dt), dstate, *map(float, r))
             hit = self._plants.get(key)
             if hit is None:
                 if len(self._plants) > 64:
                     self._plants.clear()
-                lti = self.mimo.lti(dict(zip(self.mimo.param_names, r, strict=True)))
-                hit = self._plants[key] = plant_channels(lti, dt, self._act_delays())
+                values = dict(zip(self.mimo.param_names, r, strict=True))
+                if self.mimo.nonlinear:
+                    hit = ode_rows(self.mimo, values, r)
+                else:
+                    hit = plant_channels(self.mimo.lti(values), dt, self._act_delays(), dstate)
+                    hit.update({k: np.zeros(0) for k in ("Pq", "x_op", "u_op", "y_op")})  # ODE-only rows
+                self._plants[key] = hit
             per.append(hit)
         shapes = {k: {np.shape(p[k]) for p in per} for k in ("Ad", "Cm", "ch_du")}
         if any(len(v) > 1 for v in shapes.values()):
             raise SpecError("randomize.params", "the plant's structure (order of an entry) changes across the "
                             "randomised range; structural parameters cannot be randomised")
-        out = {k: np.stack([p[k] for p in per]) for k in ("Ad", "Cm", "ch_du", "ch_dd", "G0u", "G1u", "G0d", "G1d")}
+        out = {k: np.stack([p[k] for p in per]) for k in ("Ad", "Cm", "ch_du", "ch_dd", "G0u", "G1u", "G0d", "G1d",
+                                                         "Pq", "x_op", "u_op", "y_op")}
         out.update({k: per[0][k] for k in ("bstart", "bsize", "ch_blk", "ch_src")})
         out["pidx"] = np.ascontiguousarray(pidx.reshape(-1), dtype=np.int64)
         out["cand"], out["chunk_start"] = _chunks(out["pidx"])
@@ -331,10 +364,11 @@ class MimoSimulator:
         pieces = profile_pieces(sc.reference, dt, n)
         k_step = pieces[0][0] if pieces and pieces[0][0] <= n else 0
         m = len(self.mimo.inputs)
-        dist, dist_on = np.zeros((m, n)), np.zeros(m, dtype=np.bool_)
+        dist, dist_on = np.zeros((m + 1, n)), np.zeros(m + 1, dtype=np.bool_)  # row m: a state disturbance
         k_load = n + 1
         if sc.disturbance.kind != "none":
-            j = self.mimo.input_names.index(sc.disturbance.input or self.mimo.input_names[0])
+            j = m if self._dist_state(sc, where) >= 0 else self.mimo.input_names.index(
+                sc.disturbance.input or self.mimo.input_names[0])
             dist[j], dist_on[j] = _signal(sc.disturbance, dt, n), True
             dp = profile_pieces(sc.disturbance, dt, n)
             k_load = dp[0][0] if dp and dp[0][0] <= n else n + 1
@@ -357,7 +391,9 @@ class MimoSimulator:
             raise ValueError(f"draws has {len(d)} rows for {B} gain sets")
         n, dt = sc.n_steps, sc.resolved_dt
         params = d.params if d.params.size else np.zeros((B, 0))
-        pa = self._memo(("plant", dt, params.shape, params.tobytes()), lambda: self._plant_arrays(params, dt))
+        dstate = self._dist_state(sc, where)
+        pa = self._memo(("plant", dt, dstate, params.shape, params.tobytes()),
+                        lambda: self._plant_arrays(params, dt, dstate))
         ca = self._controller_arrays(full)
         sg = self._memo(("signals", where, sc.model_dump_json()), lambda: self._signals(sc, where))
         m, L = len(self.mimo.inputs), len(self.arch.order)
@@ -382,7 +418,8 @@ class MimoSimulator:
                 np.array([x[0] for x in lim], dtype=float), np.array([x[1] for x in lim], dtype=float), rate, u_safe,
                 sg["ref"], sg["dist"], sg["roots"], sg["step_root"], sg["target"], sg["k_step"], sg["k_load"],
                 s.max_abs_error or np.inf, s.max_abs_output or np.inf, xb, s.divergence_bound, s.action == "hold",
-                out, chain_out, eff_out, traces, tr_y, tr_sp, tr_u)
+                out, chain_out, eff_out, traces, tr_y, tr_sp, tr_u, self.mimo.nonlinear, *self._tapes[0],
+                *self._tapes[1], pa["Pq"], pa["x_op"], pa["u_op"], pa["y_op"], self._ode_delays(dt), dstate)
         _run_threaded(args)
         return self._result(sc, out, chain_out, eff_out, traces, tr_y, tr_sp, tr_u)
 

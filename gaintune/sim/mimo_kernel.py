@@ -26,6 +26,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from gaintune.sim.mimo_ode_kernel import ode_outputs, ode_rk4
+
 __all__ = ["MIMO_METRICS", "LANES", "mimo_kernel"]
 
 #: Candidates per chunk.
@@ -46,9 +48,16 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
                 meas, parent, root_row, kp, ki, kd, tf, kb, bw, cw, lo, hi, aw, W, direct,
                 u_lo, u_hi, rate, u_safe, ref, dist, roots, step_root, target, k_step, k_load,
                 max_err, max_out, xbound, div_bound, safe_hold,
-                out, chain_out, eff_out, want_traces, tr_y, tr_sp, tr_u):
+                out, chain_out, eff_out, want_traces, tr_y, tr_sp, tr_u,
+                nonlin, f_op, f_a, f_b, f_o, f_c, nwf, h_op, h_a, h_b, h_o, h_c, nwh, Pq, x_op, u_op, y_op, ud,
+                dstate):
     """Simulate chunks ``c_lo .. c_hi - 1``; metrics into ``out`` (16, B), ``chain_out`` (R, 3, B) and
-    ``eff_out`` (m, B), traces into ``tr_*`` when ``want_traces``. Loops are indexed in graph order."""
+    ``eff_out`` (m, B), traces into ``tr_*`` when ``want_traces``. Loops are indexed in graph order.
+
+    ``dist`` and ``dist_on`` have a row per input and one more, the state disturbance: a channel of
+    its own for a linear plant, added to the derivative of state ``dstate`` for a nonlinear one
+    (``nonlin``: the ODE tapes ``f_*``, ``h_*`` with ``Pq``, ``x_op``, ``u_op``, ``y_op`` per plant
+    row and ``ud`` whole-sample actuator delays; see :mod:`gaintune.sim.mimo_ode_kernel`)."""
     N = Ad.shape[1]
     p = Cm.shape[1]
     L = meas.shape[0]
@@ -59,6 +68,10 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
     for q in range(ch_du.shape[0]):
         for c in range(nc):
             M = max(M, ch_du[q, c] + 2)
+    for a in range(ud.shape[0]):
+        M = max(M, ud[a] + 2)
+    n_ode = x_op.shape[1] if nonlin else 0
+    n_par = Pq.shape[1]
     monitor = max_err < np.inf or max_out < np.inf
     for i in range(N):
         monitor = monitor or xbound[i] < np.inf
@@ -70,7 +83,7 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
         x = np.zeros((N, C))
         xn = np.zeros((N, C))
         y = np.zeros((p, C))
-        hist = np.zeros((m, M, C))
+        hist = np.zeros((m + 1, M, C))  # row m: the state-disturbance channel's (always 0) input
         g = np.zeros((9, L, C))  # per loop: kp, ki*dt, kb*dt, alpha, beta, lo, hi, and the state below
         integ = np.zeros((L, C))
         dterm = np.zeros((L, C))
@@ -86,6 +99,20 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
         alive = np.ones(C)
         trip = np.zeros(C)
         mark = np.zeros((5, C))  # y0, invspan, t10, t90, last
+        u_held = np.zeros((m, C))  # nonlinear: the absolute inputs held over the last sample
+        inp = np.zeros((n_ode + m + n_par, C))
+        wf = np.zeros((nwf, C))
+        wh = np.zeros((nwh, C))
+        hout = np.zeros((p, C))
+        kk = np.zeros((4, n_ode, C))
+        if nonlin:
+            for j in range(nl):
+                for i in range(n_ode):
+                    x[i, j] = x_op[q, i]
+                for a in range(m):
+                    u_held[a, j] = u_op[q, a]
+                for r in range(n_par):
+                    inp[n_ode + m + r, j] = Pq[q, r]
         for j in range(nl):
             b = cand[b0 + j]
             for l in range(L):
@@ -105,7 +132,9 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
         for k in range(n_steps):
             t = k * dt
             pos = pos + 1 if pos + 1 < M else 0
-            for o in range(p):
+            if nonlin:
+                ode_outputs(x, u_held, inp, n_ode, m, nl, h_op, h_a, h_b, h_o, h_c, wh, hout, y_op[q], y)
+            for o in range(p if not nonlin else 0):
                 for j in range(nl):
                     y[o, j] = 0.0
                 for i in range(N):
@@ -267,12 +296,29 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
                         dv = ch_G0d[q, c, i] * da + ch_G1d[q, c, i] * db
                         for j in range(nl):
                             xn[i, j] += dv
+            if nonlin:
+                _ode_update(k, pos, M, m, nl, dt, x, xn, u_held, inp, hist, ud, u_op[q], dist, dist_on, dstate,
+                            f_op, f_a, f_b, f_o, f_c, wf, kk, n_ode)
             for i in range(N):
                 for j in range(nl):
                     xn[i, j] *= alive[j]  # dead lanes held at rest
             x, xn = xn, x
         _finish(nl, b0, cand, n_steps, dt, kst, target, alive, trip, acc, chain, eff, mark, y, meas, step_root,
                 out, chain_out, eff_out)
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _ode_update(k, pos, M, m, nl, dt, x, xn, ua, inp, hist, ud, u_op_q, dist, dist_on, dstate,
+                f_op, f_a, f_b, f_o, f_c, wf, kk, n_ode):
+    """Nonlinear plant: the held inputs (operating point + delayed actuator + input disturbance), then RK4."""
+    for a in range(m):
+        ia = pos - ud[a]
+        ia = ia + M if ia < 0 else ia
+        da = dist[a, k] if dist_on[a] else 0.0
+        for j in range(nl):
+            ua[a, j] = u_op_q[a] + hist[a, ia, j] + da
+    dv = dist[m, k] if dist_on[m] else 0.0
+    ode_rk4(x, xn, ua, inp, n_ode, m, nl, dt, f_op, f_a, f_b, f_o, f_c, wf, kk[0], kk[1], kk[2], kk[3], dstate, dv)
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")

@@ -178,7 +178,9 @@ def _plant_signals(spec: TuningSpec) -> tuple[list[SignalSpec] | None, list[Sign
     if pl.tf is not None:
         return [SignalSpec(name="u")], [SignalSpec(name=pl.tf.output)]
     if pl.ode is not None:
-        return [SignalSpec(name=pl.ode.input)], [SignalSpec(name=n) for n in pl.ode.outputs]
+        ode_units = pl.ode.output_units or {}
+        return (pl.ode.inputs or [SignalSpec(name=pl.ode.input)],
+                [SignalSpec(name=n, unit=ode_units.get(n, "")) for n in pl.ode.outputs])
     return None, None
 
 
@@ -191,7 +193,8 @@ def check_architecture(spec: TuningSpec) -> None:
     inputs, outputs = _plant_signals(spec)
     in_names = None if inputs is None else [s.name for s in inputs]
     out_names = None if outputs is None else [s.name for s in outputs]
-    several = spec.plant.tf_matrix is not None or (spec.plant.ss is not None and spec.plant.ss.is_mimo)
+    several = spec.plant.tf_matrix is not None or (spec.plant.ss is not None and spec.plant.ss.is_mimo) or (
+        spec.plant.ode is not None and spec.plant.ode.is_mimo)
     if out_names is not None and several:  # single-input plants: checked against the built plant, as before
         for i, lp in enumerate(spec.loops):
             if lp.measure is not None and lp.measure not in out_names:
@@ -274,9 +277,36 @@ def _check_scenarios(spec: TuningSpec, names: list[str], in_names: list[str] | N
                 raise _error_at(("scenarios", s, "reference", "loop"), f"loop {ref!r} takes its setpoint from "
                                 "another loop; a reference goes to the outer loop of a chain", ref)
         din = sc.disturbance.input
+        _check_state_disturbance(spec, s)
         if din is not None and in_names is not None and din not in in_names:
             raise _error_at(("scenarios", s, "disturbance", "input"), f"the plant has no input {din!r}; inputs: "
                             f"{', '.join(in_names)}", din)
+
+
+def _state_names(spec: TuningSpec) -> list[str] | None:
+    pl = spec.plant
+    if pl.ode is not None:
+        return list(pl.ode.states)
+    if pl.ss is not None:
+        return list(pl.ss.states or [f"x{i}" for i in range(len(pl.ss.A))])
+    return None
+
+
+def _check_state_disturbance(spec: TuningSpec, s: int) -> None:
+    dist = spec.scenarios[s].disturbance
+    if dist.state is None:
+        return
+    where = ("scenarios", s, "disturbance", "state")
+    if dist.input is not None:
+        raise _error_at(where, "give either disturbance.input or disturbance.state, not both", dist.state)
+    if dist.entry != "input":
+        raise _error_at(where, "a state disturbance enters the plant (entry: input, the default)", dist.state)
+    states = _state_names(spec)
+    if spec.plant.tf is not None or spec.plant.tf_matrix is not None:
+        raise _error_at(where, "a transfer function has no named states; write the plant as state space or an "
+                        "ODE to disturb a state, or use disturbance.input", dist.state)
+    if states is not None and dist.state not in states:
+        raise _error_at(where, f"the plant has no state {dist.state!r}; states: {', '.join(states)}", dist.state)
 
 
 def gain_unit(spec: TuningSpec, loop: int, gain: str, inputs: list[SignalSpec] | None,

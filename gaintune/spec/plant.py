@@ -133,21 +133,75 @@ class StateSpaceSpec(_Model):
 
 
 class OdeSpec(_Model):
-    """A nonlinear plant dx/dt = f(x, u, p), y = h(x, u, p) written as expressions."""
+    """A nonlinear plant dx/dt = f(x, u, p), y = h(x, u, p) written as expressions.
+
+    One input (``input``, default ``u``), or several: ``inputs`` names them (each with its unit),
+    and ``u0`` is then a map from input name to its operating value (solved in the least-squares
+    sense for equilibrium at ``x0`` when omitted).
+    """
 
     states: list[str] = Field(min_length=1)
     input: str = Field("u", description="Name of the actuator input in the expressions.")
     rhs: dict[str, str] = Field(description="d(state)/dt expression for every state.")
     outputs: dict[str, str] = Field(description="Output name -> expression.")
     x0: dict[str, Coef] = Field(default_factory=dict, description="Operating-point state (default 0, or solved).")
-    u0: Coef | None = Field(None, description="Operating-point input; solved from x0 for equilibrium if omitted.")
+    u0: Coef | dict[str, Coef] | None = Field(
+        None, description="Operating-point input; solved from x0 for equilibrium if omitted. Several inputs: a map "
+        "input name -> value (all of them, or omitted).")
+    # left out of dumps while unset, so single-input specs hash as before
+    inputs: list[SignalSpec] | None = Field(
+        None, exclude_if=lambda v: v is None,
+        description="Several inputs: the named inputs ({name, unit} or a name), used in the expressions; "
+        "replaces 'input'.")
+    output_units: dict[str, str] | None = Field(
+        None, exclude_if=lambda v: v is None, description="The unit of each output, by output name.")
+
+    @property
+    def is_mimo(self) -> bool:
+        """Whether this is the several-input form (``inputs`` given)."""
+        return self.inputs is not None
+
+    @property
+    def input_names(self) -> list[str]:
+        """The names of the inputs in the expressions, in order."""
+        return [s.name for s in self.inputs] if self.inputs is not None else [self.input]
+
+    def _check_inputs(self) -> None:
+        if self.inputs is None:
+            if isinstance(self.u0, dict):
+                raise _error_at(("u0",), "a map of input values needs several inputs ('inputs'); give one number "
+                                "for the single input", self.u0)
+            return
+        names = self.input_names
+        if len(set(names)) != len(names):
+            raise _error_at(("inputs",), f"input names must be unique, {names}", names)
+        if "input" in self.model_fields_set:
+            raise _error_at(("input",), "give either 'input' (one input) or 'inputs' (several), not both", self.input)
+        for k, name in enumerate(names):
+            if name in self.states:
+                raise _error_at(("inputs", k), f"input {name!r} has the name of a state; rename one", name)
+        if self.u0 is not None:
+            if not isinstance(self.u0, dict):
+                raise _error_at(("u0",), f"with several inputs u0 maps each input to its value, e.g. "
+                                f"{{{names[0]}: 1.0, ...}}, or leave it out to solve it", self.u0)
+            missing = [n for n in names if n not in self.u0]
+            extra = [n for n in self.u0 if n not in names]
+            if missing or extra:
+                raise _error_at(("u0",), f"gives {len(self.u0)} values for {len(names)} inputs"
+                                + (f"; missing {missing}" if missing else "") + (f"; unknown {extra}" if extra else "")
+                                + f"; give one value per input ({', '.join(names)})", self.u0)
+        unknown = [o for o in (self.output_units or {}) if o not in self.outputs]
+        if unknown:
+            raise _error_at(("output_units",), f"names unknown output(s) {unknown}; outputs: "
+                            f"{', '.join(self.outputs)}", unknown)
 
     @model_validator(mode="after")
     def _rhs_matches_states(self) -> OdeSpec:
         if len(set(self.states)) != len(self.states):
             repeated = sorted({n for n in self.states if self.states.count(n) > 1})
             raise ValueError(f"states names must be unique, {repeated} repeat")
-        if self.input in self.states:
+        self._check_inputs()
+        if self.inputs is None and self.input in self.states:
             # the expressions would read the name as the input: the state would vanish from the model
             i = self.states.index(self.input)
             raise _error_at(("states", i), f"state {self.input!r} has the name of the input (input: {self.input}); "
@@ -203,9 +257,11 @@ class PlantSpec(_Model):
             raise ValueError(
                 f"plant needs exactly one of tf, tf_matrix, ss, ode or model; got {given or 'none'}"
             )
-        if self.delay is not None and (self.tf_matrix is not None or (self.ss is not None and self.ss.is_mimo)):
+        if self.delay is not None and (self.tf_matrix is not None or (self.ss is not None and self.ss.is_mimo)
+                                       or (self.ode is not None and self.ode.is_mimo)):
             raise _error_at(("delay",), "a plant with several inputs has its delays per path: give each entry "
-                            "its delay (tf_matrix) or ss.input_delays, and drop plant.delay", self.delay)
+                            "its delay (tf_matrix) or ss.input_delays (an ODE: actuators.<input>.delay), and drop "
+                            "plant.delay", self.delay)
         if isinstance(self.model, str):
             self.model = ModelRefSpec(name=self.model)
         self._check_param_names()
@@ -216,7 +272,8 @@ class PlantSpec(_Model):
         taken: dict[str, str] = {}
         if self.ode is not None:
             taken = {name: f"ode.states[{i}]" for i, name in enumerate(self.ode.states)}
-            taken[self.ode.input] = "ode.input"
+            for name in self.ode.input_names:
+                taken[name] = "ode.inputs" if self.ode.is_mimo else "ode.input"
         elif self.tf is not None or self.tf_matrix is not None:
             taken["s"] = "the Laplace variable s of tf expressions"
         for name in self.params:

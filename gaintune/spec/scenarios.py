@@ -74,6 +74,11 @@ class DisturbanceSpec(ProfileSpec):
         description="Plants with several inputs: the input it is added to, after the actuator and its delay (a "
         "transfer-function matrix: it passes each entry's delay; state space: it enters after the input "
         "delay, as for a single input); default: the first input.")
+    state: str | None = Field(
+        None, exclude_if=lambda v: v is None,
+        description="Plants with several inputs or a loop graph (state space or ODE): a named state whose "
+        "derivative the disturbance is added to (a load torque on a speed state, in that state's units per "
+        "second); replaces 'input'.")
 
 
 class ScenarioSpec(_Model):
