@@ -5,7 +5,10 @@ a spec file, or a benchmark-suite problem written ``suite:<suite>/<problem>`` (e
 ``suite:cascades/six_lag_cascade``). For every problem, method and seed one search runs at the largest
 budget and its anytime curve is read at every budget of ``--budgets``: the best feasible cost found
 within that many simulations. The RL search runs alone (``refine: false``) and its count includes its
-set-up simulations; CMA-ES (``run_baseline(spec, "cmaes")``) searches the same box from the same start.
+set-up simulations (the search box and the reward scale; column ``set-up sims``); CMA-ES
+(``run_baseline(spec, "cmaes")``) searches the same box from the same start and counts only its own
+simulations. Each answer's closed-loop stability is checked on the linear continuous-time loop
+(:mod:`gaintune.bench.scale_check`; the MIMO verdict itself is ``-`` until MIMO verification is wired).
 
 Cells are costs over the best cost any run reached on that problem (``best``), so 1.000 is the best
 answer seen; the bench does not compute a separate reference optimum (at 100+ gains it would cost
@@ -76,14 +79,22 @@ def run_one(spec: Any, method: str, seed: int, budget: int) -> dict[str, Any]:
         from gaintune.baselines import run_baseline
 
         cm = run_baseline(spec, "cmaes", budget=budget, seed=seed)
-        return {"cost": cm.cost, "feasible": cm.feasible, "sims": cm.n_sims,
-                "wall_time": time.perf_counter() - t0, "curve": [list(p) for p in cm.history]}
-    from gaintune.search import tune
+        out: dict[str, Any] = {"cost": cm.cost, "feasible": cm.feasible, "sims": cm.n_sims, "setup_sims": 0,
+               "wall_time": time.perf_counter() - t0, "curve": [list(p) for p in cm.history]}
+        gains = cm.gains
+    else:
+        from gaintune.search import tune
 
-    res = tune(spec, verify=True)
-    curve = [[res.setup_sims + c.sims, c.best_cost] for c in res.curve if c.feasible]
-    return {"cost": res.rl_cost, "feasible": res.rl_feasible, "sims": res.sims,
-            "wall_time": time.perf_counter() - t0, "verdict": res.verdict, "curve": curve}
+        res = tune(spec, verify=True)
+        curve = [[res.setup_sims + c.sims, c.best_cost] for c in res.curve if c.feasible]
+        out = {"cost": res.rl_cost, "feasible": res.rl_feasible, "sims": res.sims, "setup_sims": res.setup_sims,
+               "wall_time": time.perf_counter() - t0, "verdict": res.verdict, "curve": curve}
+        gains = res.gains
+    if gains is not None:
+        from gaintune.bench.scale_check import closed_loop_stable
+
+        out["stable"], out["stability"] = closed_loop_stable(spec, gains)
+    return out
 
 
 def _n_gains(spec: Any) -> int:
@@ -124,6 +135,10 @@ def _r(c: float | None, best: float | None) -> str:
     return fmt_ratio(c / best) if c is not None and best else "-"
 
 
+def _yes(x: bool | None) -> str:
+    return "-" if x is None else ("yes" if x else "NO")
+
+
 def render_markdown(result: dict[str, Any], command: str = "") -> str:
     """Per problem: one row per run, the curve as cost / best, then the answer, verdict and wall time."""
     budgets = result["budgets"]
@@ -137,10 +152,11 @@ def render_markdown(result: dict[str, Any], command: str = "") -> str:
     for name, p in result["problems"].items():
         lines += [f"## {name}: {p['n_loops']} loops, {p['n_gains']} tuned gains, best {p['best']}", ""]
         body = [[r["method"], r["seed"], *(_r(c, p["best"]) for c in r["at"]), _r(r.get("cost"), p["best"]),
-                 r.get("verdict") or "-", f"{r.get('wall_time', 0):.1f}", r.get("error", "")]
+                 r.get("setup_sims", "-"), _yes(r.get("stable")), r.get("verdict") or "-",
+                 f"{r.get('wall_time', 0):.1f}", r.get("error", "")]
                 for r in result["rows"] if r["problem"] == name]
-        lines += [md_table(["method", "seed", *(f"{b:,}" for b in budgets), "answer", "verdict", "wall s", "error"],
-                           body), ""]
+        lines += [md_table(["method", "seed", *(f"{b:,}" for b in budgets), "answer", "set-up sims",
+                            "closed loop stable", "verdict", "wall s", "error"], body), ""]
     return "\n".join(lines).rstrip() + "\n"
 
 

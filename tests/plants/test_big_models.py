@@ -96,3 +96,30 @@ def test_process_train_tune_smoke() -> None:
     d["search"] = {"budget": 64, "n_envs": 16, "refine": False, "seed": 0}
     res = tune(load_spec(d), verify=False)
     assert res.sims <= 64 + res.setup_sims + 64 and res.rl_cost is not None and np.isfinite(res.rl_cost)
+
+
+def test_closed_loop_check_passes_the_hand_gains_and_fails_a_reversed_loop() -> None:
+    """The bench's linear stability check: the hand-tuned quadrotor cascades are stable; the climb-rate
+    loop with its sign reversed (positive feedback) is not."""
+    from gaintune.bench.scale_check import closed_loop_stable
+
+    spec = load_spec(load_model("quadrotor").example_spec())
+    ok, how = closed_loop_stable(spec, _quad_gains())
+    assert ok is True, how
+    bad = _quad_gains() | {"vz": {"Kp": -5.0, "Ki": -1.0, "Kd": -0.01}}
+    assert closed_loop_stable(spec, bad)[0] is False
+
+
+def test_closed_loop_check_of_a_one_loop_graph_matches_the_characteristic_polynomial() -> None:
+    """P control of 1/(s (s + 1)) through a two-loop cascade x -> v: u = kv (kx (r - x) - v) gives
+    s^2 + (1 + kv) s + kv kx, stable for kv > -1, kv kx > 0; kx < 0 makes it unstable."""
+    from gaintune.bench.scale_check import closed_loop_stable
+
+    d = {"plant": {"ss": {"A": [[0, 1], [0, -1]], "B": [[0], [1]], "C": [[1, 0], [0, 1]], "outputs": ["x", "v"],
+                          "inputs": ["u"]}},
+         "loops": [{"name": "x", "measure": "x", "drives": "loop:v", "type": "p", "direction": "direct"},
+                   {"name": "v", "measure": "v", "drives": "u", "type": "p", "direction": "direct"}],
+         "scenarios": [{"dt": 0.01, "horizon": 5.0}]}
+    spec = load_spec(d)
+    assert closed_loop_stable(spec, {"x": {"Kp": 2.0}, "v": {"Kp": 3.0}})[0] is True
+    assert closed_loop_stable(spec, {"x": {"Kp": -2.0}, "v": {"Kp": 3.0}})[0] is False
