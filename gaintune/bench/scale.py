@@ -93,7 +93,10 @@ def run_one(spec: Any, method: str, seed: int, budget: int) -> dict[str, Any]:
     if gains is not None:
         from gaintune.bench.scale_check import closed_loop_stable
 
-        out["stable"], out["stability"] = closed_loop_stable(spec, gains)
+        try:
+            out["stable"], out["stability"] = closed_loop_stable(spec, gains)
+        except Exception as exc:  # noqa: BLE001 - a failed check must not lose the run's figures
+            out["stable"], out["stability"] = None, f"check failed: {type(exc).__name__}: {exc}"
     return out
 
 

@@ -88,6 +88,8 @@ def closed_loop_stable(spec: Any, gains: dict[str, dict[str, float]]) -> tuple[b
     from gaintune.verification.mimo_loop import MimoLoop
     from gaintune.verification.mimo_stability import mimo_stability
 
+    if all(lp.drives is None for lp in spec.loops):
+        return None, "a single-input cascade: its verdict is the full verification's"
     try:
         mp = as_mimo(build_plant(spec.plant))
         K, pairing = cascade_controller(spec, gains, mp)

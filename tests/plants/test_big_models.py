@@ -123,3 +123,12 @@ def test_closed_loop_check_of_a_one_loop_graph_matches_the_characteristic_polyno
     spec = load_spec(d)
     assert closed_loop_stable(spec, {"x": {"Kp": 2.0}, "v": {"Kp": 3.0}})[0] is True
     assert closed_loop_stable(spec, {"x": {"Kp": -2.0}, "v": {"Kp": 3.0}})[0] is False
+
+
+def test_closed_loop_check_leaves_a_single_input_cascade_to_the_verdict() -> None:
+    """A cascade without drives (the six-loop benchmark form) is not a loop graph: no check, no crash."""
+    from gaintune.bench.scale_check import closed_loop_stable
+
+    d = {"plant": {"tf": {"num": [1], "den": [1, 1]}}, "loops": [{"name": "a", "type": "p"}],
+         "scenarios": [{"dt": 0.01, "horizon": 5.0}]}
+    assert closed_loop_stable(load_spec(d), {"a": {"Kp": 1.0}})[0] is None
