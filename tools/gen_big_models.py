@@ -99,9 +99,9 @@ def arm_example() -> dict:
     for k in range(1, J + 1):
         loops += [
             {"name": f"q{k}", "measure": f"q{k}", "drives": f"loop:w{k}", "type": "pid", "direction": "direct",
-             "output_limits": [-3, 3], "gains": _pid([0.5, 2000], [0.01, 100], [1e-5, 1])},
+             "output_limits": [-3, 3], "gains": _pid([0.5, 200], [0.01, 100], [1e-5, 1])},
             {"name": f"w{k}", "measure": f"w{k}", "drives": f"loop:i{k}", "type": "pid", "direction": "direct",
-             "output_limits": [-10, 10], "gains": _pid([0.1, 1000], [0.1, 1000], [1e-5, 1])},
+             "output_limits": [-10, 10], "gains": _pid([0.1, 100], [0.1, 1000], [1e-5, 1])},
             {"name": f"i{k}", "measure": f"i{k}", "drives": f"v{k}", "type": "pid", "direction": "direct",
              "gains": _pid([0.1, 50], [1, 10000], [1e-6, 0.01])},
         ]
@@ -184,9 +184,9 @@ def process_train(units: int = 22) -> tuple[dict, dict, dict]:
     for k in range(1, units + 1):
         loops += [
             {"name": f"T{k}", "measure": f"T{k}", "drives": f"loop:F{k}", "type": "pid", "direction": "direct",
-             "output_limits": [-2, 2], "gains": _pid([0.001, 10], [1e-5, 0.1], [1e-6, 50])},
+             "output_limits": [-2, 2], "gains": _pid([0.001, 1], [1e-5, 0.1], [1e-4, 5])},
             {"name": f"F{k}", "measure": f"F{k}", "drives": f"u{k}", "type": "pi", "direction": "direct",
-             "gains": {"Kp": {"bounds": [1, 10000]}, "Ki": {"bounds": [0.1, 10000]}}},
+             "gains": {"Kp": {"bounds": [1, 1000]}, "Ki": {"bounds": [1, 1000]}}},
         ]
     acts = {f"u{k}": {"limits": [-50, 50]} for k in range(1, units + 1)}
     scen = [{"name": "feed", "dt": 1.0, "horizon": 900.0, "reference": {"kind": "none"},
