@@ -20,6 +20,9 @@ Cases (each 2,000 time steps):
 * ``quadruple_tank``: the nonlinear quadruple tank (``models/quadruple_tank.yaml``, casadi tapes,
   RK4) on the MIMO simulator, Johansson's PI on both loops, the step on y1, dt = 0.5 s over
   1,000 s; timed as ``wood_berry``.
+* ``robot_arm6``: the six-joint arm (``models/robot_arm6.yaml``: 18 states, 18 loops, 54 gains,
+  position -> velocity -> current PID per joint), the 0.1 rad step on the shoulder, dt = 1 ms over
+  2 s, on the MIMO simulator as ``wood_berry``.
 
 Each batch holds distinct gain sets (nominal gains times a seeded log-uniform
 factor in [0.74, 1.35]). Reported per case and batch size:
@@ -81,9 +84,13 @@ NOMINAL_GAINS: dict[str, Gains] = {
     "water_tank": {"level": {"Kp": 1.0, "Ki": 0.05}},
     "wood_berry": {"xD": {"Kp": 0.375, "Ki": 0.375 / 8.29}, "xB": {"Kp": -0.075, "Ki": -0.075 / 23.6}},
     "quadruple_tank": {"y1": {"Kp": 3.0, "Ki": 3.0 / 30}, "y2": {"Kp": 2.7, "Ki": 2.7 / 40}},
+    "robot_arm6": {name: gains for k in range(1, 7) for name, gains in (
+        (f"q{k}", {"Kp": 10.0, "Ki": 1.0, "Kd": 1e-3}),
+        (f"w{k}", {"Kp": 14.0 if k <= 3 else 0.85, "Ki": 140.0 if k <= 3 else 8.5, "Kd": 1e-3}),
+        (f"i{k}", {"Kp": 5.0, "Ki": 1000.0, "Kd": 1e-5}))},
 }
 #: The MIMO cases (gaintune.sim.mimo): timed through Simulator.run only.
-MIMO_CASES = ("wood_berry", "quadruple_tank")
+MIMO_CASES = ("wood_berry", "quadruple_tank", "robot_arm6")
 #: The single-input cases, with the NumPy baseline.
 CASES = tuple(k for k in NOMINAL_GAINS if k not in MIMO_CASES)
 
@@ -98,6 +105,8 @@ def case_spec(name: str) -> dict[str, Any]:
         spec["scenarios"] = [{**spec["scenarios"][0], "horizon": 200.0}]
     if name == "quadruple_tank":
         spec["scenarios"] = [{**spec["scenarios"][0], "horizon": 1000.0}]
+    if name == "robot_arm6":  # the step on the shoulder (q2), 2,000 steps of 1 ms
+        spec["scenarios"] = [{**spec["scenarios"][1], "horizon": 2.0}]
     return spec
 
 

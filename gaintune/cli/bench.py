@@ -23,6 +23,8 @@ bench_app = typer.Typer(help="Benchmarks (arguments after the command are passed
 BENCH = {
     "sim": "Simulator throughput (simulations/s).",
     "search": "RL search vs baselines on the benchmark processes.",
+    "scale": "Budget-to-quality curves of RL alone and CMA-ES on large architectures (quadrotor, robot arm, "
+             "process train).",
     "verify": "Verification speed: nominal, full and the search estimate's batch.",
     "compare": "Compare gaintune with classical rules and optimisers.",
     "constraints": "Agreement of the searched requirement estimate with the verdict near the boundary.",
