@@ -309,6 +309,15 @@ class PgJobStore:
         return [JobRow.from_row(r) for r in rows], total
 
     @_db
+    def finished_tuners(self, owner: str, limit: int) -> builtins.list[JobRow]:
+        """``owner``'s succeeded tuner-training jobs (kind ``tuner``), newest first, at most ``limit``."""
+        with self._conn() as conn:
+            rows = conn.execute(
+                f"SELECT {_COLS} FROM jobs WHERE owner=%s AND kind='tuner' AND status='succeeded' "
+                "ORDER BY seq DESC LIMIT %s", (owner, limit)).fetchall()
+        return [JobRow.from_row(r) for r in rows]
+
+    @_db
     def counts(self) -> dict[str, int]:
         """The number of jobs in each status (every status listed, 0 included)."""
         out = {s: 0 for s in STATUSES}

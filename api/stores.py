@@ -45,6 +45,9 @@ class Store(Protocol):
     def list(self, owner: str, status: str | None, limit: int, offset: int) -> tuple[builtins.list[JobRow], int]:
         """One page of ``owner``'s jobs and their total."""
 
+    def finished_tuners(self, owner: str, limit: int) -> builtins.list[JobRow]:
+        """``owner``'s succeeded tuner-training jobs, newest first, at most ``limit``."""
+
     def counts(self) -> dict[str, int]:
         """Jobs per status."""
 

@@ -255,3 +255,19 @@ def test_sqlite_database_written_before_hosts_gains_the_worker_host_column(tmp_p
     (job_id,) = _queue(store)
     assert store.claim(DEAD_PID).worker_host == HOST
 
+
+
+def test_finished_tuners_lists_only_the_owners_succeeded_tuner_jobs_on_each_store(store):
+    """GET /v1/tuners lists job-trained tuners through this query: the PostgreSQL store lacked it (mypy caught it)."""
+    tuned, _ = store.create("me", "{}", "h1", "a", idem_key=None, max_queue=100, kind="tune")
+    old, _ = store.create("me", "{}", "h2", "b", idem_key=None, max_queue=100, kind="tuner")
+    new, _ = store.create("me", "{}", "h3", "c", idem_key=None, max_queue=100, kind="tuner")
+    theirs, _ = store.create("you", "{}", "h4", "d", idem_key=None, max_queue=100, kind="tuner")
+    for _ in range(4):
+        job = store.claim(DEAD_PID)
+        store.finish(job.id, job.claim, "succeeded", result={})
+    queued, _ = store.create("me", "{}", "h5", "e", idem_key=None, max_queue=100, kind="tuner")
+    assert [j.id for j in store.finished_tuners("me", 10)] == [new.id, old.id]
+    assert [j.id for j in store.finished_tuners("me", 1)] == [new.id]
+    assert [j.id for j in store.finished_tuners("you", 10)] == [theirs.id]
+    assert tuned.id and queued.id
