@@ -7,7 +7,12 @@ Cases (models from ``models/``, not copies):
   -> current PI, dt 0.1 ms;
 * one PI loop on 1/(s+1)^3, dt 10 ms;
 * the REST benchmark's 2-loop speed cascade, full verification (nonlinear check on) with
-  different gains on every call (``gaintune.bench.api.CASCADE_SPEC``).
+  different gains on every call (``gaintune.bench.api.CASCADE_SPEC``);
+* MIMO verification (``gaintune.verification.mimo.mimo_report``): the Wood-Berry column with
+  Luyben's BLT PI gains, and a synthetic 18 x 18 diagonally dominant plant (first-order
+  channels, input delays of 10-50 ms, 10 % coupling) with a decentralised PI loop per channel
+  (:func:`synthetic_mimo`). Their rows also give the mean process CPU time, which a busy machine
+  inflates less than the wall time.
 
 For each: ``verify`` nominal with the plant and layout reused, ``verify`` including the
 plant build, and the batched search estimate (``requirement_violation``, B = 64). Figures are
@@ -29,7 +34,7 @@ from gaintune.bench.compare import md_table, write_outputs
 if TYPE_CHECKING:  # pragma: no cover
     from gaintune.spec import Gains
 
-__all__ = ["CASES", "main"]
+__all__ = ["CASES", "main", "synthetic_mimo", "mimo_rows"]
 
 #: name -> (spec dict, gains)
 CASES: dict[str, tuple[dict[str, Any], Gains]] = {
@@ -89,6 +94,59 @@ def _case_rows(name: str, spec_d: dict[str, Any], gains: Gains, repeat: int) -> 
     return rows
 
 
+def synthetic_mimo(n: int = 18, seed: int = 0):
+    """An n x n diagonally dominant plant (channel i: a_i/(s + a_i), a_i in [0.5, 5], coupling up to
+    10 %, input delays 10-50 ms) and a PI loop per channel (Kp 2, Ki 2 a_i): (plant, loops)."""
+    from gaintune.lti.mimo import DelayedSS
+    from gaintune.verification.mimo_loop import PidLoop
+
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(0.5, 5.0, n)
+    B = np.diag(a) + 0.1 * rng.uniform(-1.0, 1.0, (n, n)) * a[:, None]
+    plant = DelayedSS(-np.diag(a), B, np.eye(n), np.zeros((n, n)), inputs=tuple(f"u{i}" for i in range(n)),
+                      outputs=tuple(f"y{i}" for i in range(n)), input_delays=rng.uniform(0.01, 0.05, n))
+    return plant, [PidLoop(f"loop{i}", f"y{i}", f"u{i}", Kp=2.0, Ki=2.0 * a[i]) for i in range(n)]
+
+
+def _wood_berry_blt():
+    """The Wood-Berry column (minutes) and Luyben's BLT PI loops."""
+    from gaintune.lti.mimo import TfEntry, TfMatrix
+    from gaintune.verification.mimo_loop import PidLoop
+
+    def e(num: list[float], den: list[float], delay: float) -> TfEntry:
+        return TfEntry(np.array(num), np.array(den), delay)
+
+    plant = TfMatrix(((e([12.8], [16.7, 1], 1), e([-18.9], [21, 1], 3)), (e([6.6], [10.9, 1], 7),
+                                                                          e([-19.4], [14.4, 1], 3))),
+                     inputs=("reflux", "steam"), outputs=("xD", "xB"))
+    return plant, [PidLoop("top", "xD", "reflux", Kp=0.375, Ki=0.375 / 8.29),
+                   PidLoop("bottom", "xB", "steam", Kp=-0.075, Ki=-0.075 / 23.6)]
+
+
+def mimo_rows(repeat: int) -> list[list[Any]]:
+    """Rows for MIMO verification: Wood-Berry BLT and the synthetic 18-loop plant."""
+    from gaintune.verification.mimo import mimo_report
+    from gaintune.verification.mimo_loop import decentralised_pid
+
+    rows: list[list[Any]] = []
+    for name, (plant, loops) in (("Wood-Berry, BLT PI (2 loops)", _wood_berry_blt()),
+                                 ("synthetic 18 x 18, decentralised PI (18 loops)", synthetic_mimo())):
+        K = decentralised_pid(plant, loops)
+        rep = mimo_report(plant, K, loops)
+        cpu: list[float] = []
+
+        def one(plant=plant, K=K, loops=loops, cpu=cpu) -> None:
+            c0 = time.process_time()
+            mimo_report(plant, K, loops)
+            cpu.append(time.process_time() - c0)
+
+        m, p = _time(one, repeat)
+        verdict = (f"{'stable' if rep.stability.stable else 'UNSTABLE'}, Ms {rep.ms:.3f}, "
+                   f"disk alpha {rep.disk_alpha:.4f}, CPU {1e3 * float(np.mean(cpu[1:] or cpu)):.0f} ms")
+        rows.append([name, "mimo_report (stability, loop-at-a-time, multiloop disk, sigma peaks)", m, p, verdict])
+    return rows
+
+
 def measure(repeat: int) -> list[list[Any]]:
     """Rows ``[case, what, mean ms, p95 ms, verdict]``."""
     from gaintune.bench.api import CASCADE_SPEC, NOMINAL_GAINS
@@ -107,7 +165,7 @@ def measure(repeat: int) -> list[list[Any]]:
 
     m, p = _time(one, repeat)
     rows.append(["REST 2-loop speed cascade", "verify, full (nonlinear check), distinct gains", m, p, "-"])
-    return rows
+    return rows + mimo_rows(repeat)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -34,8 +34,8 @@ import numpy as np
 from gaintune.verification.cascade import Cascade
 from gaintune.verification.freqresp import Evaluator, zoom_roots
 
-__all__ = ["Crossing", "BreakFigures", "all_margins", "disk_from_alpha", "MAG_FLOOR", "GM_INF_LIMIT",
-           "MAX_PHASE_LISTED"]
+__all__ = ["Crossing", "BreakFigures", "all_margins", "row_margins", "disk_from_alpha", "MAG_FLOOR",
+           "GM_INF_LIMIT", "MAX_PHASE_LISTED"]
 
 #: |L| below this at a phase crossing counts as no crossing (GM > 80 dB is reported as inf).
 MAG_FLOOR = 1e-4
@@ -375,6 +375,16 @@ def _margins(ev: Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names:
     pm_deg = [np.degrees(np.angle(Lg[r_g == r])) for r in range(R)]
     peaks = _peaks(ev, w, L)
     return [_figures_for_row(names[r], gm_w[r], gm_k[r], pm_w[r], pm_deg[r], peaks[r], omitted[r]) for r in range(R)]
+
+
+def row_margins(ev: Evaluator, w: np.ndarray, L: np.ndarray, names: list[tuple[str, str]],
+                L0: np.ndarray) -> list[BreakFigures]:
+    """Figures of any continuous loop responses: rows of ``L`` on the grid ``w`` (break points named
+    ``(loop, break point)``), ``L0`` at w = 0 per row; ``ev`` evaluates the rows at any frequency
+    (the zooms call it). The MIMO loop-at-a-time margins use it (:mod:`.mimo_margins`)."""
+    with np.errstate(invalid="ignore"):
+        aL = np.abs(L)
+    return _margins(ev, w, L, aL, names, L0)
 
 
 def all_margins(ev: Evaluator, w, L, aL, cas: Cascade, L0, Lend=None) -> list[BreakFigures]:
