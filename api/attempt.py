@@ -18,9 +18,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from gaintune_api.job_store import JobRow, JobStore
+from gaintune_api.job_store import JobRow
 from gaintune_api.settings import Settings
 from gaintune_api.storage_faults import StorageFault
+from gaintune_api.stores import Store
 
 __all__ = ["Attempt", "final_status", "hold_while_exists"]
 
@@ -36,7 +37,7 @@ class Attempt:
     ``cancel_grace`` s, the monitor writes the final state itself (:meth:`_give_up`).
     """
 
-    def __init__(self, store: JobStore, job: JobRow, claim: str, settings: Settings, hard_exit: bool) -> None:
+    def __init__(self, store: Store, job: JobRow, claim: str, settings: Settings, hard_exit: bool) -> None:
         self.store, self.job, self.claim, self.settings, self.hard_exit = store, job, claim, settings, hard_exit
         self.cancel = threading.Event()
         self.done = threading.Event()  # the search has returned

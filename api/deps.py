@@ -9,10 +9,10 @@ from typing import Annotated
 from fastapi import Depends, Request, Security
 from fastapi.security import APIKeyHeader
 
-from gaintune_api.job_store import JobStore
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.problem_details import ApiError
 from gaintune_api.settings import Settings
+from gaintune_api.stores import Store
 
 __all__ = ["SettingsDep", "StoreDep", "FilesDep", "OwnerDep", "require_key", "owner_of", "check_key", "api_key_header",
            "run_compute", "run_pooled"]
@@ -50,7 +50,7 @@ async def get_settings(request: Request) -> Settings:
     return request.app.state.settings
 
 
-async def get_store(request: Request) -> JobStore:
+async def get_store(request: Request) -> Store:
     """The app's job store (dependency)."""
     return request.app.state.store
 
@@ -61,7 +61,7 @@ async def get_files(request: Request) -> JobFiles:
 
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
-StoreDep = Annotated[JobStore, Depends(get_store)]
+StoreDep = Annotated[Store, Depends(get_store)]
 FilesDep = Annotated[JobFiles, Depends(get_files)]
 
 

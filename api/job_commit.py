@@ -14,10 +14,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 from gaintune_api.attempt import final_status
-from gaintune_api.job_store import JobRow, JobStore
+from gaintune_api.job_store import JobRow
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.settings import Settings
 from gaintune_api.storage_faults import StorageFault, classify
+from gaintune_api.stores import Store
 
 __all__ = ["error_text", "outcome", "commit"]
 
@@ -66,7 +67,7 @@ def outcome(reason: str | None, error: str | None, settings: Settings) -> tuple[
     return ("failed", error) if error is not None else ("succeeded", None)
 
 
-def commit(store: JobStore, files: JobFiles, job: JobRow, staging: Path | None, status: str, *,
+def commit(store: Store, files: JobFiles, job: JobRow, staging: Path | None, status: str, *,
             result: dict | None, error: str | None, progress: dict | None, settings: Settings) -> str:
     """Write an attempt's final state and promote its files, fenced by its claim; returns the status or "lost".
 

@@ -7,13 +7,19 @@ transaction commits (or rolls back when the COMMIT itself fails); the store says
 from __future__ import annotations
 
 import json
+import socket
 import sqlite3
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from gaintune_api.storage_faults import FaultInjector
 
-__all__ = ["JobRow", "QueueFull", "IdempotencyConflict", "STATUSES", "TERMINAL", "dumps", "loads", "claim_tag"]
+__all__ = ["JobRow", "QueueFull", "IdempotencyConflict", "STATUSES", "TERMINAL", "dumps", "loads", "claim_tag",
+           "HOST"]
+
+#: This machine's name, written with a claim beside the worker's pid: a pid is only checked on its own host.
+HOST = socket.gethostname()
 
 STATUSES = ("queued", "running", "succeeded", "failed", "cancelled")
 TERMINAL = ("succeeded", "failed", "cancelled")
@@ -41,7 +47,8 @@ CREATE TABLE IF NOT EXISTS jobs (
     heartbeat_at REAL,
     attempts INTEGER NOT NULL DEFAULT 0,
     artifacts TEXT,
-    kind TEXT NOT NULL DEFAULT 'tune'
+    kind TEXT NOT NULL DEFAULT 'tune',
+    worker_host TEXT
 );
 CREATE TABLE IF NOT EXISTS probe (id INTEGER PRIMARY KEY, at REAL NOT NULL);
 CREATE UNIQUE INDEX IF NOT EXISTS jobs_idem ON jobs(owner, idem_key) WHERE idem_key IS NOT NULL;
@@ -99,10 +106,12 @@ class JobRow:
     attempts: int
     artifacts: str | None = None
     kind: str = "tune"  # "tune": a search (spec = the TuningSpec); "tuner": a tuner's training (spec = the request)
+    #: The host name of the machine whose process ``worker_pid`` runs the attempt (None: written before hosts).
+    worker_host: str | None = None
 
     @classmethod
-    def from_row(cls, row: sqlite3.Row) -> JobRow:
-        """The row selected with :data:`_COLS`."""
+    def from_row(cls, row: sqlite3.Row | Mapping[str, Any]) -> JobRow:
+        """The row selected with :data:`_COLS` (an SQLite row or a PostgreSQL dict row)."""
         return cls(**{k: row[k] for k in cls.__dataclass_fields__})
 
 

@@ -1,5 +1,8 @@
 """Durable job store on SQLite (WAL, synchronous=FULL): jobs, progress and results.
 
+The embedded default, for one machine. :mod:`gaintune_api.job_store_pg` is the same store on
+PostgreSQL, for several API servers and workers on several machines (``GAINTUNE_DB_URL``).
+
 Every state change is one short transaction, so a crash (``kill -9``) of the
 server or a worker never loses an accepted job or a written result.
 
@@ -43,6 +46,7 @@ from typing import Any, TypeVar
 from gaintune_api.job_rows import (
     _COLS,
     _SCHEMA,
+    HOST,
     STATUSES,
     TERMINAL,
     IdempotencyConflict,
@@ -104,6 +108,9 @@ class JobStore:
         write lock) before it is refused with StorageFault ``database-locked``.
     """
 
+    #: Which database this store runs on (the supervisor fences SQLite's file lock holder only).
+    kind = "sqlite"
+
     def __init__(self, path: str | Path, faults: FaultInjector | None = None, write_timeout: float = 1.5) -> None:
         self.path = Path(path)
         self.faults = faults or FaultInjector(None)
@@ -148,6 +155,8 @@ class JobStore:
             conn.execute("ALTER TABLE jobs ADD COLUMN artifacts TEXT")
         if "kind" not in cols:  # databases written before tuner-training jobs
             conn.execute("ALTER TABLE jobs ADD COLUMN kind TEXT NOT NULL DEFAULT 'tune'")
+        if "worker_host" not in cols:  # databases written before several hosts
+            conn.execute("ALTER TABLE jobs ADD COLUMN worker_host TEXT")
 
     @_db(write=False)
     def ping(self) -> None:
@@ -263,8 +272,8 @@ class JobStore:
 
     # -------------------------------------------------------------- worker
     @_db(write=True)
-    def claim(self, pid: int) -> JobRow | None:
-        """Take the oldest queued job (atomically) for worker ``pid``."""
+    def claim(self, pid: int, host: str = HOST) -> JobRow | None:
+        """Take the oldest queued job (atomically) for worker ``pid`` on ``host``."""
         now = time.time()
         token = uuid.uuid4().hex
         # An idle worker polls often: look first without taking the write lock.
@@ -275,9 +284,9 @@ class JobStore:
             if row is None:
                 return None
             c.execute(
-                "UPDATE jobs SET status='running', claim=?, worker_pid=?, started_at=?, heartbeat_at=?, updated_at=?,"
-                " attempts=attempts+1, error=NULL WHERE id=?",
-                (token, pid, now, now, now, row["id"]),
+                "UPDATE jobs SET status='running', claim=?, worker_pid=?, worker_host=?, started_at=?, heartbeat_at=?,"
+                " updated_at=?, attempts=attempts+1, error=NULL WHERE id=?",
+                (token, pid, host, now, now, now, row["id"]),
             )
             row = c.execute(f"SELECT {_COLS} FROM jobs WHERE id=?", (row["id"],)).fetchone()
             return JobRow.from_row(row)

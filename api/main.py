@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import sys
 import threading
 from contextlib import asynccontextmanager
 
@@ -15,7 +16,6 @@ from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 
 from gaintune_api.compute import ComputePool
-from gaintune_api.job_store import JobStore
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.metrics import Metrics
 from gaintune_api.middleware import BodySizeLimit, CatchAll, DocsAuth, LatencyMetrics
@@ -25,6 +25,7 @@ from gaintune_api.routes.docs import install_docs
 from gaintune_api.schemas import install_client_openapi
 from gaintune_api.settings import Settings, warn_unknown_settings
 from gaintune_api.storage_faults import FaultInjector, StorageFault
+from gaintune_api.stores import Store, missing_extra, open_store
 from gaintune_api.supervisor import Supervisor
 
 __all__ = ["create_app", "app", "serve"]
@@ -63,13 +64,22 @@ def _warm_up(done: threading.Event, pool: ComputePool | None = None) -> None:
         done.set()
 
 
+def _supervisor(settings: Settings, store: Store) -> Supervisor:
+    """The job workers' supervisor: local worker processes, or Ray tasks (``backend = "ray"``)."""
+    if settings.backend == "ray":
+        from gaintune_api.ray_backend import RaySupervisor
+
+        return RaySupervisor(settings, store)
+    return Supervisor(settings, store)
+
+
 @asynccontextmanager
 async def lifespan(app: FastAPI):
     """Open the job store and files, start the job workers' supervisor and the compute pool; stop them on shutdown."""
     settings: Settings = app.state.settings
     warn_unknown_settings(log)
     faults = FaultInjector(settings.test_storage_fault_file)
-    store = JobStore(settings.db_path, faults)
+    store = open_store(settings, faults)
     files = JobFiles(settings.jobs_dir, faults)
     # A read-only or full disk must not stop the server: it starts, answers 503s naming the fault,
     # and /readyz says why it is not ready.
@@ -94,7 +104,7 @@ async def lifespan(app: FastAPI):
         threading.Thread(target=_warm_up, args=(app.state.warm, pool), name="warmup", daemon=True).start()
     else:
         app.state.warm.set()
-    sup = Supervisor(settings, store)
+    sup = _supervisor(settings, store)
     sup.start()
     app.state.supervisor = sup
     task = asyncio.create_task(sup.watch())
@@ -106,6 +116,9 @@ async def lifespan(app: FastAPI):
         app.state.compute_pool = None
         if pool is not None:
             pool.shutdown()
+        close = getattr(store, "close", None)  # PostgreSQL: this process's connection pool
+        if close is not None:
+            close()
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -154,6 +167,10 @@ def serve(host: str = "127.0.0.1", port: int = 8000, workers: int = 1, *, log_le
     import uvicorn
 
     settings = Settings(workers=workers)
+    missing = missing_extra(settings)
+    if missing is not None:
+        print(f"error: {missing}", file=sys.stderr)
+        raise SystemExit(2)
     logging.basicConfig(level=(log_level or settings.log_level).upper(),
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     uvicorn.run(create_app(settings), host=host, port=port, log_level=log_level or settings.log_level)

@@ -38,6 +38,16 @@ class Settings(BaseSettings):
     # ------------------------------------------------------------ storage
     db_path: Path = Field(Path("gaintune-data/jobs.sqlite3"), description="SQLite job database (WAL mode).")
     data_dir: Path = Field(Path("gaintune-data"), description="Job artifacts: agents, reports (one folder per job).")
+    db_url: str | None = Field(
+        None, description="PostgreSQL job store, e.g. postgresql://user:pass@host:5432/gaintune (needs "
+        "gaintune[postgres]): several API servers and workers on several machines share it. Unset: SQLite at db_path.")
+    db_idle_timeout: float = Field(
+        5.0, gt=0, le=3600, description="PostgreSQL only: a store connection idle inside a transaction this long "
+        "(its process frozen mid-write) is closed by the server, which frees the row locks it held.")
+    backend: Literal["local", "ray"] = Field(
+        "local", description="Where job workers run: local worker processes, or Ray tasks (needs gaintune[ray]; "
+        "the cluster is RAY_ADDRESS; unset: Ray's default, a cluster already running on this machine, else a new "
+        "local one).")
 
     # ---------------------------------------------------------- workers
     workers: int = Field(1, ge=0, le=64,
@@ -115,6 +125,16 @@ class Settings(BaseSettings):
         "tests, even as root.",
     )
 
+    @field_validator("db_url")
+    @classmethod
+    def _postgres_url(cls, v: str | None) -> str | None:
+        if v is not None and not v.strip():
+            return None
+        if v is not None and not v.startswith(("postgresql://", "postgres://")):
+            raise ValueError("db_url must be a PostgreSQL URL (postgresql://user:password@host:port/dbname); "
+                             "unset it to use the SQLite file db_path")
+        return v
+
     @field_validator("api_keys", "cors_origins", mode="before")
     @classmethod
     def _split(cls, v: Any) -> Any:
@@ -151,11 +171,14 @@ def _env_file_names(path: Path) -> list[str]:
 def _closest(name: str, known: list[str]) -> str | None:
     """The valid name (without the prefix, which matches always) closest to ``name``.
 
-    A near-identical spelling first (WORKER -> WORKERS), then a truncation (DB -> DB_PATH), then difflib's best.
+    A near-identical spelling first (WORKER -> WORKERS), then a truncation (DB -> DB_PATH: the first setting
+    of that group as Settings declares them), then difflib's best.
     """
     for cutoff in (0.8, None, 0.5):
         if cutoff is None:
-            longer = sorted((k for k in known if name and k.startswith(name + "_")), key=len)
+            # a truncation: the first of its group as Settings declares them (DB -> DB_PATH, not DB_URL)
+            order = {k.upper(): i for i, k in enumerate(Settings.model_fields)}
+            longer = sorted((k for k in known if name and k.startswith(name + "_")), key=lambda k: order.get(k, 999))
             close = longer[:1]
         else:
             close = difflib.get_close_matches(name, known, n=1, cutoff=cutoff)

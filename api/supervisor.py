@@ -7,12 +7,12 @@ Every second (and once at start-up) the supervisor:
    heartbeat or from the moment the database became writable again, whichever
    is later, so a storage outage never makes live work look abandoned. One
    exception: when the write lock is held by a job worker on this host (found in
-   ``/proc/locks``), that worker's own lease is not extended. It cannot write, so
+   ``/proc/locks``; SQLite only), that worker's own lease is not extended. It cannot write, so
    it is frozen or stalled; once its lease runs out it is killed, whether it is
    ours or a standalone worker, which frees the lock, and its job is recovered;
 2. kills our workers whose job ignores a cancel or wall-time limit for
    ``2 * cancel_grace`` seconds;
-3. recovers every ``running`` job whose worker process is gone, or whose lease
+3. recovers every ``running`` job whose worker process (on this host) is gone, or whose lease
    expired (no heartbeat for ``heartbeat_timeout``), according to
    ``Settings.recover``; a worker of ours that still runs the attempt whose
    lease expired is frozen or stalled and is killed. Before any kill for a job
@@ -37,9 +37,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from gaintune_api.job_rows import HOST
 from gaintune_api.job_store import JobRow, JobStore, claim_tag
 from gaintune_api.settings import Settings
 from gaintune_api.storage_faults import StorageFault, wal_write_lock_holder
+from gaintune_api.stores import Store
 from gaintune_api.worker import PROCESS_NAME
 
 __all__ = ["Supervisor", "pid_alive", "pid_stopped"]
@@ -90,6 +92,11 @@ def _is_worker(pid: int) -> bool:
         return False
 
 
+def _on_this_host(job: JobRow) -> bool:
+    """Whether ``job``'s worker pid is a pid of this machine (None: a row written before hosts were recorded)."""
+    return job.worker_host is None or job.worker_host == HOST
+
+
 def _until(cond: Callable[[], bool], timeout: float) -> bool:
     """Poll ``cond`` every millisecond for at most ``timeout`` seconds."""
     end = time.monotonic() + timeout
@@ -111,7 +118,7 @@ class Supervisor:
         The job store.
     """
 
-    def __init__(self, settings: Settings, store: JobStore) -> None:
+    def __init__(self, settings: Settings, store: Store) -> None:
         self.settings = settings
         self.store = store
         self.ctx = mp.get_context("spawn")
@@ -254,6 +261,8 @@ class Supervisor:
         bool
             True when a worker was killed (the lock is free; its job was recovered if the database let us).
         """
+        if not isinstance(self.store, JobStore):  # PostgreSQL: row locks, and a stuck session is closed by the server
+            return False
         pid = wal_write_lock_holder(self.store.path)
         if pid is None or pid == os.getpid():
             self._lock_seen = None
@@ -263,7 +272,7 @@ class Supervisor:
             self._lock_seen = (pid, now)
             log.warning("the job database's write lock is held by pid %s", pid)
         timeout = self.settings.heartbeat_timeout
-        jobs = [j for j in self.store.running() if j.worker_pid == pid]
+        jobs = [j for j in self.store.running() if j.worker_pid == pid and _on_this_host(j)]
         job = self._current_job(pid, jobs)
         if job is not None:
             late = max(job.heartbeat_at or 0.0, self.db_ok_since) < now - timeout
@@ -306,7 +315,7 @@ class Supervisor:
         dead: list[str] = []
         expired: list[JobRow] = []
         for j in self.store.running():
-            if not pid_alive(j.worker_pid):
+            if _on_this_host(j) and not pid_alive(j.worker_pid):  # another host's pid says nothing here
                 dead.append(j.id)
             elif max(j.heartbeat_at or 0.0, self.db_ok_since) < now - timeout:
                 expired.append(j)
@@ -316,7 +325,7 @@ class Supervisor:
                                           f"its lease expired (no heartbeat for {timeout:g} s)"))
             changed += list(recovered)
             for j in expired:
-                p = ours.get(j.worker_pid)
+                p = ours.get(j.worker_pid) if _on_this_host(j) else None
                 if p is not None and j.id in recovered:  # frozen or stalled past its lease: it must not resume
                     self.kill_if_holding(p, j, f"the lease of job {j.id} (attempt {j.attempts}) expired")
         return changed
@@ -334,7 +343,7 @@ class Supervisor:
         s = self.settings
         ours = {p.pid: p for p in self.procs if p is not None and p.is_alive()}
         for j in self.store.running():
-            p = ours.get(j.worker_pid)
+            p = ours.get(j.worker_pid) if _on_this_host(j) else None
             if p is None:
                 continue
             late_cancel = j.cancel_requested_at is not None and now - j.cancel_requested_at > 2 * s.cancel_grace

@@ -25,11 +25,12 @@ from typing import Any
 
 from gaintune_api.attempt import Attempt
 from gaintune_api.job_commit import commit, error_text, outcome
-from gaintune_api.job_store import JobRow, JobStore
+from gaintune_api.job_store import JobRow
 from gaintune_api.jobfiles import STAGING, JobFiles
 from gaintune_api.schemas import TunerTrainRequest
 from gaintune_api.settings import Settings
 from gaintune_api.storage_faults import StorageFault, classify
+from gaintune_api.stores import Store
 
 __all__ = ["run_tuner_job", "train_settings", "problem_of", "TRAIN_DEFAULTS", "TUNER_DIR"]
 
@@ -128,7 +129,7 @@ def _train(req: TunerTrainRequest, staging: Path, attempt: Attempt) -> tuple[dic
         attempt.done.set()
 
 
-def run_tuner_job(store: JobStore, job: JobRow, settings: Settings, files: JobFiles, *, hard_exit: bool) -> str:
+def run_tuner_job(store: Store, job: JobRow, settings: Settings, files: JobFiles, *, hard_exit: bool) -> str:
     """Run one claimed tuner-training job to a terminal state (the status written, or "lost")."""
     claim = job.claim
     assert claim is not None

@@ -1,4 +1,4 @@
-"""Job worker: a separate process that claims queued jobs from SQLite and runs the RL search (or, for a job of
+"""Job worker: a separate process that claims queued jobs from the job store and runs the RL search (or, for a job of
 kind ``tuner``, a tuner's training: :mod:`gaintune_api.tuner_jobs`).
 
 Run inside the server (``Settings.workers`` processes, started and restarted by
@@ -47,10 +47,11 @@ from gaintune_api.attempt import Attempt
 from gaintune_api.job_commit import commit as _commit
 from gaintune_api.job_commit import error_text as _error_text
 from gaintune_api.job_commit import outcome as _outcome
-from gaintune_api.job_store import JobRow, JobStore, claim_tag
+from gaintune_api.job_store import JobRow, claim_tag
 from gaintune_api.jobfiles import JobFiles
 from gaintune_api.settings import Settings, warn_unknown_settings
 from gaintune_api.storage_faults import FaultInjector, StorageFault, classify
+from gaintune_api.stores import Store, missing_extra, open_store
 
 if TYPE_CHECKING:
     from gaintune.spec import TuningSpec
@@ -139,7 +140,7 @@ def _final_payload(result: Any, files: JobFiles, job: JobRow, staging: Path, spe
     return payload, final
 
 
-def run_job(store: JobStore, job: JobRow, settings: Settings, tune: Callable[..., Any] | None = None,
+def run_job(store: Store, job: JobRow, settings: Settings, tune: Callable[..., Any] | None = None,
             *, hard_exit: bool = True, files: JobFiles | None = None) -> str:
     """Run one claimed job to a terminal state.
 
@@ -203,7 +204,7 @@ def _accepts(fn: Callable[..., Any], name: str) -> bool:
     return name in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
-def process_next(store: JobStore, settings: Settings, tune: Callable[..., Any] | None = None) -> str | None:
+def process_next(store: Store, settings: Settings, tune: Callable[..., Any] | None = None) -> str | None:
     """Claim and run one queued job in this process (tests, single-process use). None if the queue is empty."""
     job = store.claim(os.getpid())
     if job is None:
@@ -226,9 +227,9 @@ def _start_worker(settings_data: dict[str, Any], index: int, parent: int | None,
     return settings
 
 
-def _open_store(settings: Settings, index: int) -> JobStore:
-    """The job store, its schema created if the database can be written."""
-    store = JobStore(settings.db_path, FaultInjector(settings.test_storage_fault_file))
+def _open_store(settings: Settings, index: int) -> Store:
+    """The job store (SQLite, or PostgreSQL when ``db_url`` is set), its schema created if it can be written."""
+    store = open_store(settings, FaultInjector(settings.test_storage_fault_file))
     try:
         store.init()
     except StorageFault as fault:  # the schema is there already; claims retry until the disk is fixed
@@ -246,7 +247,7 @@ def _import_search() -> Callable[..., Any]:
         raise SystemExit(3) from exc
 
 
-def _claim(store: JobStore, index: int, outage: StorageFault | None) -> tuple[JobRow | None, StorageFault | None]:
+def _claim(store: Store, index: int, outage: StorageFault | None) -> tuple[JobRow | None, StorageFault | None]:
     """Claim the next queued job: (the job or None, the storage fault that prevented the claim or None)."""
     try:
         job = store.claim(os.getpid())
@@ -259,7 +260,7 @@ def _claim(store: JobStore, index: int, outage: StorageFault | None) -> tuple[Jo
     return job, None
 
 
-def _run_claimed(store: JobStore, job: JobRow, settings: Settings, tune: Callable[..., Any], index: int,
+def _run_claimed(store: Store, job: JobRow, settings: Settings, tune: Callable[..., Any], index: int,
                  holding: SharedNumber | None) -> None:
     """Run a claimed job, publishing its claim in ``holding`` meanwhile; a failure around it fails the job."""
     log.info("worker %d runs job %s (attempt %d)", index, job.id, job.attempts)
@@ -315,10 +316,15 @@ def main(argv: list[str] | None = None) -> None:
     """Standalone worker: ``python -m gaintune_api.worker`` (settings from GAINTUNE_* env vars)."""
     import argparse
 
-    ap = argparse.ArgumentParser(description="gaintune job worker (polls the SQLite job store)")
+    ap = argparse.ArgumentParser(description="gaintune job worker (polls the job store: SQLite or GAINTUNE_DB_URL)")
     ap.add_argument("--index", type=int, default=0)
     args = ap.parse_args(argv)
-    worker_main(Settings().model_dump(mode="json"), args.index)
+    settings = Settings()
+    missing = missing_extra(settings)
+    if missing is not None:
+        print(f"error: {missing}", file=sys.stderr)
+        raise SystemExit(2)
+    worker_main(settings.model_dump(mode="json"), args.index)
 
 
 if __name__ == "__main__":

@@ -20,7 +20,10 @@ module never imports ``api``. Workers are the server's child processes named ``g
    (:mod:`gaintune.bench.chaos_durable`).
 7. diskfull: the database fills as jobs finish: finished jobs lost or recomputed, unrelated jobs disturbed.
 
-``--phases`` runs a subset (e.g. ``--phases lock,diskfull``).
+``--phases`` runs a subset (e.g. ``--phases lock,diskfull``). ``--db-url postgresql://...`` runs the campaign
+on that PostgreSQL store with ``--servers`` API servers (default 2) sharing it (:mod:`gaintune.bench.chaos_multi`)
+and the lock phase with a frozen row-lock holder (:mod:`gaintune.bench.chaos_pglock`); the other phases fault the
+SQLite file and run on SQLite only.
 
 Fault injection: SIGKILL/SIGSTOP, the tests-only hooks ``GAINTUNE_TEST_HOLD_FILE`` (pauses a job after its
 first progress report: freezes land mid-job) and ``GAINTUNE_TEST_STORAGE_FAULT_FILE``, and the corrupted row.
@@ -50,7 +53,18 @@ from gaintune.bench.arguments import (
     positive_int,
 )
 from gaintune.bench.chaos_durable import TERMINAL, diskfull, lock
-from gaintune.bench.chaos_procs import Server, _agent_ok, _proc_state, _serving, _wait, _Worker, job_spec
+from gaintune.bench.chaos_procs import (
+    Server,
+    _agent_ok,
+    _kill_events,
+    _n_done,
+    _proc_state,
+    _serving,
+    _tally_jobs,
+    _wait,
+    _Worker,
+    job_spec,
+)
 from gaintune.bench.chaos_storage import storage_and_connections
 
 __all__ = ["main", "job_spec", "PHASES"]
@@ -96,22 +110,6 @@ def campaign(
                 "jobs_in_store": total, "max_attempts_seen": max(attempts or [0]),
                 "jobs_retried": sum(a > 1 for a in attempts), "seconds": round(time.monotonic() - t0, 1),
                 "timed_out": stuck_timeout}
-
-
-def _kill_events(worker_kills: int, server_kills: int) -> list[str]:
-    """The campaign's kills in order: ``"worker"`` and ``"server"``, the server kills spread evenly among the others."""
-    events = ["worker"] * worker_kills
-    for j in range(server_kills):
-        events.insert(round((j + 1) * len(events) / (server_kills + 1)) + j, "server")
-    return events
-
-
-def _n_done(srv: Server) -> int:
-    """Jobs in the store that are neither queued nor running."""
-    def count(**q: str) -> int:
-        return srv.client.get("/v1/jobs", params={"limit": 1, **q}).json()["total"]
-
-    return count() - count(status="queued") - count(status="running")
 
 
 def _all_busy(srv: Server) -> bool:
@@ -160,32 +158,6 @@ def _kill_once(srv: Server, ev: str, target: int, rng: random.Random, submit_all
         srv.wait_ready()
         submit_all()  # clients retry after a crash: idempotency keys must not duplicate jobs
     return True
-
-
-def _tally_jobs(srv: Server, ids: dict[str, set[str]], budget: int) -> dict[str, Any]:
-    """Lost, duplicated, stuck, failed and corrupt jobs among the keys' ``ids``, and every job's attempts."""
-    lost = dup = corrupt = stuck = failed = 0
-    attempts = []
-    for job_ids in ids.values():
-        if len(job_ids) == 0:
-            lost += 1
-            continue
-        if len(job_ids) > 1:
-            dup += 1
-        j = srv.job(next(iter(job_ids)))
-        attempts.append(j["attempts"])
-        if j["status"] not in TERMINAL:
-            stuck += 1
-        elif j["status"] != "succeeded":
-            failed += 1
-        else:
-            res = j["result"] or {}
-            ok_agent, _ = _agent_ok(srv, j["id"])
-            if (res.get("provenance", {}).get("spec_hash") != j["spec_hash"] or not res.get("curve")
-                    or not 0 < res.get("sims", 0) <= budget or not ok_agent):
-                corrupt += 1
-    return {"lost": lost, "duplicated": dup, "stuck": stuck, "corrupt": corrupt, "failed": failed,
-            "attempts": attempts}
 
 
 # ------------------------------------------------------------------------ 2-3. freezes
@@ -286,7 +258,13 @@ def _parser() -> BenchParser:
     ap.add_argument("--budget", type=budget_int, default=1000,
                     help="simulations per job: small, but long enough (a few s) for kills to land mid-job")
     ap.add_argument("--rounds", type=non_negative_int, default=3, help="freeze rounds in the frozen and stale phases")
-    ap.add_argument("--phases", default=",".join(PHASES), help=f"comma-separated subset of {', '.join(PHASES)}")
+    ap.add_argument("--phases", default=None,
+                    help=f"comma-separated subset of {', '.join(PHASES)} (default: all; with --db-url: campaign,lock)")
+    ap.add_argument("--db-url", default=None,
+                    help="campaign on this PostgreSQL job store (postgresql://...), with --servers API servers on it")
+    ap.add_argument("--servers", type=int_range(1, 8), default=2, help="with --db-url: API servers on the store")
+    ap.add_argument("--db-idle-timeout", type=float_range(0.5, 600.0), default=5.0,
+                    help="with --db-url, lock phase: db_idle_timeout (s) of the server and the frozen process")
     ap.add_argument("--writers", type=int_range(1, 1000), default=40,
                     help="lock phase: POSTs kept in flight while the write lock is held")
     ap.add_argument("--write", choices=("delete", "post"), default="delete",
@@ -305,7 +283,12 @@ def _run_phases(args: argparse.Namespace, phases: list[str], root: Path, say: Ca
     """Run the chosen phases in ``root``; their outputs keyed by phase (storage also gives ``connections``)."""
     out: dict[str, Any] = {"folder": str(root), "cpus": os.cpu_count(), "loadavg_start": os.getloadavg()}
     say(f"chaos campaign in {root} (phases: {', '.join(phases)})")
-    if "campaign" in phases:
+    if "campaign" in phases and args.db_url:
+        from gaintune.bench.chaos_multi import campaign_multi
+
+        out["campaign"] = campaign_multi(root / "campaign", args.db_url, args.jobs, args.worker_kills,
+                                         args.server_kills, args.budget, say, servers=args.servers)
+    elif "campaign" in phases:
         out["campaign"] = campaign(root / "campaign", args.jobs, args.worker_kills, args.server_kills, args.budget, say)
     if "frozen" in phases:
         out["frozen"] = frozen(root / "frozen", args.rounds, say)
@@ -313,7 +296,11 @@ def _run_phases(args: argparse.Namespace, phases: list[str], root: Path, say: Ca
         out["stale"] = stale(root / "stale", args.rounds, args.budget, say)
     if "storage" in phases:
         out["storage"], out["connections"] = storage_and_connections(root / "storage", args.budget, say)
-    if "lock" in phases:
+    if "lock" in phases and args.db_url:
+        from gaintune.bench.chaos_pglock import pg_lock
+
+        out["lock"] = pg_lock(root / "lock", args.db_url, args.lease, args.db_idle_timeout, args.budget, say)
+    elif "lock" in phases:
         out["lock"] = lock(root / "lock", args.writers, args.write, args.write_pause, args.lease, args.budget, say)
     if "diskfull" in phases:
         out["diskfull"] = diskfull(root / "diskfull", max(1, args.rounds), args.lease, args.budget, say)
@@ -337,10 +324,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the campaign and print the figures (``--json``: as JSON). Exit 1 if any figure is off target."""
     # checked before any server starts: a budget the API refuses (422) used to surface as KeyError: 'id'
     args = _parser().parse_args(argv)
-    phases = [p.strip() for p in args.phases.split(",") if p.strip()]
-    bad = [p for p in phases if p not in PHASES]
-    if bad or not phases:
-        fail("--phases", f"unknown phase {bad[0]!r}; choose from {', '.join(PHASES)}" if bad else "name a phase")
+    phases = _phases(args)
     root = Path(tempfile.mkdtemp(prefix="gaintune-bench-chaos-"))
 
     def say(m: str) -> None:
@@ -350,7 +334,8 @@ def main(argv: list[str] | None = None) -> int:
     out = _run_phases(args, phases, root, say)
     out["seconds"] = round(time.monotonic() - t0, 1)
     figures = _figures(out)
-    timed = {what: (out["lock"][key], most) for key, most, what in TIMED if "lock" in out}
+    sqlite_lock = "lock" in out and "posts_refused" not in out["lock"]  # the timed targets are SQLite's lock phase's
+    timed = {what: (out["lock"][key], most) for key, most, what in TIMED if sqlite_lock}
     out["figures"], out["timed"] = figures, {k: v for k, (v, _) in timed.items()}
     if args.json:
         print(json.dumps(out, indent=2, default=str))
@@ -364,13 +349,29 @@ def main(argv: list[str] | None = None) -> int:
     return 1 if off else 0
 
 
+def _phases(args: argparse.Namespace) -> list[str]:
+    """The phases to run (exit 2 naming the option when unknown, or not campaign with --db-url)."""
+    default = "campaign,lock" if args.db_url else ",".join(PHASES)
+    phases = [p.strip() for p in (args.phases or default).split(",") if p.strip()]
+    bad = [p for p in phases if p not in PHASES]
+    if bad or not phases:
+        fail("--phases", f"unknown phase {bad[0]!r}; choose from {', '.join(PHASES)}" if bad else "name a phase")
+    if args.db_url and not set(phases) <= {"campaign", "lock"}:
+        fail("--phases", "with --db-url only the campaign and lock phases run (the others fault the SQLite file); "
+             "drop --db-url for them")
+    if args.db_url and not args.db_url.startswith(("postgresql://", "postgres://")):
+        fail("--db-url", "must be a PostgreSQL URL: postgresql://user:password@host:port/dbname")
+    return phases
+
+
 def _figures(out: dict[str, Any]) -> dict[str, int]:
     """The counted figures (target 0) of the phases that ran."""
     figures: dict[str, int] = {}
     if "campaign" in out:
         c = out["campaign"]
+        on = f", {c['servers']} servers on one PostgreSQL store" if "servers" in c else ""
         figures[f"jobs lost, duplicated or corrupt under {c['worker_kills']} worker kills + {c['server_kills']} "
-                f"server kills, {c['jobs']} jobs"] = c["lost"] + c["duplicated"] + c["corrupt"] + c["stuck"]
+                f"server kills, {c['jobs']} jobs{on}"] = c["lost"] + c["duplicated"] + c["corrupt"] + c["stuck"]
     if "stale" in out:
         figures["finished-job artefacts changed by a stale attempt"] = out["stale"]["finished_jobs_changed"]
     if "storage" in out:
@@ -380,7 +381,13 @@ def _figures(out: dict[str, Any]) -> dict[str, int]:
             out.get("storage", {}).get("readyz_ready", 0) + out.get("frozen", {}).get("readyz_ready_while_frozen", 0)
     if "connections" in out:
         figures["requests failing on a reused connection after an error"] = out["connections"]["next_request_failures"]
-    if "lock" in out:
+    if "lock" in out and "posts_refused" in out["lock"]:  # PostgreSQL
+        k = out["lock"]
+        figures["writes to other jobs refused while a frozen process holds a job's row lock"] = k["posts_refused"]
+        figures["frozen row-lock holder's job not recovered, run twice, or blocked job re-run"] = \
+            int(k["job_requeued_s"] is None) + (k["held_job_final"] != "succeeded") \
+            + k["held_job_changed_by_resumed_holder"] + (k["blocked_job_attempts"] != 1)
+    elif "lock" in out:
         k = out["lock"]
         figures["writes refused while locked without Retry-After, or accepted"] = \
             k["refusals_without_retry_after"] + k["writes_accepted_while_locked"]

@@ -25,7 +25,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from gaintune.bench.chaos_procs import Server, _proc_state, _serving, _wait, job_spec
+from gaintune.bench.chaos_procs import TERMINAL, Server, _proc_state, _serving, _wait, job_spec
 
 __all__ = ["lock", "diskfull"]
 
@@ -48,7 +48,6 @@ os.kill(os.getpid(), signal.SIGSTOP)
 """
 
 
-TERMINAL = ("succeeded", "failed", "cancelled")
 
 
 def _restarts(srv: Server) -> int:

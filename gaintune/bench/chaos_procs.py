@@ -19,10 +19,11 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["WORKER_NAME", "Server", "job_spec"]
+__all__ = ["WORKER_NAME", "TERMINAL", "Server", "job_spec"]
 
 
 WORKER_NAME = "gaintune-worker"
+TERMINAL = ("succeeded", "failed", "cancelled")
 
 
 def job_spec(i: int, budget: int) -> dict[str, Any]:
@@ -77,12 +78,14 @@ class Server:
         root.mkdir(parents=True, exist_ok=True)
         self.root, self.workers = root, workers
         self.db = root / "jobs.db"
-        self.env = dict(os.environ, GAINTUNE_DB_PATH=str(self.db), GAINTUNE_DATA_DIR=str(root / "data"),
-                        GAINTUNE_WARMUP="false", GAINTUNE_COMPUTE_PROCESSES="0", GAINTUNE_HEARTBEAT_INTERVAL="0.25",
-                        GAINTUNE_POLL_INTERVAL="0.1", **env)
+        # ``env`` overrides the defaults (GAINTUNE_DB_URL and a shared GAINTUNE_DATA_DIR: servers on one store).
+        self.env = {**os.environ, "GAINTUNE_DB_PATH": str(self.db), "GAINTUNE_DATA_DIR": str(root / "data"),
+                    "GAINTUNE_WARMUP": "false", "GAINTUNE_COMPUTE_PROCESSES": "0",
+                    "GAINTUNE_HEARTBEAT_INTERVAL": "0.25", "GAINTUNE_POLL_INTERVAL": "0.1", **env}
         self.port = _free_port()
         self.url = f"http://127.0.0.1:{self.port}"
-        self.client = httpx.Client(base_url=self.url, timeout=60)
+        key = self.env.get("GAINTUNE_API_KEYS", "").split(",")[0].strip()
+        self.client = httpx.Client(base_url=self.url, timeout=60, headers={"X-API-Key": key} if key else None)
         self.proc: subprocess.Popen | None = None
         self.log = root / "server.log"
 
@@ -174,6 +177,48 @@ def _agent_ok(srv: Server, job_id: str) -> tuple[bool, str | None]:
     return r.headers.get("repr-digest") == f"sha-256=:{b64encode(bytes.fromhex(digest)).decode()}:", digest
 
 
+
+
+def _kill_events(worker_kills: int, server_kills: int) -> list[str]:
+    """The campaign's kills in order: ``"worker"`` and ``"server"``, the server kills spread evenly among the others."""
+    events = ["worker"] * worker_kills
+    for j in range(server_kills):
+        events.insert(round((j + 1) * len(events) / (server_kills + 1)) + j, "server")
+    return events
+
+
+def _n_done(srv: Server) -> int:
+    """Jobs in the store that are neither queued nor running."""
+    def count(**q: str) -> int:
+        return srv.client.get("/v1/jobs", params={"limit": 1, **q}).json()["total"]
+
+    return count() - count(status="queued") - count(status="running")
+
+
+def _tally_jobs(srv: Server, ids: dict[str, set[str]], budget: int) -> dict[str, Any]:
+    """Lost, duplicated, stuck, failed and corrupt jobs among the keys' ``ids``, and every job's attempts."""
+    lost = dup = corrupt = stuck = failed = 0
+    attempts = []
+    for job_ids in ids.values():
+        if len(job_ids) == 0:
+            lost += 1
+            continue
+        if len(job_ids) > 1:
+            dup += 1
+        j = srv.job(next(iter(job_ids)))
+        attempts.append(j["attempts"])
+        if j["status"] not in TERMINAL:
+            stuck += 1
+        elif j["status"] != "succeeded":
+            failed += 1
+        else:
+            res = j["result"] or {}
+            ok_agent, _ = _agent_ok(srv, j["id"])
+            if (res.get("provenance", {}).get("spec_hash") != j["spec_hash"] or not res.get("curve")
+                    or not 0 < res.get("sims", 0) <= budget or not ok_agent):
+                corrupt += 1
+    return {"lost": lost, "duplicated": dup, "stuck": stuck, "corrupt": corrupt, "failed": failed,
+            "attempts": attempts}
 
 
 class _Worker:

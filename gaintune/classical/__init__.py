@@ -6,6 +6,8 @@
 * :func:`rule_candidates` - every rule that applies, as gain sets.
 * :func:`auto_bounds` - log-scale search bounds a factor around a gain set.
 * :mod:`~gaintune.classical.migo` - the constrained PI optimum under an Ms limit.
+* :mod:`~gaintune.classical.blt` - Luyben's BLT for decentralised PI loops on a square MIMO plant.
+* :mod:`~gaintune.classical.mimo_references` - published MIMO tunings (Wood-Berry, quadruple tank).
 
 Below the simulator and the evaluation in the layering: this package imports only spec,
 plants, controllers and numeric libraries. The rules run on :mod:`gaintune.lti.statespace`'s state
