@@ -33,6 +33,8 @@ BENCH = {
               "answer time.",
     "quick": "`tune --quick` on the standard suite's SISO problems against the cached reference and AMIGO/SIMC, with "
              "its wall time.",
+    "mimo": "Wood-Berry and quadruple-tank decentralised PI: tuned against the published rows at their own MIMO Ms "
+            "and multiloop disk margin.",
     "api": "REST API load test.",
     "chaos": "Chaos campaign against a real API server: worker/server kills, freezes, storage faults, reused "
              "connections.",
