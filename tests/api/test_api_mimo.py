@@ -97,7 +97,9 @@ def test_tune_job_end_to_end_carries_the_mimo_verdict(client: TestClient) -> Non
             break
         assert process_next(client.app.state.store, client.app.state.settings) == "succeeded"
     job = client.get(f"/v1/jobs/{job_id}").json()
-    v = job["result"]["verification"]
-    assert set(job["result"]["gains"]) == {"xD", "xB"} and v["mimo"]["ms"] > 1
+    res = job["result"]
+    v = res["verification"]
+    assert set(v["gains"]) == {"xD", "xB"} and v["mimo"]["ms"] > 1 and res["verdict"] == v["verdict"]
+    assert res["accepted_gains"] == (v["gains"] if v["verdict"] == "pass" else None)
     assert {f["break_point"] for f in v["loops"]} == {"plant_input", "plant_output"}
     assert (v["verdict"] == "pass") == (v["mimo"]["ms"] <= 2.1)
