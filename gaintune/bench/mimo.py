@@ -13,6 +13,9 @@ Quadruple tank (Johansson 2000), minimum and non-minimum phase: the paper's PI (
 K = 2.7, Ti = 40 s) scored and verified on each setting; gaintune tunes PI with the requirements
 set to that row's Ms and disk margin where that row is stable, else to the model example's (MIMO
 Ms <= 2; the minimum-phase PI is unstable on the non-minimum-phase setting, so no ratio there).
+On the non-minimum-phase setting loop y2 is tuned reverse-acting (``direction: reverse``): the
+relative gain of the diagonal pairing is negative there (gamma1 + gamma2 < 1), so with loop y1
+closed the sign of y2's path flips.
 
 Each row: cost, MIMO Ms, multiloop disk margin at the inputs and at the outputs, the verdict (a
 published row against the model example's requirements, a tuned row against the ones it was tuned
@@ -82,8 +85,12 @@ def reference_rows(model: str) -> list[tuple[str, dict, str]]:
     return rows
 
 
-def _with_type(model: str, kind: str, **req: float) -> Any:
+def _with_type(model: str, kind: str, tuned: bool = False, **req: float) -> Any:
     spec = _spec(model, **req)
+    # RGA lambda11 = g1 g2/(g1 + g2 - 1) < 0 on the NMP setting: with y1 closed, the sign of y2's path flips
+    if tuned and model == "quadruple_tank_nmp":
+        loops = [spec.loops[0], spec.loops[1].model_copy(update={"direction": "reverse"})]
+        spec = spec.model_copy(update={"loops": loops})
     if kind == "pid":
         loops = [lp.model_copy(update={"type": "pid"}) for lp in spec.loops]
         spec = spec.model_copy(update={"loops": loops})
@@ -130,7 +137,7 @@ def _plant_table(model: str, tuned_for: Sequence[str], args: argparse.Namespace)
         ok = disk > 0  # the published row is stable here: tune at its own Ms and disk margin
         req = {"mimo_ms_max": round(base["ms"], 4), "disk_margin_min": round(disk, 4)} if ok else {}
         # backoff 0: the constraint is the reference's own figure, not a margin inside it
-        spec = _with_type(model, "pi", **req, backoff=0)
+        spec = _with_type(model, "pi", True, **req, backoff=0)
         for method, budget in (("cmaes", args.cmaes_budget), ("tune", args.rl_budget)):
             if budget <= 0:
                 continue

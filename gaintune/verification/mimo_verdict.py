@@ -37,8 +37,9 @@ __all__ = ["verify_mimo", "mimo_lines"]
 
 
 def mimo_lines(lines: list[MimoLine], stable: bool) -> list[RequirementLine]:
-    """The report's requirement lines: ``loop`` is the binding loop or side, ``break_point`` the break
-    (or the side for a MIMO-wide figure); on an unstable loop none applies."""
+    """The report's requirement lines: ``loop`` is the binding loop (a MIMO-wide figure: the side,
+    ``input`` or ``output``), ``break_point`` the break (None for a MIMO-wide figure); on an unstable
+    loop none applies."""
     out = []
     for q in lines:
         loop, _, brk = q.where.partition("/")
@@ -46,7 +47,7 @@ def mimo_lines(lines: list[MimoLine], stable: bool) -> list[RequirementLine]:
             requirement=q.requirement if q.target == "all" else f"{q.requirement}[{q.target}]",
             figure=REQUIREMENTS[q.requirement][0], limit=q.limit, value=q.value,
             margin=q.margin if not math.isnan(q.margin) else -math.inf, passed=q.passed and stable,
-            loop=loop, break_point=brk or loop, applicable=stable))
+            loop=loop, break_point=brk or None, applicable=stable))
     return out
 
 
@@ -78,7 +79,7 @@ def _reasons(stable: bool, lines: list[RequirementLine], nl_failed: bool) -> lis
     failing = sorted((q for q in lines if q.applicable and not q.passed),
                      key=lambda q: q.margin / max(abs(q.limit), 1e-12))
     out += [f"{q.requirement}: {q.figure} = {q.value:.4g} vs limit {q.limit:.4g} (margin {q.margin:+.4g}) "
-            f"at {q.loop if q.loop == q.break_point else f'{q.loop}/{q.break_point}'}" for q in failing]
+            f"at {'/'.join(x for x in (q.loop, q.break_point) if x)}" for q in failing]
     if nl_failed:
         out.append("nonlinear simulation diverged or tripped the safety monitor")
     return out

@@ -413,7 +413,7 @@ def _requirement_table(requirements: list[RequirementLine]) -> list[str]:
     """One line per requirement: PASS, FAIL or N/A, with its figure, limit and margin."""
     lines = ["", "requirements:"]
     for q in requirements:
-        where = f"{q.loop}/{q.break_point}/{q.case}" if q.loop else q.case
+        where = "/".join(x for x in (q.loop, q.break_point, q.case) if x) if q.loop else q.case
         if not q.applicable:
             lines.append(f"  N/A  {q.requirement:<11} {NOT_APPLICABLE} at {where}")
             continue
