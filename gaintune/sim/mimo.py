@@ -229,6 +229,7 @@ class MimoSimulator:
             for j, d in enumerate(self._act_delays()):
                 check_delay_samples(d, sc.resolved_dt, f"actuators.{self.mimo.input_names[j]}.delay")
         self._plants: dict[tuple, dict] = {}
+        self._arrays: dict[tuple, dict] = {}
 
     def nominal_draws(self, n: int = 1) -> Draws:
         """The nominal plant and scenario, ``n`` times."""
@@ -269,7 +270,18 @@ class MimoSimulator:
         out = {k: np.stack([p[k] for p in per]) for k in ("Ad", "Cm", "ch_du", "ch_dd", "G0u", "G1u", "G0d", "G1d")}
         out.update({k: per[0][k] for k in ("bstart", "bsize", "ch_blk", "ch_src")})
         out["pidx"] = np.ascontiguousarray(pidx.reshape(-1), dtype=np.int64)
+        out["cand"], out["chunk_start"] = _chunks(out["pidx"])
         return out
+
+    def _memo(self, key: tuple, build) -> dict:
+        """Gain-independent arrays under ``key`` (plant per draw set, signals per scenario), built on a miss:
+        optimisers and the RL environment call again and again with the same draws."""
+        hit = self._arrays.get(key)
+        if hit is None:
+            if len(self._arrays) > 64:
+                self._arrays.clear()
+            hit = self._arrays[key] = build()
+        return hit
 
     def _controller_arrays(self, full: np.ndarray) -> dict:
         spec, arch, B = self.spec, self.arch, full.shape[0]
@@ -344,9 +356,10 @@ class MimoSimulator:
         if len(d) != B:
             raise ValueError(f"draws has {len(d)} rows for {B} gain sets")
         n, dt = sc.n_steps, sc.resolved_dt
-        pa = self._plant_arrays(d.params, dt) if d.params.size else self._plant_arrays(np.zeros((B, 0)), dt)
+        params = d.params if d.params.size else np.zeros((B, 0))
+        pa = self._memo(("plant", dt, params.shape, params.tobytes()), lambda: self._plant_arrays(params, dt))
         ca = self._controller_arrays(full)
-        sg = self._signals(sc, where)
+        sg = self._memo(("signals", where, sc.model_dump_json()), lambda: self._signals(sc, where))
         m, L = len(self.mimo.inputs), len(self.arch.order)
         acts = [self._actuator(j) for j in range(m)]
         lim = [a.limits if a is not None and a.limits is not None else (-np.inf, np.inf) for a in acts]
@@ -361,7 +374,7 @@ class MimoSimulator:
         eff_out = np.zeros((m, B))
         shape = (n, B) if traces else (0, B)
         tr_y, tr_sp, tr_u = np.zeros((L, *shape)), np.zeros((L, *shape)), np.zeros((m, *shape))
-        args = (*_chunks(pa["pidx"]), n, dt, pa["pidx"], pa["Ad"], pa["bstart"], pa["bsize"], pa["Cm"],
+        args = (pa["cand"], pa["chunk_start"], n, dt, pa["pidx"], pa["Ad"], pa["bstart"], pa["bsize"], pa["Cm"],
                 pa["ch_blk"], pa["ch_src"],
                 pa["ch_du"], pa["G0u"], pa["G1u"], pa["ch_dd"], pa["G0d"], pa["G1d"], sg["dist_on"],
                 self.arch.meas, self.arch.parent, sg["root_row"], ca["kp"], ca["ki"], ca["kd"], ca["tf"], ca["kb"],

@@ -53,7 +53,6 @@ class Simulator:
             built = plant if plant is not None else build_plant(spec.plant)
             if needs_mimo(spec, built):
                 return MimoSimulator(spec, built, layout)
-            plant = built
             obj = super().__new__(cls)
             obj._built = built  # type: ignore[attr-defined]  # read once by __init__
             return obj
