@@ -38,6 +38,8 @@ BENCH = {
              "its wall time.",
     "sweep": "Fleet sweeps: local processes vs Ray (overhead), 1 vs 2 workers, a Ray worker and the driver killed, "
              "a 10,000-loop cluster projection.",
+    "mimo": "Wood-Berry and quadruple-tank decentralised PI: tuned against the published rows at their own MIMO Ms "
+            "and multiloop disk margin.",
     "api": "REST API load test.",
     "chaos": "Chaos campaign against a real API server: worker/server kills, freezes, storage faults, reused "
              "connections.",

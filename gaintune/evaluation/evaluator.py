@@ -152,13 +152,30 @@ def is_mimo_sim(sim: object) -> bool:
 def mimo_requirement_scores(ev: Evaluator, tuned: np.ndarray, stability: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """(violation, shortfall) of B gain sets of a MIMO spec, each (B,).
 
-    The MIMO frequency-domain requirements (``mimo_ms_max``, ``disk_margin_min``, loop-at-a-time
-    margins) come from the MIMO verification (gaintune.verification.mimo*): TODO, wired in when it is
-    merged. Until then this is 0 (feasible) and -1 (inside): closed-loop stability counts through
-    the time response, where a diverged simulation adds DIVERGED_VIOLATION (:meth:`Evaluator.evaluate`).
+    The same report and requirement lines as the MIMO verdict (:mod:`gaintune.verification.mimo_spec`),
+    the limits at the search's aim (``requirements.backoff``), graded as the single-loop case
+    (:func:`gaintune.verification.mimo_spec.graded`): 0 exactly when every line holds with
+    FEASIBILITY_MARGIN to spare. ``stability`` is accepted for the interface: an unstable loop always
+    scores as unstable (its margins mean nothing). The nominal plant only (the MIMO verdict has no robust set yet).
     """
-    B = tuned.shape[0]
-    return np.zeros(B), np.full(B, -1.0)
+    from gaintune.verification.mimo_spec import graded, spec_margins
+
+    full = ev.layout.full(tuned)
+    out = np.zeros((2, tuned.shape[0]))
+    for b, row in enumerate(full):
+        key = row.tobytes()
+        hit = ev._mimo_memo.get(key)
+        if hit is None:
+            if not np.all(np.isfinite(row)):
+                hit = (DIVERGED_VIOLATION, DIVERGED_VIOLATION)
+            else:
+                _, rep, lines = spec_margins(ev.spec, ev.plant, ev.layout, row, aimed=True)
+                hit = graded(rep, lines)
+            if len(ev._mimo_memo) > 4096:
+                ev._mimo_memo.clear()
+            ev._mimo_memo[key] = hit
+        out[:, b] = hit
+    return out[0], out[1]
 
 
 class Evaluator:
@@ -203,6 +220,7 @@ class Evaluator:
         self.n_sims = 0
         self._constraint_models: list[LinearModel] | None = None
         self._noise_limit: np.ndarray | None = None
+        self._mimo_memo: dict[bytes, tuple[float, float]] = {}  # gains -> MIMO (violation, shortfall)
         #: the spec the requirement estimate judges: its limits moved to the search's aim (requirements.backoff)
         self._aim_spec = spec.model_copy(update={"requirements": spec.requirements.aimed()})
 

@@ -330,7 +330,7 @@ def _tune(spec: TuningSpec, options: TuneOptions) -> TuneResult:
     trained = _train(problem, plan, options)
     monitor = trained.monitor
     answer, first, k = _freeze(problem, trained)
-    mimo = problem.evaluator.is_mimo  # several inputs or a loop graph: the MIMO verification is not wired yet
+    mimo = problem.evaluator.is_mimo  # several inputs or a loop graph: no single-loop boundary settling
     if options.verify and not mimo:
         monitor.report(force=True, phase="settle")
         _settle(problem.evaluator, answer, first, k)
@@ -343,13 +343,11 @@ def _tune(spec: TuningSpec, options: TuneOptions) -> TuneResult:
         out.mkdir(parents=True, exist_ok=True)
         agent_path = str(save_agent(trained.agent, out / "agent.zip"))  # atomic: a symlink is replaced, not followed
     result = _result(problem, plan, trained, answer, options, agent_path)
-    if options.verify and not mimo:
+    if options.verify:  # a MIMO spec gets the MIMO verdict (gaintune.verification.mimo_verdict)
         monitor.report(force=True, phase="verify")
         from gaintune.verification import verify as verify_gains
 
         result.verification = verify_gains(spec, result.gains, plant=problem.plant, layout=problem.layout)
-    # TODO(MIMO verification): verify MIMO answers with gaintune.verification.mimo* once merged; until then
-    # a MIMO result carries no verdict (not accepted), and closed-loop stability counted in the search only
     if options.baselines:
         from gaintune.baselines import run_baseline
 

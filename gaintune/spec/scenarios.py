@@ -181,7 +181,9 @@ class ScenarioDefault(_Model):
 
 
 #: MIMO limits, judged by the MIMO verification as given (no back-off is defined for them yet).
-_MIMO_LIMITS = ("mimo_ms_max", "mimo_mt_max", "disk_margin_min", "disk_margin_at")
+_MIMO_LIMITS = ("mimo_ms_max", "mimo_mt_max", "disk_margin_min", "disk_margin_at", "targets")
+#: Requirements ``targets`` may set per loop, plant input, plant output or side (the MIMO verdict).
+_TARGETED = ("gm_min_db", "pm_min_deg", "dm_min", "ms_max", "mt_max", "mimo_ms_max", "mimo_mt_max", "disk_margin_min")
 
 _REMOVED_OBJECTIVE_FIELDS = ("margin_weight", "divergence_penalty", "trip_penalty")
 
@@ -243,6 +245,12 @@ class RequirementsSpec(_Model):
         "plant inputs, outputs or both (disk_margin_at).")
     disk_margin_at: Literal["inputs", "outputs", "all"] = Field(
         "all", exclude_if=lambda v: v == "all", description="Where disk_margin_min applies.")
+    targets: dict[str, dict[str, float]] | None = Field(
+        None, exclude_if=lambda v: v is None,
+        description="Several loops: limits at named places, added to the ones above, e.g. {gm_min_db: {xD: 8}, "
+        "disk_margin_min: {input: 0.5}}. A loop-at-a-time figure (gm_min_db, pm_min_deg, dm_min, ms_max, mt_max) "
+        "takes a loop, a plant input or output, or all; a MIMO figure (mimo_ms_max, mimo_mt_max, disk_margin_min) "
+        "takes input, output or all.")
     # the default is left out of dumps, so specs and hashes written before the field existed stay as they were
     backoff: BackoffSpec = Field(
         default_factory=BackoffSpec, exclude_if=lambda b: b == BackoffSpec(),
@@ -264,6 +272,17 @@ class RequirementsSpec(_Model):
         elif isinstance(mks, (int, float)):
             new["mks_max"] = b.aim("mks_max", float(mks))
         return self.model_copy(update={**new, "backoff": BackoffSpec.model_validate(0)})
+
+    @field_validator("targets")
+    @classmethod
+    def _targets(cls, v: dict[str, dict[str, float]] | None) -> dict[str, dict[str, float]] | None:
+        for name, per in (v or {}).items():
+            if name not in _TARGETED:
+                raise ValueError(f"targets.{name}: not a requirement with targets; choose one of {list(_TARGETED)}")
+            for where, x in per.items():
+                if not math.isfinite(x):
+                    raise ValueError(f"targets.{name}.{where}: limit must be finite, got {x}")
+        return v
 
     @field_validator("mks_max", mode="before")
     @classmethod

@@ -65,6 +65,18 @@ def loop_frequency_responses(spec: TuningSpec, plant: Plant, layout: GainLayout,
         return cas.loop_responses(s, lin, fac, sampled=sp)[:, 0, :]
 
 
+def _is_mimo(spec: TuningSpec, plant: Plant | None) -> bool:
+    """Whether ``spec`` needs the MIMO verdict (:func:`gaintune.sim.mimo.needs_mimo`); the plant is built
+    only for a model reference (a plain single-input spec is recognised from the spec)."""
+    from gaintune.plants import build_plant
+    from gaintune.plants.mimo import is_mimo_plant_spec
+    from gaintune.sim.mimo import needs_mimo
+
+    if plant is None and getattr(spec.plant, "model", None) is None:
+        return is_mimo_plant_spec(spec.plant) or needs_mimo(spec, None)
+    return needs_mimo(spec, plant if plant is not None else build_plant(spec.plant))
+
+
 def verify(
     spec: TuningSpec | dict[str, Any] | str | Path,
     gains: Any,
@@ -119,6 +131,11 @@ def verify(
     """
     t0 = time.perf_counter()
     tspec = spec if isinstance(spec, TuningSpec) else load_spec(spec)
+    if _is_mimo(tspec, plant):  # several plant inputs or a loop graph: the MIMO verdict
+        from gaintune.verification.mimo_verdict import verify_mimo
+
+        return verify_mimo(tspec, gains, plant=plant, layout=layout, spec_hash=spec_hash, nonlinear=nonlinear,
+                           elapsed_from=t0)
     setup = prepare(tspec, gains, plant, layout, cache, spec_hash, context)
     found = Findings(notes=fixed_gain_overrides(setup.spec, setup.layout, setup.full))
     nom = nominal_analysis(setup, found)

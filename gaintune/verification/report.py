@@ -25,6 +25,8 @@ __all__ = [
     "RobustReport",
     "NonlinearReport",
     "RequirementLine",
+    "MimoDisk",
+    "MimoFigures",
     "VerificationReport",
     "load_report",
     "format_table",
@@ -51,7 +53,7 @@ class LoopFigures(_Out):
     """Loop-at-a-time figures of one break point."""
 
     loop: str
-    break_point: Literal["controller_output", "plant_input"]
+    break_point: Literal["controller_output", "plant_input", "plant_output"]
     gm_db: float = Field(
         description="The binding gain margin in dB: min(gm_upper_db, gm_lower_db), the one of smaller |dB| "
         "(gm_binding says which); inf when neither exists.")
@@ -201,6 +203,36 @@ class RequirementLine(_Out):
         return "n/a" if not self.applicable else ("pass" if self.passed else "fail")
 
 
+class MimoDisk(_Out):
+    """Multiloop disk margin of one side: every channel perturbed at once (balanced, skew 0)."""
+
+    alpha: float = Field(description="Guaranteed disk margin (1/mu upper bound).")
+    gm_db: float = Field(description="Disk-based gain margin (dB), every channel at once.")
+    pm_deg: float = Field(description="Disk-based phase margin (deg), every channel at once.")
+    freq: float | None = Field(None, description="Frequency of the smallest margin (rad/s).")
+
+
+class MimoFigures(_Out):
+    """The MIMO figures of a spec with several loops on several inputs (:mod:`gaintune.verification.mimo`);
+    the loop-at-a-time figures are in ``VerificationReport.loops`` (break point ``plant_input`` at each
+    driven input, ``plant_output`` at each loop's measured output, every other loop closed)."""
+
+    loops: list[str]
+    inputs: list[str] = Field(description="The plant input each loop's chain ends at.")
+    outputs: list[str] = Field(description="The plant output each loop measures.")
+    ms: float = Field(description="MIMO Ms: peak largest singular value of S (the larger of the two sides).")
+    ms_input: float
+    ms_output: float
+    mt: float = Field(description="MIMO Mt: peak largest singular value of T (the larger of the two sides).")
+    mt_input: float
+    mt_output: float
+    disk_input: MimoDisk
+    disk_output: MimoDisk
+    pade_rhp: int = Field(description="Closed-loop eigenvalues with Re >= 0 of the Padé realisation.")
+    nyquist_rhp: int | None = Field(None, description="Generalised Nyquist count on the exact delays.")
+    grid_points: int = 0
+
+
 class VerificationReport(_Out):
     """Result of :func:`gaintune.verification.verify`."""
 
@@ -232,6 +264,8 @@ class VerificationReport(_Out):
     requirements: list[RequirementLine] = Field(default_factory=list)
     notes: list[str] = Field(default_factory=list)
     elapsed_s: float = 0.0
+    mimo: MimoFigures | None = Field(
+        None, exclude_if=lambda v: v is None, description="Several loops on several inputs: the MIMO figures.")
 
     @property
     def passed(self) -> bool:
@@ -345,7 +379,7 @@ def _loop_table(report: VerificationReport) -> list[str]:
     if not stable and report.loops:
         lines.append(f"{'(all loops)':<12} {NOT_APPLICABLE}")
     for f in report.loops if stable else []:
-        brk = "ctrl" if f.break_point == "controller_output" else "u"
+        brk = {"controller_output": "ctrl", "plant_output": "y"}.get(f.break_point, "u")
         gm_up, gm_lo = _f(f.gm_upper_db, '{:.2f}'), _f(f.gm_lower_db, '{:.2f}')
         if f.gm_binding == "increase":
             gm_up += "*"
@@ -379,7 +413,7 @@ def _requirement_table(requirements: list[RequirementLine]) -> list[str]:
     """One line per requirement: PASS, FAIL or N/A, with its figure, limit and margin."""
     lines = ["", "requirements:"]
     for q in requirements:
-        where = f"{q.loop}/{q.break_point}/{q.case}" if q.loop else q.case
+        where = "/".join(x for x in (q.loop, q.break_point, q.case) if x) if q.loop else q.case
         if not q.applicable:
             lines.append(f"  N/A  {q.requirement:<11} {NOT_APPLICABLE} at {where}")
             continue
@@ -388,6 +422,21 @@ def _requirement_table(requirements: list[RequirementLine]) -> list[str]:
             f"limit {_f(q.limit, '{:.4g}')} margin {_f(q.margin, '{:+.4g}')} at {where}"
         )
     return lines
+
+
+def _mimo_table(report: VerificationReport) -> list[str]:
+    """The MIMO-wide figures: Ms, Mt and the multiloop disk margins per side."""
+    m = report.mimo
+    if m is None:
+        return []
+    if not report.stability.stable:
+        return ["", f"MIMO figures: {NOT_APPLICABLE}"]
+    out = ["", f"{'MIMO side':<12} {'Ms':>6} {'Mt':>6} {'disk a':>7} {'disk GM dB':>10} {'disk PM deg':>11}"]
+    for side, ms, mt, d in (("inputs", m.ms_input, m.mt_input, m.disk_input),
+                            ("outputs", m.ms_output, m.mt_output, m.disk_output)):
+        out.append(f"{side:<12} {_f(ms, '{:.3f}'):>6} {_f(mt, '{:.3f}'):>6} {_f(d.alpha, '{:.3f}'):>7} "
+                   f"{_f(d.gm_db, '{:.2f}'):>10} {_f(d.pm_deg, '{:.1f}'):>11}")
+    return out
 
 
 def format_table(report: VerificationReport) -> str:
@@ -404,7 +453,7 @@ def format_table(report: VerificationReport) -> str:
         Verdict, gains and closed loop; the figures per break point; the robust and nonlinear
         checks; the requirement lines; the reasons and notes.
     """
-    lines = _header(report) + _loop_table(report)
+    lines = _header(report) + _loop_table(report) + _mimo_table(report)
     if report.robust is not None:
         lines += _robust_lines(report.robust)
     if report.nonlinear is not None:

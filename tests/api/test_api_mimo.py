@@ -65,3 +65,41 @@ def test_simulate_takes_a_mimo_spec(client: TestClient) -> None:
     tr, m = scs[0]["traces"], scs[0]["metrics"]
     assert {"y.xD", "y.xB", "u.R", "u.S"} <= set(tr) and len(tr["y.xD"]) <= 50
     assert m["iae"] == m["iae.xD"] + m["iae.xB"] and m["diverged"] is False
+
+
+BLT = {"xD": {"Kp": 0.375, "Ki": 0.375 / 8.29}, "xB": {"Kp": -0.075, "Ki": -0.075 / 23.6}}
+
+
+def test_verify_gives_the_mimo_verdict_naming_the_requirement(client: TestClient) -> None:
+    r = client.post("/v1/verify", json={"spec": wood_berry(), "gains": BLT})
+    assert r.status_code == 200, r.text
+    rep = r.json()
+    assert rep["verdict"] == "fail" and rep["reasons"][0].startswith("mimo_ms_max: ms = ")
+    assert rep["mimo"]["ms"] > 2.1 and rep["mimo"]["disk_output"]["alpha"] > 0
+    spec = wood_berry()
+    spec["requirements"].update(mimo_ms_max=2.6, targets={"gm_min_db": {"nope": 3}})
+    bad = client.post("/v1/verify", json={"spec": spec, "gains": BLT})
+    assert bad.status_code == 422 and "requirements.targets" in bad.text and "Traceback" not in bad.text
+    spec["requirements"].pop("targets")
+    assert client.post("/v1/verify", json={"spec": spec, "gains": BLT}).json()["verdict"] == "pass"
+
+
+def test_tune_job_end_to_end_carries_the_mimo_verdict(client: TestClient) -> None:
+    from gaintune_api.worker import process_next
+
+    spec = wood_berry()
+    spec["search"] = {"budget": 600, "seed": 0}
+    r = client.post("/v1/tune", json=spec)
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    for _ in range(5):  # earlier tests of this module queued jobs too: run the queue up to this one
+        if client.get(f"/v1/jobs/{job_id}").json()["status"] == "succeeded":
+            break
+        assert process_next(client.app.state.store, client.app.state.settings) == "succeeded"
+    job = client.get(f"/v1/jobs/{job_id}").json()
+    res = job["result"]
+    v = res["verification"]
+    assert set(v["gains"]) == {"xD", "xB"} and v["mimo"]["ms"] > 1 and res["verdict"] == v["verdict"]
+    assert res["accepted_gains"] == (v["gains"] if v["verdict"] == "pass" else None)
+    assert {f["break_point"] for f in v["loops"]} == {"plant_input", "plant_output"}
+    assert (v["verdict"] == "pass") == (v["mimo"]["ms"] <= 2.1)

@@ -51,7 +51,11 @@ def test_tune_wood_berry_end_to_end(tmp_path: Path) -> None:
     m = result["metrics"]["step_xD"]
     assert m["iae"] == m["iae.xD"] + m["iae.xB"] and not m["diverged"]
     assert result["sims"] <= 1500
-    assert result["verification"] is None  # the MIMO verdict comes with the MIMO verification
+    v = result["verification"]  # the MIMO verdict: MIMO Ms, multiloop disk margins, loop-at-a-time margins
+    assert v["mimo"]["ms"] > 1 and v["mimo"]["disk_input"]["alpha"] > 0
+    assert {f["break_point"] for f in v["loops"]} == {"plant_input", "plant_output"}
+    assert [q["requirement"] for q in v["requirements"]] == ["mimo_ms_max"] and v["verdict"] in ("pass", "fail")
+    assert (v["verdict"] == "pass") == (v["mimo"]["ms"] <= 2.1)
 
 
 def test_bad_mimo_spec_exits_2_naming_the_field(tmp_path: Path) -> None:

@@ -44,7 +44,9 @@ def test_search_box_centres_on_a_scaled_rule() -> None:
 def test_cmaes_tunes_every_wood_berry_gain_jointly() -> None:
     spec = wood_berry()
     amigo = run_baseline(spec, "amigo")  # the rule loop by loop, scored on the whole plant
-    assert amigo.gains == loop_rule_candidates(spec, build_plant(spec.plant))["amigo"] and amigo.feasible
+    assert amigo.gains == loop_rule_candidates(spec, build_plant(spec.plant))["amigo"]
+    # loop by loop the rule ignores the interaction: its MIMO Ms is above the example's 2.1 (a graded violation)
+    assert not amigo.feasible and 0 < amigo.violation < 1
     res = run_baseline(spec, "cmaes", budget=300, seed=0)
     assert res.n_sims <= 300 and res.feasible
     assert set(res.gains) == {"xD", "xB"} and res.gains["xB"]["Kp"] < 0
