@@ -18,7 +18,7 @@ import numpy as np
 
 from gaintune.evaluation.boundary import loop_gain_exponents
 from gaintune.evaluation.evaluator import Evaluator
-from gaintune.verification.quick import FEASIBILITY_MARGIN, MAX_TERM, noise_limit_array, quick_margins
+from gaintune.verification.quick import FEASIBILITY_MARGIN, MAX_TERM, margin_terms, noise_limit_array, quick_margins
 
 __all__ = ["loop_names", "loop_directions", "loop_shortfalls"]
 
@@ -34,27 +34,6 @@ def loop_directions(ev: Evaluator) -> np.ndarray:
     if not names:
         return np.zeros((0, ev.layout.n_tuned))
     return np.array([loop_gain_exponents(ev, name) for name in names])
-
-
-def _terms(req, q, noise_limit: np.ndarray) -> list[np.ndarray]:
-    """Signed relative shortfalls (B, R) per break point, as gaintune.verification.quick.requirement_scores
-    computes them before taking the worst break point."""
-    terms = []
-    if req.gm_min_db is not None:
-        terms.append((req.gm_min_db - q.gm_db) / max(abs(req.gm_min_db), 1e-9))
-    if req.pm_min_deg is not None:
-        terms.append((req.pm_min_deg - q.pm_deg) / max(abs(req.pm_min_deg), 1e-9))
-    if req.dm_min is not None:
-        terms.append((req.dm_min - q.delay_margin) / max(req.dm_min, 1e-12))
-    if req.ms_max is not None:
-        terms.append((q.ms - req.ms_max) / req.ms_max)
-    if req.mt_max is not None:
-        terms.append((q.mt - req.mt_max) / req.mt_max)
-    if req.wc_min is not None:
-        terms.append((req.wc_min - q.wc) / req.wc_min)
-    if req.wc_max is not None:
-        terms.append((q.wc - req.wc_max) / req.wc_max)
-    return terms
 
 
 def loop_shortfalls(ev: Evaluator, tuned: np.ndarray) -> np.ndarray:
@@ -83,7 +62,7 @@ def loop_shortfalls(ev: Evaluator, tuned: np.ndarray) -> np.ndarray:
                 if name not in col:
                     continue
                 i = col[name]  # the loop's row of the cascade: its break, its Mks and its noise limit
-                parts = [t[:, i] for t in _terms(req, q, noise)]
+                parts = [t[:, i] for t in margin_terms(req, q)]
                 if i < q.mks.shape[1] and has_noise[i]:
                     parts.append((q.mks[:, i] - noise[i]) / noise[i])
                 for t in parts:

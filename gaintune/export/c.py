@@ -32,7 +32,7 @@ from gaintune.export.common import ExportError, Gains, _ident, _one_line, _uniqu
 from gaintune.export.verdict import _Stamp
 from gaintune.spec import TuningSpec
 
-__all__ = ["AW_CODE", "to_c", "pid_coef_typedef", "state_typedef", "pid_step"]
+__all__ = ["AW_CODE", "to_c", "check_names", "pid_coef_typedef", "state_typedef", "pid_step"]
 
 AW_CODE = {"none": 0, "clamping": 1, "back_calculation": 2}
 
@@ -82,6 +82,14 @@ class _Header:
         return max(len(self.pid), 1)
 
 
+def check_names(spec: TuningSpec, prefix: str) -> None:
+    """Refuse a ``prefix`` that is not a C identifier, or loop names that collide as C identifiers."""
+    if not isinstance(prefix, str) or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", prefix):
+        raise ExportError("prefix",
+                          f"must be a C identifier (letters, digits, _; not starting with a digit), got {prefix!r}")
+    _unique_idents(spec.loop_names, "c")
+
+
 def to_c(spec: TuningSpec, gains: Gains, st: _Stamp, dt: float, prefix: str = "gt") -> str:
     """A self-contained C99 header with ``static inline`` step functions (see module docstring).
 
@@ -101,10 +109,7 @@ def to_c(spec: TuningSpec, gains: Gains, st: _Stamp, dt: float, prefix: str = "g
     str
         The header's text.
     """
-    if not isinstance(prefix, str) or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", prefix):
-        raise ExportError("prefix",
-                          f"must be a C identifier (letters, digits, _; not starting with a digit), got {prefix!r}")
-    _unique_idents(spec.loop_names, "c")
+    check_names(spec, prefix)
     coefs = loop_coefficients(spec, gains)
     h = _Header(P=prefix.lower(), U=prefix.upper(), dt=dt, coefs=coefs,
                 pid=[c for c in coefs if c["type"] not in ("lqr", "lqi")],

@@ -15,12 +15,20 @@ Integrators start at 0 (the signals are deviations from the operating point, as 
 
 from __future__ import annotations
 
-import re
 from datetime import UTC, datetime
 from typing import Any
 
-from gaintune.export.c import AW_CODE, _c_comment, _c_num, _c_str, _no_redefinition, pid_coef_typedef, pid_step
-from gaintune.export.common import ExportError, Gains, _ident, _unique_idents, _version
+from gaintune.export.c import (
+    AW_CODE,
+    _c_comment,
+    _c_num,
+    _c_str,
+    _no_redefinition,
+    check_names,
+    pid_coef_typedef,
+    pid_step,
+)
+from gaintune.export.common import Gains, _ident, _version
 from gaintune.export.mimo import mimo_architecture
 from gaintune.export.verdict import _Stamp
 from gaintune.spec import TuningSpec
@@ -56,10 +64,7 @@ def to_c_mimo(spec: TuningSpec, gains: Gains, st: _Stamp, dt: float, prefix: str
     str
         The header's text.
     """
-    if not isinstance(prefix, str) or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", prefix):
-        raise ExportError("prefix",
-                          f"must be a C identifier (letters, digits, _; not starting with a digit), got {prefix!r}")
-    _unique_idents(spec.loop_names, "c")
+    check_names(spec, prefix)
     a = mimo_architecture(spec, gains)
     P, U = prefix.lower(), prefix.upper()
     guard = f"{U}_{_ident(spec.name).upper()}_GAINS_H"

@@ -19,6 +19,7 @@ from gaintune.errors import SpecError
 from gaintune.lti.mimo import DelayedSS, TfEntry, TfMatrix
 from gaintune.plants import expr
 from gaintune.plants.coefs import coef_matrix, poly
+from gaintune.plants.params import NamedParams
 from gaintune.spec import MAX_ORDER, PlantSpec, SignalSpec, TfEntrySpec
 
 __all__ = ["MimoPlant", "is_mimo_plant_spec", "build_mimo_plant", "as_mimo", "MAX_MIMO_STATES"]
@@ -34,7 +35,7 @@ def is_mimo_plant_spec(spec: PlantSpec) -> bool:
 
 
 @dataclass
-class MimoPlant:
+class MimoPlant(NamedParams):
     """A linear plant with named inputs and outputs.
 
     Attributes
@@ -79,25 +80,6 @@ class MimoPlant:
     def input_names(self) -> list[str]:
         """Input names, in column order."""
         return [s.name for s in self.inputs]
-
-    @property
-    def order(self) -> int:
-        """Number of states."""
-        return len(self.states)
-
-    @property
-    def param_names(self) -> list[str]:
-        """Parameter names, in :meth:`param_vector` order."""
-        return list(self.params)
-
-    def with_params(self, values: dict[str, float] | None) -> dict[str, float]:
-        """Nominal parameters updated by ``values``; unknown names raise SpecError."""
-        out = dict(self.params)
-        for k, v in (values or {}).items():
-            if k not in out:
-                raise SpecError(f"params.{k}", f"unknown parameter; known: {', '.join(out) or 'none'}")
-            out[k] = float(v)
-        return out
 
     def param_vector(self, values: dict[str, float] | None = None) -> np.ndarray:
         """Parameters as a float vector in :attr:`param_names` order."""

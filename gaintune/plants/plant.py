@@ -23,6 +23,7 @@ from gaintune.errors import SpecError
 from gaintune.plants import expr
 from gaintune.plants.coefs import coef_matrix as _coef_matrix
 from gaintune.plants.coefs import poly as _poly
+from gaintune.plants.params import NamedParams
 from gaintune.spec import MAX_ORDER, OdeSpec, PlantSpec, StateSpaceSpec, TransferFunctionSpec
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -58,7 +59,7 @@ class LinearModel:
 
 
 @dataclass
-class Plant:
+class Plant(NamedParams):
     """A plant with named states/outputs and parameterised dynamics."""
 
     kind: Literal["lti", "nonlinear"]
@@ -70,25 +71,6 @@ class Plant:
     f: ca.Function | None = None
     h: ca.Function | None = None
     _cache: dict = field(default_factory=dict, repr=False)
-
-    @property
-    def order(self) -> int:
-        """Number of states."""
-        return len(self.states)
-
-    @property
-    def param_names(self) -> list[str]:
-        """Parameter names, in :meth:`param_vector` order."""
-        return list(self.params)
-
-    def with_params(self, values: dict[str, float] | None) -> dict[str, float]:
-        """Nominal parameters updated by ``values``; unknown names raise SpecError."""
-        out = dict(self.params)
-        for k, v in (values or {}).items():
-            if k not in out:
-                raise SpecError(f"params.{k}", f"unknown parameter; known: {', '.join(out) or 'none'}")
-            out[k] = float(v)
-        return out
 
     def delay(self, values: dict[str, float] | None = None) -> float:
         """Input delay in seconds for these parameters (SpecError unless finite and >= 0)."""

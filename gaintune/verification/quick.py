@@ -24,14 +24,14 @@ from gaintune.lti.modes import plant_eigvals
 from gaintune.lti.pade import pade_response
 from gaintune.plants.noise_limit import noise_limits
 from gaintune.plants.plant import LinearModel, Plant
-from gaintune.spec import TuningSpec
+from gaintune.spec import RequirementsSpec, TuningSpec
 from gaintune.verification.analysis import analysis_dt, sampling_delay
 from gaintune.verification.cascade import Cascade, build_cascade
 from gaintune.verification.sampled import SampledPlant, sample_plant
 from gaintune.verification.stability import observable_part, sampled_stability
 
 __all__ = ["QuickMargins", "quick_margins", "requirement_violation", "requirement_scores", "noise_limit_array",
-           "sampled_grid", "UNSTABLE_VIOLATION", "FEASIBILITY_MARGIN", "MAX_TERM"]
+           "margin_terms", "sampled_grid", "UNSTABLE_VIOLATION", "FEASIBILITY_MARGIN", "MAX_TERM"]
 
 #: Violation of an unstable closed loop, plus a grade that grows with the largest real pole.
 UNSTABLE_VIOLATION = 10.0
@@ -309,6 +309,31 @@ def requirement_violation(
     return requirement_scores(spec, plant, layout, full_gains, lin, noise_limit)[0]
 
 
+def margin_terms(req: RequirementsSpec, q: QuickMargins) -> list[np.ndarray]:
+    """Signed relative shortfalls of the margin requirements, one (B, R) array per requirement set.
+
+    ``req`` is a RequirementsSpec, ``q`` the quick margins (one column per break point): positive where a
+    break point misses the limit, by that fraction of it. The search's violation and the per-loop repair
+    (:mod:`gaintune.evaluation.boundary_loops`) both grade from these.
+    """
+    terms = []
+    if req.gm_min_db is not None:
+        terms.append((req.gm_min_db - q.gm_db) / max(abs(req.gm_min_db), 1e-9))
+    if req.pm_min_deg is not None:
+        terms.append((req.pm_min_deg - q.pm_deg) / max(abs(req.pm_min_deg), 1e-9))
+    if req.dm_min is not None:
+        terms.append((req.dm_min - q.delay_margin) / max(req.dm_min, 1e-12))
+    if req.ms_max is not None:
+        terms.append((q.ms - req.ms_max) / req.ms_max)
+    if req.mt_max is not None:
+        terms.append((q.mt - req.mt_max) / req.mt_max)
+    if req.wc_min is not None:
+        terms.append((req.wc_min - q.wc) / req.wc_min)
+    if req.wc_max is not None:
+        terms.append((q.wc - req.wc_max) / req.wc_max)
+    return terms
+
+
 def requirement_scores(
     spec: TuningSpec,
     plant: Plant,
@@ -334,21 +359,7 @@ def requirement_scores(
     out = np.zeros(B)
     short = np.full(B, -np.inf)
     with np.errstate(all="ignore"):
-        terms = []
-        if req.gm_min_db is not None:
-            terms.append((req.gm_min_db - q.gm_db) / max(abs(req.gm_min_db), 1e-9))
-        if req.pm_min_deg is not None:
-            terms.append((req.pm_min_deg - q.pm_deg) / max(abs(req.pm_min_deg), 1e-9))
-        if req.dm_min is not None:
-            terms.append((req.dm_min - q.delay_margin) / max(req.dm_min, 1e-12))
-        if req.ms_max is not None:
-            terms.append((q.ms - req.ms_max) / req.ms_max)
-        if req.mt_max is not None:
-            terms.append((q.mt - req.mt_max) / req.mt_max)
-        if req.wc_min is not None:
-            terms.append((req.wc_min - q.wc) / req.wc_min)
-        if req.wc_max is not None:
-            terms.append((q.wc - req.wc_max) / req.wc_max)
+        terms = margin_terms(req, q)
         if np.any(np.isfinite(noise_limit)):
             has = np.isfinite(noise_limit)
             terms.append((q.mks[:, has] - noise_limit[has]) / noise_limit[has])
