@@ -87,8 +87,14 @@ def test_arm_payload_loads_shoulder_and_elbow_and_the_arm_is_stable_open_loop() 
     assert np.all(np.isfinite(ev))
 
 
+@pytest.mark.slow
 def test_process_train_tune_smoke() -> None:
-    """A small-budget RL search of the 110-gain architecture runs end to end (short horizon)."""
+    """A small-budget RL search of the 110-gain architecture runs end to end (short horizon).
+
+    Slow: with the MIMO requirements in the search's constraint, each candidate's lean MIMO report
+    (66 loop breaks, the stability count) costs ~1.4 s at 110 gains, and the search box alone scores
+    dozens of candidates. The default run covers the architecture by simulation and verification.
+    """
     from gaintune.search import tune
 
     d = load_model("process_train").example_spec()
