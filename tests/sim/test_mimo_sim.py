@@ -135,7 +135,8 @@ def test_unstable_wood_berry_gains_diverge_and_are_infeasible() -> None:
     s = ev.evaluate(tuned[None])
     assert s.diverged[0] and s.cost[0] == DIVERGED_COST and s.violation[0] >= DIVERGED_VIOLATION
     ok = ev.evaluate(ev.layout.tuned_of(blt_full(ev.sim)))
-    assert not ok.diverged[0] and ok.feasible[0] and ok.cost[0] < 100
+    # BLT is stable; it misses only the example's MIMO Ms <= 2.1 at the inputs (2.47), by a finite grade
+    assert not ok.diverged[0] and ok.cost[0] < 100 and ok.violation[0] < DIVERGED_VIOLATION
 
 
 def test_disturbance_at_the_feed_input_passes_its_paths() -> None:
