@@ -1,4 +1,4 @@
-"""Closed-loop stability of a loop graph's gains, for ``gaintune bench scale``.
+"""Closed-loop stability of a loop graph's gains, for ``gaintune bench scaling`` where the verdict cannot be computed.
 
 The spec's loops (cascades of parallel P/PI/PD/PID loops side by side, each chain ending at a plant
 input) become one controller matrix K (plant inputs x measured outputs) in the convention of

@@ -23,14 +23,13 @@ bench_app = typer.Typer(help="Benchmarks (arguments after the command are passed
 BENCH = {
     "sim": "Simulator throughput (simulations/s).",
     "search": "RL search vs baselines on the benchmark processes.",
-    "scale": "Budget-to-quality curves of RL alone and CMA-ES on large architectures (quadrotor, robot arm, "
-             "process train).",
     "verify": "Verification speed: nominal, full and the search estimate's batch.",
     "compare": "Compare gaintune with classical rules and optimisers.",
     "constraints": "Agreement of the searched requirement estimate with the verdict near the boundary.",
     "kernel": "The simulator kernel side by side with an earlier git revision of it.",
     "ablation": "RL agents and PPO settings side by side on 1/(s+1)^3 PID.",
-    "scaling": "Budget-to-quality curves of the RL search and CMA-ES on the six-loop cascade or any spec.",
+    "scaling": "Budget-to-quality curves of the RL search and CMA-ES on suite problems, built-in models (quadrotor, "
+               "robot_arm6, process_train) or any spec.",
     "startup": "End-to-end wall time of --help, import, verify and a 3,000-simulation tune, beside python -c pass.",
     "tuners": "Trained tuners on held-out FOTD plants against the per-plant optimum and AMIGO/SIMC, with their "
               "answer time.",
