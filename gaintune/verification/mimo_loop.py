@@ -22,8 +22,8 @@ import numpy as np
 
 from gaintune.lti.mimo import DelayedSS, MimoLti, TfEntry, TfMatrix, block_diag
 
-__all__ = ["LoopPair", "PidLoop", "MimoLoop", "pid_entry", "decentralised_pid", "response", "hidden_modes",
-           "char_freqs", "closed_loop_matrix"]
+__all__ = ["LoopPair", "PidLoop", "MimoLoop", "pid_entry", "decentralised_pid", "response", "solve_points",
+           "hidden_modes", "char_freqs", "closed_loop_matrix"]
 
 
 @dataclass(frozen=True)
@@ -170,6 +170,24 @@ def _tf_realisation(sys: TfMatrix, rows: Sequence[int], cols: Sequence[int]) -> 
     return block_diag(*As), np.vstack(Bs), np.hstack(Cs), D
 
 
+def solve_points(M: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve`` over a stack of points, with inf where a point's matrix is singular.
+
+    A pole exactly on the grid (an integrator's at s = 0) makes numpy raise for the whole stack;
+    the figures read an infinite response there instead (an infinite loop gain: S = 0).
+    """
+    try:
+        return np.linalg.solve(M, rhs)
+    except np.linalg.LinAlgError:
+        out = np.empty(np.broadcast_shapes(M.shape[:-2], rhs.shape[:-2]) + rhs.shape[-2:], dtype=complex)
+        for k in range(out.shape[0]):
+            try:
+                out[k] = np.linalg.solve(M[k], rhs[k])
+            except np.linalg.LinAlgError:
+                out[k] = np.inf
+        return out
+
+
 def response(sys: MimoLti, s: np.ndarray, rows: Sequence[int] | None = None,
              cols: Sequence[int] | None = None) -> np.ndarray:
     """``sys[rows, cols]`` at the complex points ``s``: (len(s), len(rows), len(cols)), exact delays
@@ -184,7 +202,7 @@ def response(sys: MimoLti, s: np.ndarray, rows: Sequence[int] | None = None,
     G = np.broadcast_to(sys.D[np.ix_(r, c)].astype(complex), (s.size, len(r), len(c))).copy()
     if n:  # (a pole exactly at some s gives inf/NaN there, as meant)
         B = sys.B[:, c]
-        X = np.linalg.solve(s[:, None, None] * np.eye(n) - sys.A[None], np.broadcast_to(B, (s.size, n, len(c))))
+        X = solve_points(s[:, None, None] * np.eye(n) - sys.A[None], np.broadcast_to(B, (s.size, n, len(c))))
         G += sys.C[r][None] @ X
     G *= np.exp(-s[:, None] * sys.output_delays[r][None, :])[:, :, None]
     G *= np.exp(-s[:, None] * sys.input_delays[c][None, :])[:, None, :]

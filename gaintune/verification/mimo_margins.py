@@ -29,7 +29,7 @@ import numpy as np
 
 from gaintune.verification.freqresp import Evaluator
 from gaintune.verification.margins import BreakFigures, row_margins
-from gaintune.verification.mimo_loop import MimoLoop
+from gaintune.verification.mimo_loop import MimoLoop, solve_points
 
 __all__ = ["Peak", "MultiloopDisk", "mu_bounds", "osborne", "disk_range", "multiloop_disk", "sigma_peak",
            "loop_at_a_time", "lat_rows"]
@@ -301,7 +301,7 @@ class _RowsEvaluator(Evaluator):
         e = np.zeros((s.size, n, 1))
         e[:, k, 0] = 1.0
         with np.errstate(all="ignore"):
-            x = np.linalg.solve(np.eye(n) + self.loop.loop_gains(s, side), e)
+            x = solve_points(np.eye(n) + self.loop.loop_gains(s, side), e)
             return (1.0 / x[:, k, 0] - 1.0)[None, :]
 
 

@@ -71,3 +71,16 @@ def test_evaluator_violation_is_zero_exactly_when_verify_passes() -> None:
     assert any(passed) and not all(passed)
     assert [bool(v == 0) for v in viol] == passed
     assert np.all(viol[~np.array(passed)] > 0) and viol[-1] >= 10  # unstable: graded from 10 up
+
+
+def test_quadrotor_verify_with_integrators_on_the_frequency_grid_gives_a_verdict_not_linalgerror():
+    """The quadrotor's integrators put plant poles exactly at s = 0, a point of the analysis grid: numpy's
+    batched solve raised LinAlgError (Singular matrix) for the whole grid, crashing verify and the search."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "plants"))
+    from test_big_models import _quad_gains
+
+    rep = verify(load_spec(load_model("quadrotor").example_spec()), _quad_gains())
+    assert rep.verdict in ("pass", "fail") and rep.reasons is not None
