@@ -179,8 +179,9 @@ def solve_points(M: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     try:
         return np.linalg.solve(M, rhs)
     except np.linalg.LinAlgError:
-        out = np.empty(np.broadcast_shapes(M.shape[:-2], rhs.shape[:-2]) + rhs.shape[-2:], dtype=complex)
-        for k in range(out.shape[0]):
+        n_points = M.shape[0]  # both stacks hold one matrix per point (rhs may be a broadcast view)
+        out = np.empty((n_points, *rhs.shape[-2:]), dtype=complex)
+        for k in range(n_points):
             try:
                 out[k] = np.linalg.solve(M[k], rhs[k])
             except np.linalg.LinAlgError:
