@@ -55,6 +55,7 @@ from gaintune.export.verdict import (
     first_reason,
     result_verdict_at_dt,
     spec_at_dt,
+    stamp_fields,
     verdict_at_dt,
     verified_dt,
 )
@@ -96,14 +97,7 @@ def _payload(spec: TuningSpec, gains: Gains, st: _Stamp) -> dict[str, Any]:
         return mimo_payload(spec, gains, st)
     coefs = loop_coefficients(spec, gains)
     return {
-        "spec": spec.name,
-        "spec_hash": spec.content_hash(),
-        "verdict": st.label,
-        "accepted": st.accepted,
-        "dt": st.dt,
-        "verified_dt": st.verified_dt,
-        "reasons": st.reasons if st.verdict == "fail" else [],
-        "gains": gains,
+        **stamp_fields(spec, gains, st),
         "loops": _clean(coefs),
         "actuator": _clean({"limits": list(spec.actuator.limits) if spec.actuator.limits else None,
                             "rate_limit": spec.actuator.rate_limit}),

@@ -16,7 +16,7 @@ import math
 from typing import Any
 
 from gaintune.export.common import Gains, _version, is_mimo
-from gaintune.export.verdict import _Stamp
+from gaintune.export.verdict import _Stamp, stamp_fields
 from gaintune.spec import TuningSpec
 
 __all__ = ["is_mimo", "mimo_architecture", "mimo_payload"]
@@ -115,14 +115,7 @@ def mimo_payload(spec: TuningSpec, gains: Gains, st: _Stamp) -> dict[str, Any]:
     """The JSON/YAML/Python document of a MIMO export: the verdict stamp and the whole architecture."""
     a = mimo_architecture(spec, gains)
     return {
-        "spec": spec.name,
-        "spec_hash": spec.content_hash(),
-        "verdict": st.label,
-        "accepted": st.accepted,
-        "dt": st.dt,
-        "verified_dt": st.verified_dt,
-        "reasons": st.reasons if st.verdict == "fail" else [],
-        "gains": gains,
+        **stamp_fields(spec, gains, st),
         "architecture": "mimo",
         "evaluation_order": [lp["name"] for lp in a["loops"]],
         "chains": a["chains"],

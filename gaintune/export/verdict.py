@@ -23,7 +23,7 @@ from gaintune.spec import MAX_STEPS, TuningSpec
 from gaintune.verification.report import VerificationReport
 
 __all__ = ["verified_dt", "spec_at_dt", "stored_verdict_holds", "verdict_at_dt", "result_verdict_at_dt", "first_reason",
-           "verify_if_possible"]
+           "verify_if_possible", "stamp_fields"]
 
 
 def verified_dt(spec: TuningSpec) -> float:
@@ -207,3 +207,17 @@ class _Stamp:
             return (f"verification: NOT verified at dt = {dt} s (the verdict '{self.held}' holds at dt = "
                     f"{_fmt_dt(self.verified_dt)} s only) - do not deploy; re-verify or re-tune at this sample time")
         return "verification: not run - these gains are unverified"
+
+
+def stamp_fields(spec: TuningSpec, gains: Gains, st: _Stamp) -> dict[str, Any]:
+    """The head every JSON/YAML/Python export document starts with: the spec, the verdict stamp, the gains."""
+    return {
+        "spec": spec.name,
+        "spec_hash": spec.content_hash(),
+        "verdict": st.label,
+        "accepted": st.accepted,
+        "dt": st.dt,
+        "verified_dt": st.verified_dt,
+        "reasons": st.reasons if st.verdict == "fail" else [],
+        "gains": gains,
+    }
