@@ -38,6 +38,7 @@ import yaml
 
 from gaintune.bench.arguments import BenchParser, add_out_argument, budget_int, int_range, resolve_out
 from gaintune.bench.compare import md_table, write_outputs
+from gaintune.spec.settings import SearchSpec
 
 __all__ = ["main", "fleet_doc", "projection", "noop", "ray_task_overhead"]
 
@@ -49,8 +50,11 @@ VALVE: dict[str, Any] = {
     "actuator": {"limits": [-100, 100]},
     "scenario": {"dt": 0.05, "horizon": 40.0, "reference": {"kind": "step", "amplitude": 1.0, "time": 1.0}},
     "requirements": {"gm_min_db": 6, "pm_min_deg": 45, "ms_max": 1.6},
-    "search": {"budget": 600, "seed": 0},
+    "search": {"seed": 0},
 }
+
+#: Simulations per item: what a spec that names no budget gets, so an item is a typical search.
+DEFAULT_BUDGET: int = SearchSpec.model_fields["budget"].default
 
 
 def fleet_doc(n: int, budget: int) -> dict[str, Any]:
@@ -259,7 +263,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """``gaintune bench sweep``: see the module docstring."""
     ap = BenchParser(prog="gaintune bench sweep", description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--problems", type=int_range(4, 120), default=40, help="items of the timed sweep (default 40)")
-    ap.add_argument("--budget", type=budget_int, default=600, help="simulations per item (default 600)")
+    ap.add_argument("--budget", type=budget_int, default=DEFAULT_BUDGET,
+                    help=f"simulations per item (default {DEFAULT_BUDGET}, a spec's own default)")
     ap.add_argument("--kill-problems", type=int_range(4, 120), default=12,
                     help="items of the kill sweeps (c) and (d) (default 12)")
     ap.add_argument("--address", help="a running Ray cluster for (a) and (c) (default: a local one of 2 CPUs)")

@@ -460,11 +460,11 @@ def _chunks(pidx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _run_threaded(args: tuple) -> None:
-    """Run the kernel's chunks on ``NUMBA_NUM_THREADS`` threads (it releases the GIL), each a contiguous range."""
-    import numba as nb
+    """Run the kernel's chunks on :func:`~gaintune.sim.threads.sim_threads` threads (it releases the GIL)."""
+    from gaintune.sim.threads import sim_threads
 
     n_chunks = len(args[1]) - 1
-    n = min(max(1, int(nb.config.NUMBA_NUM_THREADS)), n_chunks)  # type: ignore[attr-defined]
+    n = min(sim_threads(), n_chunks)
     if n == 1:
         mimo_kernel(0, n_chunks, *args)
         return

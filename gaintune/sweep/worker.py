@@ -97,7 +97,10 @@ def _run_query(doc: dict[str, Any]) -> dict[str, Any]:
 
 
 def _threads(cpus: int) -> None:
-    """Let the item's own threads (torch) use the CPUs it asked for."""
+    """Keep the item's threads (simulator, torch) to the CPUs it asked for, so workers do not contend."""
+    from gaintune.sim.threads import set_sim_threads
+
+    set_sim_threads(cpus)
     if cpus > 1:
         import torch
 

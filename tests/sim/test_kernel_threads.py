@@ -81,3 +81,27 @@ def test_a_forked_process_starts_its_own_kernel_threads(monkeypatch) -> None:
     pool = drivers._workers(1)
     monkeypatch.setattr(pool, "pid", pool.pid + 1)  # as a fork's child sees its parent's (dead) threads
     assert drivers._workers(1) is not pool
+
+
+def test_a_process_limited_to_one_sim_thread_runs_a_large_batch_on_the_calling_thread(monkeypatch) -> None:
+    """A sweep worker given one CPU must not spread its batches over the other workers' cores."""
+    from gaintune.sim.threads import set_sim_threads, sim_threads
+
+    args = _args(2 * CHUNK + 1)
+    calls = []
+    real = drivers._serial
+
+    def spy(*a):
+        calls.append(threading.current_thread().name)
+        return real(*a)
+
+    monkeypatch.setattr(numba.config, "NUMBA_NUM_THREADS", 2)
+    monkeypatch.setattr(drivers, "_serial", spy)
+    set_sim_threads(1)
+    try:
+        assert sim_threads() == 1
+        run_kernel(args)
+    finally:
+        set_sim_threads(None)
+    assert calls == [threading.current_thread().name]
+    assert sim_threads() == 2

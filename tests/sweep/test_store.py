@@ -44,3 +44,16 @@ def test_records_survive_reopening(tmp_path):
     again = SqliteStore(tmp_path / "sweep.db")
     assert again.finished_keys() == {"c"}
     again.close()
+
+
+def test_a_sweep_item_keeps_the_simulator_to_the_cpus_it_asked_for() -> None:
+    """Before, a 1-CPU worker's simulator ran on every core, so two workers fought over the same two."""
+    from gaintune.sim.threads import set_sim_threads, sim_threads
+    from gaintune.sweep.worker import run_item
+
+    try:
+        rec = run_item(dict(key="k", label="bad", kind="tune", doc={"plant": "nope"}, cpus=1))
+        assert rec["status"] == "error"
+        assert sim_threads() == 1
+    finally:
+        set_sim_threads(None)

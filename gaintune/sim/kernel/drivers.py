@@ -71,6 +71,7 @@ import numpy as np
 
 from gaintune.sim import tape as T
 from gaintune.sim.kernel_args import KernelArgs
+from gaintune.sim.threads import sim_threads
 
 from .law import actuator, controllers, init_loops
 from .layout import (
@@ -367,7 +368,7 @@ def simulate_kernel_serial(*args) -> np.ndarray:
 
 
 def simulate_kernel_parallel(*args) -> np.ndarray:
-    """The ``CHUNK``-lane variant on ``NUMBA_NUM_THREADS`` threads, each a contiguous range of chunks.
+    """The ``CHUNK``-lane variant on ``sim_threads()`` threads, each a contiguous range of chunks.
 
     The compiled variant releases the GIL; the calling thread runs the first range. Each call
     sees the whole batch (its batch-wide flags, such as noise anywhere, are those of one serial
@@ -375,7 +376,7 @@ def simulate_kernel_parallel(*args) -> np.ndarray:
     """
     B = args[_BATCH].shape[0]
     nchunks = -(-B // CHUNK)
-    n = min(max(1, int(nb.config.NUMBA_NUM_THREADS)), nchunks)  # type: ignore[attr-defined]  # set at import; not in numba's stubs
+    n = min(sim_threads(), nchunks)
     if n == 1:
         return _serial(*args, 0, nchunks)
     edges = [nchunks * i // n for i in range(n + 1)]
