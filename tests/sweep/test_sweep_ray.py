@@ -63,3 +63,17 @@ def test_a_killed_ray_worker_loses_nothing_and_finishes_nothing_twice(tmp_path, 
     assert sorted(done) == sorted(set(done)) and len(done) == 4  # each item ran to completion once
     assert report.ran == 4 and report.refused == 0 and report.counts == {"pass": 4}
     assert {s for s, *_ in _answers(tmp_path / "out").values()} == {"done"}
+
+
+def test_cpus_per_task_reaches_ray_so_tasks_that_ask_for_every_cpu_never_overlap(tmp_path, ray_cluster):
+    """``--cpus-per-task`` is Ray's ``num_cpus``: tasks asking for all the cluster's CPUs run one at a time."""
+    cpus = int(ray_cluster.cluster_resources()["CPU"])
+    fleet = grid_fleet(tmp_path, [0.5, 1.0, 2.0])
+    report = run_sweep(fleet, tmp_path / "ray", SweepOptions(backend="ray", cpus_per_task=cpus))
+    assert report.counts == {"pass": 3}
+    store = SqliteStore(tmp_path / "ray" / "sweep.db")
+    try:
+        spans = sorted((r["started"], r["finished"]) for r in store.records())
+    finally:
+        store.close()
+    assert all(a[1] <= b[0] for a, b in zip(spans, spans[1:], strict=False))
