@@ -19,8 +19,11 @@ closed the sign of y2's path flips.
 
 Each row: cost, MIMO Ms, multiloop disk margin at the inputs and at the outputs, the verdict (a
 published row against the model example's requirements, a tuned row against the ones it was tuned
-for; the tuned rows use ``backoff: 0``, so they may sit on the limit itself) and the
-ratio of the tuned cost to the reference row's. Prints the command, commit and load average first.
+for; the tuned rows use ``backoff: 0``, so they may sit on the limit itself), the ratio of the
+tuned cost to the published row's, and the ratio to the per-plant constrained optimum under the same
+requirements: the best of a multistart CMA-ES (``--ref-restarts`` x ``--ref-sims``, the
+``reference`` baseline), cached in ``<out>/reference_mimo.json`` and re-scored before use.
+Prints the command, commit and load average first.
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from gaintune.bench.arguments import BenchParser, int_range
+from gaintune.bench.arguments import BenchParser, add_out_argument, int_range, resolve_out
 
 __all__ = ["main", "reference_rows", "tuned_row", "score"]
 
@@ -116,14 +119,33 @@ def tuned_row(spec: Any, method: str, budget: int, seed: int) -> dict[str, Any]:
     return out
 
 
-def _fmt(name: str, r: dict[str, Any], ref_cost: float | None) -> str:
+def optimum(spec: Any, label: str, args: argparse.Namespace) -> dict[str, Any] | None:
+    """The per-plant constrained optimum of ``spec`` (cached multistart CMA-ES), scored as a row; None when
+    ``--ref-restarts 0`` or the search found no passing answer."""
+    if args.ref_restarts <= 0:
+        return None
+    from gaintune.bench.references import reference_for
+    from gaintune.bench.suite import BenchCase
+
+    case = BenchCase(label, label, spec.model_dump(mode="json", exclude_defaults=True), "mimo",
+                     reference={"restarts": args.ref_restarts, "sims_per_restart": args.ref_sims})
+    ref = reference_for(case, "mimo", resolve_out(args.out), log=lambda m: print(f"  ({m})", flush=True))
+    if ref.get("gains") is None:
+        return None
+    row = score(spec, ref["gains"])
+    row["n_sims"] = ref.get("n_sims")
+    return row
+
+
+def _fmt(name: str, r: dict[str, Any], ref_cost: float | None, opt_cost: float | None = None) -> str:
     ratio = f"{r['cost'] / ref_cost:.3f}" if ref_cost else "-"
+    to_opt = f"{r['cost'] / opt_cost:.3f}" if opt_cost else "-"
     return (f"| {name:<44} | {r['cost']:9.3f} | {r['ms']:6.3f} | {r['disk_in']:6.3f} | {r['disk_out']:6.3f} | "
-            f"{r['verdict']:<4} | {ratio:>6} |")
+            f"{r['verdict']:<4} | {ratio:>6} | {to_opt:>6} |")
 
 
-_HEAD = ("| row | cost | MIMO Ms | disk in | disk out | verdict | tuned/ref |\n"
-         "|---|---|---|---|---|---|---|")
+_HEAD = ("| row | cost | MIMO Ms | disk in | disk out | verdict | /published | /optimum |\n"
+         "|---|---|---|---|---|---|---|---|")
 
 
 def _plant_table(model: str, tuned_for: Sequence[str], args: argparse.Namespace) -> None:
@@ -138,12 +160,17 @@ def _plant_table(model: str, tuned_for: Sequence[str], args: argparse.Namespace)
         req = {"mimo_ms_max": round(base["ms"], 4), "disk_margin_min": round(disk, 4)} if ok else {}
         # backoff 0: the constraint is the reference's own figure, not a margin inside it
         spec = _with_type(model, "pi", True, **req, backoff=0)
+        limits = f"Ms<={req.get('mimo_ms_max', '-')}, disk>={req.get('disk_margin_min', '-')}"
+        opt = optimum(spec, f"{model} PI at {name}'s limits", args)
+        if opt is not None:
+            print(_fmt(f"  optimum, {opt['n_sims']} sims ({limits})", opt, base["cost"] if ok else None,
+                       opt["cost"]), flush=True)
         for method, budget in (("cmaes", args.cmaes_budget), ("tune", args.rl_budget)):
             if budget <= 0:
                 continue
             r = tuned_row(spec, method, budget, args.seed)
-            print(_fmt(f"  gaintune {method} @{budget} (Ms<={req.get('mimo_ms_max', '-')}, "
-                       f"disk>={req.get('disk_margin_min', '-')})", r, base["cost"] if ok else None), flush=True)
+            print(_fmt(f"  gaintune {method} @{budget} ({limits})", r, base["cost"] if ok else None,
+                       opt["cost"] if opt else None), flush=True)
             if args.verbose:
                 print(f"    gains {r['gains']}; {r['wall_s']:.0f} s; {'; '.join(r['reasons'])}", flush=True)
 
@@ -157,7 +184,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--seed", type=int_range(0), default=0)
     ap.add_argument("--plants", nargs="+", choices=["wood_berry", "quadruple_tank_min", "quadruple_tank_nmp"],
                     default=["wood_berry", "quadruple_tank_min", "quadruple_tank_nmp"])
+    ap.add_argument("--ref-restarts", type=int_range(0), default=4,
+                    help="CMA-ES restarts of the per-plant constrained optimum (0: no optimum column).")
+    ap.add_argument("--ref-sims", type=int_range(100), default=3000, help="simulations per restart of the optimum.")
     ap.add_argument("--verbose", action="store_true", help="Print the tuned gains and wall time of each answer.")
+    add_out_argument(ap)
     return ap
 
 
