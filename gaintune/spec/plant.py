@@ -202,8 +202,9 @@ class OdeSpec(_Model):
 
     def _check_defs(self) -> None:
         for name in self.defs or {}:
-            if not name.isidentifier():
-                raise _error_at(("defs", name), f"{name!r} must be an identifier (letters, digits and _)", name)
+            if not name.isidentifier() or name.startswith("_"):
+                raise _error_at(("defs", name), f"{name!r} must be an identifier (letters, digits and _, not "
+                                "starting with a digit or _)", name)
             if name in self.states or name in self.input_names:
                 raise _error_at(("defs", name), f"{name!r} is already a state or an input; rename the definition",
                                 name)

@@ -200,7 +200,7 @@ def test_ode_defs_are_shared_named_expressions() -> None:
 
 
 @pytest.mark.parametrize(("defs", "where"), [
-    ({"x": "1"}, "defs"), ({"u": "1"}, "defs"), ({"1k": "1"}, "defs"),
+    ({"x": "1"}, "defs"), ({"u": "1"}, "defs"), ({"1k": "1"}, "defs"), ({"_k": "1"}, "defs"),
 ])
 def test_ode_defs_naming_a_state_or_an_input_or_not_an_identifier_are_refused(defs, where) -> None:
     ode = {"states": ["x"], "inputs": ["u", "v"], "defs": defs, "rhs": {"x": "-x + u"}, "outputs": {"y": "x"}}
