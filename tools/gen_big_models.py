@@ -1,4 +1,4 @@
-"""Write models/robot_arm6.yaml and models/process_train.yaml (large built-in architectures).
+"""Write models/robot_arm6_lin.yaml and models/process_train.yaml (large built-in architectures).
 
 Both are written out by this script rather than by hand: their matrices are long and regular.
 Run from the repository root: ``python tools/gen_big_models.py``. The YAML keeps every physical
@@ -226,9 +226,9 @@ def main() -> None:
     outs = list(zip(arm["ss"]["outputs"], arm["ss"]["output_units"], strict=True))
     ins = [dict(i, description=f"Motor {i['name'][1:]} voltage") for i in arm["ss"]["inputs"][:J]]
     ins.append({"name": "dm", "unit": "kg", "description": "Payload mass change at the tool (disturbance input)"})
-    doc = _model("robot_arm6", "Six-joint robot arm with DC joint motors, linearised about a pose (18 states)",
+    doc = _model("robot_arm6_lin", "Six-joint robot arm with DC joint motors, linearised about a pose (18 states)",
                  ARM_DESC, ARM_PARAMS, ins, outs, arm, arm_example())
-    (ROOT / "models" / "robot_arm6.yaml").write_text(yaml.safe_dump(doc, sort_keys=False, width=110))
+    (ROOT / "models" / "robot_arm6_lin.yaml").write_text(yaml.safe_dump(doc, sort_keys=False, width=110))
     plant, example, params = process_train()
     tm = plant["tf_matrix"]
     outs = [(o["name"], o["unit"]) for o in tm["outputs"]]

@@ -20,9 +20,9 @@ Cases (each 2,000 time steps):
 * ``quadruple_tank``: the nonlinear quadruple tank (``models/quadruple_tank.yaml``, casadi tapes,
   RK4) on the MIMO simulator, Johansson's PI on both loops, the step on y1, dt = 0.5 s over
   1,000 s; timed as ``wood_berry``.
-* ``robot_arm6``: the six-joint arm (``models/robot_arm6.yaml``: 18 states, 18 loops, 54 gains,
-  position -> velocity -> current PID per joint), the 0.1 rad step on the shoulder, dt = 1 ms over
-  2 s, on the MIMO simulator as ``wood_berry``.
+* ``robot_arm6``: the nonlinear six-joint arm (``models/robot_arm6.yaml``: 18 states, casadi tapes,
+  RK4; 18 loops, 54 gains, position -> velocity -> current PID per joint), the 0.1 rad step on the
+  shoulder, dt = 1 ms over 2 s, on the MIMO simulator as ``wood_berry``.
 
 Each batch holds distinct gain sets (nominal gains times a seeded log-uniform
 factor in [0.74, 1.35]). Reported per case and batch size:

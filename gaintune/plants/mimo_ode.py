@@ -23,7 +23,7 @@ from gaintune.spec import OdeSpec
 if TYPE_CHECKING:  # pragma: no cover
     import casadi as ca
 
-__all__ = ["OdeFunctions", "build_ode_functions", "OdePoint", "ode_point", "linearize_mimo_ode"]
+__all__ = ["OdeFunctions", "build_ode_functions", "add_defs", "OdePoint", "ode_point", "linearize_mimo_ode"]
 
 
 @dataclass(frozen=True)
@@ -57,11 +57,25 @@ def build_ode_functions(ode: OdeSpec, params: dict[str, float]) -> OdeFunctions:
         if name in scope:
             raise SpecError(f"plant.params.{name}", "parameter name clashes with a state or an input")
         scope[name] = pv[i]
+    add_defs(ode, scope)
     rhs = ca.vertcat(*[expr.to_casadi(ode.rhs[s], scope, f"plant.ode.rhs.{s}") for s in ode.states])
     out = ca.vertcat(*[expr.to_casadi(e, scope, f"plant.ode.outputs.{k}") for k, e in ode.outputs.items()])
     f = ca.Function("f", [x, u, pv], [rhs], ["x", "u", "p"], ["xdot"])
     h = ca.Function("h", [x, u, pv], [out], ["x", "u", "p"], ["y"])
     return OdeFunctions(f, h)
+
+
+def add_defs(ode: OdeSpec, scope: dict[str, Any]) -> None:
+    """Add the ODE's named intermediate expressions (``defs``, in order) to ``scope``.
+
+    Each is built once and shared by every expression that names it (one node of the casadi graph,
+    so the simulator's tape computes it once per evaluation).
+    """
+    for name, text in (ode.defs or {}).items():
+        if name in scope:
+            raise SpecError(f"plant.ode.defs.{name}", "the name is already a state, an input or a parameter; "
+                            "rename the definition")
+        scope[name] = expr.to_casadi(text, scope, f"plant.ode.defs.{name}")
 
 
 def _x0(ode: OdeSpec, p: dict[str, float]) -> np.ndarray:

@@ -23,6 +23,7 @@ from gaintune.errors import SpecError
 from gaintune.plants import expr
 from gaintune.plants.coefs import coef_matrix as _coef_matrix
 from gaintune.plants.coefs import poly as _poly
+from gaintune.plants.mimo_ode import add_defs
 from gaintune.plants.params import NamedParams
 from gaintune.spec import MAX_ORDER, OdeSpec, PlantSpec, StateSpaceSpec, TransferFunctionSpec
 
@@ -186,6 +187,7 @@ def _build_ode(ode: OdeSpec, params: dict[str, float]):
         if name in scope:
             raise SpecError(f"plant.params.{name}", "parameter name clashes with a state or the input")
         scope[name] = pv[i]
+    add_defs(ode, scope)
     rhs = ca.vertcat(*[expr.to_casadi(ode.rhs[s], scope, f"plant.ode.rhs.{s}") for s in ode.states])
     out = ca.vertcat(*[expr.to_casadi(e, scope, f"plant.ode.outputs.{k}") for k, e in ode.outputs.items()])
     f = ca.Function("f", [x, u, pv], [rhs], ["x", "u", "p"], ["xdot"])

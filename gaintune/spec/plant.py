@@ -155,6 +155,11 @@ class OdeSpec(_Model):
         "replaces 'input'.")
     output_units: dict[str, str] | None = Field(
         None, exclude_if=lambda v: v is None, description="The unit of each output, by output name.")
+    defs: dict[str, str] | None = Field(
+        None, exclude_if=lambda v: v is None,
+        description="Named intermediate expressions, evaluated in order (e.g. a mass matrix's entries): each may "
+        "use the states, the inputs, the parameters and the names defined before it; rhs and outputs may use them "
+        "all.")
 
     @property
     def is_mimo(self) -> bool:
@@ -195,12 +200,22 @@ class OdeSpec(_Model):
             raise _error_at(("output_units",), f"names unknown output(s) {unknown}; outputs: "
                             f"{', '.join(self.outputs)}", unknown)
 
+    def _check_defs(self) -> None:
+        for name in self.defs or {}:
+            if not name.isidentifier() or name.startswith("_"):
+                raise _error_at(("defs", name), f"{name!r} must be an identifier (letters, digits and _, not "
+                                "starting with a digit or _)", name)
+            if name in self.states or name in self.input_names:
+                raise _error_at(("defs", name), f"{name!r} is already a state or an input; rename the definition",
+                                name)
+
     @model_validator(mode="after")
     def _rhs_matches_states(self) -> OdeSpec:
         if len(set(self.states)) != len(self.states):
             repeated = sorted({n for n in self.states if self.states.count(n) > 1})
             raise ValueError(f"states names must be unique, {repeated} repeat")
         self._check_inputs()
+        self._check_defs()
         if self.inputs is None and self.input in self.states:
             # the expressions would read the name as the input: the state would vanish from the model
             i = self.states.index(self.input)

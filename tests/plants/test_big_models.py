@@ -12,7 +12,8 @@ from gaintune.sim import Simulator
 from gaintune.spec import load_spec
 
 #: model -> (loops, tuned gains, states, inputs) as docs/models.md states them
-COUNTS = {"quadrotor": (12, 24, 12, 4), "robot_arm6": (18, 54, 18, 7), "process_train": (44, 110, None, 23)}
+COUNTS = {"quadrotor": (12, 24, 12, 4), "robot_arm6": (18, 54, 18, 7), "robot_arm6_lin": (18, 54, 18, 7),
+          "process_train": (44, 110, None, 23)}
 
 
 def _quad_gains() -> dict:
@@ -40,7 +41,8 @@ def _process_gains() -> dict:
     return g
 
 
-GAINS = {"quadrotor": _quad_gains, "robot_arm6": _arm_gains, "process_train": _process_gains}
+GAINS = {"quadrotor": _quad_gains, "robot_arm6": _arm_gains, "robot_arm6_lin": _arm_gains,
+         "process_train": _process_gains}
 
 
 @pytest.mark.parametrize("name", list(COUNTS))
