@@ -13,8 +13,8 @@ step at the input, cost = its IAE, Ms <= 1.4 at the exact limit), it measures:
   and with ``--refine N`` extra simulations: the same ratio and verdict, recomputed here from its gains
   (and compared with the cost and verdict it reports), how often it beats each rule where the rule
   passes (the exceptions listed), and its answer time: in-process percentiles of the policy's forward
-  pass and of the whole answer, and ``gaintune tuner query`` as ``--fresh-runs`` fresh processes
-  (:mod:`gaintune.bench.tuners_timing`).
+  pass and of the whole answer (wall and process CPU time), and ``gaintune tuner query`` as
+  ``--fresh-runs`` fresh processes (wall and CPU time; :mod:`gaintune.bench.tuners_timing`).
 
 ``--rules-only`` measures the rules against the reference alone. Without it, a tuner that cannot be
 imported or loaded exits 2 before any work. Writes ``tuners.md`` and ``tuners.json`` to ``--out``
