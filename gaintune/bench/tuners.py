@@ -13,8 +13,8 @@ step at the input, cost = its IAE, Ms <= 1.4 at the exact limit), it measures:
   and with ``--refine N`` extra simulations: the same ratio and verdict, recomputed here from its gains
   (and compared with the cost and verdict it reports), how often it beats each rule where the rule
   passes (the exceptions listed), and its answer time: in-process percentiles of the policy's forward
-  pass and of the whole answer, and ``gaintune tuner query`` as ``--fresh-runs`` fresh processes
-  (:mod:`gaintune.bench.tuners_timing`).
+  pass and of the whole answer (wall and process CPU time), and ``gaintune tuner query`` as
+  ``--fresh-runs`` fresh processes (wall and CPU time; :mod:`gaintune.bench.tuners_timing`).
 
 ``--rules-only`` measures the rules against the reference alone. Without it, a tuner that cannot be
 imported or loaded exits 2 before any work. Writes ``tuners.md`` and ``tuners.json`` to ``--out``
@@ -89,14 +89,16 @@ def _close(a: Any, b: Any) -> bool:
 def tuner_answer(tuner: Any, case: Case, ref_cost: float | None, refine: int) -> dict[str, Any]:
     """One query, judged here: the bench's own cost and verdict beside the ones the tuner reports."""
     try:
+        c0 = time.process_time()
         a = tuner.query(dict(case.values), refine=refine)
+        cpu_ms = 1e3 * (time.process_time() - c0)  # beside the wall time: the load of a shared machine inflates it
         out = judge(case, a.gains, ref_cost)
     except Exception as exc:  # a tuner defect is a row of the table, not the end of the benchmark
         return {"gains": None, "cost": None, "ratio": None, "verdict": "error", "ms": None,
                 "error": f"{type(exc).__name__}: {exc}"}
     out.update(tuner_cost=a.cost, tuner_verdict=a.verdict, cost_agrees=_close(a.cost, out["cost"]),
                verdict_agrees=a.verdict == out["verdict"], policy_ms=a.policy_ms, elapsed_ms=a.elapsed_ms,
-               n_sims=a.n_sims)
+               cpu_ms=cpu_ms, n_sims=a.n_sims)
     return out
 
 
@@ -250,20 +252,29 @@ def _reference_text(result: Mapping[str, Any]) -> str:
             f"{f['cached']} read from the cache (re-scored).")
 
 
+#: The in-process answer times of the timing table: key in ``in_process[mode]``, and its name.
+TIMED = (("policy_ms", "policy forward pass"), ("elapsed_ms", "whole answer (repair, verification), wall"),
+         ("cpu_ms", "whole answer, process CPU time"))
+
+
 def _timing_rows(timing: Mapping[str, Any], refine: int | None) -> list[list[Any]]:
     rows: list[list[Any]] = [
         ["load the tuner in this process", fmt(timing["load_s"]), "s"],
         ["first query after loading (warm-up, not counted below)", fmt(timing["first_query_ms"]), "ms"]]
     for mode, label in (("tuner", "zero-shot"), ("refine", f"refine {refine}")):
         t = timing["in_process"][mode]
-        for what in ("policy_ms", "elapsed_ms"):
-            name = "policy forward pass" if what == "policy_ms" else "whole answer (repair, verification)"
-            rows.append([f"{label}: {name}, p50 / p95 over {t[what]['n']} plants",
-                         f"{fmt(t[what]['p50'])} / {fmt(t[what]['p95'])}", "ms"])
+        for what, name in TIMED:
+            if what in t:  # results written before the CPU time was measured have no cpu_ms
+                rows.append([f"{label}: {name}, p50 / p95 over {t[what]['n']} plants",
+                             f"{fmt(t[what]['p50'])} / {fmt(t[what]['p95'])}", "ms"])
     fresh = timing.get("fresh_process")
     if fresh:
         rows += [[f"fresh process `{fresh['command']}`, median / max of {fresh['ok']} of {fresh['runs']} runs",
-                  f"{fmt(fresh['median_s'])} / {fmt(fresh['max_s'])}", "s"],
+                  f"{fmt(fresh['median_s'])} / {fmt(fresh['max_s'])}", "s"]]
+        if fresh.get("cpu_median_s") is not None:
+            rows.append(["fresh process, its CPU time (user + system), median / max",
+                         f"{fmt(fresh['cpu_median_s'])} / {fmt(fresh['cpu_max_s'])}", "s"])
+        rows += [
                  ["fresh-process answers that printed valid JSON", f"{fresh['json_ok']} / {fresh['ok']}", "-"],
                  ["torch imported by the query (same CLI path, in a child)", fmt(fresh["torch_imported"]), "-"]]
         rows += [[f"failed run (exit {x['code']})", x["error"], "-"] for x in fresh["failures"][:3]]

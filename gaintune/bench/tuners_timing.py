@@ -62,12 +62,12 @@ def percentiles(values: Sequence[float]) -> dict[str, float | None]:
 
 
 def in_process_timing(rows: Sequence[Mapping[str, Any]], modes: Sequence[str]) -> dict[str, Any]:
-    """Per mode: percentiles of the answers' ``policy_ms`` and ``elapsed_ms`` over the plants."""
+    """Per mode: percentiles of the answers' ``policy_ms``, ``elapsed_ms`` (wall) and ``cpu_ms`` (process CPU
+    time) over the plants."""
     out: dict[str, Any] = {}
     for mode in modes:
         answers = [r[mode] for r in rows if mode in r and r[mode].get("elapsed_ms") is not None]
-        out[mode] = {"policy_ms": percentiles([a.get("policy_ms") for a in answers]),
-                     "elapsed_ms": percentiles([a["elapsed_ms"] for a in answers])}
+        out[mode] = {k: percentiles([a.get(k) for a in answers]) for k in ("policy_ms", "elapsed_ms", "cpu_ms")}
     return out
 
 
@@ -80,16 +80,29 @@ def _gaintune_command() -> list[str]:
     return [found] if found else [sys.executable, "-m", "gaintune"]
 
 
+def _children_cpu_s() -> float | None:
+    """User + system CPU seconds of this process's waited-for children so far (None where unknown)."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not a Unix
+        return None
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
 def _run(argv: list[str], cwd: str) -> dict[str, Any]:
-    """One fresh process: wall time, exit code (None on timeout), stdout and the last stderr line."""
-    t0 = time.perf_counter()
+    """One fresh process: wall time, its CPU time (user + system; None where unknown), exit code (None on
+    timeout), stdout and the last stderr line."""
+    t0, c0 = time.perf_counter(), _children_cpu_s()
     try:
         p = subprocess.run(argv, capture_output=True, text=True, cwd=cwd, timeout=TIMEOUT_S, check=False)
     except subprocess.TimeoutExpired:
-        return {"wall_s": time.perf_counter() - t0, "code": None, "stdout": "", "error": f"timeout {TIMEOUT_S:g} s"}
-    wall = time.perf_counter() - t0
+        return {"wall_s": time.perf_counter() - t0, "cpu_s": None, "code": None, "stdout": "",
+                "error": f"timeout {TIMEOUT_S:g} s"}
+    wall, c1 = time.perf_counter() - t0, _children_cpu_s()
     lines = [x for x in p.stderr.splitlines() if x.strip()]
-    return {"wall_s": wall, "code": p.returncode, "stdout": p.stdout, "error": lines[-1] if lines else ""}
+    return {"wall_s": wall, "cpu_s": None if c0 is None or c1 is None else c1 - c0, "code": p.returncode,
+            "stdout": p.stdout, "error": lines[-1] if lines else ""}
 
 
 def _is_json(text: str) -> bool:
@@ -103,7 +116,8 @@ def _is_json(text: str) -> bool:
 def fresh_process_timing(name: str, plants: Sequence[Mapping[str, float]], runs: int) -> dict[str, Any]:
     """``runs`` fresh ``gaintune tuner query`` processes (plants in turn) and the torch probe.
 
-    Returns the wall times of the runs that exited 0, their median and max, how many printed valid
+    Returns the wall times of the runs that exited 0, their median and max, the same of their CPU times
+    (user + system: on a shared machine the load inflates the wall time far more), how many printed valid
     JSON, the failures (exit code and last stderr line) and ``torch_imported`` (None when the probe
     printed no answer).
     """
@@ -117,12 +131,15 @@ def fresh_process_timing(name: str, plants: Sequence[Mapping[str, float]], runs:
         probe = _run([sys.executable, "-c", TORCH_PROBE, *query_argv(name, plants[0])], tmp)
     ok = [d for d in done if d["code"] == 0]
     walls = [d["wall_s"] for d in ok]
+    cpus = [d["cpu_s"] for d in ok if d["cpu_s"] is not None]
     m = re.search(r"^torch_imported=(True|False)$", probe["stdout"], re.M)
     return {
         "command": " ".join(["gaintune", *query_argv(name, plants[0])]),
         "runs": runs, "ok": len(ok), "json_ok": sum(_is_json(d["stdout"]) for d in ok),
         "wall_s": walls, "median_s": float(np.median(walls)) if walls else None,
-        "max_s": max(walls) if walls else None, "warm_up": {"code": warm["code"], "wall_s": warm["wall_s"]},
+        "max_s": max(walls) if walls else None, "cpu_s": cpus,
+        "cpu_median_s": float(np.median(cpus)) if cpus else None, "cpu_max_s": max(cpus) if cpus else None,
+        "warm_up": {"code": warm["code"], "wall_s": warm["wall_s"]},
         "failures": [{"code": d["code"], "error": d["error"]} for d in done if d["code"] != 0],
         "torch_imported": None if m is None else m.group(1) == "True",
         "probe_error": probe["error"] if m is None or probe["code"] != 0 else "",

@@ -6,7 +6,7 @@ inside the boundary (Ms 1.2 under a 1.4 limit, say) is conservative, and its cos
 higher than that of the same controller shape on the boundary. :func:`onto_boundary` therefore
 also moves every feasible interior candidate **outward** along its loop-gain scale
 (``tuned * alpha**d``, alpha > 1, the same move), onto the boundary of the estimate, and keeps
-the outward point only where it lowers the plain cost (one batched evaluation of both). A
+the outward point only where it lowers the plain cost (one evaluation of both). A
 constrained optimum usually lies on the boundary, so the policy then only has to choose the
 controller's shape; the repair chooses its scale, for every context.
 """
@@ -37,6 +37,23 @@ def _take(scores: Scores, idx: np.ndarray) -> Scores:
     """The scores of rows ``idx`` (cost, violation, flags and metrics; no traces)."""
     return Scores(scores.cost[idx], scores.violation[idx], scores.diverged[idx], scores.tripped[idx],
                   {k: v[idx] for k, v in scores.metrics.items()}, [])
+
+
+def _evaluate(ev: Evaluator, rows: np.ndarray, violation: np.ndarray) -> Scores:
+    """``ev.evaluate(rows, violation=violation)`` one row at a time (no traces kept).
+
+    For a single candidate (a tuner's query: its moved and its given gains). One gain set runs on the
+    simulator's single-lane variant, as the verification's runs do, so a query in a fresh process loads one
+    compiled kernel variant instead of two (~30 ms of CPU each). The numbers are those of the batched call,
+    bit for bit: the variants compute each lane alike (:mod:`gaintune.sim.kernel.drivers`).
+    """
+    parts = [ev.evaluate(rows[i : i + 1], violation=violation[i : i + 1]) for i in range(len(rows))]
+    if len(parts) == 1:
+        return parts[0]
+    cat = np.concatenate
+    return Scores(cat([p.cost for p in parts]), cat([p.violation for p in parts]), cat([p.diverged for p in parts]),
+                  cat([p.tripped for p in parts]), {k: cat([p.metrics[k] for p in parts]) for k in parts[0].metrics},
+                  [])
 
 
 def _feasible_end(ok: np.ndarray) -> int | None:
@@ -83,8 +100,8 @@ def onto_boundary(ev: Evaluator, tuned: np.ndarray) -> BothMove:
     boundary next to the given gains (above them when they are feasible, below when they are not, an
     unstable start included) is bracketed there and closed by regula falsi to within
     :data:`gaintune.evaluation.boundary_estimate.TOL`. A feasible candidate keeps the lower-cost of where it
-    was and where it moved (one batched evaluation of both). A candidate no scale makes feasible is left
-    as it is.
+    was and where it moved (one evaluation of both; row by row for a single candidate, see :func:`_evaluate`).
+    A candidate no scale makes feasible is left as it is.
 
     Parameters
     ----------
@@ -115,7 +132,7 @@ def onto_boundary(ev: Evaluator, tuned: np.ndarray) -> BothMove:
     rows = np.vstack([given * np.exp(x)[:, None] ** d, given[stay]])
     if unknown.any():
         v[unknown] = ev.requirement_violation(rows[unknown])
-    both = ev.evaluate(rows, violation=v)
+    both = _evaluate(ev, rows, v) if B == 1 else ev.evaluate(rows, violation=v)
     pick = np.arange(B)
     for k, b in zip(B + np.arange(int(stay.sum())), np.nonzero(stay)[0], strict=True):
         if both.merit[k] <= both.merit[b]:

@@ -7,7 +7,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 
 from gaintune.controllers.direction import measured_indices
 from gaintune.controllers.layout import GainLayout
@@ -40,6 +39,8 @@ def discretize(A: np.ndarray, B: np.ndarray, dt: float, delay: np.ndarray):
     -------
     Ad (N, n, n), G0 (N, n), G1 (N, n), d (N,) int
     """
+    import scipy.linalg  # deferred: ~0.1 s to import, and only discretisation needs it
+
     N, n, _ = A.shape
     d = np.floor(delay / dt + 1e-9).astype(np.int64)
     frac = np.clip(delay - d * dt, 0.0, dt)

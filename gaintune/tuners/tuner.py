@@ -162,12 +162,12 @@ def settle(ev: Evaluator, tuned: np.ndarray) -> tuple[np.ndarray, VerificationRe
     decides (:func:`gaintune.evaluation.boundary_exact.onto_boundary_exact`). Returns the gains, their
     report and their new cost (None when unchanged).
     """
-    from gaintune.evaluation.boundary_exact import onto_boundary_exact
-
     lay, ctx = ev.layout, evaluator_context(ev)
     report = verify(ev.spec, lay.to_dict(lay.full(tuned)), context=ctx)
     if report.verdict == "pass":
         return tuned, report, None
+    from gaintune.evaluation.boundary_exact import onto_boundary_exact  # only for an answer that fails
+
     exact = onto_boundary_exact(ev, tuned)
     if exact.action != "pulled_inside":
         return tuned, report, None

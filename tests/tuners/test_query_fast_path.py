@@ -61,3 +61,44 @@ def test_boundary_move_scores_equal_a_fresh_evaluation_of_its_answer(scale):
     fresh = Evaluator(spec).evaluate(move.tuned)
     np.testing.assert_array_equal(move.scores.violation, fresh.violation)
     np.testing.assert_array_equal(move.scores.cost, fresh.cost)
+
+
+def test_query_loads_only_the_single_lane_kernel_variant(monkeypatch):
+    """A query's simulations (the move's two rows, the verification's runs) all run on the single-lane variant,
+    so a fresh process loads one compiled variant, not two."""
+    from gaintune.sim.kernel import drivers
+
+    calls = {"_single": 0, "_serial": 0}
+    for name in calls:
+        real = getattr(drivers, name)
+
+        def counted(*args, _real=real, _name=name):
+            calls[_name] += 1
+            return _real(*args)
+
+        monkeypatch.setattr(drivers, name, counted)
+    for name, params in PLANTS[:3]:
+        assert Tuner.load(name).query(params).verdict == "pass"
+    assert calls["_serial"] == 0 and calls["_single"] > 0
+
+
+@pytest.mark.parametrize(("name", "params"), PLANTS)
+def test_rows_evaluated_one_at_a_time_equal_the_batched_evaluation(name, params):
+    """The move of one candidate evaluates its rows one at a time (single-lane variant): the scores are those of
+    one batched call (the CHUNK-lane variant), bit for bit."""
+    from gaintune.evaluation.boundary_both import _evaluate
+
+    tuner = Tuner.load(name)
+    gains, _, _ = tuner.policy_gains(params)
+    spec = tuner.problem.physical_spec(params)
+    ev = Evaluator(spec)
+    lay = ev.layout
+    rows = np.asarray(lay.from_dict(gains), dtype=float)[lay.tuned_idx][None, :] * np.array([[1.0], [0.7], [1.3]])
+    v = ev.requirement_violation(rows)
+    one = _evaluate(ev, rows, v)
+    batched = Evaluator(spec).evaluate(rows, violation=v)
+    for field in ("cost", "violation", "diverged", "tripped"):
+        np.testing.assert_array_equal(getattr(one, field), getattr(batched, field))
+    assert one.metrics.keys() == batched.metrics.keys()
+    for k in one.metrics:
+        np.testing.assert_array_equal(one.metrics[k], batched.metrics[k])

@@ -1,0 +1,54 @@
+"""A tuner query in a fresh process: what it imports and which compiled kernel variants it loads.
+
+Asserted on ``sys.modules`` and on the kernel dispatchers' loaded overloads, never on time (the
+times are ``gaintune bench tuners``' figures).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+#: A child that answers one query through the library, then reports its modules and the loaded kernel variants.
+PROBE = """
+import json, sys
+from gaintune.tuners.tuner import Tuner
+answer = Tuner.load("fotd_pi_ms1.4").query({"K": 2.0, "T": 60.0, "L": 10.0})
+from gaintune.sim.kernel import drivers
+print(json.dumps({"verdict": answer.verdict, "modules": sorted(sys.modules),
+                  "single": len(drivers._single.overloads), "serial": len(drivers._serial.overloads)}))
+"""
+
+
+@pytest.fixture(scope="module")
+def probed(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """The probe's report, from one fresh process in an empty folder."""
+    proc = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True,
+                          cwd=tmp_path_factory.mktemp("probe"), timeout=900, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_tuner_query_in_a_fresh_process_imports_no_torch_and_no_cli(probed: dict) -> None:
+    """The answer path (NumPy policy, boundary move, verification) loads neither the learner (torch,
+    stable-baselines3, gymnasium) nor the command line (typer, gaintune.cli)."""
+    got = probed
+    assert got["verdict"] == "pass"
+    mods = set(got["modules"])
+    top = {m.split(".")[0] for m in mods}
+    assert "numpy" in top and "gaintune.tuners.tuner" in mods  # the module list is the child's
+    assert not top & {"torch", "stable_baselines3", "gymnasium", "typer", "click", "rich"}, sorted(
+        top & {"torch", "stable_baselines3", "gymnasium", "typer", "click", "rich"})
+    assert not {m for m in mods if m.startswith("gaintune.cli")}
+    # an answer that passes never needs the exact move (imported only for an answer that fails)
+    assert "gaintune.evaluation.boundary_exact" not in mods
+
+
+def test_tuner_query_in_a_fresh_process_loads_one_kernel_variant(probed: dict) -> None:
+    """Every simulation of one query runs on the single-lane variant: the CHUNK-lane one is never loaded
+    (loading a compiled variant from numba's cache costs ~30 ms of CPU)."""
+    got = probed
+    assert got["single"] == 1 and got["serial"] == 0, got
