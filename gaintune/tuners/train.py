@@ -45,6 +45,10 @@ EXPORT_TOL = 1e-6
 UPDATE_NOISE = 0.05
 #: Episodes of an update from a folder without agent.zip whose gradient steps train the fresh critic only.
 CRITIC_WARMUP = 512
+#: Gradient steps per environment step of an update. Its actor and critic start near the answer, so each
+#: simulation's data is worth more steps (they refine a nearly right model instead of fitting noise),
+#: and simulations are what an update must save (docs/tuners.md, "update").
+UPDATE_GRADIENT_STEPS = 128
 
 
 @dataclass(frozen=True)
@@ -189,8 +193,9 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
     from gaintune.tuners.env import ContextBanditVecEnv
 
     s = settings or TrainSettings()
-    if warm_start is not None:  # the policy already answers: explore near it
-        s = dataclasses.replace(s, noise_start=min(s.noise_start, UPDATE_NOISE))
+    if warm_start is not None:  # the policy already answers: explore near it, learn more from each simulation
+        s = dataclasses.replace(s, noise_start=min(s.noise_start, UPDATE_NOISE),
+                                gradient_steps=max(s.gradient_steps, UPDATE_GRADIENT_STEPS))
     out = Path(out)
     warmup = 0  # episodes whose gradient steps train the critic only (a fresh critic beside a trained actor)
     if warm_start is None:
