@@ -26,7 +26,7 @@ import numpy as np
 
 from gaintune.verification.mimo_loop import MimoLoop, char_freqs, closed_loop_matrix, hidden_modes
 
-__all__ = ["MimoStability", "mimo_stability"]
+__all__ = ["MimoStability", "mimo_stability", "minimal_part", "hidden_by_staircase"]
 
 #: Points around every open-loop pole, in units of its distance to the contour (as the SISO count).
 _POLE_OFFSETS = np.concatenate([-(2.0 ** np.arange(9, -4, -1)), [0.0], 2.0 ** np.arange(-3, 10)])
@@ -146,14 +146,96 @@ def _split_hidden(hidden: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return hidden[hidden.real > 1e-9 * sc], hidden[np.abs(hidden.real) <= 1e-9 * sc]
 
 
+def _krylov_basis(A: np.ndarray, B: np.ndarray, rtol: float) -> np.ndarray:
+    """Orthonormal basis of span[B, A B, A^2 B, ...] (the controllable subspace of (A, B)), built
+    one block at a time; a direction counts when its singular value exceeds ``rtol`` times the
+    norm of the block it came from."""
+    n = A.shape[0]
+    Q = np.zeros((n, 0))
+    blk = B
+    for _ in range(n + 1):
+        if blk.size == 0:
+            break
+        nb = float(np.linalg.norm(blk, 2))
+        if Q.shape[1]:
+            blk = blk - Q @ (Q.T @ blk)
+            blk = blk - Q @ (Q.T @ blk)  # twice: orthogonal to working precision
+        if not nb > 0:
+            break
+        U, sv, _ = np.linalg.svd(blk, full_matrices=False)
+        new = U[:, sv > rtol * nb]
+        if new.shape[1] == 0 or Q.shape[1] >= n:
+            break
+        Q = np.hstack([Q, new])[:, :n]
+        blk = A @ new
+    return Q
+
+
+def minimal_part(A: np.ndarray, B: np.ndarray, C: np.ndarray,
+                 rtol: float = 1e-9) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The controllable and observable part (A2, B2, C2) of (A, B, C), by orthogonal Kalman
+    decomposition (staircase on the balanced realisation): the controllable subspace (a Krylov
+    basis Q, invariant: A1 = Q^T A Q), then the quotient by the unobservable subspace of
+    (A1, C1) (basis R of the observability row space: A2 = R^T A1 R).
+
+    Unlike an eigenvector test it counts hidden Jordan chains in full: a cascade's controller
+    realised entry by entry carries several chains of integrators at s = 0 of which only some are
+    seen, and each hidden chain is a repeated, defective eigenvalue."""
+    if A.size == 0:
+        return A, B, C
+    from scipy.linalg import matrix_balance
+
+    Ab, T = matrix_balance(A, permute=False)
+    t = np.diag(T)
+    Bb, Cb = B / t[:, None], C * t[None, :]
+    Q = _krylov_basis(Ab, Bb, rtol)
+    A1, B1, C1 = Q.T @ Ab @ Q, Q.T @ Bb, Cb @ Q
+    R = _krylov_basis(A1.T, C1.T, rtol) if A1.size else np.zeros((0, 0))
+    return R.T @ A1 @ R, R.T @ B1, C1 @ R
+
+
+def _right_part(A: np.ndarray, B: np.ndarray, C: np.ndarray,
+                thr: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The additive part (A_r, B_r, C_r) of (A, B, C) holding the eigenvalues with Re > ``thr``: the
+    ordered real Schur form, block-diagonalised by a Sylvester solve. Its Kalman decomposition is
+    well conditioned: the fast stable modes, whose norm would swamp a Krylov basis, are gone."""
+    import scipy.linalg
+
+    T, Z, k = scipy.linalg.schur(A, output="real", sort=lambda re, im: re > thr)
+    if k == 0:
+        return np.zeros((0, 0)), np.zeros((0, B.shape[1])), np.zeros((C.shape[0], 0))
+    ZB, CZ = Z.T @ B, C @ Z
+    if k == A.shape[0]:
+        return T, ZB, CZ
+    X = scipy.linalg.solve_sylvester(T[:k, :k], -T[k:, k:], -T[:k, k:])
+    return T[:k, :k], ZB[:k] - X @ ZB[k:], CZ[:, :k]
+
+
+def hidden_by_staircase(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> np.ndarray:
+    """The eigenvalues of A right of Re s = ``floor`` |lambda|max that are not poles of the minimal
+    realisation: modes feedback through B and C cannot move, each counted with its full
+    multiplicity (:func:`minimal_part` of the part of the system holding those eigenvalues)."""
+    if not A.size:
+        return np.zeros(0, dtype=complex)
+    ev = np.linalg.eigvals(A)
+    scale = max(1.0, float(np.max(np.abs(ev))))
+    thr = floor * scale
+    right = ev[ev.real > thr]
+    if not right.size:
+        return np.zeros(0, dtype=complex)
+    Ar, Br, Cr = _right_part(A, B, C, thr)
+    A2, _, _ = minimal_part(Ar, Br, Cr)
+    return _drop(right, np.linalg.eigvals(A2)) if A2.size else right
+
+
 def _open_loop_poles(loop: MimoLoop) -> np.ndarray:
     """Delay-free open-loop poles of plant channels and controller that feedback can move (hidden ones
     are counted apart), for the Nyquist count."""
     P, Kc = loop.realisations(0)
     parts = []
-    for A, B, C, _ in (P, Kc):
+    for (A, B, C, _), hide in ((P, hidden_modes), (Kc, hidden_by_staircase)):
         if A.size:
-            parts.append(_drop(np.linalg.eigvals(A), hidden_modes(A, B, C, -1e-6)))
+            parts.append(_drop(np.linalg.eigvals(A), hide(A, B, C, -1e-6)))
     return np.concatenate(parts) if parts else np.zeros(0, dtype=complex)
 
 
@@ -168,7 +250,8 @@ def mimo_stability(loop: MimoLoop, pade_order: int | None = None) -> MimoStabili
     with np.errstate(all="ignore"):
         poles = np.linalg.eigvals(A) if A.size and np.all(np.isfinite(A)) else np.zeros(0, dtype=complex)
     hid_p = hidden_modes(P[0], P[1], P[2], -1e-6)
-    hid_k = hidden_modes(Kc[0], Kc[1], Kc[2], -1e-6)  # artefacts of the controller's realisation
+    # artefacts of the controller's realisation (a cascade's, entry by entry, repeats its integrators)
+    hid_k = hidden_by_staircase(Kc[0], Kc[1], Kc[2], -1e-6)
     poles = _drop(poles, np.concatenate([hid_p, hid_k]))
     bad, marginal = _split_hidden(hid_p)
     _hidden_notes(bad, marginal, notes)

@@ -1,0 +1,82 @@
+"""MIMO stability with open-loop poles at s = 0 (integrating plants, PI/PID cascades)."""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+from mimo_fixtures import entry
+
+from gaintune.lti.mimo import TfEntry, TfMatrix
+from gaintune.spec import load_spec
+from gaintune.verification import verify
+from gaintune.verification.mimo_loop import MimoLoop, PidLoop, decentralised_pid
+from gaintune.verification.mimo_stability import hidden_by_staircase, mimo_stability
+
+ZERO = TfEntry(np.array([0.0]), np.array([1.0]))
+
+
+def test_double_integrators_with_pd_are_stable_as_derived_by_hand() -> None:
+    """1/s^2 with Kp + Kd s/(Tf s + 1): Tf s^3 + s^2 + (Kd + Kp Tf) s + Kp, Routh-stable for
+    Tf (Kp) < Kd + Kp Tf, i.e. always with Kd > 0: Kp = 1, Kd = 1, Tf = 0.01 is stable; Kd < 0 is not."""
+    G = TfMatrix(((entry([1], [1, 0, 0], 0.01), ZERO), (ZERO, entry([2], [1, 0, 0], 0.01))),
+                 inputs=("u1", "u2"), outputs=("y1", "y2"))
+    for kd, stable in ((1.0, True), (-1.0, False)):
+        loops = [PidLoop("a", "y1", "u1", Kp=1, Kd=kd, Tf=0.01), PidLoop("b", "y2", "u2", Kp=1, Kd=kd, Tf=0.01)]
+        st = mimo_stability(MimoLoop.build(G, decentralised_pid(G, loops), loops))
+        assert st.stable is stable and st.agree, st.notes
+    cl = control.feedback(control.tf([1.01, 1], [0.01, 1, 0, 0]), 1).poles()  # Kp = Kd = 1, delay-free
+    assert np.all(cl.real < 0)
+
+
+#: x' = v, v' = g theta, theta' = q, q' = tau / I: the quadrotor's pitch axis (four integrators)
+_AXIS = {"ss": {"A": [[0, 1, 0, 0], [0, -0.1, 9.81, 0], [0, 0, 0, 1], [0, 0, 0, 0]],
+                "B": [[0], [0], [0], [100.0]], "C": np.eye(4).tolist(),
+                "outputs": ["x", "v", "theta", "q"], "inputs": ["tau"]}}
+_GAINS = {"x": {"Kp": 1.0}, "v": {"Kp": 0.2, "Ki": 0.05, "Kd": 0.01}, "theta": {"Kp": 6.0},
+          "q": {"Kp": 0.1, "Ki": 0.2, "Kd": 0.002}}
+
+
+def _axis_spec():
+    loops = [{"name": "x", "measure": "x", "drives": "loop:v", "type": "p", "direction": "direct"},
+             {"name": "v", "measure": "v", "drives": "loop:theta", "type": "pid", "direction": "direct"},
+             {"name": "theta", "measure": "theta", "drives": "loop:q", "type": "p", "direction": "direct"},
+             {"name": "q", "measure": "q", "drives": "tau", "type": "pid", "direction": "direct"}]
+    return load_spec({"plant": _AXIS, "loops": loops, "scenarios": [{"dt": 0.005, "horizon": 8.0}]})
+
+
+def _axis_closed_loop_poles() -> np.ndarray:
+    """Poles of the nested closed loops, built with python-control loop by loop (inner first)."""
+    s = control.tf("s")
+
+    def pid(g):
+        return g["Kp"] + g.get("Ki", 0.0) / s + g.get("Kd", 0.0) * s / (0.1 * g.get("Kd", 0.0) / g["Kp"] * s + 1)
+
+    h = control.feedback(pid(_GAINS["q"]) * 100.0 / s, 1)  # q_ref -> q
+    h = control.feedback(pid(_GAINS["theta"]) * h / s, 1)  # theta_ref -> theta
+    h = control.feedback(pid(_GAINS["v"]) * h * 9.81 / (s + 0.1), 1)  # v_ref -> v
+    return control.feedback(pid(_GAINS["x"]) * h / s, 1).poles()
+
+
+def test_cascade_with_repeated_controller_integrators_on_an_integrating_plant_is_stable_not_marginal() -> None:
+    """The quadrotor's hand gains were judged unstable: its cascades' controller, realised entry by entry,
+    repeats each chain's integrators (x -> v -> theta -> q has two PID integrators, so the x and v entries
+    each carry a double pole at s = 0); the eigenvector test dropped only some of these unseen Jordan chains,
+    and the leftover poles at s = 0 counted as closed-loop poles on the axis (both in the Padé count and
+    in the Nyquist count's open-loop P). Hidden modes are now counted in full (minimal part)."""
+    assert np.all(_axis_closed_loop_poles().real < 0)  # python-control: the cascade is stable
+    rep = verify(_axis_spec(), _GAINS, nonlinear=False)
+    assert rep.stability.stable, rep.reasons
+    assert rep.stability.rhp_count == 0 and rep.stability.nyquist_rhp == 0
+
+
+def test_hidden_integrators_of_an_entrywise_cascade_realisation_are_counted_in_full() -> None:
+    """Row [C1 C2, C2] with PI laws C1, C2 realised entry by entry: three states at s = 0 (a double
+    pole and a single one), of which the minimal realisation has two; one is hidden."""
+    c1 = control.ss(control.tf([1.0, 0.5], [1.0, 0.0]))
+    c2 = control.ss(control.tf([2.0, 0.3], [1.0, 0.0]))
+    a, b = control.ss(c1 * c2), c2
+    A = np.block([[a.A, np.zeros((a.nstates, b.nstates))], [np.zeros((b.nstates, a.nstates)), b.A]])
+    B = np.block([[a.B, np.zeros((a.nstates, 1))], [np.zeros((b.nstates, 1)), b.B]])
+    C = np.hstack([a.C, b.C])
+    hid = hidden_by_staircase(A, B, C, -1e-6)
+    assert hid.size == 1 and abs(hid[0]) < 1e-6
