@@ -26,7 +26,7 @@ import numpy as np
 
 from gaintune.verification.mimo_loop import MimoLoop, char_freqs, closed_loop_matrix, hidden_modes
 
-__all__ = ["MimoStability", "mimo_stability", "minimal_part", "hidden_by_staircase"]
+__all__ = ["MimoStability", "mimo_stability", "minimal_part", "hidden_by_staircase", "trim_hidden"]
 
 #: Points around every open-loop pole, in units of its distance to the contour (as the SISO count).
 _POLE_OFFSETS = np.concatenate([-(2.0 ** np.arange(9, -4, -1)), [0.0], 2.0 ** np.arange(-3, 10)])
@@ -194,38 +194,56 @@ def minimal_part(A: np.ndarray, B: np.ndarray, C: np.ndarray,
     return R.T @ A1 @ R, R.T @ B1, C1 @ R
 
 
-def _right_part(A: np.ndarray, B: np.ndarray, C: np.ndarray,
-                thr: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The additive part (A_r, B_r, C_r) of (A, B, C) holding the eigenvalues with Re > ``thr``: the
-    ordered real Schur form, block-diagonalised by a Sylvester solve. Its Kalman decomposition is
-    well conditioned: the fast stable modes, whose norm would swamp a Krylov basis, are gone."""
+def _split(A: np.ndarray, B: np.ndarray, C: np.ndarray, select) -> tuple[int, tuple, tuple]:
+    """(k, right part (A_r, B_r, C_r), left part (A_l, B_l, C_l)): the additive split of (A, B, C)
+    into the eigenvalues ``select(re, im)`` picks (k of them) and the others, by the ordered real
+    Schur form block-diagonalised with a Sylvester solve. The Kalman decomposition of the right
+    part is well conditioned: the fast stable modes, whose norm would swamp a Krylov basis, are gone."""
     import scipy.linalg
 
-    T, Z, k = scipy.linalg.schur(A, output="real", sort=lambda re, im: re > thr)
-    if k == 0:
-        return np.zeros((0, 0)), np.zeros((0, B.shape[1])), np.zeros((C.shape[0], 0))
+    T, Z, k = scipy.linalg.schur(A, output="real", sort=select)
     ZB, CZ = Z.T @ B, C @ Z
-    if k == A.shape[0]:
-        return T, ZB, CZ
+    if k in (0, A.shape[0]):
+        return k, (T[:k, :k], ZB[:k], CZ[:, :k]), (T[k:, k:], ZB[k:], CZ[:, k:])
     X = scipy.linalg.solve_sylvester(T[:k, :k], -T[k:, k:], -T[:k, k:])
-    return T[:k, :k], ZB[:k] - X @ ZB[k:], CZ[:, :k]
+    return k, (T[:k, :k], ZB[:k] - X @ ZB[k:], CZ[:, :k]), (T[k:, k:], ZB[k:], CZ[:, :k] @ X + CZ[:, k:])
+
+
+def _selector(A: np.ndarray, floor: float, discrete: bool):
+    """The eigenvalues that matter to a stability count: Re > ``floor`` |lambda|max, or (``discrete``)
+    |z| > 1 - 1e-6."""
+    if discrete:
+        return lambda re, im: re * re + im * im > (1.0 - 1e-6) ** 2
+    ev = np.linalg.eigvals(A)
+    thr = floor * max(1.0, float(np.max(np.abs(ev))))
+    return lambda re, im: re > thr
+
+
+def trim_hidden(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float = -1e-6,
+                discrete: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(A', B', C', hidden): a realisation of the same system without the modes right of Re s =
+    ``floor`` |lambda|max (``discrete``: |z| > 1 - 1e-6) that B and C cannot reach or see, and those
+    modes, each counted with its full multiplicity (:func:`minimal_part` of that part). Stable modes
+    are kept as they are."""
+    if not A.size:
+        return A, B, C, np.zeros(0, dtype=complex)
+    k, (Ar, Br, Cr), (Al, Bl, Cl) = _split(A, B, C, _selector(A, floor, discrete))
+    if k == 0:
+        return A, B, C, np.zeros(0, dtype=complex)
+    A2, B2, C2 = minimal_part(Ar, Br, Cr)
+    right = np.linalg.eigvals(Ar)
+    hidden = _drop(right, np.linalg.eigvals(A2)) if A2.size else right
+    n2 = A2.shape[0]
+    At = np.zeros((n2 + Al.shape[0],) * 2)
+    At[:n2, :n2], At[n2:, n2:] = A2, Al
+    return At, np.vstack([B2, Bl]), np.hstack([C2, Cl]), hidden
 
 
 def hidden_by_staircase(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> np.ndarray:
     """The eigenvalues of A right of Re s = ``floor`` |lambda|max that are not poles of the minimal
     realisation: modes feedback through B and C cannot move, each counted with its full
-    multiplicity (:func:`minimal_part` of the part of the system holding those eigenvalues)."""
-    if not A.size:
-        return np.zeros(0, dtype=complex)
-    ev = np.linalg.eigvals(A)
-    scale = max(1.0, float(np.max(np.abs(ev))))
-    thr = floor * scale
-    right = ev[ev.real > thr]
-    if not right.size:
-        return np.zeros(0, dtype=complex)
-    Ar, Br, Cr = _right_part(A, B, C, thr)
-    A2, _, _ = minimal_part(Ar, Br, Cr)
-    return _drop(right, np.linalg.eigvals(A2)) if A2.size else right
+    multiplicity (:func:`trim_hidden`)."""
+    return trim_hidden(A, B, C, floor)[3]
 
 
 def _open_loop_poles(loop: MimoLoop) -> np.ndarray:
