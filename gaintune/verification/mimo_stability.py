@@ -26,7 +26,7 @@ import numpy as np
 
 from gaintune.verification.mimo_loop import MimoLoop, char_freqs, closed_loop_matrix, hidden_modes
 
-__all__ = ["MimoStability", "mimo_stability", "minimal_part", "hidden_by_staircase", "trim_hidden"]
+__all__ = ["MimoStability", "mimo_stability", "minimal_part", "hidden_modes_in_full", "trim_hidden"]
 
 #: Points around every open-loop pole, in units of its distance to the contour (as the SISO count).
 _POLE_OFFSETS = np.concatenate([-(2.0 ** np.arange(9, -4, -1)), [0.0], 2.0 ** np.arange(-3, 10)])
@@ -146,59 +146,43 @@ def _split_hidden(hidden: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return hidden[hidden.real > 1e-9 * sc], hidden[np.abs(hidden.real) <= 1e-9 * sc]
 
 
-def _krylov_basis(A: np.ndarray, B: np.ndarray, rtol: float) -> np.ndarray:
-    """Orthonormal basis of span[B, A B, A^2 B, ...] (the controllable subspace of (A, B)), built
-    one block at a time; a direction counts when its singular value exceeds ``rtol`` times the
-    norm of the block it came from."""
-    n = A.shape[0]
-    Q = np.zeros((n, 0))
-    blk = B
-    for _ in range(n + 1):
-        if blk.size == 0:
-            break
-        nb = float(np.linalg.norm(blk, 2))
-        if Q.shape[1]:
-            blk = blk - Q @ (Q.T @ blk)
-            blk = blk - Q @ (Q.T @ blk)  # twice: orthogonal to working precision
-        if not nb > 0:
-            break
-        U, sv, _ = np.linalg.svd(blk, full_matrices=False)
-        new = U[:, sv > rtol * nb]
-        if new.shape[1] == 0 or Q.shape[1] >= n:
-            break
-        Q = np.hstack([Q, new])[:, :n]
-        blk = A @ new
-    return Q
-
-
 def minimal_part(A: np.ndarray, B: np.ndarray, C: np.ndarray,
                  rtol: float = 1e-9) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The controllable and observable part (A2, B2, C2) of (A, B, C), by orthogonal Kalman
-    decomposition (staircase on the balanced realisation): the controllable subspace (a Krylov
-    basis Q, invariant: A1 = Q^T A Q), then the quotient by the unobservable subspace of
-    (A1, C1) (basis R of the observability row space: A2 = R^T A1 R).
+    """A minimal realisation (A2, B2, C2) of (A, B, C): the Ho-Kalman realisation of its block Hankel
+    matrix of Markov parameters ``C (A/a)^k B`` (a = max(1, ||A||); its rank, singular values above
+    ``rtol`` times the largest, is the minimal order).
 
-    Unlike an eigenvector test it counts hidden Jordan chains in full: a cascade's controller
-    realised entry by entry carries several chains of integrators at s = 0 of which only some are
-    seen, and each hidden chain is a repeated, defective eigenvalue."""
-    if A.size == 0:
-        return A, B, C
-    from scipy.linalg import matrix_balance
-
-    Ab, T = matrix_balance(A, permute=False)
-    t = np.diag(T)
-    Bb, Cb = B / t[:, None], C * t[None, :]
-    Q = _krylov_basis(Ab, Bb, rtol)
-    A1, B1, C1 = Q.T @ Ab @ Q, Q.T @ Bb, Cb @ Q
-    R = _krylov_basis(A1.T, C1.T, rtol) if A1.size else np.zeros((0, 0))
-    return R.T @ A1 @ R, R.T @ B1, C1 @ R
+    The Markov parameters do not depend on the state coordinates, so a badly scaled realisation
+    (a cascade's controller realised entry by entry has B near 1e-7 and C near 1e23) still gives a
+    clean rank, where a Kalman staircase on the states misjudges it; and every hidden Jordan chain
+    (a cascade repeats its integrators in several entries) is counted in full."""
+    n, p, m = A.shape[0], C.shape[0], B.shape[1]
+    if n == 0 or p == 0 or m == 0:
+        return np.zeros((0, 0)), np.zeros((0, m)), np.zeros((p, 0))
+    a = max(1.0, float(np.linalg.norm(A, 2)))
+    As = A / a
+    rows = n - int(np.linalg.matrix_rank(C)) + 1  # bounds of the observability and controllability indices
+    cols = n - int(np.linalg.matrix_rank(B)) + 1
+    M, X = [C @ B], B
+    for _ in range(rows + cols - 1):
+        X = As @ X
+        M.append(C @ X)
+    H0 = np.block([[M[i + j] for j in range(cols)] for i in range(rows)])
+    H1 = np.block([[M[i + j + 1] for j in range(cols)] for i in range(rows)])
+    U, sv, Vh = np.linalg.svd(H0, full_matrices=False)
+    r = int(np.sum(sv > rtol * sv[0])) if sv.size and sv[0] > 0 else 0
+    if r == 0:
+        return np.zeros((0, 0)), np.zeros((0, m)), np.zeros((p, 0))
+    h = np.sqrt(sv[:r])
+    A2 = (U[:, :r].T @ H1 @ Vh[:r].T) / h[:, None] / h[None, :] * a
+    return A2, (h[:, None] * Vh[:r])[:, :m], (U[:, :r] * h[None, :])[:p]
 
 
 def _split(A: np.ndarray, B: np.ndarray, C: np.ndarray, select) -> tuple[int, tuple, tuple]:
     """(k, right part (A_r, B_r, C_r), left part (A_l, B_l, C_l)): the additive split of (A, B, C)
     into the eigenvalues ``select(re, im)`` picks (k of them) and the others, by the ordered real
-    Schur form block-diagonalised with a Sylvester solve. The Kalman decomposition of the right
-    part is well conditioned: the fast stable modes, whose norm would swamp a Krylov basis, are gone."""
+    Schur form block-diagonalised with a Sylvester solve. Only the (few) modes that matter to a
+    stability count go through :func:`minimal_part`."""
     import scipy.linalg
 
     T, Z, k = scipy.linalg.schur(A, output="real", sort=select)
@@ -239,7 +223,7 @@ def trim_hidden(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float = -1e-
     return At, np.vstack([B2, Bl]), np.hstack([C2, Cl]), hidden
 
 
-def hidden_by_staircase(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> np.ndarray:
+def hidden_modes_in_full(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> np.ndarray:
     """The eigenvalues of A right of Re s = ``floor`` |lambda|max that are not poles of the minimal
     realisation: modes feedback through B and C cannot move, each counted with its full
     multiplicity (:func:`trim_hidden`)."""
@@ -251,7 +235,7 @@ def _open_loop_poles(loop: MimoLoop) -> np.ndarray:
     are counted apart), for the Nyquist count."""
     P, Kc = loop.realisations(0)
     parts = []
-    for (A, B, C, _), hide in ((P, hidden_modes), (Kc, hidden_by_staircase)):
+    for (A, B, C, _), hide in ((P, hidden_modes), (Kc, hidden_modes_in_full)):
         if A.size:
             parts.append(_drop(np.linalg.eigvals(A), hide(A, B, C, -1e-6)))
     return np.concatenate(parts) if parts else np.zeros(0, dtype=complex)
@@ -269,7 +253,7 @@ def mimo_stability(loop: MimoLoop, pade_order: int | None = None) -> MimoStabili
         poles = np.linalg.eigvals(A) if A.size and np.all(np.isfinite(A)) else np.zeros(0, dtype=complex)
     hid_p = hidden_modes(P[0], P[1], P[2], -1e-6)
     # artefacts of the controller's realisation (a cascade's, entry by entry, repeats its integrators)
-    hid_k = hidden_by_staircase(Kc[0], Kc[1], Kc[2], -1e-6)
+    hid_k = hidden_modes_in_full(Kc[0], Kc[1], Kc[2], -1e-6)
     poles = _drop(poles, np.concatenate([hid_p, hid_k]))
     bad, marginal = _split_hidden(hid_p)
     _hidden_notes(bad, marginal, notes)
