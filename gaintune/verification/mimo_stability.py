@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gaintune.verification.mimo_loop import MimoLoop, char_freqs, closed_loop_matrix, hidden_modes
+from gaintune.verification.mimo_loop import MimoLoop, char_freqs, closed_loop_matrix
 
-__all__ = ["MimoStability", "mimo_stability", "minimal_part", "hidden_modes_in_full", "trim_hidden"]
+__all__ = ["MimoStability", "mimo_stability", "minimal_part", "hidden_modes_in_full", "trim_hidden", "contour_shift"]
 
 #: Points around every open-loop pole, in units of its distance to the contour (as the SISO count).
 _POLE_OFFSETS = np.concatenate([-(2.0 ** np.arange(9, -4, -1)), [0.0], 2.0 ** np.arange(-3, 10)])
@@ -141,9 +141,9 @@ def _hidden_notes(bad: np.ndarray, marginal: np.ndarray, notes: list[str]) -> No
 
 
 def _split_hidden(hidden: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(unstable, marginal) hidden plant modes."""
+    """(unstable, marginal) hidden plant modes (a hidden chain on the axis is spread by rounding)."""
     sc = max(1.0, float(np.max(np.abs(hidden)))) if hidden.size else 1.0
-    return hidden[hidden.real > 1e-9 * sc], hidden[np.abs(hidden.real) <= 1e-9 * sc]
+    return hidden[hidden.real > 1e-6 * sc], hidden[np.abs(hidden.real) <= 1e-6 * sc]
 
 
 def minimal_part(A: np.ndarray, B: np.ndarray, C: np.ndarray,
@@ -235,10 +235,39 @@ def _open_loop_poles(loop: MimoLoop) -> np.ndarray:
     are counted apart), for the Nyquist count."""
     P, Kc = loop.realisations(0)
     parts = []
-    for (A, B, C, _), hide in ((P, hidden_modes), (Kc, hidden_modes_in_full)):
+    for A, B, C, _ in (P, Kc):
         if A.size:
-            parts.append(_drop(np.linalg.eigvals(A), hide(A, B, C, -1e-6)))
+            parts.append(_drop(np.linalg.eigvals(A), hidden_modes_in_full(A, B, C, -1e-6)))
     return np.concatenate(parts) if parts else np.zeros(0, dtype=complex)
+
+
+def contour_shift(ol: np.ndarray, eps0: float) -> float:
+    """How far left of the imaginary axis the Nyquist contour runs, at least ``eps0``.
+
+    Poles at the origin come out of an eigenvalue solver spread by rounding: a chain of k of them
+    by about (1e-16 ||A||)^(1/k), e.g. +-1e-8 for a double integrator in general coordinates, some
+    left of a contour at a tiny shift, so the open-loop count P and the contour disagreed and the
+    count came out wrong (negative, or "unstable"). The shift starts at 3 times the size of the
+    cluster of poles at the origin (the smallest poles, each within 100 times the one before it, none
+    beyond 10 (1e-16 S)^(1/3), S = max(1, max |pole|)): every spread
+    pole is then right of the contour, as the true poles on the axis are. It then rises by decades
+    until no pole's real part is within a factor 3 of it, so every other pole is classified the same
+    way in P and by the contour."""
+    ol = np.asarray(ol)
+    mag = np.sort(np.abs(ol))
+    bound = 10.0 * (1e-16 * max(1.0, float(mag[-1]) if mag.size else 1.0)) ** (1.0 / 3.0)
+    spread, prev = 0.0, math.inf
+    for m in mag:
+        if m > bound or m > 100.0 * prev:
+            break
+        spread, prev = float(m), max(float(m), eps0)
+    eps = max(eps0, 3.0 * spread)
+    re = -ol.real
+    for _ in range(9):
+        if not np.any((re > eps / 3.0) & (re < 3.0 * eps)):
+            return eps
+        eps *= 10.0
+    return eps
 
 
 def mimo_stability(loop: MimoLoop, pade_order: int | None = None) -> MimoStability:
@@ -251,7 +280,7 @@ def mimo_stability(loop: MimoLoop, pade_order: int | None = None) -> MimoStabili
     A = closed_loop_matrix(P, Kc)
     with np.errstate(all="ignore"):
         poles = np.linalg.eigvals(A) if A.size and np.all(np.isfinite(A)) else np.zeros(0, dtype=complex)
-    hid_p = hidden_modes(P[0], P[1], P[2], -1e-6)
+    hid_p = hidden_modes_in_full(P[0], P[1], P[2], -1e-6)
     # artefacts of the controller's realisation (a cascade's, entry by entry, repeats its integrators)
     hid_k = hidden_modes_in_full(Kc[0], Kc[1], Kc[2], -1e-6)
     poles = _drop(poles, np.concatenate([hid_p, hid_k]))
@@ -260,8 +289,8 @@ def mimo_stability(loop: MimoLoop, pade_order: int | None = None) -> MimoStabili
     scale = max(1.0, float(np.max(np.abs(poles))) if poles.size else 1.0)
     rhp = int(np.sum(poles.real > -1e-12 * scale)) + int(bad.size)
     cf = char_freqs(loop)
-    eps = 1e-7 * float(cf.min())
-    nyq = _nyquist(loop, _open_loop_poles(loop), eps, cf, notes)
+    ol = _open_loop_poles(loop)
+    nyq = _nyquist(loop, ol, contour_shift(ol, 1e-7 * float(cf.min())), cf, notes)
     if nyq is not None:
         nyq += int(bad.size)
     agree = nyq == rhp

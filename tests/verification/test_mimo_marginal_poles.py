@@ -106,3 +106,28 @@ def test_robot_arm_hand_gains_get_a_nyquist_count_that_is_not_negative() -> None
         assert rep.stability.stable and rep.stability.rhp_count == 0 and rep.sampled is sampled, rep.stability.notes
         if not sampled:
             assert rep.stability.nyquist_rhp == 0
+
+
+def test_double_integrators_in_general_coordinates_get_a_consistent_nyquist_count() -> None:
+    """Two double integrators y_i = u_i / s^2 (plus an unseen stable lag) in random state coordinates, PD on
+    each (0.01 s delay): stable by hand (s^2 + Kd s + Kp per loop). The eigenvalue solver spreads the
+    four poles at s = 0 by about 1e-8 to either side, and the contour at Re s = -1e-15 had some of them
+    on its left: the open-loop count P and the contour disagreed, giving Nyquist counts of -1, 1 or
+    'not computable' beside a Padé count of 0. The contour now runs clear of the spread poles."""
+    from gaintune.lti.mimo import DelayedSS
+
+    J = np.zeros((5, 5))
+    J[0, 1] = J[2, 3] = 1.0
+    J[4, 4] = -1.0
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        T = rng.normal(size=(5, 5))
+        Ti = np.linalg.inv(T)
+        B = T @ np.array([[0, 0], [1, 0], [0, 0], [0, 1], [1, 1.0]])
+        C = np.array([[1, 0, 0, 0, 0], [0, 0, 1, 0, 0.0]]) @ Ti
+        G = DelayedSS(T @ J @ Ti, B, C, np.zeros((2, 2)), inputs=("u1", "u2"), outputs=("y1", "y2"),
+                      input_delays=np.array([0.01, 0.01]))
+        for kd, stable in ((1.0, True), (-1.0, False)):
+            loops = [PidLoop("a", "y1", "u1", Kp=1, Kd=kd, Tf=0.01), PidLoop("b", "y2", "u2", Kp=1, Kd=2 * kd, Tf=0.01)]
+            st = mimo_stability(MimoLoop.build(G, decentralised_pid(G, loops), loops))
+            assert st.stable is stable and st.agree and st.nyquist_rhp == st.rhp_poles, (st.nyquist_rhp, st.rhp_poles)
