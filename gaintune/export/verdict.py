@@ -3,8 +3,10 @@
 Verdicts are per sample time
 ----------------------------
 Verification depends on ``dt``: it analyses the sampled loop at the largest scenario
-``dt`` (:mod:`gaintune.verification.sampled`; frequencies up to ``pi/dt``) and the nonlinear
-check simulates at the scenarios' ``dt``. A file therefore only
+``dt`` (:mod:`gaintune.verification.sampled`; a MIMO payload's loops together,
+:mod:`gaintune.verification.mimo_sampled`: the plant ZOH-sampled with its delays, every loop's
+discrete law as the C/MATLAB files implement it, the cascades and the decoupler; frequencies up
+to ``pi/dt``) and the nonlinear check simulates at the scenarios' ``dt``. A file therefore only
 claims the verdict obtained *at the dt it is exported for*:
 :func:`verdict_at_dt` returns the stored verdict when ``dt`` is the one the result
 was verified at (:func:`verified_dt`, every scenario at that ``dt``), and otherwise

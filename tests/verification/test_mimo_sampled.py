@@ -111,3 +111,16 @@ def test_sampled_mimo_loop_with_a_fractional_delay_matches_the_modified_z_transf
     got = np.array([complex(*q) for q in rep.stability.poles])
     for w in want:  # each loop contributes the same pair
         assert np.sum(np.abs(got - w) < 1e-9) == 2
+
+
+@pytest.mark.parametrize(("a3", "stable"), [(0.0, True), (0.5, False)])
+def test_sampled_mimo_plant_mode_no_loop_reaches_is_left_out_or_fails_the_loop(a3: float, stable: bool) -> None:
+    """A third state driven by an input no loop drives and measured by no loop: at s = 0 (z = 1) it is left out
+    of the verdict with a note, as in the continuous count; unstable (z = e^{0.5 dt}) it fails the loop."""
+    d = _two_lags(0.1)
+    d["plant"]["ss"].update(A=[[-1.0, 0, 0], [0, -2.0, 0], [0, 0, a3]], B=[[1.0, 0, 0], [0, 2.0, 0], [0, 0, 1.0]],
+                            C=[[1.0, 0, 0], [0, 1.0, 0]], inputs=["u1", "u2", "u3"])
+    rep = verify(load_spec(d), {"a": {"Kp": 1.0}, "b": {"Kp": 1.0}}, nonlinear=False)
+    assert rep.sampled and rep.stability.stable is stable
+    word = "marginal" if stable else "unstable"
+    assert any(n.startswith(f"{word} sampled plant mode(s)") for n in rep.stability.notes), rep.stability.notes
