@@ -55,30 +55,44 @@ class SampledCore:
     d: np.ndarray
     dt: float
     hidden: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=complex))
+    _modal: tuple | None = field(default=None, repr=False)
 
-    def input_matrix(self, z: np.ndarray, n_in: int) -> np.ndarray:
-        """sum_c (G0 + G1 z^-1) z^-d per driven input: (len(z), N, n_in)."""
-        zi = 1.0 / z
-        coef = (self.G0[None] + self.G1[None] * zi[:, None, None]) * (zi[:, None] ** self.d[None, :])[:, None, :]
-        out = np.zeros((z.size, self.Ad.shape[0], n_in), dtype=complex)
-        for j in range(n_in):
-            out[:, :, j] = coef[:, :, self.src == j].sum(axis=2)
+    def _inputs(self, z: np.ndarray, G0: np.ndarray, G1: np.ndarray, n_in: int) -> np.ndarray:
+        """sum_c (G0[:, c] + G1[:, c] z^-1) z^-d(c) per driven input: (len(z), rows of G0, n_in)."""
+        one_hot = np.zeros((self.src.size, n_in))
+        one_hot[np.arange(self.src.size), self.src] = 1.0
+        f = (1.0 / z)[:, None] ** self.d[None, :]  # (W, channels)
+        out = (G0[None] * f[:, None, :]) @ one_hot
+        if np.any(G1):
+            out = out + (G1[None] * (f / z[:, None])[:, None, :]) @ one_hot
         return out
 
+    def _modal_form(self) -> tuple:
+        """(lambda, C V, V^-1 G0, V^-1 G1) of Ad = V diag(lambda) V^-1, or () when V is ill conditioned."""
+        if self._modal is None:
+            lam, V = np.linalg.eig(self.Ad)
+            if np.linalg.cond(V) < 1e8:
+                Vi = np.linalg.inv(V)
+                self._modal = (lam, self.C @ V, Vi @ self.G0, Vi @ self.G1)
+            else:
+                self._modal = ()
+        return self._modal
+
     def response(self, z: np.ndarray, n_in: int) -> np.ndarray:
-        """Gs(z) = C (zI - Ad)^-1 B(z): (len(z), p, n_in)."""
+        """Gs(z) = C (zI - Ad)^-1 B(z): (len(z), p, n_in); modal when Ad's eigenvectors are well conditioned."""
         z = np.asarray(z, dtype=complex).ravel()
         N = self.Ad.shape[0]
-        Bz = self.input_matrix(z, n_in)
         if N == 0:
             return np.zeros((z.size, self.C.shape[0], n_in), dtype=complex)
-        lam, V = np.linalg.eig(self.Ad)
+        modal = self._modal_form()
         with np.errstate(all="ignore"):
-            if np.linalg.cond(V) < 1e8:
-                VB = np.linalg.solve(V, Bz)
-                return (self.C @ V)[None] @ (VB / (z[:, None] - lam[None, :])[:, :, None])
+            if modal:
+                lam, CV, G0m, G1m = modal
+                X = self._inputs(z, G0m, G1m, n_in) / (z[:, None] - lam[None, :])[:, :, None]
+                return CV[None] @ X
             from gaintune.verification.mimo_loop import solve_points
 
+            Bz = self._inputs(z, self.G0, self.G1, n_in)
             return self.C[None] @ solve_points(z[:, None, None] * np.eye(N) - self.Ad[None], Bz)
 
     def realisation(self, n_in: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
