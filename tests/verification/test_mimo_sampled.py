@@ -124,3 +124,19 @@ def test_sampled_mimo_plant_mode_no_loop_reaches_is_left_out_or_fails_the_loop(a
     assert rep.sampled and rep.stability.stable is stable
     word = "marginal" if stable else "unstable"
     assert any(n.startswith(f"{word} sampled plant mode(s)") for n in rep.stability.notes), rep.stability.notes
+
+
+def test_stored_mimo_verdict_of_the_continuous_loop_does_not_vouch_for_the_sampled_loop() -> None:
+    """A MIMO verdict stored from the continuous loop plus dt/2 (every MIMO verdict before the exact sampled
+    loop; same spec, same hash) was returned as it was by the export at its own dt: these gains (Kp = 5
+    on 1/(s + 1) at dt = 0.5) were stamped 'pass' though the sampled loop is unstable."""
+    gains = {"a": {"Kp": 5.0}, "b": {"Kp": 0.5}}
+    loose = {"gm_min_db": 1.0, "ms_max": 10.0, "pm_min_deg": 10.0}
+    spec = load_spec({**_two_lags(0.5, a=(1.0, 1.0)), "requirements": loose})
+    old = verify(load_spec({**_two_lags(0.5, sampled=False, a=(1.0, 1.0)), "requirements": loose}), gains,
+                 nonlinear=False)
+    assert old.verdict == "pass" and not old.sampled
+    stored = old.model_copy(update={"spec_hash": spec.content_hash()})
+    verdict, rep = verdict_at_dt(spec, gains, 0.5, stored=stored)
+    assert verdict == "fail" and rep is not None and rep["sampled"] is True
+    assert verdict_at_dt(spec, gains, 0.5, stored=verify(spec, gains, nonlinear=False))[0] == "fail"
