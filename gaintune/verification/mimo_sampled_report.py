@@ -112,6 +112,8 @@ def sampled_margins(spec: TuningSpec, plant: Any, layout: GainLayout,
     sl = spec_loop(spec, plant, layout, full)
     base, loop = sampled_loop(spec, plant, sl)
     rep = sampled_report(base, loop)
+    if as_mimo(plant).nonlinear:  # the simulator steps the ODE itself by RK4, actuator delays in whole samples
+        rep.notes.append("nonlinear plant: the sampled loop uses its linearisation, ZOH-sampled with exact delays")
     try:
         lines = judge(rep, spec_requirements(spec))
     except ValueError as exc:
