@@ -3,8 +3,10 @@
 Verdicts are per sample time
 ----------------------------
 Verification depends on ``dt``: it analyses the sampled loop at the largest scenario
-``dt`` (:mod:`gaintune.verification.sampled`; frequencies up to ``pi/dt``) and the nonlinear
-check simulates at the scenarios' ``dt``. A file therefore only
+``dt`` (:mod:`gaintune.verification.sampled`; a MIMO payload's loops together,
+:mod:`gaintune.verification.mimo_sampled`: the plant ZOH-sampled with its delays, every loop's
+discrete law as the C/MATLAB files implement it, the cascades and the decoupler; frequencies up
+to ``pi/dt``) and the nonlinear check simulates at the scenarios' ``dt``. A file therefore only
 claims the verdict obtained *at the dt it is exported for*:
 :func:`verdict_at_dt` returns the stored verdict when ``dt`` is the one the result
 was verified at (:func:`verified_dt`, every scenario at that ``dt``), and otherwise
@@ -89,16 +91,17 @@ def stored_verdict_holds(spec: TuningSpec, dt: float, stored: VerificationReport
     ``spec.content_hash()``: a result written before a requirement or a default changed, e.g.
     the noise-sensitivity limit, is not vouched for by its old verdict), and ``dt`` is the
     sample time it was obtained at (:func:`verified_dt`), with every scenario at that ``dt``.
+    A MIMO report must also have judged the loop ``verify.sampled`` names: a MIMO verdict stored
+    from the continuous loop plus dt/2 (what every MIMO verdict was before the exact sampled
+    loop, :mod:`gaintune.verification.mimo_sampled`) does not vouch for the sampled loop.
     Otherwise the gains must be re-verified at ``dt`` (:func:`verdict_at_dt` does).
     """
     if stored is None:
         return False
-    verdict: str | None
-    spec_hash: str | None
-    if isinstance(stored, VerificationReport):
-        verdict, spec_hash = stored.verdict, stored.spec_hash
-    else:
-        verdict, spec_hash = stored.get("verdict"), stored.get("spec_hash")
+    held = json.loads(stored.model_dump_json()) if isinstance(stored, VerificationReport) else stored
+    verdict, spec_hash = held.get("verdict"), held.get("spec_hash")
+    if held.get("mimo") is not None and bool(held.get("sampled", False)) != bool(spec.verify.sampled):
+        return False
     vdt = verified_dt(spec)
     return (verdict is not None and spec_hash == spec.content_hash() and _same_dt(dt, vdt)
             and all(_same_dt(sc.resolved_dt, vdt) for sc in spec.scenarios))

@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gaintune.verification.mimo_loop import MimoLoop, char_freqs, closed_loop_matrix, hidden_modes
+from gaintune.verification.mimo_loop import MimoLoop, char_freqs, closed_loop_matrix
 
-__all__ = ["MimoStability", "mimo_stability"]
+__all__ = ["MimoStability", "mimo_stability", "minimal_part", "hidden_modes_in_full", "trim_hidden", "contour_shift"]
 
 #: Points around every open-loop pole, in units of its distance to the contour (as the SISO count).
 _POLE_OFFSETS = np.concatenate([-(2.0 ** np.arange(9, -4, -1)), [0.0], 2.0 ** np.arange(-3, 10)])
@@ -141,9 +141,93 @@ def _hidden_notes(bad: np.ndarray, marginal: np.ndarray, notes: list[str]) -> No
 
 
 def _split_hidden(hidden: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(unstable, marginal) hidden plant modes."""
+    """(unstable, marginal) hidden plant modes (a hidden chain on the axis is spread by rounding)."""
     sc = max(1.0, float(np.max(np.abs(hidden)))) if hidden.size else 1.0
-    return hidden[hidden.real > 1e-9 * sc], hidden[np.abs(hidden.real) <= 1e-9 * sc]
+    return hidden[hidden.real > 1e-6 * sc], hidden[np.abs(hidden.real) <= 1e-6 * sc]
+
+
+def minimal_part(A: np.ndarray, B: np.ndarray, C: np.ndarray,
+                 rtol: float = 1e-9) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A minimal realisation (A2, B2, C2) of (A, B, C): the Ho-Kalman realisation of its block Hankel
+    matrix of Markov parameters ``C (A/a)^k B`` (a = max(1, ||A||); its rank, singular values above
+    ``rtol`` times the largest, is the minimal order).
+
+    The Markov parameters do not depend on the state coordinates, so a badly scaled realisation
+    (a cascade's controller realised entry by entry has B near 1e-7 and C near 1e23) still gives a
+    clean rank, where a Kalman staircase on the states misjudges it; and every hidden Jordan chain
+    (a cascade repeats its integrators in several entries) is counted in full."""
+    n, p, m = A.shape[0], C.shape[0], B.shape[1]
+    if n == 0 or p == 0 or m == 0:
+        return np.zeros((0, 0)), np.zeros((0, m)), np.zeros((p, 0))
+    a = max(1.0, float(np.linalg.norm(A, 2)))
+    As = A / a
+    rows = n - int(np.linalg.matrix_rank(C)) + 1  # bounds of the observability and controllability indices
+    cols = n - int(np.linalg.matrix_rank(B)) + 1
+    M, X = [C @ B], B
+    for _ in range(rows + cols - 1):
+        X = As @ X
+        M.append(C @ X)
+    H0 = np.block([[M[i + j] for j in range(cols)] for i in range(rows)])
+    H1 = np.block([[M[i + j + 1] for j in range(cols)] for i in range(rows)])
+    U, sv, Vh = np.linalg.svd(H0, full_matrices=False)
+    r = int(np.sum(sv > rtol * sv[0])) if sv.size and sv[0] > 0 else 0
+    if r == 0:
+        return np.zeros((0, 0)), np.zeros((0, m)), np.zeros((p, 0))
+    h = np.sqrt(sv[:r])
+    A2 = (U[:, :r].T @ H1 @ Vh[:r].T) / h[:, None] / h[None, :] * a
+    return A2, (h[:, None] * Vh[:r])[:, :m], (U[:, :r] * h[None, :])[:p]
+
+
+def _split(A: np.ndarray, B: np.ndarray, C: np.ndarray, select) -> tuple[int, tuple, tuple]:
+    """(k, right part (A_r, B_r, C_r), left part (A_l, B_l, C_l)): the additive split of (A, B, C)
+    into the eigenvalues ``select(re, im)`` picks (k of them) and the others, by the ordered real
+    Schur form block-diagonalised with a Sylvester solve. Only the (few) modes that matter to a
+    stability count go through :func:`minimal_part`."""
+    import scipy.linalg
+
+    T, Z, k = scipy.linalg.schur(A, output="real", sort=select)
+    ZB, CZ = Z.T @ B, C @ Z
+    if k in (0, A.shape[0]):
+        return k, (T[:k, :k], ZB[:k], CZ[:, :k]), (T[k:, k:], ZB[k:], CZ[:, k:])
+    X = scipy.linalg.solve_sylvester(T[:k, :k], -T[k:, k:], -T[:k, k:])
+    return k, (T[:k, :k], ZB[:k] - X @ ZB[k:], CZ[:, :k]), (T[k:, k:], ZB[k:], CZ[:, :k] @ X + CZ[:, k:])
+
+
+def _selector(A: np.ndarray, floor: float, discrete: bool):
+    """The eigenvalues that matter to a stability count: Re > ``floor`` |lambda|max, or (``discrete``)
+    |z| > 1 - 1e-6."""
+    if discrete:
+        return lambda re, im: re * re + im * im > (1.0 - 1e-6) ** 2
+    ev = np.linalg.eigvals(A)
+    thr = floor * max(1.0, float(np.max(np.abs(ev))))
+    return lambda re, im: re > thr
+
+
+def trim_hidden(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float = -1e-6,
+                discrete: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(A', B', C', hidden): a realisation of the same system without the modes right of Re s =
+    ``floor`` |lambda|max (``discrete``: |z| > 1 - 1e-6) that B and C cannot reach or see, and those
+    modes, each counted with its full multiplicity (:func:`minimal_part` of that part). Stable modes
+    are kept as they are."""
+    if not A.size:
+        return A, B, C, np.zeros(0, dtype=complex)
+    k, (Ar, Br, Cr), (Al, Bl, Cl) = _split(A, B, C, _selector(A, floor, discrete))
+    if k == 0:
+        return A, B, C, np.zeros(0, dtype=complex)
+    A2, B2, C2 = minimal_part(Ar, Br, Cr)
+    right = np.linalg.eigvals(Ar)
+    hidden = _drop(right, np.linalg.eigvals(A2)) if A2.size else right
+    n2 = A2.shape[0]
+    At = np.zeros((n2 + Al.shape[0],) * 2)
+    At[:n2, :n2], At[n2:, n2:] = A2, Al
+    return At, np.vstack([B2, Bl]), np.hstack([C2, Cl]), hidden
+
+
+def hidden_modes_in_full(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> np.ndarray:
+    """The eigenvalues of A right of Re s = ``floor`` |lambda|max that are not poles of the minimal
+    realisation: modes feedback through B and C cannot move, each counted with its full
+    multiplicity (:func:`trim_hidden`)."""
+    return trim_hidden(A, B, C, floor)[3]
 
 
 def _open_loop_poles(loop: MimoLoop) -> np.ndarray:
@@ -153,8 +237,37 @@ def _open_loop_poles(loop: MimoLoop) -> np.ndarray:
     parts = []
     for A, B, C, _ in (P, Kc):
         if A.size:
-            parts.append(_drop(np.linalg.eigvals(A), hidden_modes(A, B, C, -1e-6)))
+            parts.append(_drop(np.linalg.eigvals(A), hidden_modes_in_full(A, B, C, -1e-6)))
     return np.concatenate(parts) if parts else np.zeros(0, dtype=complex)
+
+
+def contour_shift(ol: np.ndarray, eps0: float) -> float:
+    """How far left of the imaginary axis the Nyquist contour runs, at least ``eps0``.
+
+    Poles at the origin come out of an eigenvalue solver spread by rounding: a chain of k of them
+    by about (1e-16 ||A||)^(1/k), e.g. +-1e-8 for a double integrator in general coordinates, some
+    left of a contour at a tiny shift, so the open-loop count P and the contour disagreed and the
+    count came out wrong (negative, or "unstable"). The shift starts at 3 times the size of the
+    cluster of poles at the origin (the smallest poles, each within 100 times the one before it, none
+    beyond 10 (1e-16 S)^(1/3), S = max(1, max |pole|)): every spread
+    pole is then right of the contour, as the true poles on the axis are. It then rises by decades
+    until no pole's real part is within a factor 3 of it, so every other pole is classified the same
+    way in P and by the contour."""
+    ol = np.asarray(ol)
+    mag = np.sort(np.abs(ol))
+    bound = 10.0 * (1e-16 * max(1.0, float(mag[-1]) if mag.size else 1.0)) ** (1.0 / 3.0)
+    spread, prev = 0.0, math.inf
+    for m in mag:
+        if m > bound or m > 100.0 * prev:
+            break
+        spread, prev = float(m), max(float(m), eps0)
+    eps = max(eps0, 3.0 * spread)
+    re = -ol.real
+    for _ in range(9):
+        if not np.any((re > eps / 3.0) & (re < 3.0 * eps)):
+            return eps
+        eps *= 10.0
+    return eps
 
 
 def mimo_stability(loop: MimoLoop, pade_order: int | None = None) -> MimoStability:
@@ -167,16 +280,17 @@ def mimo_stability(loop: MimoLoop, pade_order: int | None = None) -> MimoStabili
     A = closed_loop_matrix(P, Kc)
     with np.errstate(all="ignore"):
         poles = np.linalg.eigvals(A) if A.size and np.all(np.isfinite(A)) else np.zeros(0, dtype=complex)
-    hid_p = hidden_modes(P[0], P[1], P[2], -1e-6)
-    hid_k = hidden_modes(Kc[0], Kc[1], Kc[2], -1e-6)  # artefacts of the controller's realisation
+    hid_p = hidden_modes_in_full(P[0], P[1], P[2], -1e-6)
+    # artefacts of the controller's realisation (a cascade's, entry by entry, repeats its integrators)
+    hid_k = hidden_modes_in_full(Kc[0], Kc[1], Kc[2], -1e-6)
     poles = _drop(poles, np.concatenate([hid_p, hid_k]))
     bad, marginal = _split_hidden(hid_p)
     _hidden_notes(bad, marginal, notes)
     scale = max(1.0, float(np.max(np.abs(poles))) if poles.size else 1.0)
     rhp = int(np.sum(poles.real > -1e-12 * scale)) + int(bad.size)
     cf = char_freqs(loop)
-    eps = 1e-7 * float(cf.min())
-    nyq = _nyquist(loop, _open_loop_poles(loop), eps, cf, notes)
+    ol = _open_loop_poles(loop)
+    nyq = _nyquist(loop, ol, contour_shift(ol, 1e-7 * float(cf.min())), cf, notes)
     if nyq is not None:
         nyq += int(bad.size)
     agree = nyq == rhp

@@ -1,12 +1,17 @@
 """The verdict on a MIMO spec's gains: :func:`verify_mimo`, what :func:`gaintune.verification.verify`
 runs for a spec with several plant inputs or a loop graph.
 
-The loop analysed is the continuous one with ``dt/2`` of sample-and-hold delay (largest scenario dt)
-and ``verify.compute_delay`` samples on every driven input (:mod:`.mimo_spec`): closed-loop stability
-by Padé eigenvalues cross-checked by the generalised Nyquist count on the exact delays, the
-loop-at-a-time margins at every driven input and measured output, the multiloop disk margins at
-the plant inputs and outputs, and the MIMO Ms and Mt. Each requirement gives one line at its
-binding place; the verdict fails naming the requirement and where.
+The loop analysed is, by default (``verify.sampled``), the exact sampled loop at the largest
+scenario dt (:mod:`.mimo_sampled`): the plant ZOH-discretised as the MIMO simulator steps it
+(delays split into whole samples and a fraction, ``verify.compute_delay`` samples added), every
+loop's discrete PID law, stability from the discrete closed-loop eigenvalues (|z| < 1) and the
+figures on z = e^{jw dt} up to pi/dt. ``verify.sampled: false`` analyses the continuous loop with
+``dt/2`` of sample-and-hold delay and the computation delay on every driven input
+(:mod:`.mimo_spec`): stability by Padé eigenvalues cross-checked by the generalised Nyquist
+count on the exact delays. Either way: the loop-at-a-time margins at every driven input and
+measured output, the multiloop disk margins at the plant inputs and outputs, and the MIMO Ms and
+Mt. Each requirement gives one line at its binding place; the verdict fails naming the
+requirement and where.
 """
 
 from __future__ import annotations
@@ -23,7 +28,8 @@ from gaintune.spec import TuningSpec
 from gaintune.verification.figures import loop_figures
 from gaintune.verification.gains import coerce_gains, fixed_gain_overrides
 from gaintune.verification.mimo import REQUIREMENTS, MimoLine, MimoMargins
-from gaintune.verification.mimo_spec import MIMO_NOT_CHECKED, spec_margins
+from gaintune.verification.mimo_sampled_report import sampled_margins
+from gaintune.verification.mimo_spec import MIMO_NOT_CHECKED, SpecLoop, spec_margins
 from gaintune.verification.nonlinear import nonlinear_check
 from gaintune.verification.report import (
     MimoDisk,
@@ -51,15 +57,16 @@ def mimo_lines(lines: list[MimoLine], stable: bool) -> list[RequirementLine]:
     return out
 
 
-def _stability(rep: MimoMargins) -> StabilityReport:
+def _stability(rep: MimoMargins, sampled: bool) -> StabilityReport:
     st = rep.stability
-    poles = sorted(np.asarray(st.poles, dtype=complex), key=lambda p: -p.real)[:50]
+    z = np.asarray(st.poles, dtype=complex)
+    poles = sorted(z, key=lambda p: -abs(p) if sampled else -p.real)[:50]
+    max_re = float(st.max_real_pole) if math.isfinite(st.max_real_pole) else (1e300 if st.max_real_pole > 0 else -1e300)
     return StabilityReport(
         stable=st.stable, method="nyquist" if st.method == "nyquist" else "poles", rhp_count=st.rhp_poles,
         nyquist_rhp=st.nyquist_rhp, poles=[(float(p.real), float(p.imag)) for p in poles],
-        poles_method=f"pade{st.pade_order}",
-        max_real_pole=float(st.max_real_pole) if math.isfinite(st.max_real_pole) else 1e300,
-        notes=list(st.notes))
+        poles_method="exact" if sampled else f"pade{st.pade_order}", max_real_pole=max_re, notes=list(st.notes),
+        domain="z" if sampled else "s", spectral_radius=float(np.max(np.abs(z), initial=0.0)) if sampled else None)
 
 
 def _figures(rep: MimoMargins) -> MimoFigures:
@@ -85,6 +92,16 @@ def _reasons(stable: bool, lines: list[RequirementLine], nl_failed: bool) -> lis
     return out
 
 
+def _loop_note(sl: SpecLoop, cd: int, sampled: bool) -> str:
+    """Which loop the verdict judged."""
+    comp = f", {cd} sample(s) of computation delay" if cd else ""
+    if sampled:
+        return (f"MIMO loop analysed sampled at dt {sl.dt:.4g} (exact: plant ZOH with its delays, the discrete "
+                f"PID laws{comp}; stability from the discrete closed-loop poles)")
+    return (f"MIMO loop analysed in continuous time with {sl.extra_delay:.4g} s of delay added at every driven "
+            f"input (dt/2 sample-and-hold at dt {sl.dt:.4g}{comp})")
+
+
 def verify_mimo(spec: TuningSpec, gains: Any, plant: Any = None, layout: GainLayout | None = None,
                 spec_hash: str | None = None, nonlinear: bool = True, elapsed_from: float = 0.0) -> VerificationReport:
     """Verify one gain set of a MIMO spec (see the module docstring); ``gains`` as
@@ -98,14 +115,12 @@ def verify_mimo(spec: TuningSpec, gains: Any, plant: Any = None, layout: GainLay
     layout = layout or GainLayout(spec, plant.states, plant=plant)
     full = coerce_gains(layout, gains)
     notes = fixed_gain_overrides(spec, layout, full)
-    sl, rep, lines = spec_margins(spec, plant, layout, full)
+    sampled = bool(spec.verify.sampled)
+    sl, rep, lines = (sampled_margins if sampled else spec_margins)(spec, plant, layout, full)
     stable = rep.stability.stable
     req_lines = mimo_lines(lines, stable)
     notes += list(rep.notes)
-    cd = spec.verify.compute_delay
-    notes.append(f"MIMO loop analysed in continuous time with {sl.extra_delay:.4g} s of delay added at every driven "
-                 f"input (dt/2 sample-and-hold at dt {sl.dt:.4g}"
-                 + (f", {cd} sample(s) of computation delay" if cd else "") + ")")
+    notes.append(_loop_note(sl, spec.verify.compute_delay, sampled))
     skipped = [f for f in MIMO_NOT_CHECKED if f != "mks_max" and getattr(spec.requirements, f) is not None]
     if skipped:
         notes.append(f"not judged on several loops: {', '.join(skipped)}")
@@ -116,7 +131,8 @@ def verify_mimo(spec: TuningSpec, gains: Any, plant: Any = None, layout: GainLay
     figs = [loop_figures(f, sl.dt) for f in rep.input_breaks + rep.output_breaks] if stable else []
     return VerificationReport(
         spec_name=spec.name, spec_hash=spec_hash or given.content_hash(), gains=layout.to_dict(full),
-        verdict=verdict, reasons=reasons, delay=0.0, sampling_delay=sl.extra_delay, sampled=False, dt=sl.dt,
-        compute_delay=spec.verify.compute_delay, delay_method="exact", stability=_stability(rep),
+        verdict=verdict, reasons=reasons, delay=0.0, sampling_delay=0.0 if sampled else sl.extra_delay,
+        sampled=sampled, dt=sl.dt, compute_delay=spec.verify.compute_delay, delay_method="exact",
+        stability=_stability(rep, sampled),
         analysis_band=rep.band, loops=figs, nonlinear=nl, requirements=req_lines, notes=notes,
         elapsed_s=time.perf_counter() - t0, mimo=_figures(rep))

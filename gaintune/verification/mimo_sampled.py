@@ -1,0 +1,223 @@
+"""The exact sampled-data MIMO loop at a sample time dt: what the MIMO simulator and the exports run.
+
+* **Plant**: the plant's linear form ZOH-discretised at ``dt`` exactly as the MIMO simulator steps
+  it (:func:`gaintune.sim.mimo.plant_channels`): per input channel ``x[k+1] = Ad x[k] +
+  G0 u[k-d] + G1 u[k-d-1]`` with the channel's delay (plant entry or input delay plus the
+  actuator's) ``d dt + f``, 0 <= f < dt, split exactly by the modified z-transform
+  (:func:`gaintune.verification.sampled.zoh_delay`); ``y[k] = C x[k]`` (strictly proper).
+  ``verify.compute_delay`` = c samples add ``z^-c`` at every driven input.
+* **Controller**: every loop's discrete PID law (module docstring of
+  :mod:`gaintune.controllers.pid`; :func:`gaintune.export.coefficients.discrete_pid_tf`, the export's),
+  ``Kp + Ki dt z/(z-1) + Kd (z-1)/((Tf+dt) z - Tf)``: the continuous law with
+  ``s = (1 - z^-1)/dt`` substituted. Sums and products (cascades, the decoupler) commute with
+  that substitution, so the controller matrix of :func:`gaintune.verification.mimo_spec.spec_loop`
+  (its wiring: cascades, pairing, decoupler) evaluated at ``s = (1 - z^-1)/dt`` is the discrete
+  controller, and its state-space form maps by ``Ad = (I - dt A)^-1`` (:func:`euler_controller`).
+* **Stability**: eigenvalues of the discrete closed-loop transition matrix (plant, input buffers
+  for the whole-sample delays, controller), stable when every |z| < 1. Modes the loop channels
+  do not see are left out of the closed loop (hidden plant modes with |z| > 1 fail it,
+  marginal ones are noted), as in :mod:`.mimo_stability`.
+* **Figures**: the loop gains at ``z = e^{j w dt}``, ``0 < w <= pi/dt`` (:class:`SampledLoop`,
+  a :class:`~gaintune.verification.mimo_loop.MimoLoop` whose responses are the sampled ones), so
+  the loop-at-a-time margins, the multiloop disk margins and the MIMO Ms and Mt are those of
+  :mod:`.mimo_margins` on the discrete frequency grid.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gaintune.verification.mimo_loop import MimoLoop, closed_loop_matrix, response
+from gaintune.verification.mimo_stability import MimoStability, trim_hidden
+
+__all__ = ["SampledCore", "SampledLoop", "sampled_core", "euler_controller", "sampled_stability_mimo"]
+
+#: |z| above this counts as on or outside the unit circle (a marginal or unstable mode).
+_UNIT = 1.0 - 1e-9
+
+
+@dataclass
+class SampledCore:
+    """The sampled plant's channels from the driven inputs to the measured outputs.
+
+    ``x[k+1] = Ad x[k] + sum_c (G0[:, c] u_src(c)[k - d(c)] + G1[:, c] u_src(c)[k - d(c) - 1])``,
+    ``y = C x``; ``src`` indexes the loop's driven inputs (``MimoLoop.ins``), ``d`` whole samples
+    (computation delay included), ``frac`` the fractional delay of each channel (s)."""
+
+    Ad: np.ndarray
+    C: np.ndarray
+    G0: np.ndarray  # (N, channels)
+    G1: np.ndarray
+    src: np.ndarray
+    d: np.ndarray
+    dt: float
+    hidden: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=complex))
+    _modal: tuple | None = field(default=None, repr=False)
+
+    def _inputs(self, z: np.ndarray, G0: np.ndarray, G1: np.ndarray, n_in: int) -> np.ndarray:
+        """sum_c (G0[:, c] + G1[:, c] z^-1) z^-d(c) per driven input: (len(z), rows of G0, n_in)."""
+        one_hot = np.zeros((self.src.size, n_in))
+        one_hot[np.arange(self.src.size), self.src] = 1.0
+        f = (1.0 / z)[:, None] ** self.d[None, :]  # (W, channels)
+        out = (G0[None] * f[:, None, :]) @ one_hot
+        if np.any(G1):
+            out = out + (G1[None] * (f / z[:, None])[:, None, :]) @ one_hot
+        return out
+
+    def _modal_form(self) -> tuple:
+        """(lambda, C V, V^-1 G0, V^-1 G1) of Ad = V diag(lambda) V^-1, or () when V is ill conditioned."""
+        if self._modal is None:
+            lam, V = np.linalg.eig(self.Ad)
+            if np.linalg.cond(V) < 1e8:
+                Vi = np.linalg.inv(V)
+                self._modal = (lam, self.C @ V, Vi @ self.G0, Vi @ self.G1)
+            else:
+                self._modal = ()
+        return self._modal
+
+    def response(self, z: np.ndarray, n_in: int) -> np.ndarray:
+        """Gs(z) = C (zI - Ad)^-1 B(z): (len(z), p, n_in); modal when Ad's eigenvectors are well conditioned."""
+        z = np.asarray(z, dtype=complex).ravel()
+        N = self.Ad.shape[0]
+        if N == 0:
+            return np.zeros((z.size, self.C.shape[0], n_in), dtype=complex)
+        modal = self._modal_form()
+        with np.errstate(all="ignore"):
+            if modal:
+                lam, CV, G0m, G1m = modal
+                X = self._inputs(z, G0m, G1m, n_in) / (z[:, None] - lam[None, :])[:, :, None]
+                return CV[None] @ X
+            from gaintune.verification.mimo_loop import solve_points
+
+            Bz = self._inputs(z, self.G0, self.G1, n_in)
+            return self.C[None] @ solve_points(z[:, None, None] * np.eye(N) - self.Ad[None], Bz)
+
+    def realisation(self, n_in: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(A, B, C, D) of the sampled plant channels with the delayed inputs as buffer states
+        (``b_i = u[k - i]`` per driven input, i = 1 .. its longest delay)."""
+        N = self.Ad.shape[0]
+        need = [int(max([dc + (1 if np.any(self.G1[:, c]) else 0)
+                         for c, dc in enumerate(self.d) if self.src[c] == j], default=0)) for j in range(n_in)]
+        start = np.concatenate([[N], N + np.cumsum(need)]).astype(int)
+        n = int(start[-1])
+        A, B = np.zeros((n, n)), np.zeros((n, n_in))
+        A[:N, :N] = self.Ad
+
+        def feed(col: np.ndarray, j: int, lag: int) -> None:  # col u_j[k - lag] into x[k+1]
+            if lag == 0:
+                B[:N, j] += col
+            else:
+                A[:N, start[j] + lag - 1] += col
+
+        for c, (j, dc) in enumerate(zip(self.src, self.d, strict=True)):
+            feed(self.G0[:, c], int(j), int(dc))
+            if np.any(self.G1[:, c]):
+                feed(self.G1[:, c], int(j), int(dc) + 1)
+        for j in range(n_in):
+            if need[j]:
+                B[start[j], j] = 1.0
+                for i in range(1, need[j]):
+                    A[start[j] + i, start[j] + i - 1] = 1.0
+        C = np.hstack([self.C, np.zeros((self.C.shape[0], n - N))])
+        return A, B, C, np.zeros((self.C.shape[0], n_in))
+
+
+def sampled_core(lti, ins: list[int], outs: list[int], dt: float, act_delay: np.ndarray,
+                 compute_delay: int = 0) -> SampledCore:
+    """The sampled plant of ``lti`` (a :mod:`gaintune.lti.mimo` form) from the driven inputs ``ins`` to
+    the measured outputs ``outs``, as the MIMO simulator steps it (:func:`gaintune.sim.mimo.plant_channels`).
+
+    Modes those channels cannot move are removed (:func:`~.mimo_stability.trim_hidden`, |z| >= 1 only);
+    ``hidden`` lists the marginal or unstable ones removed."""
+    from gaintune.sim.mimo import plant_channels
+
+    ch = plant_channels(lti, dt, act_delay)
+    pos = {j: k for k, j in enumerate(ins)}
+    keep = np.array([int(j) in pos for j in ch["ch_src"]], dtype=bool)
+    src = np.array([pos[int(j)] for j in ch["ch_src"][keep]], dtype=int)
+    G0, G1 = ch["G0u"][keep].T, ch["G1u"][keep].T
+    C = ch["Cm"][outs]
+    Ad, Bt, Ct, hidden = trim_hidden(ch["Ad"], np.hstack([G0, G1]), C, discrete=True)
+    k = G0.shape[1]
+    return SampledCore(Ad, Ct, Bt[:, :k], Bt[:, k:], src, ch["ch_du"][keep].astype(int) + int(compute_delay),
+                       float(dt), hidden)
+
+
+def euler_controller(Ak: np.ndarray, Bk: np.ndarray, Ck: np.ndarray, Dk: np.ndarray,
+                     dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The discrete controller ``K((1 - z^-1)/dt)`` of the continuous realisation (Ak, Bk, Ck, Dk):
+    with ``M = (I - dt Ak)^-1``, ``(M, M Bk, dt Ck M, Dk + dt Ck M Bk)``."""
+    if Ak.size == 0:
+        return Ak, Bk, Ck, Dk
+    M = np.linalg.inv(np.eye(Ak.shape[0]) - dt * Ak)
+    return M, M @ Bk, dt * Ck @ M, Dk + dt * Ck @ M @ Bk
+
+
+@dataclass
+class SampledLoop(MimoLoop):
+    """A :class:`~gaintune.verification.mimo_loop.MimoLoop` whose loop gains are the sampled loop's:
+    ``s`` maps to ``z = e^{s dt}``, the plant channels to :meth:`SampledCore.response`, the
+    controller to its discrete law (``s = (1 - z^-1)/dt``). Frequencies up to pi/dt only."""
+
+    core: SampledCore | None = None
+    dt: float = 0.0
+    delay_s: float = 0.0  # the longest channel delay (s), samples included: the phase spin of the margins
+
+    @classmethod
+    def of(cls, base: MimoLoop, core: SampledCore) -> SampledLoop:
+        """The sampled form of the continuous loop ``base`` (same controller, pairing and names)."""
+        loop = cls(base.plant, base.controller, base.names, base.loop_outs, base.loop_ins, base.outs, base.ins,
+                   core=core, dt=core.dt)
+        loop.delay_s = float(np.max(core.d, initial=0) + 1) * core.dt
+        return loop
+
+    def channels(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(Gs, Ks) of the sampled loop at z = e^{s dt}."""
+        assert self.core is not None
+        s = np.asarray(s, dtype=complex).ravel()
+        z = np.exp(s * self.dt)
+        with np.errstate(all="ignore"):
+            s_be = (1.0 - 1.0 / z) / self.dt
+        return self.core.response(z, self.n_in), response(self.controller, s_be, self.ins, self.outs)
+
+    def loop_gains(self, s: np.ndarray, side: str) -> np.ndarray:
+        """L at z = e^{s dt}: ``Ks Gs`` (side "input") or ``Gs Ks`` ("output")."""
+        Gs, Ks = self.channels(s)
+        with np.errstate(all="ignore"):
+            return Ks @ Gs if side == "input" else Gs @ Ks
+
+    def max_delay(self) -> float:
+        """The longest delay of the sampled channels (s), whole samples and the hold's sample included."""
+        return self.delay_s
+
+
+def sampled_stability_mimo(loop: SampledLoop, base: MimoLoop) -> MimoStability:
+    """Closed-loop stability of the sampled loop from the eigenvalues of its transition matrix: the
+    plant channels with their input buffers, and the controller of ``base`` (its continuous
+    realisation, modes it cannot show trimmed, mapped by :func:`euler_controller`)."""
+    assert loop.core is not None
+    notes: list[str] = []
+    plant = loop.core.realisation(loop.n_in)
+    Ak, Bk, Ck, Dk = base.realisations(0)[1]
+    Ak, Bk, Ck, _ = trim_hidden(Ak, Bk, Ck)
+    ctrl = euler_controller(Ak, Bk, Ck, Dk, loop.dt)
+    A = closed_loop_matrix(plant, ctrl)
+    with np.errstate(all="ignore"):
+        poles = np.linalg.eigvals(A) if A.size and np.all(np.isfinite(A)) else np.zeros(0, dtype=complex)
+    hid = loop.core.hidden
+    # a hidden chain on the unit circle comes out spread by rounding, as in the continuous count
+    bad, marginal = hid[np.abs(hid) > 1.0 + 1e-6], hid[np.abs(hid) <= 1.0 + 1e-6]
+    if bad.size:
+        notes.append(f"unstable sampled plant mode(s) {np.round(bad, 6).tolist()} not seen by the loop channels: "
+                     "feedback cannot stabilise them")
+    if marginal.size:
+        notes.append(f"marginal sampled plant mode(s) {np.round(marginal, 6).tolist()} not seen by the loop "
+                     "channels: left out of the verdict")
+    n_rhp = int(np.sum(np.abs(poles) >= _UNIT)) + int(bad.size)
+    rho = float(np.max(np.abs(poles))) if poles.size else 0.0
+    max_re = math.log(rho) / loop.dt if rho > 0 else -math.inf
+    poles = poles[np.argsort(-np.abs(poles), kind="stable")]
+    return MimoStability(n_rhp == 0, "poles", n_rhp, None, True, poles, 0, max_re, hid, notes)

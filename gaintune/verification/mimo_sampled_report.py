@@ -1,0 +1,121 @@
+"""The MIMO report of the exact sampled loop (:mod:`.mimo_sampled`) and its requirement lines.
+
+:func:`sampled_margins` is :func:`gaintune.verification.mimo_spec.spec_margins` for the loop the
+MIMO simulator and the exports run at the analysis dt (the largest scenario dt): the same spec
+loop (:func:`~gaintune.verification.mimo_spec.spec_loop`: controller, cascades, decoupler,
+pairing), the plant and the controller sampled exactly, the figures of :mod:`.mimo_margins` on
+``z = e^{j w dt}`` for ``0 < w <= pi/dt`` and stability from the discrete closed-loop eigenvalues.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from gaintune.controllers.layout import GainLayout
+from gaintune.errors import SpecError
+from gaintune.plants.mimo import as_mimo
+from gaintune.spec import TuningSpec
+from gaintune.verification.mimo import MimoLine, MimoMargins, judge
+from gaintune.verification.mimo_loop import MimoLoop, char_freqs
+from gaintune.verification.mimo_margins import MultiloopDisk, loop_at_a_time, multiloop_disk, sigma_peak
+from gaintune.verification.mimo_sampled import SampledLoop, sampled_core, sampled_stability_mimo
+from gaintune.verification.mimo_spec import SpecLoop, spec_loop, spec_requirements
+
+__all__ = ["sampled_grid", "sampled_loop", "sampled_report", "sampled_margins"]
+
+#: Log-grid points per decade (at least; 200/n for n loops), as the continuous analysis grid.
+_PER_DECADE = 40
+#: Most points of the uniform grid that follows the delays' phase spin.
+_SPIN_MAX = 20000
+
+
+def sampled_grid(base: MimoLoop, loop: SampledLoop) -> np.ndarray:
+    """Frequencies (rad/s) up to the Nyquist frequency pi/dt (included): a log grid from 1/100 of the
+    slowest characteristic frequency of the continuous loop (at most Nyquist/1e4), and a uniform grid
+    fine enough for the phase spin of the sampled delays; none on a pole of the unit circle."""
+    nyq = math.pi / loop.dt
+    lo = min(float(char_freqs(base).min()) / 100.0, nyq * 1e-4)
+    per_decade = max(_PER_DECADE, 200 // max(loop.n_in, loop.n_out))
+    w = np.logspace(math.log10(lo), math.log10(nyq), int(per_decade * math.log10(nyq / lo)) + 1)
+    T = 2.0 * loop.max_delay()
+    n = min(int(nyq * T / 0.5) + 2, _SPIN_MAX)
+    w = np.unique(np.concatenate([w, np.linspace(lo, nyq, n), [nyq]]))
+    assert loop.core is not None
+    ev = np.linalg.eigvals(loop.core.Ad) if loop.core.Ad.size else np.zeros(0, dtype=complex)
+    on = np.abs(np.angle(ev[np.abs(np.abs(ev) - 1.0) <= 1e-9])) / loop.dt
+    if on.size:  # the loop gain is infinite there
+        w = w[np.all(np.abs(w[:, None] - on[None, :]) > 1e-9 * np.maximum(on[None, :], 1e-300), axis=1)]
+    return w
+
+
+def sampled_loop(spec: TuningSpec, plant: Any, sl: SpecLoop) -> tuple[MimoLoop, SampledLoop]:
+    """(continuous loop without sampling delays, sampled loop) of the spec loop ``sl`` at ``sl.dt``."""
+    lti = as_mimo(plant).lti()
+    base = MimoLoop.build(lti, sl.controller, sl.pairing)
+    acts = spec.actuators or {}
+    act = np.array([float(getattr(acts.get(name), "delay", 0.0) or 0.0) for name in lti.inputs])
+    core = sampled_core(lti, base.ins, base.outs, sl.dt, act, spec.verify.compute_delay)
+    return base, SampledLoop.of(base, core)
+
+
+def sampled_report(base: MimoLoop, loop: SampledLoop, sigma: float = 0.0) -> MimoMargins:
+    """:func:`gaintune.verification.mimo.mimo_report` of the sampled loop: the same figures by the
+    same functions, on :func:`sampled_grid`, with the discrete closed-loop stability."""
+    stab = sampled_stability_mimo(loop, base)
+    grid = sampled_grid(base, loop)
+    Si, So = loop.sensitivities(1j * grid)
+    eye_i, eye_o = np.eye(loop.n_in), np.eye(loop.n_out)
+
+    def S_in(ww: np.ndarray) -> np.ndarray:
+        return loop.sensitivity(1j * np.minimum(ww, math.pi / loop.dt), "input")
+
+    def S_out(ww: np.ndarray) -> np.ndarray:
+        return loop.sensitivity(1j * np.minimum(ww, math.pi / loop.dt), "output")
+
+    with np.errstate(all="ignore"):
+        L = np.concatenate([1.0 / np.diagonal(Si, axis1=1, axis2=2).T - 1.0,
+                            1.0 / np.diagonal(So, axis1=1, axis2=2).T - 1.0])
+    breaks = loop_at_a_time(loop, grid, L)
+    notes = list(stab.notes)
+    g0 = np.concatenate([[0.0], grid])
+    Si0, So0 = np.concatenate([S_in(np.zeros(1)), Si]), np.concatenate([S_out(np.zeros(1)), So])
+    if stab.stable:
+        disks = [multiloop_disk(S_in, g0, Si0, sigma)]
+        disks.append(replace(disks[0]) if loop.diagonal_controller() else multiloop_disk(S_out, g0, So0, sigma))
+    else:
+        disks = [MultiloopDisk(0.0, 0.0, None, 1.0, 1.0, 0.0, 0.0, sigma) for _ in range(2)]
+        notes.append("the closed loop is unstable: multiloop disk margins are 0")
+    peaks = [sigma_peak(fn, g0, X) for fn, X in (
+        (S_in, Si0), (lambda ww: eye_i - S_in(ww), eye_i - Si0), (S_out, So0),
+        (lambda ww: eye_o - S_out(ww), eye_o - So0))]
+    P = loop.plant
+    return MimoMargins(loop.names, [P.inputs[j] for j in loop.loop_ins], [P.outputs[i] for i in loop.loop_outs],
+                       stab, breaks[: loop.n_in], breaks[loop.n_in:], peaks[0], peaks[1], peaks[2], peaks[3],
+                       disks[0], disks[1], (float(grid[0]), float(grid[-1])), int(grid.size), notes,
+                       [P.inputs[j] for j in loop.ins])
+
+
+def sampled_margins(spec: TuningSpec, plant: Any, layout: GainLayout,
+                    full: np.ndarray) -> tuple[SpecLoop, MimoMargins, list[MimoLine]]:
+    """The sampled loop's MIMO report and requirement lines of one gain set (as
+    :func:`~gaintune.verification.mimo_spec.spec_margins` gives the continuous ones).
+
+    Raises
+    ------
+    SpecError
+        For a requirement target that is not a loop, plant input, output or side.
+    """
+    sl = spec_loop(spec, plant, layout, full)
+    base, loop = sampled_loop(spec, plant, sl)
+    rep = sampled_report(base, loop)
+    if as_mimo(plant).nonlinear:  # the simulator steps the ODE itself by RK4, actuator delays in whole samples
+        rep.notes.append("nonlinear plant: the sampled loop uses its linearisation, ZOH-sampled with exact delays")
+    try:
+        lines = judge(rep, spec_requirements(spec))
+    except ValueError as exc:
+        raise SpecError("requirements.targets", str(exc)) from None
+    return sl, rep, lines

@@ -1,0 +1,142 @@
+"""The exact sampled-data MIMO verdict: the loop the MIMO simulator and the exports run at their dt."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gaintune.export.coefficients import discrete_pid_tf
+from gaintune.export.verdict import verdict_at_dt
+from gaintune.spec import load_spec
+from gaintune.verification import verify
+from gaintune.verification.mimo import mimo_report
+from gaintune.verification.mimo_loop import decentralised_pid, pid_entry
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from mimo_fixtures import blt_loops  # noqa: E402
+from mimo_fixtures import wood_berry as wb_plant  # noqa: E402
+from test_mimo_verdict import blt, wood_berry  # noqa: E402
+
+
+def _two_lags(dt: float, sampled: bool = True, delay: float = 0.0, a=(1.0, 2.0)) -> dict:
+    """Two decoupled first-order lags a_i/(s + a_i), each with a P loop; scenarios at ``dt``."""
+    ss = {"A": [[-a[0], 0.0], [0.0, -a[1]]], "B": [[a[0], 0.0], [0.0, a[1]]], "C": [[1.0, 0.0], [0.0, 1.0]],
+          "inputs": ["u1", "u2"], "outputs": ["y1", "y2"]}
+    if delay:
+        ss["input_delays"] = [delay, delay]
+    return {"plant": {"ss": ss},
+            "loops": [{"name": "a", "measure": "y1", "drives": "u1", "type": "p", "direction": "direct"},
+                      {"name": "b", "measure": "y2", "drives": "u2", "type": "p", "direction": "direct"}],
+            "scenarios": [{"dt": dt, "horizon": 10.0}],
+            "requirements": {"gm_min_db": 1.0},
+            "verify": {"sampled": sampled}}
+
+
+def test_decoupled_first_order_lags_with_p_control_have_the_hand_derived_discrete_poles() -> None:
+    """ZOH of a/(s + a) at dt: y[k+1] = e^{-a dt} y[k] + (1 - e^{-a dt}) u[k]; u = -K y gives the
+    closed-loop pole z = e^{-a dt} - K (1 - e^{-a dt}), one per loop."""
+    dt, K = 0.2, (1.5, 0.7)
+    rep = verify(load_spec(_two_lags(dt)), {"a": {"Kp": K[0]}, "b": {"Kp": K[1]}}, nonlinear=False)
+    assert rep.sampled and rep.dt == dt and rep.stability.domain == "z"
+    want = sorted(math.exp(-a * dt) - k * (1 - math.exp(-a * dt)) for a, k in zip((1.0, 2.0), K, strict=True))
+    got = sorted(p[0] for p in rep.stability.poles)
+    assert np.allclose(got, want, atol=1e-12) and all(abs(p[1]) < 1e-12 for p in rep.stability.poles)
+    assert rep.stability.spectral_radius == pytest.approx(max(abs(v) for v in want), abs=1e-12)
+
+
+def test_mimo_export_verdict_uses_the_exact_sampled_loop_not_a_half_sample_delay() -> None:
+    """1/(s + 1) with u = -5 y sampled at dt = 0.5: z = e^{-0.5} - 5 (1 - e^{-0.5}) = -1.36, unstable. The
+    continuous loop with dt/2 = 0.25 s of delay (the former MIMO verdict) is stable up to K ~ 6.9, so
+    an export at dt = 0.5 was stamped from a loop that is not the one the firmware runs."""
+    gains = {"a": {"Kp": 5.0}, "b": {"Kp": 0.5}}
+    spec = load_spec(_two_lags(0.01, a=(1.0, 1.0)))
+    verdict, rep = verdict_at_dt(spec, gains, 0.5)
+    assert verdict == "fail" and rep is not None
+    assert rep["sampled"] is True and rep["dt"] == 0.5 and rep["stability"]["stable"] is False
+    assert rep["reasons"][0] == "closed loop unstable (all loops closed)"
+    assert any("sampled at dt 0.5" in n for n in rep["notes"])
+    z = math.exp(-0.5) - 5.0 * (1 - math.exp(-0.5))
+    assert rep["stability"]["spectral_radius"] == pytest.approx(abs(z), rel=1e-9)
+    approx = verify(load_spec(_two_lags(0.5, sampled=False, a=(1.0, 1.0))), gains, nonlinear=False)
+    assert approx.stability.stable and not approx.sampled  # the half-sample approximation misses it
+    assert verdict_at_dt(spec, gains, 0.05)[0] == "pass"  # fast enough sampling: stable, GM > 1 dB
+
+
+def test_sampled_mimo_figures_converge_to_the_continuous_ones_as_dt_shrinks() -> None:
+    """Wood-Berry with BLT PI: the sampled Ms, disk margin and gain margins approach those of the
+    continuous loop (no sampling delay) as dt falls; at a coarse dt the dt/2 approximation is close to
+    the exact figures, but not equal."""
+    def figures(dt: float, sampled: bool) -> np.ndarray:
+        spec = wood_berry(mimo_ms_max=2.6, disk_margin_min=0.5)
+        d = spec.model_dump(mode="json")
+        d["verify"]["sampled"] = sampled
+        for sc in d["scenarios"]:
+            sc["dt"] = dt
+        rep = verify(load_spec(d), blt(), nonlinear=False)
+        assert rep.stability.stable and rep.sampled is sampled and rep.mimo is not None
+        return np.array([rep.mimo.ms, rep.mimo.disk_input.alpha] + [f.gm_db for f in rep.loops[:2]])
+
+    ref = mimo_report(wb_plant(), decentralised_pid(wb_plant(), blt_loops()), blt_loops())  # no sampling
+    cont = np.array([ref.ms, ref.disk_input.alpha] + [f.gm_db for f in ref.input_breaks])
+    err = [np.max(np.abs(figures(dt, True) / cont - 1)) for dt in (0.5, 0.1, 0.02)]
+    assert err[0] > err[1] > err[2] and err[2] < 1e-2 and err[0] > 10 * err[2], err  # first order in dt
+    half = figures(0.5, False)
+    assert np.max(np.abs(half / figures(0.5, True) - 1)) < 0.05
+
+
+def test_sampled_mimo_controller_is_the_exports_discrete_pid_law() -> None:
+    """The sampled loop's controller is the continuous law at s = (1 - z^-1)/dt; that is exactly the
+    export's discrete law (discrete_pid_tf), for every combination of terms."""
+    dt = 0.01
+    z = np.exp(1j * np.array([0.3, 5.0, 100.0, math.pi / dt]) * dt)
+    for kp, ki, kd, tf in ((2.0, 0.5, 0.3, 0.05), (1.5, 0.2, 0.0, 0.0), (1.0, 0.0, 0.4, 0.1), (3.0, 0.0, 0.0, 0.0)):
+        num, den = discrete_pid_tf({"Kp": kp, "Ki": ki, "Kd": kd, "Tf": tf, "b": 1.0, "c": 1.0}, dt)
+        want = np.polyval(num, z) / np.polyval(den, z)
+        assert np.allclose(pid_entry(kp, ki, kd, tf).response((1 - 1 / z) / dt), want)
+
+
+def test_sampled_mimo_loop_with_a_fractional_delay_matches_the_modified_z_transform() -> None:
+    """A 0.25-sample input delay (tau = 0.05, dt = 0.2) on a/(s + a): the sampled plant is
+    (b0 z + b1) / (z (z - e^{-a dt})) with b0 = 1 - e^{-a (dt - tau)}, b1 = e^{-a (dt - tau)} - e^{-a dt};
+    with u = -K y the closed-loop poles are the roots of z^2 + (K b0 - p) z + K b1."""
+    dt, tau, K = 0.2, 0.05, 2.0
+    rep = verify(load_spec(_two_lags(dt, delay=tau, a=(1.0, 1.0))), {"a": {"Kp": K}, "b": {"Kp": K}}, nonlinear=False)
+    p = math.exp(-dt)
+    b0, b1 = 1 - math.exp(-(dt - tau)), math.exp(-(dt - tau)) - p
+    want = np.roots([1.0, K * b0 - p, K * b1])
+    got = np.array([complex(*q) for q in rep.stability.poles])
+    for w in want:  # each loop contributes the same pair
+        assert np.sum(np.abs(got - w) < 1e-9) == 2
+
+
+@pytest.mark.parametrize(("a3", "stable"), [(0.0, True), (0.5, False)])
+def test_sampled_mimo_plant_mode_no_loop_reaches_is_left_out_or_fails_the_loop(a3: float, stable: bool) -> None:
+    """A third state driven by an input no loop drives and measured by no loop: at s = 0 (z = 1) it is left out
+    of the verdict with a note, as in the continuous count; unstable (z = e^{0.5 dt}) it fails the loop."""
+    d = _two_lags(0.1)
+    d["plant"]["ss"].update(A=[[-1.0, 0, 0], [0, -2.0, 0], [0, 0, a3]], B=[[1.0, 0, 0], [0, 2.0, 0], [0, 0, 1.0]],
+                            C=[[1.0, 0, 0], [0, 1.0, 0]], inputs=["u1", "u2", "u3"])
+    rep = verify(load_spec(d), {"a": {"Kp": 1.0}, "b": {"Kp": 1.0}}, nonlinear=False)
+    assert rep.sampled and rep.stability.stable is stable
+    word = "marginal" if stable else "unstable"
+    assert any(n.startswith(f"{word} sampled plant mode(s)") for n in rep.stability.notes), rep.stability.notes
+
+
+def test_stored_mimo_verdict_of_the_continuous_loop_does_not_vouch_for_the_sampled_loop() -> None:
+    """A MIMO verdict stored from the continuous loop plus dt/2 (every MIMO verdict before the exact sampled
+    loop; same spec, same hash) was returned as it was by the export at its own dt: these gains (Kp = 5
+    on 1/(s + 1) at dt = 0.5) were stamped 'pass' though the sampled loop is unstable."""
+    gains = {"a": {"Kp": 5.0}, "b": {"Kp": 0.5}}
+    loose = {"gm_min_db": 1.0, "ms_max": 10.0, "pm_min_deg": 10.0}
+    spec = load_spec({**_two_lags(0.5, a=(1.0, 1.0)), "requirements": loose})
+    old = verify(load_spec({**_two_lags(0.5, sampled=False, a=(1.0, 1.0)), "requirements": loose}), gains,
+                 nonlinear=False)
+    assert old.verdict == "pass" and not old.sampled
+    stored = old.model_copy(update={"spec_hash": spec.content_hash()})
+    verdict, rep = verdict_at_dt(spec, gains, 0.5, stored=stored)
+    assert verdict == "fail" and rep is not None and rep["sampled"] is True
+    assert verdict_at_dt(spec, gains, 0.5, stored=verify(spec, gains, nonlinear=False))[0] == "fail"
