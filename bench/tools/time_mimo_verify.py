@@ -1,7 +1,7 @@
 """Time the MIMO verdict (``gaintune.verify``, nonlinear check off) on built-in models, sampled loop
 (the default) against the continuous loop plus dt/2 (``verify.sampled: false``).
 
-Run from the repository root: ``python tools/time_mimo_verify.py [wood_berry quadrotor robot_arm6]``.
+Run from the repository root: ``python bench/tools/time_mimo_verify.py [wood_berry quadrotor robot_arm6]``.
 Gains: BLT PI on Wood-Berry, the hand gains of ``tests/plants/test_big_models.py`` on the others. Each
 figure is the second call (imports and caches warm), process CPU time beside wall time.
 """
@@ -12,7 +12,7 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path[:0] = [str(ROOT / "tests" / "plants"), str(ROOT / "tests" / "verification")]
 
 from test_big_models import _arm_gains, _quad_gains  # noqa: E402

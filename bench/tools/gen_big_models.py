@@ -1,7 +1,7 @@
 """Write models/robot_arm6_lin.yaml and models/process_train.yaml (large built-in architectures).
 
 Both are written out by this script rather than by hand: their matrices are long and regular.
-Run from the repository root: ``python tools/gen_big_models.py``. The YAML keeps every physical
+Run from the repository root: ``python bench/tools/gen_big_models.py``. The YAML keeps every physical
 figure as a named parameter; the matrices are expressions in those parameters.
 """
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 J = 6
 
 
