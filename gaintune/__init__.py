@@ -65,9 +65,7 @@ __version__ = "0.1.0"
 _EXPORTS = {
     "load_spec": "gaintune.spec",
     "TuningSpec": "gaintune.spec",
-    # the module that defines the function: once anything imported gaintune.search.tune, the package
-    # attribute gaintune.search.tune is that module, so the package cannot be asked
-    "tune": "gaintune.search.tune",
+    "tune": "gaintune.search.tuning",
     "TuneResult": "gaintune.search.result",
     "verify": "gaintune.verification",
     "VerificationReport": "gaintune.verification.report",
@@ -80,7 +78,7 @@ __all__ = ["__version__", "load_spec", "TuningSpec", "tune", "TuneResult", "veri
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from gaintune.provenance import versions
     from gaintune.search.result import TuneResult
-    from gaintune.search.tune import tune
+    from gaintune.search.tuning import tune
     from gaintune.spec import TuningSpec, load_spec
     from gaintune.verification import verify
     from gaintune.verification.report import VerificationReport

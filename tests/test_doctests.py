@@ -14,7 +14,7 @@ import gaintune
 MODULES = (
     "gaintune",
     "gaintune.spec",
-    "gaintune.search.tune",
+    "gaintune.search.tuning",
     "gaintune.search.result",
     "gaintune.verification",
     "gaintune.verification.report",

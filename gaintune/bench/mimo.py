@@ -110,7 +110,7 @@ def tuned_row(spec: Any, method: str, budget: int, seed: int) -> dict[str, Any]:
         assert res.gains is not None, res
         gains: dict = res.gains
     else:
-        from gaintune.search.tune import tune
+        from gaintune.search.tuning import tune
 
         s = spec.model_copy(update={"search": spec.search.model_copy(update={"budget": budget, "seed": seed})})
         gains = tune(s, verify=False).gains

@@ -173,7 +173,7 @@ def measure_warm_start(tau: float = 0.3, budget: int = 3000, seed: int = 0) -> d
     """
     from gaintune.baselines.migo_reference import migo_reference
     from gaintune.evaluation.evaluator import Evaluator
-    from gaintune.search.tune import tune
+    from gaintune.search.tuning import tune
     from gaintune.tuners.families import FAMILIES, problem_spec
     from gaintune.tuners.problems import SpecProblem
 

@@ -43,9 +43,7 @@ def demo_spec(budget: int | None = None, seed: int | None = None):
 def _get_tune() -> Callable:
     """:func:`gaintune.search.tune`, or exit 1 when the search stack (torch, stable-baselines3) is missing."""
     try:
-        # from the module itself: once anything imported the submodule gaintune.search.tune (as
-        # gaintune.__getattr__ does), the package attribute gaintune.search.tune is that module
-        from gaintune.search.tune import tune
+        from gaintune.search.tuning import tune
     except ImportError as exc:
         err.print(f"error: the RL search (gaintune.search.tune) is not available: {exc}", markup=False)
         raise typer.Exit(1) from None

@@ -13,16 +13,16 @@ __all__ = ["tune", "policy_gains", "TuneResult", "Progress", "CurvePoint"]
 
 if TYPE_CHECKING:  # pragma: no cover
     from gaintune.search.result import CurvePoint, Progress, TuneResult
-    from gaintune.search.tune import policy_gains, tune
+    from gaintune.search.tuning import policy_gains, tune
 
 
 def __getattr__(name: str) -> Any:
     import importlib
 
     if name in ("tune", "policy_gains"):
-        module = importlib.import_module("gaintune.search.tune")  # deferred on purpose: torch + SB3
-        # importing the submodule bound the name "tune" to it; bind both names to the functions,
-        # as an eager ``from gaintune.search.tune import policy_gains, tune`` would
+        # deferred on purpose: torch + SB3. The module is gaintune.search.tuning, not .tune: a submodule
+        # named tune would become the package's attribute "tune" once imported, hiding the function
+        module = importlib.import_module("gaintune.search.tuning")
         globals().update(tune=module.tune, policy_gains=module.policy_gains)
         return globals()[name]
     if name in ("TuneResult", "Progress", "CurvePoint"):

@@ -1,6 +1,6 @@
 """How a tune splits ``search.budget``: set-up, RL, final checks and the refinement reserve.
 
-One place for the arithmetic, so that the search (:mod:`gaintune.search.tune`) and what the
+One place for the arithmetic, so that the search (:mod:`gaintune.search.tuning`) and what the
 result says about it (:mod:`gaintune.search.diagnosis`) cannot drift apart.
 """
 

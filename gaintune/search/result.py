@@ -112,7 +112,7 @@ class TuneResult(BaseModel):
 
     Examples
     --------
-    Unverified gains are not accepted; :func:`gaintune.search.tune.tune` returns verified ones.
+    Unverified gains are not accepted; :func:`gaintune.search.tuning.tune` returns verified ones.
 
     >>> r = TuneResult(spec={}, algo="manual", gains={"loop0": {"Kp": 1.0}}, cost=1.0,
     ...                provenance=Provenance(spec_hash="-", seed=0, versions={}))

@@ -79,7 +79,7 @@ def _tuner(ref: str) -> Any:
 
 
 def _run_tune(doc: dict[str, Any]) -> dict[str, Any]:
-    from gaintune.search.tune import tune
+    from gaintune.search.tuning import tune
     from gaintune.spec import TuningSpec
 
     spec = TuningSpec.model_validate(doc)

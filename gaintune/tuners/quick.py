@@ -16,7 +16,7 @@ The pidtune-style path, for the common case:
    (:func:`gaintune.verification.verify`). The rules are candidates so that the answer never
    loses to a rule moved onto the boundary; :attr:`QuickResult.source` says which one won.
 4. **Compare.** AMIGO and SIMC as the rules give them (cost and verdict on the true plant) and,
-   with ``compare_search=N``, the RL search at N simulations (:func:`gaintune.search.tune.tune`).
+   with ``compare_search=N``, the RL search at N simulations (:func:`gaintune.search.tuning.tune`).
    The answer's time (``result.wall_time``) ends before this step; ``timing["compare_s"]`` is its time.
 
 The answer is a :class:`~gaintune.search.result.TuneResult` (``algo`` ``"quick"``), so
@@ -232,7 +232,7 @@ def _settle(ev: Evaluator, cands: dict[str, np.ndarray], refine: int, seed: int)
 
 def _compare_search(spec: TuningSpec, budget: int) -> dict[str, Any]:
     """The RL search at ``budget`` simulations, as a comparison row (its cost and verdict)."""
-    from gaintune.search.tune import tune
+    from gaintune.search.tuning import tune
 
     s = spec.search.model_copy(update={"budget": int(budget)})
     res = tune(spec.model_copy(update={"search": s}), verify=True)

@@ -33,7 +33,7 @@ def test_cma_from_load_cma_minimises_a_quadratic_like_cmaes(fresh_python) -> Non
 
 def test_the_tune_path_loads_no_scipy_stats(fresh_python) -> None:
     """The polish's optimiser comes with gaintune.search.tune, without scipy.stats (~0.3 s)."""
-    code = "import sys, json\nimport gaintune.search.tune\nprint(json.dumps(dict(stats='scipy.stats' in sys.modules)))"
+    code = "import sys, json\nimport gaintune.search.tuning\nprint(json.dumps(dict(stats='scipy.stats' in sys.modules)))"
     assert fresh_python(code) == {"stats": False}
 
 

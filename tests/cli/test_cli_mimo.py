@@ -37,8 +37,7 @@ def test_tune_wood_berry_end_to_end(tmp_path: Path) -> None:
     spec_path = tmp_path / "wb.yaml"
     spec_path.write_text(yaml.safe_dump(load_model("wood_berry").example_spec(), sort_keys=False))
     out = tmp_path / "out"
-    # a process of its own: the real search imports gaintune.search.tune, which would rebind the package's
-    # ``tune`` to the submodule for every later test of this session
+    # a process of its own: the CLI as a user runs it
     res = subprocess.run([sys.executable, "-m", "gaintune", "tune", str(spec_path), "--budget", "1500", "--seed", "0",
                           "--json", "-o", str(out)], capture_output=True, text=True, timeout=1200)
     assert res.returncode == 0, res.stderr
@@ -70,7 +69,7 @@ def test_bad_mimo_spec_exits_2_naming_the_field(tmp_path: Path) -> None:
     data = load_model("wood_berry").example_spec()
     data["loops"][0]["drives"] = "Q"  # the model's inputs are known once it is built: refused by the tune itself
     p.write_text(yaml.safe_dump(data))
-    # its own process, as the end-to-end tune (that path imports gaintune.search.tune)
+    # its own process, as the end-to-end tune
     res = subprocess.run([sys.executable, "-m", "gaintune", "tune", str(p), "--budget", "100"], capture_output=True,
                          text=True, timeout=600)
     assert res.returncode == 2, res.stderr

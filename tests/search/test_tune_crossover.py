@@ -8,7 +8,7 @@ import pytest
 
 from gaintune.controllers.layout import GainLayout
 from gaintune.plants.plant import build_plant
-from gaintune.search.tune import tune
+from gaintune.search.tuning import tune
 from gaintune.spec import load_spec
 from gaintune.verification import quick_margins, verify
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from gaintune.search.tune import tune
+from gaintune.search.tuning import tune
 from gaintune.spec import load_spec
 
 

@@ -7,7 +7,7 @@ import inspect
 
 import pytest
 
-from gaintune.search.tune import TuneOptions, tune
+from gaintune.search.tuning import TuneOptions, tune
 
 
 def test_tune_keywords_are_the_options_fields_with_the_same_defaults():
