@@ -7,7 +7,8 @@ A spec needs it when its plant has several inputs or its loops say what they dri
 * the plant's :mod:`gaintune.lti.mimo` form, with ``dt/2`` (sample-and-hold, largest scenario dt),
   ``verify.compute_delay`` samples and the actuator's own delay added to every driven input;
 * the controller matrix ``K`` (m x p) of the loop graph: a loop's PID law from its measured output to
-  its input, a cascade's product of laws along the chain, the decoupler ``W`` in front;
+  its input, a cascade's product of laws along the chain, the decoupler ``W`` in front (the gain set's own
+  when its entries are tuned; a reference feedforward is outside the loop and changes no figure here);
 * the pairing: per loop its measured output and the plant input its chain ends at.
 
 :func:`spec_requirements` maps the spec's limits to :data:`gaintune.verification.mimo.REQUIREMENTS`
@@ -29,6 +30,7 @@ from gaintune.errors import SpecError
 from gaintune.lti.mimo import DelayedSS, MimoLti, TfEntry, TfMatrix
 from gaintune.plants.mimo import as_mimo
 from gaintune.sim.mimo import architecture
+from gaintune.sim.mimo_blocks import with_candidate_W
 from gaintune.spec import TuningSpec
 from gaintune.verification.analysis import analysis_dt
 from gaintune.verification.margins import BreakFigures
@@ -126,7 +128,7 @@ def _chain_input(arch, k: int, parent_of: dict[int, list[int]]) -> int:
 def spec_loop(spec: TuningSpec, plant: Any, layout: GainLayout, full: np.ndarray) -> SpecLoop:
     """The MIMO loop ``spec`` describes with the gains ``full`` (one vector, layout order)."""
     mp = as_mimo(plant)
-    arch = architecture(spec, mp)
+    arch = with_candidate_W(spec, layout, architecture(spec, mp), mp.input_names, full)  # tuned decoupler entries
     lti = mp.lti()
     dt = analysis_dt(spec)
     extra = 0.5 * dt + spec.verify.compute_delay * dt
