@@ -207,3 +207,15 @@ def test_verification_controller_includes_the_tuned_decoupler() -> None:
     C[:, 0, 0] = GAINS["a"]["Kp"] + GAINS["a"]["Ki"] / s
     C[:, 1, 1] = GAINS["b"]["Kp"] + GAINS["b"]["Ki"] / s
     np.testing.assert_allclose(K.freqresp(w), W[None] @ C, rtol=1e-12)
+
+
+def test_search_box_from_loop_rules_keeps_the_tuned_feedforward_entries() -> None:
+    """The loop-by-loop rules tune the loops only: their candidates carry the tuned feedforward gain at its
+    spec value instead of failing as a gain set that misses it."""
+    from gaintune.evaluation.search_box import search_box
+
+    ff = {"loop": "a", "input": "u2", "gain": {"value": 0.2, "bounds": [0.01, 1]}}
+    spec = load_spec(two_by_two(feedforward=[ff]))
+    box = search_box(spec, build_plant(spec.plant))
+    assert box.source is not None and box.centre is not None and box.centre["feedforward"] == {"ff_a_u2": 0.2}
+    assert [(s.loop_name, s.name) for s in box.layout.tuned_slots][-1] == ("feedforward", "ff_a_u2")
