@@ -113,5 +113,7 @@ def with_candidate_W(spec: TuningSpec, layout: GainLayout, arch, inputs: list[st
     (``arch`` itself when no decoupler entry is tuned)."""
     from dataclasses import replace
 
+    if spec.decoupler is None:
+        return arch
     bm = BlockMatrices(spec, layout, arch.W, arch.drives, arch.order, inputs)
     return replace(arch, W=bm.one(full)[0]) if bm.w_tuned else arch

@@ -90,6 +90,7 @@ def _poly_sum(terms: list[TfEntry]) -> TfEntry:
 def _controller(spec: TuningSpec, layout: GainLayout, full: np.ndarray, lti: MimoLti, arch) -> TfMatrix:
     """K (m x p): u = W v, v_k = C_k (v_parent - y_meas(k)); entry (j, i) sums the products of the laws
     along each chain from a loop measuring output i down to a loop feeding input j."""
+    arch = with_candidate_W(spec, layout, arch, list(lti.inputs), full)  # W with this gain set's tuned entries
     cols: dict[int, dict[str, float]] = {}
     for k, slot in enumerate(layout.slots):
         cols.setdefault(slot.loop, {})[slot.name] = float(full[k])
@@ -128,7 +129,7 @@ def _chain_input(arch, k: int, parent_of: dict[int, list[int]]) -> int:
 def spec_loop(spec: TuningSpec, plant: Any, layout: GainLayout, full: np.ndarray) -> SpecLoop:
     """The MIMO loop ``spec`` describes with the gains ``full`` (one vector, layout order)."""
     mp = as_mimo(plant)
-    arch = with_candidate_W(spec, layout, architecture(spec, mp), mp.input_names, full)  # tuned decoupler entries
+    arch = architecture(spec, mp)
     lti = mp.lti()
     dt = analysis_dt(spec)
     extra = 0.5 * dt + spec.verify.compute_delay * dt
