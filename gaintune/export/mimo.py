@@ -104,8 +104,17 @@ def mimo_architecture(spec: TuningSpec, gains: Gains) -> dict[str, Any]:
     inputs = [{"name": s.name, "unit": s.unit, **acts[j], "driven_by": drivers.get(j)}
               for j, s in enumerate(mimo.inputs)]
     outputs = [{"name": s.name, "unit": s.unit} for s in mimo.output_signals]
+    blocks = {k: v for k, v in named.items() if k not in spec.loop_names}
+    return {"loops": loops, "order": list(arch.order), "chains": chains, "inputs": inputs, "outputs": outputs,
+            "W": W, **_static_blocks(spec, arch, Wm, Fm, chains, in_names), "blocks": blocks}
+
+
+def _static_blocks(spec: TuningSpec, arch: Any, Wm: np.ndarray, Fm: np.ndarray, chains: list[str],
+                   in_names: list[str]) -> dict[str, Any]:
+    """``decoupler`` (its inputs and matrix as applied: tuned entries at the exported gains, or None),
+    ``feedforward`` (per item) and ``FF`` (inputs x chains, None without feedforward)."""
     dec = None
-    if spec.decoupler is not None:  # the matrix as applied: tuned entries at these gains
+    if spec.decoupler is not None:
         rows = [in_names.index(n) for n in spec.decoupler.inputs]
         cols = [int(np.flatnonzero(arch.drives == j)[0]) if np.any(arch.drives == j) else -1 for j in rows]
         dec = {"inputs": list(spec.decoupler.inputs),
@@ -115,10 +124,8 @@ def mimo_architecture(spec: TuningSpec, gains: Gains) -> dict[str, Any]:
     ff = [{"loop": f.loop, "input": f.input, "input_index": in_names.index(f.input),
            "chain": chains.index(f.loop), "gain": float(Fm[in_names.index(f.input), roots[chains.index(f.loop)]])}
           for f in spec.feedforward or []]
-    FF = [[float(Fm[j, p]) for p in roots] for j in range(m)] if ff else None
-    blocks = {k: v for k, v in named.items() if k not in spec.loop_names}
-    return {"loops": loops, "order": list(arch.order), "chains": chains, "inputs": inputs, "outputs": outputs,
-            "W": W, "decoupler": dec, "FF": FF, "feedforward": ff, "blocks": blocks}
+    FF = [[float(Fm[j, p]) for p in roots] for j in range(len(in_names))] if ff else None
+    return {"decoupler": dec, "FF": FF, "feedforward": ff}
 
 
 def _clean(x: Any) -> Any:
