@@ -13,6 +13,11 @@ holds positive *magnitudes* (log scale, bounds are magnitudes); :meth:`GainLayou
 a reverse-acting PID loop has ``Kp``, ``Ki``, ``Kd`` < 0 (ideal form: ``Kp`` < 0,
 ``Ti``, ``Td`` > 0). Direct state-feedback entries (``k_<state>``, ``k_int``) keep
 whatever sign they are given.
+
+Tuned entries of the static blocks (:mod:`gaintune.spec.blocks`) follow the loops' gains, under the
+pseudo-loops ``decoupler`` (``d_<input>_<input>``, row then column) and ``feedforward``
+(``ff_<loop>_<input>``); each keeps the sign of its bounds. A spec without tuned entries has
+exactly the loops' slots.
 """
 
 from __future__ import annotations
@@ -27,10 +32,18 @@ from gaintune.controllers.direction import LoopDirection, loop_directions, resol
 from gaintune.controllers.forms import to_form
 from gaintune.errors import GainError, SpecError
 from gaintune.spec import GAIN_NAMES, Gains, LoopSpec, TuningSpec
+from gaintune.spec.blocks import (
+    DECOUPLER,
+    FEEDFORWARD,
+    BlockGainSpec,
+    decoupler_gain_name,
+    feedforward_gain_name,
+    is_tuned,
+)
 
 __all__ = [
     "GainSlot", "GainLayout", "loop_gain_names", "DEFAULT_BOUNDS", "loop_directions",
-    "gain_sign", "SIGNED_GAINS",
+    "gain_sign", "SIGNED_GAINS", "block_slots",
 ]
 
 #: PID gains that carry the loop's direction (negative for a reverse-acting loop); Ti, Td stay positive.
@@ -98,6 +111,43 @@ class GainSlot:
     value: float | None  # signed (as in the spec)
     bounds: tuple[float, float]  # of the magnitude
     sign: int = 1  # +1 / -1: the value's required sign (the search holds |value|); 0: any sign, searched as is
+    field: str = ""  # where the spec sets it, for a block entry (a loop gain: loops[loop].gains.name)
+
+    @property
+    def spec_field(self) -> str:
+        """The spec field that sets this gain (``loops[0].gains.Kp``, ``decoupler.matrix[0][1]``)."""
+        return self.field or f"loops[{self.loop}].gains.{self.name}"
+
+
+def _block_slot(loop: int, block: str, name: str, e: BlockGainSpec, field: str) -> GainSlot:
+    assert e.bounds is not None  # a tuned entry has bounds (gaintune.spec.blocks)
+    lo, hi = e.bounds
+    mags = (min(abs(lo), abs(hi)), max(abs(lo), abs(hi)))
+    return GainSlot(loop, block, name, True, e.value, mags, 1 if lo > 0 else -1, field)
+
+
+def block_slots(spec: TuningSpec) -> list[GainSlot]:
+    """Slots of the tuned block entries: the decoupler's row by row, then the feedforward gains in spec order.
+
+    Their ``loop`` index is past the loops' (``len(spec.loops)`` for the decoupler, one more for the
+    feedforward), so nothing indexes ``spec.loops`` with it by mistake.
+    """
+    out: list[GainSlot] = []
+    n = len(spec.loops)
+    dec = spec.decoupler
+    if dec is not None:
+        for a, row in enumerate(dec.matrix):
+            for b, e in enumerate(row):
+                if is_tuned(e):
+                    assert isinstance(e, BlockGainSpec)
+                    out.append(_block_slot(n, DECOUPLER, decoupler_gain_name(dec.inputs[a], dec.inputs[b]), e,
+                                           f"decoupler.matrix[{a}][{b}]"))
+    for k, ff in enumerate(spec.feedforward or []):
+        if is_tuned(ff.gain):
+            assert isinstance(ff.gain, BlockGainSpec)
+            out.append(_block_slot(n + 1, FEEDFORWARD, feedforward_gain_name(ff.loop, ff.input), ff.gain,
+                                   f"feedforward[{k}].gain"))
+    return out
 
 
 class GainLayout:
@@ -174,6 +224,7 @@ class GainLayout:
                         f"loops[{i}].gains.{name}.value", f"{what} {mag} lies outside bounds {list(bounds)}"
                     )
                 slots.append(GainSlot(i, loop.name or f"loop{i}", name, tuned, value, (bounds[0], bounds[1]), sign))
+        slots.extend(block_slots(spec))  # tuned static-block entries after every loop's gains
         self.slots = slots
         #: (follower, leader) slot pairs of spec.ties: a follower takes its leader's value (one tuned gain)
         self.ties: list[tuple[int, int]] = self._tie(spec)
@@ -197,7 +248,7 @@ class GainLayout:
             for ref in tie[1:]:
                 k = index[ref]
                 s, ld = self.slots[k], self.slots[lead]
-                self.slots[k] = GainSlot(s.loop, s.loop_name, s.name, False, None, ld.bounds, s.sign)
+                self.slots[k] = GainSlot(s.loop, s.loop_name, s.name, False, None, ld.bounds, s.sign, s.field)
                 pairs.append((k, lead))
         return pairs
 
@@ -210,6 +261,11 @@ class GainLayout:
 
     # ------------------------------------------------------------ directions
     def _sign_message(self, loop: int, name: str, value: float) -> str:
+        if loop >= len(self.direction_info):  # a block entry: the sign of its bounds
+            slot = next(s for s in self.slots if s.loop == loop and s.name == name)
+            want = "> 0" if slot.sign > 0 else "< 0"
+            return (f"must be {want}, got {value:g}: the bounds of {slot.spec_field} are "
+                    f"{'positive' if slot.sign > 0 else 'negative'}; give a value of that sign or change the bounds")
         d = self.direction_info[loop]
         want = "negative" if d.sign < 0 and name in SIGNED_GAINS else "positive"
         if name not in SIGNED_GAINS:

@@ -152,8 +152,11 @@ def _search_box(spec: TuningSpec, plant: Plant) -> SearchBox:
         return [(float(s.merit[i]), n, named[n], bool(s.feasible[i]), float(s.violation[i]), float(s.cost[i]))
                 for i, n in enumerate(names)]
 
-    if rules:
-        named = {(m if a == 1.0 else f"{m} x {a:.3g}"): _scale(g, a, spec) for m, g in rules.items() for a in SCALES}
+    if rules:  # the rules tune the loops; tuned static-block entries (a feedforward) start at their spec values
+        start = plain.to_dict(plain.full(plain.initial_tuned()))
+        blocks = {k: v for k, v in start.items() if k not in spec.loop_names}
+        named = {(m if a == 1.0 else f"{m} x {a:.3g}"): {**_scale(g, a, spec), **blocks}
+                 for m, g in rules.items() for a in SCALES}
         scored = score(named, project=False)
     else:
         seed = spec.search.seed

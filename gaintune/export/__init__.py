@@ -127,7 +127,8 @@ def to_python(spec: TuningSpec, gains: Gains, st: _Stamp, dt: float) -> str:
 
 def _wiring(p: dict[str, Any]) -> dict[str, Any]:
     """The wiring of a MIMO payload (the loops themselves are LOOPS)."""
-    return {k: p[k] for k in ("evaluation_order", "chains", "inputs", "outputs", "W", "decoupler")}
+    keys = ("evaluation_order", "chains", "inputs", "outputs", "W", "decoupler", "FF", "feedforward", "blocks")
+    return {k: p[k] for k in keys if k in p}
 
 
 def _pyrepr(x: Any) -> str:

@@ -4,8 +4,9 @@ A spec with several plant inputs or a loop graph (:func:`gaintune.sim.mimo.needs
 :class:`gaintune.sim.mimo.MimoSimulator`; :func:`mimo_architecture` resolves it the same way
 (:func:`gaintune.sim.mimo.architecture`): every loop's parallel-form law, in *evaluation order*
 (a loop whose output is another loop's setpoint comes before it), what it measures and drives,
-the chains (one reference each, by outer loop), the actuators and the matrix ``W`` that maps the
-loops' outputs onto the plant inputs (identity, or the decoupler). The C header
+the chains (one reference each, by outer loop), the actuators, the matrix ``W`` that maps the
+loops' outputs onto the plant inputs (identity, or the decoupler, tuned entries at the exported
+gains) and the reference feedforward ``FF`` (plant inputs x chains: ``u = W v + FF r``). The C header
 (:mod:`gaintune.export.mimo_c`), the MATLAB file (:mod:`gaintune.export.mimo_matlab`) and the
 JSON/YAML/Python payload (:func:`mimo_payload`) are rendered from it.
 """
@@ -14,6 +15,8 @@ from __future__ import annotations
 
 import math
 from typing import Any
+
+import numpy as np
 
 from gaintune.export.common import Gains, _version, is_mimo
 from gaintune.export.verdict import _Stamp, stamp_fields
@@ -55,18 +58,23 @@ def mimo_architecture(spec: TuningSpec, gains: Gains) -> dict[str, Any]:
         ``chain`` positions, limits ``lo``/``hi``, ``direct`` input index or -1), ``order`` (spec
         loop indices in evaluation order), ``chains`` (outer loop names; reference ``r[c]`` feeds
         chain c), ``inputs`` and ``outputs`` (names, units; inputs with their actuator and the loop
-        driving them), ``W`` (inputs x loops), ``decoupler`` (the spec's, or None).
+        driving them), ``W`` (inputs x loops), ``decoupler`` (its inputs and matrix as numbers, or
+        None), ``FF`` (inputs x chains, or None without feedforward), ``feedforward`` (per item its
+        loop, chain index, input, input index and gain) and ``blocks`` (the tuned block entries,
+        ``{decoupler: {...}, feedforward: {...}}`` as in a gain set).
     """
     from gaintune.controllers.layout import GainLayout
     from gaintune.plants import build_plant
     from gaintune.plants.mimo import as_mimo
     from gaintune.sim.mimo import architecture
+    from gaintune.sim.mimo_blocks import BlockMatrices
 
     plant = build_plant(spec.plant)
     mimo = as_mimo(plant)
     arch = architecture(spec, mimo)
     layout = GainLayout(spec, plant.states, plant=plant)
-    named = layout.to_dict(layout.from_dict(gains))
+    full = layout.from_dict(gains)
+    named = layout.to_dict(full)
     in_names, outs = mimo.input_names, mimo.outputs
     m = len(in_names)
     acts = [_actuator(spec, n, m) for n in in_names]
@@ -90,14 +98,34 @@ def mimo_architecture(spec: TuningSpec, gains: Gains) -> dict[str, Any]:
         }
         d.update(_pid_law(lp, d["gains"]))
         loops.append(d)
-    W = [[float(x) for x in row] for row in arch.W]
+    Wm, Fm = BlockMatrices(spec, layout, arch.W, arch.drives, arch.order, in_names).one(full)
+    W = [[float(x) for x in row] for row in Wm]
     drivers = {ld["drive_index"]: ld["name"] for ld in loops if ld["drive_index"] >= 0}
     inputs = [{"name": s.name, "unit": s.unit, **acts[j], "driven_by": drivers.get(j)}
               for j, s in enumerate(mimo.inputs)]
     outputs = [{"name": s.name, "unit": s.unit} for s in mimo.output_signals]
-    dec = spec.decoupler.model_dump() if spec.decoupler is not None else None
+    blocks = {k: v for k, v in named.items() if k not in spec.loop_names}
     return {"loops": loops, "order": list(arch.order), "chains": chains, "inputs": inputs, "outputs": outputs,
-            "W": W, "decoupler": dec}
+            "W": W, **_static_blocks(spec, arch, Wm, Fm, chains, in_names), "blocks": blocks}
+
+
+def _static_blocks(spec: TuningSpec, arch: Any, Wm: np.ndarray, Fm: np.ndarray, chains: list[str],
+                   in_names: list[str]) -> dict[str, Any]:
+    """``decoupler`` (its inputs and matrix as applied: tuned entries at the exported gains, or None),
+    ``feedforward`` (per item) and ``FF`` (inputs x chains, None without feedforward)."""
+    dec = None
+    if spec.decoupler is not None:
+        rows = [in_names.index(n) for n in spec.decoupler.inputs]
+        cols = [int(np.flatnonzero(arch.drives == j)[0]) if np.any(arch.drives == j) else -1 for j in rows]
+        dec = {"inputs": list(spec.decoupler.inputs),
+               "matrix": [[float(Wm[ja, c]) if c >= 0 else float(e) for c, e in zip(cols, row, strict=True)]
+                          for ja, row in zip(rows, spec.decoupler.values(), strict=True)]}
+    roots = [int(p) for p in arch.roots]
+    ff = [{"loop": f.loop, "input": f.input, "input_index": in_names.index(f.input),
+           "chain": chains.index(f.loop), "gain": float(Fm[in_names.index(f.input), roots[chains.index(f.loop)]])}
+          for f in spec.feedforward or []]
+    FF = [[float(Fm[j, p]) for p in roots] for j in range(len(in_names))] if ff else None
+    return {"decoupler": dec, "FF": FF, "feedforward": ff}
 
 
 def _clean(x: Any) -> Any:
@@ -124,5 +152,7 @@ def mimo_payload(spec: TuningSpec, gains: Gains, st: _Stamp) -> dict[str, Any]:
         "outputs": a["outputs"],
         "W": a["W"],
         "decoupler": a["decoupler"],
+        **({"FF": a["FF"], "feedforward": a["feedforward"]} if a["FF"] is not None else {}),
+        **({"blocks": a["blocks"]} if a["blocks"] else {}),
         "generator": f"gaintune {_version()}",
     }

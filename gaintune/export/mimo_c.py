@@ -7,8 +7,9 @@ The header implements exactly one step of :mod:`gaintune.sim.mimo_kernel` for on
    chain's reference ``r[chain]`` for an outer loop, else the output of its ``PARENT`` loop;
    the loop measures ``y[MEAS[l]]`` (plant outputs by index);
 2. the actuators: ``u = W v`` (``v`` the loops' outputs; ``W`` the identity wiring or the
-   decoupler), each saturated to its limits, then rate limited;
-3. back-calculation loops that drive an input directly track the applied value.
+   decoupler, tuned entries at the exported values), plus ``FF r`` when the spec has a reference
+   feedforward, each saturated to its limits, then rate limited;
+3. back-calculation loops that drive an input directly track the applied value (less the feedforward).
 
 Integrators start at 0 (the signals are deviations from the operating point, as the simulator's).
 """
@@ -69,7 +70,8 @@ def to_c_mimo(spec: TuningSpec, gains: Gains, st: _Stamp, dt: float, prefix: str
     P, U = prefix.lower(), prefix.upper()
     guard = f"{U}_{_ident(spec.name).upper()}_GAINS_H"
     lines = [*_banner(spec, st, a, P, U, dt), f"#ifndef {guard}", f"#define {guard}", "", "#include <math.h>", "",
-             *_macros(st, a, U, dt), *_tables(a, P, U, dt), *_state(a, P), *pid_step(P, U), *_step(P, U),
+             *_macros(st, a, U, dt), *_tables(a, P, U, dt), *_state(a, P), *pid_step(P, U),
+             *_step(P, U, a["FF"] is not None),
              f"#endif /* {guard} */", ""]
     _no_redefinition(lines)
     return "\n".join(lines)
@@ -89,7 +91,8 @@ def _banner(spec: TuningSpec, st: _Stamp, a: dict[str, Any], P: str, U: str, dt:
         " * Per step (sample time " + _c_num(dt) + " s), identical to gaintune's MIMO simulator:",
         " *   loops in evaluation order l = 0.." + f"{U}_N_LOOPS-1: sp = r[{U}_CHAIN[l]] for a chain's outer loop,",
         f" *   else the output v[{U}_PARENT[l]]; v[l] = PID(sp, y[{U}_MEAS[l]]) (backward Euler, limits, anti-windup);",
-        f" *   u[j] = sum_l {U}_W[j][l] v[l], saturated to [{U}_U_MIN[j], {U}_U_MAX[j]], then rate limited.",
+        f" *   u[j] = sum_l {U}_W[j][l] v[l]" + (f" + sum_c {U}_FF[j][c] r[c]" if a["FF"] is not None else "")
+        + f", saturated to [{U}_U_MIN[j], {U}_U_MAX[j]], then rate limited.",
         f" * Usage:  {P}_state s; {P}_reset(&s);  every dt: {P}_step(&s, r, y, u);",
         f" *   r[c]: reference of chain c ({', '.join(_c_comment(c) for c in a['chains'])})",
         f" *   y[i]: plant output i ({', '.join(_c_comment(o['name']) for o in a['outputs'])})",
@@ -127,6 +130,8 @@ def _macros(st: _Stamp, a: dict[str, Any], U: str, dt: float) -> list[str]:
     for lp in a["loops"]:
         for k, v in lp["gains"].items():
             lines.append(f"#define {U}_{_ident(lp['name']).upper()}_{_ident(k).upper()} {_c_num(v)}")
+    for block, entries in a["blocks"].items():  # tuned decoupler entries and feedforward gains (in W and FF)
+        lines += [f"#define {U}_{_ident(block).upper()}_{_ident(k).upper()} {_c_num(v)}" for k, v in entries.items()]
     return lines
 
 
@@ -155,6 +160,7 @@ def _tables(a: dict[str, Any], P: str, U: str, dt: float) -> list[str]:
         f"static const double {U}_W[{U}_N_INPUTS][{U}_N_LOOPS] = {{",
         *["    {" + ", ".join(_c_num(x) for x in row) + "}," for row in W],
         "};",
+        *_ff_table(a, U),
         _arr("double", f"{U}_U_MIN", [x[0] for x in lims], "actuator saturation, per plant input"),
         _arr("double", f"{U}_U_MAX", [x[1] for x in lims], "actuator saturation, per plant input"),
         _arr("double", f"{U}_RATE", rates, "actuator rate limit |du/dt|, per plant input"),
@@ -176,6 +182,8 @@ def _state(a: dict[str, Any], P: str) -> list[str]:
         f"    double v[{L}];        /* each loop's output at the last step */",
         f"    double sp[{L}];       /* each loop's setpoint at the last step */",
         f"    double u_prev[{m}];   /* last applied value of each plant input */",
+        *([f"    double ff[{m}];       /* feedforward part of each plant input at the last step */"]
+          if a["FF"] is not None else []),
         "    int started;",
         f"}} {P}_state;",
         "",
@@ -185,13 +193,28 @@ def _state(a: dict[str, Any], P: str) -> list[str]:
         f"    for (l = 0; l < {L}; ++l) {{ s->I[l] = 0.0; s->D[l] = 0.0; s->ed_prev[l] = 0.0; s->awe[l] = 0.0; "
         "s->v[l] = 0.0; s->sp[l] = 0.0; }",
         f"    for (j = 0; j < {m}; ++j) s->u_prev[j] = 0.0;",
+        *([f"    for (j = 0; j < {m}; ++j) s->ff[j] = 0.0;"] if a["FF"] is not None else []),
         "    s->started = 0;",
         "}",
         "",
     ]
 
 
-def _step(P: str, U: str) -> list[str]:
+def _ff_table(a: dict[str, Any], U: str) -> list[str]:
+    """``FF`` (plant inputs x chains) of a spec with a reference feedforward; nothing otherwise."""
+    if a["FF"] is None:
+        return []
+    return ["/* u += FF r: one row per plant input, one column per chain reference (the feedforward) */",
+            f"static const double {U}_FF[{U}_N_INPUTS][{U}_N_CHAINS] = {{",
+            *["    {" + ", ".join(_c_num(x) for x in row) + "}," for row in a["FF"]], "};"]
+
+
+def _step(P: str, U: str, ff: bool = False) -> list[str]:
+    """``<p>_step``: the kernel's arithmetic, step for step (``ff``: with the reference feedforward)."""
+    add_ff = [f"        {{ double f = 0.0; int c; for (c = 0; c < {U}_N_CHAINS; ++c) f += {U}_FF[j][c] * r[c]; "
+              "s->ff[j] = f; v += f; }"] if ff else []
+    track = (f"s->awe[l] += u[{U}_DIRECT[l]] - s->ff[{U}_DIRECT[l]] - s->v[l];" if ff else
+             f"s->awe[l] += u[{U}_DIRECT[l]] - s->v[l];")
     return [
         "/* One sample of the whole architecture: chain references r, plant outputs y -> plant inputs u. */",
         f"static inline void {P}_step({P}_state *s, const double r[{U}_N_CHAINS], const double y[{U}_N_OUTPUTS],",
@@ -206,6 +229,7 @@ def _step(P: str, U: str) -> list[str]:
         f"    for (j = 0; j < {U}_N_INPUTS; ++j) {{",
         "        double v = 0.0;",
         f"        for (l = 0; l < {U}_N_LOOPS; ++l) v += {U}_W[j][l] * s->v[l];",
+        *add_ff,
         f"        v = v < {U}_U_MIN[j] ? {U}_U_MIN[j] : (v > {U}_U_MAX[j] ? {U}_U_MAX[j] : v);",
         f"        if (isfinite({U}_RATE[j])) {{",
         f"            double lo = s->u_prev[j] - {U}_RATE[j] * {U}_DT, hi = s->u_prev[j] + {U}_RATE[j] * {U}_DT;",
@@ -214,7 +238,7 @@ def _step(P: str, U: str) -> list[str]:
         "        u[j] = v;",
         "    }",
         f"    for (l = 0; l < {U}_N_LOOPS; ++l)  /* back-calculation tracks what was applied */",
-        f"        if ({U}_PID[l].aw == {U}_AW_BACKCALC && {U}_DIRECT[l] >= 0) s->awe[l] += u[{U}_DIRECT[l]] - s->v[l];",
+        f"        if ({U}_PID[l].aw == {U}_AW_BACKCALC && {U}_DIRECT[l] >= 0) {track}",
         f"    for (j = 0; j < {U}_N_INPUTS; ++j) s->u_prev[j] = u[j];",
         "    s->started = 1;",
         "}",

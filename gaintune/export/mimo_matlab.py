@@ -23,6 +23,18 @@ def _irow(vals: list[int]) -> str:
     return "[" + " ".join(str(int(v)) for v in vals) + "]"
 
 
+def _blocks(a: dict) -> list[str]:
+    """``FF`` and the structs of the tuned block entries (nothing for a spec without them)."""
+    out = []
+    if a["FF"] is not None:
+        out.append("FF = [" + "; ".join(" ".join(_m_num(x) for x in row) for row in a["FF"])
+                   + "];  % u = W*v + FF*r: plant inputs x chain references (the feedforward)")
+    for block, entries in a["blocks"].items():
+        fields = ", ".join(f"{_m_str(_ident(k))}, {_m_num(v)}" for k, v in entries.items())
+        out.append(f"gt_{_ident(block)} = struct({fields});  % tuned entries, as placed in W / FF")
+    return out
+
+
 def to_matlab_mimo(spec: TuningSpec, gains: Gains, st: _Stamp, dt: float) -> str:
     """MATLAB/Octave snippet of the whole MIMO architecture.
 
@@ -30,8 +42,9 @@ def to_matlab_mimo(spec: TuningSpec, gains: Gains, st: _Stamp, dt: float) -> str
     (and, in MATLAB, ``pid`` objects); then the wiring: ``loop_names`` in evaluation order,
     what each loop measures and drives, ``parent`` (1-based index of the loop whose output is
     its setpoint, 0 for a chain's outer loop), ``chain`` (1-based index into the reference
-    vector ``r``, 0 for an inner loop), ``W`` (plant inputs x loops: ``u = W v``) and the
-    actuator limits per plant input.
+    vector ``r``, 0 for an inner loop), ``W`` (plant inputs x loops: ``u = W v``), ``FF`` (plant
+    inputs x chains, with a reference feedforward: ``u = W v + FF r``), the tuned block entries
+    (structs ``gt_decoupler``, ``gt_feedforward``) and the actuator limits per plant input.
     """
     _unique_idents(spec.loop_names, "matlab")
     a = mimo_architecture(spec, gains)
@@ -45,7 +58,8 @@ def to_matlab_mimo(spec: TuningSpec, gains: Gains, st: _Stamp, dt: float) -> str
         "% Each step (sample time Ts), as gaintune's MIMO simulator: for l = 1..numel(loop_names) in order,",
         "%   sp(l) = r(chain(l)) if parent(l) == 0, else v(parent(l));  v(l) = PID_l(sp(l), y(meas(l)))",
         "%   with the loop's discrete law (struct gt_<loop>, Cy_<loop>, Cr_<loop> below; limits, anti-windup);",
-        "% then u = W*v, each u(j) saturated to [u_min(j), u_max(j)] and rate limited to rate_limit(j)*Ts.",
+        "% then u = W*v" + (" + FF*r" if a["FF"] is not None else "")
+        + ", each u(j) saturated to [u_min(j), u_max(j)] and rate limited to rate_limit(j)*Ts.",
         f"Ts = {_m_num(dt)};  % sample time of this export (s)",
         f"verified_Ts = {verified_ts};  % sample time the verdict was obtained at (NaN: never verified)",
         f"verdict = {_m_str(st.label)};  % verification verdict at Ts",
@@ -71,6 +85,7 @@ def to_matlab_mimo(spec: TuningSpec, gains: Gains, st: _Stamp, dt: float) -> str
         f"chain = {_irow([c['chain'] + 1 for c in loops])};  % index into r; 0: inner loop",
         "W = [" + "; ".join(" ".join(_m_num(x) for x in row) for row in a["W"]) + "];  % u = W*v"
         + (" (the decoupler)" if a["decoupler"] else ""),
+        *_blocks(a),
         f"u_min = {_row([(i['limits'] or [float('-inf'), 0])[0] for i in inputs])};",
         f"u_max = {_row([(i['limits'] or [0, float('inf')])[1] for i in inputs])};",
         f"rate_limit = {_row([i['rate_limit'] if i['rate_limit'] is not None else float('inf') for i in inputs])};",

@@ -57,7 +57,7 @@ def bound_hints(layout: GainLayout, tuned: np.ndarray,
             if abs(x - b) <= ON_BOUND * w and (slot.loop, slot.name, side) not in skip:
                 hints.append(
                     f"{slot.loop_name}.{slot.name} = {math.exp(x):.4g} lies on its {side} search bound; "
-                    f"widen loops[{slot.loop}].gains.{slot.name}.bounds and tune again"
+                    f"widen {slot.spec_field}.bounds and tune again"
                 )
     return hints
 

@@ -27,6 +27,7 @@ from gaintune.plants.mimo import MimoPlant, as_mimo
 from gaintune.sim import draws as draws_mod
 from gaintune.sim.build import discretize, profile_pieces
 from gaintune.sim.draws import Draws
+from gaintune.sim.mimo_blocks import BlockMatrices, check_block_inputs
 from gaintune.sim.mimo_kernel import LANES, MIMO_METRICS, mimo_kernel
 from gaintune.sim.mimo_ode import ode_rows, ode_tapes
 from gaintune.sim.result import SimResult
@@ -41,7 +42,7 @@ AW_CODES = {"none": 0, "clamping": 1, "back_calculation": 2}
 def needs_mimo(spec: TuningSpec, plant) -> bool:
     """Whether ``spec`` on ``plant`` runs on this simulator: a MIMO plant, or loops that say what they drive."""
     return (isinstance(plant, MimoPlant) or is_graph(spec) or spec.actuators is not None or spec.decoupler is not None
-            or any(sc.disturbance.state is not None for sc in spec.scenarios))
+            or spec.feedforward is not None or any(sc.disturbance.state is not None for sc in spec.scenarios))
 
 
 @dataclass(frozen=True)
@@ -51,7 +52,8 @@ class Architecture:
     ``order`` lists the spec's loop indices drivers first; the other per-loop arrays are in that
     order: ``parent`` (position of the driving loop, -1 for a chain's outer loop), ``meas`` (output
     index), ``drives`` (input index, -1 for a setpoint). ``roots`` are positions of outer loops.
-    ``W`` (m, L) maps the loops' outputs to the plant inputs (identity or the decoupler).
+    ``W`` (m, L) maps the loops' outputs to the plant inputs (identity or the decoupler; tuned entries
+    at their spec value or bounds' centre: :mod:`gaintune.sim.mimo_blocks` gives each candidate's).
     """
 
     order: tuple[int, ...]
@@ -76,6 +78,7 @@ def _drives(spec: TuningSpec, plant: MimoPlant) -> list[tuple[str, str]]:
 def architecture(spec: TuningSpec, plant: MimoPlant) -> Architecture:
     """Resolve the spec's loops against the plant (names checked; SpecError naming the field)."""
     names, inputs = spec.loop_names, plant.input_names
+    check_block_inputs(spec, inputs)
     drv = _drives(spec, plant)
     for i, (kind, target) in enumerate(drv):
         if kind == "input" and target not in inputs:
@@ -110,7 +113,7 @@ def _decoupled(spec: TuningSpec, inputs: list[str], drives: np.ndarray, W: np.nd
     dec = spec.decoupler
     assert dec is not None
     cols = [inputs.index(n) for n in dec.inputs]
-    Wd = np.array(dec.matrix, dtype=float)
+    Wd = np.array(dec.values(), dtype=float)
     out = W.copy()
     for a, ja in enumerate(cols):  # row: the plant input; column: the loop output driving input jb
         out[ja, :] = 0.0
@@ -231,6 +234,8 @@ class MimoSimulator:
         _refuse_unsupported(spec)
         self.arch = architecture(spec, self.mimo)
         self.layout = layout or GainLayout(spec, built.states, plant=built)
+        self.blocks = BlockMatrices(spec, self.layout, self.arch.W, self.arch.drives, self.arch.order,
+                                    self.mimo.input_names)
         for sc in spec.scenarios:
             for j, d in enumerate(self._act_delays()):
                 check_delay_samples(d, sc.resolved_dt, f"actuators.{self.mimo.input_names[j]}.delay")
@@ -395,6 +400,7 @@ class MimoSimulator:
         pa = self._memo(("plant", dt, dstate, params.shape, params.tobytes()),
                         lambda: self._plant_arrays(params, dt, dstate))
         ca = self._controller_arrays(full)
+        W, F = self.blocks.matrices(full)
         sg = self._memo(("signals", where, sc.model_dump_json()), lambda: self._signals(sc, where))
         m, L = len(self.mimo.inputs), len(self.arch.order)
         acts = [self._actuator(j) for j in range(m)]
@@ -414,7 +420,7 @@ class MimoSimulator:
                 pa["ch_blk"], pa["ch_src"],
                 pa["ch_du"], pa["G0u"], pa["G1u"], pa["ch_dd"], pa["G0d"], pa["G1d"], sg["dist_on"],
                 self.arch.meas, self.arch.parent, sg["root_row"], ca["kp"], ca["ki"], ca["kd"], ca["tf"], ca["kb"],
-                ca["bw"], ca["cw"], ca["lo"], ca["hi"], ca["aw"], np.ascontiguousarray(self.arch.W), ca["direct"],
+                ca["bw"], ca["cw"], ca["lo"], ca["hi"], ca["aw"], W, F, ca["direct"],
                 np.array([x[0] for x in lim], dtype=float), np.array([x[1] for x in lim], dtype=float), rate, u_safe,
                 sg["ref"], sg["dist"], sg["roots"], sg["step_root"], sg["target"], sg["k_step"], sg["k_load"],
                 s.max_abs_error or np.inf, s.max_abs_output or np.inf, xb, s.divergence_bound, s.action == "hold",

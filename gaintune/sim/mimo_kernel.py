@@ -11,8 +11,10 @@ vectorises), as in the single-input kernel (:mod:`gaintune.sim.kernel`). Per ste
    0, its metrics inf) and the safety monitor (a trip holds every actuator at its safe value);
 3. the loops in graph order (a loop's setpoint is a reference, or the output of the loop that
    drives it), each with the discrete PID law of :mod:`gaintune.controllers.pid`;
-4. the actuators: ``W v`` (the loops' outputs, through the static decoupler when there is one),
-   saturation, rate limit; each into its input's delay line;
+4. the actuators: ``W v + F r`` (the loops' outputs, through the static decoupler when there is one,
+   plus the reference feedforward), saturation, rate limit; each into its input's delay line.
+   ``W`` is (1, m, L) for the whole batch or (B, m, L), one per candidate (tuned decoupler entries);
+   ``F`` likewise, or (0, m, L) without feedforward (:mod:`gaintune.sim.mimo_blocks`);
 5. the metrics;
 6. the exact ZOH update ``x[k+1] = Ad x[k] + sum_c (G0_c u_c[k-d_c] + G1_c u_c[k-d_c-1])`` over
    the plant's channels c (one per transfer-function entry, or per input of a state-space
@@ -45,7 +47,7 @@ _IAE, _ISE, _ITAE, _EFF, _TV, _OS, _RISE, _SETTLE, _SSE, _SAT, _PEAKU, _LOAD, _D
 @nb.njit(cache=True, nogil=True, error_model="numpy")
 def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bsize, Cm,
                 ch_blk, ch_src, ch_du, ch_G0u, ch_G1u, ch_dd, ch_G0d, ch_G1d, dist_on,
-                meas, parent, root_row, kp, ki, kd, tf, kb, bw, cw, lo, hi, aw, W, direct,
+                meas, parent, root_row, kp, ki, kd, tf, kb, bw, cw, lo, hi, aw, W, F, direct,
                 u_lo, u_hi, rate, u_safe, ref, dist, roots, step_root, target, k_step, k_load,
                 max_err, max_out, xbound, div_bound, safe_hold,
                 out, chain_out, eff_out, want_traces, tr_y, tr_sp, tr_u,
@@ -61,7 +63,8 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
     N = Ad.shape[1]
     p = Cm.shape[1]
     L = meas.shape[0]
-    m = W.shape[0]
+    m = W.shape[1]
+    n_ff = F.shape[0]
     nc = ch_blk.shape[0]
     nr = roots.shape[0]
     M = 2
@@ -105,6 +108,18 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
         wh = np.zeros((nwh, C))
         hout = np.zeros((p, C))
         kk = np.zeros((4, n_ode, C))
+        Wc = np.zeros((m, L, C))  # this chunk's W (and F), lane by lane
+        Fc = np.zeros((m, L, C if n_ff > 0 else 0))
+        ffu = np.zeros((m, C))  # the feedforward part of each input (back-calculation leaves it out)
+        for j in range(nl):
+            b = cand[b0 + j]
+            wb = b if W.shape[0] > 1 else 0
+            fb = b if n_ff > 1 else 0
+            for a in range(m):
+                for l in range(L):
+                    Wc[a, l, j] = W[wb, a, l]
+                    if n_ff > 0:
+                        Fc[a, l, j] = F[fb, a, l]
         if nonlin:
             for j in range(nl):
                 for i in range(n_ode):
@@ -207,7 +222,13 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
                 for j in range(nl):
                     v = 0.0
                     for l in range(L):
-                        v += W[a, l] * vout[l, j]
+                        v += Wc[a, l, j] * vout[l, j]
+                    if n_ff > 0:
+                        f = 0.0
+                        for r in range(nr):
+                            f += Fc[a, roots[r], j] * sp[roots[r], j]  # an outer loop's setpoint: the reference
+                        ffu[a, j] = f
+                        v += f
                     v = min(max(v, ulo), uhi)
                     if ra < np.inf:
                         v = min(max(v, uprev[a, j] - ra), uprev[a, j] + ra)
@@ -219,7 +240,10 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
             for l in range(L):
                 if aw[l] == 2 and direct[l] >= 0:
                     for j in range(nl):
-                        awe[l, j] += u[direct[l], j] - vout[l, j]  # track what was applied
+                        if n_ff > 0:
+                            awe[l, j] += u[direct[l], j] - ffu[direct[l], j] - vout[l, j]  # what was applied
+                        else:
+                            awe[l, j] += u[direct[l], j] - vout[l, j]  # track what was applied
             # ---- metrics
             for r in range(nr):
                 lr = roots[r]

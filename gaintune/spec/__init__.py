@@ -64,6 +64,7 @@ from gaintune.spec.base import (
     _Model,
     check_delay_samples,
 )
+from gaintune.spec.blocks import BlockGainSpec, FeedforwardSpec
 from gaintune.spec.design import DesignSpec, expand_design
 from gaintune.spec.loops import GAIN_NAMES, ActuatorSpec, DerivativeFilterSpec, Gains, GainSpec, LoopSpec
 from gaintune.spec.mimo import (
@@ -124,6 +125,8 @@ __all__ = [
     "TfMatrixSpec",
     "ActuatorsEntrySpec",
     "DecouplerSpec",
+    "BlockGainSpec",
+    "FeedforwardSpec",
     "ScenarioSpec",
     "ScenarioDefault",
     "ObjectiveSpec",
@@ -168,7 +171,12 @@ class TuningSpec(_Model):
         "[[j1.Kp, j2.Kp, j3.Kp]]; the first gain's settings (bounds, value) apply to all.")
     decoupler: DecouplerSpec | None = Field(
         None, exclude_if=lambda v: v is None,
-        description="A fixed static decoupler u = W v between the loops' outputs and the plant inputs.")
+        description="A static decoupler u = W v between the loops' outputs and the plant inputs; entries fixed "
+        "or tuned.")
+    feedforward: list[FeedforwardSpec] | None = Field(
+        None, exclude_if=lambda v: v is None,
+        description="Static reference feedforward: each item adds gain * (the reference of a chain's outer loop) "
+        "to a plant input; gains fixed or tuned.")
     scenarios: list[ScenarioSpec] = Field(default_factory=lambda: [ScenarioSpec()], min_length=1)
     objective: ObjectiveSpec = Field(default_factory=ObjectiveSpec)
     requirements: RequirementsSpec = Field(default_factory=RequirementsSpec)

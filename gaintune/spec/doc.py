@@ -31,6 +31,8 @@ _SECTIONS: list[tuple[str, type[BaseModel]]] = [
     ("actuator", S.ActuatorSpec),
     ("actuators.<input>", S.ActuatorsEntrySpec),
     ("decoupler", S.DecouplerSpec),
+    ("feedforward[k]", S.FeedforwardSpec),
+    ("decoupler.matrix[i][j], feedforward[k].gain (tuned entries)", S.BlockGainSpec),
     ("scenarios[i]", S.ScenarioSpec),
     ("scenarios[i].reference", S.ReferenceSpec),
     ("scenarios[i].disturbance", S.DisturbanceSpec),
@@ -102,7 +104,8 @@ def render_markdown() -> str:
         "scenario names it (`reference: {loop: <name>, ...}`; the other chains hold their operating point). "
         "Without `drives` anywhere the loops are one cascade, outer first, as before. `actuators` gives each "
         "input its saturation, rate limit, delay and safe value; `ties` makes several gains one tuned value; "
-        "`decoupler` puts a fixed matrix between the loops and the inputs; `scenarios[i].disturbance.input` names "
+        "`decoupler` puts a static matrix between the loops and the inputs; `feedforward` adds a gain times a "
+        "chain's reference to an input; `scenarios[i].disturbance.input` names "
         "the input a disturbance enters, `scenarios[i].disturbance.state` a named state whose derivative it is "
         "added to (a load torque; state space and ODE plants). Refused with the field named: a matrix whose "
         "rows or entries do not "
@@ -112,6 +115,30 @@ def render_markdown() -> str:
         "every chain's outer error (`iae` = the sum of `iae.<outer loop>`). Not yet: state-feedback loops, "
         "output disturbances, measurement noise, fallback gains and randomisation other than `randomize.params` "
         "in a MIMO spec (each refused by name). See docs/simulation.md.",
+        "",
+        "Tunable static blocks: an entry of `decoupler.matrix` and the `gain` of a `feedforward` item is a "
+        "number (fixed) or `{value, bounds, tune}`, written like a loop gain. A tuned entry needs `bounds` of "
+        "one sign (`[0.2, 3]` or `[-3, -0.2]`): the search covers the magnitude on a log scale, as for every "
+        "gain, and the entry keeps that sign; `value` (inside the bounds) is the initial guess, else the "
+        "bounds' geometric centre. Tuned entries are gains of the pseudo-loops `decoupler` (`d_<row input>_"
+        "<column input>`, e.g. `d_R_S` for `matrix[0][1]` of `inputs: [R, S]`) and `feedforward` "
+        "(`ff_<loop>_<input>`), after every loop's gains; a gain set names them like loops "
+        "(`{xD: {...}, decoupler: {d_R_S: 1.4}, feedforward: {ff_xD_S: 0.05}}`), and a loop may not be named "
+        "`decoupler` or `feedforward` while that block has tuned entries. A spec without tuned entries has the "
+        "same gains as without the blocks. Example, Wood-Berry with a decoupler whose off-diagonal entries "
+        "are tuned around the inverse steady-state gains (18.9/12.8 and 6.6/19.4): `decoupler: {inputs: [R, "
+        "S], matrix: [[1, {value: 1.48, bounds: [0.3, 5]}], [{value: 0.34, bounds: [0.05, 2]}, 1]]}`. Per "
+        "step the simulator applies `u = sat(W v + F r)`: `W` the candidate's decoupler (identity wiring where "
+        "there is none), `v` the loops' outputs, `F r` the feedforward of the chains' references, before the "
+        "input's saturation and rate limit; a back-calculation loop driving an input directly tracks the "
+        "applied value less the feedforward, while a clamping loop sees only its own output limit. The "
+        "verification puts the candidate's `W` in front of the controller; the feedforward is outside the "
+        "loop, so it changes the responses (and the cost), never the stability, margins or peaks. The exports "
+        "write the tuned `W`, the feedforward table `FF` (inputs x chain references) and the tuned entries "
+        "(`GT_DECOUPLER_D_R_S`, `gt_decoupler`, the payload's `blocks`). Refused with the field named: bounds "
+        "that contain 0, a value outside its bounds, a tuned entry without bounds, a fixed entry without a "
+        "value, a feedforward from an unknown loop or from a loop that takes another loop's output, to an "
+        "unknown input, or twice for one pair.",
         "",
     ]
     for title, model in _SECTIONS:

@@ -4,7 +4,8 @@
 * :class:`TfEntrySpec`, :class:`TfMatrixSpec`: a transfer-function matrix with a delay per entry
   (the Wood-Berry form); an entry ``0`` is no path;
 * :class:`ActuatorsEntrySpec`: one actuator per plant input (``actuators: {input: {...}}``);
-* :class:`DecouplerSpec`: a fixed static decoupler between the loops and the plant inputs;
+* :class:`DecouplerSpec`: a static decoupler between the loops and the plant inputs, each entry fixed or
+  tuned (:mod:`gaintune.spec.blocks`);
 * :func:`check_architecture`: the loop graph (``drives``), gain ties and names, checked once the
   whole spec is known.
 
@@ -20,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import Field, field_validator, model_validator
 
 from gaintune.spec.base import _error_at, _finite, _Model
+from gaintune.spec.blocks import BlockEntry, check_blocks, entry_value
 
 if TYPE_CHECKING:  # pragma: no cover
     from gaintune.spec import TuningSpec
@@ -132,11 +134,23 @@ class ActuatorsEntrySpec(_Model):
 
 
 class DecouplerSpec(_Model):
-    """A static decoupler ``u = W v``: ``v`` are the loop outputs at the ``inputs`` it names, in order."""
+    """A static decoupler ``u = W v``: ``v`` are the loop outputs at the ``inputs`` it names, in order. An entry is a
+    number (fixed) or ``{value, bounds, tune}`` (tuned, bounds of one sign: see ``decoupler.matrix[i][j]``)."""
 
     inputs: list[str] = Field(min_length=1, description="The plant inputs it feeds, in row and column order.")
-    matrix: list[list[float]] = Field(description="W, square: one row per input (the plant input), one column "
-                                                  "per input (the loop output driving it).")
+    matrix: list[list[BlockEntry]] = Field(description="W, square: one row per input (the plant input), one column "
+                                                       "per input (the loop output driving it); an entry is a number "
+                                                       "or {value, bounds, tune}.")
+
+    @field_validator("matrix", mode="before")
+    @classmethod
+    def _no_booleans(cls, v: Any) -> Any:
+        # an entry may be a mapping with tune: true, so the generic (whole-field) check cannot look inside
+        for i, row in enumerate(v if isinstance(v, list) else []):
+            for j, e in enumerate(row if isinstance(row, list) else []):
+                if isinstance(e, bool):
+                    raise _error_at((i, j), f"must be a number or {{value, bounds, tune}}, got {str(e).lower()}", e)
+        return v
 
     @model_validator(mode="after")
     def _square(self) -> DecouplerSpec:
@@ -148,6 +162,10 @@ class DecouplerSpec(_Model):
             raise _error_at(("matrix",), f"must be {n}x{n} (one row and one column per input in 'inputs'), got "
                             f"{shape}", self.matrix)
         return self
+
+    def values(self) -> list[list[float]]:
+        """W as numbers: a tuned entry at its value, else at its bounds' geometric centre."""
+        return [[entry_value(e) for e in row] for row in self.matrix]
 
 
 # ------------------------------------------------------------ architecture
@@ -218,6 +236,8 @@ def check_architecture(spec: TuningSpec) -> None:
                                     f"{', '.join(in_names)}", key)
     _check_scenarios(spec, names, in_names)
     _check_ties(spec, names, inputs, outputs)
+    driven = {drive_target(lp.drives)[1] for lp in spec.loops if lp.drives and lp.drives.startswith(LOOP_PREFIX)}
+    check_blocks(spec, names, in_names, {n for n in names if n not in driven} if is_graph(spec) else {names[0]})
 
 
 def _check_graph(spec: TuningSpec, names: list[str], in_names: list[str] | None) -> None:

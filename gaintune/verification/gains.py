@@ -55,8 +55,10 @@ def fixed_gain_overrides(spec: TuningSpec, layout: GainLayout, full: np.ndarray)
     the report says so instead of letting a reader assume the spec's value."""
     out = []
     for k, slot in enumerate(layout.slots):
+        if slot.tuned:  # a tuned block entry's slot has no loop to look in
+            continue
         given = spec.loops[slot.loop].gains.get(slot.name)
-        if slot.tuned or given is None or given.value is None or full[k] == given.value:
+        if given is None or given.value is None or full[k] == given.value:
             continue
         out.append(f"{slot.loop_name}.{slot.name} = {full[k]:g} was verified, not the spec's fixed value "
                    f"{given.value:g} (loops[{slot.loop}].gains.{slot.name}, tune: false)")

@@ -7,7 +7,8 @@ A spec needs it when its plant has several inputs or its loops say what they dri
 * the plant's :mod:`gaintune.lti.mimo` form, with ``dt/2`` (sample-and-hold, largest scenario dt),
   ``verify.compute_delay`` samples and the actuator's own delay added to every driven input;
 * the controller matrix ``K`` (m x p) of the loop graph: a loop's PID law from its measured output to
-  its input, a cascade's product of laws along the chain, the decoupler ``W`` in front;
+  its input, a cascade's product of laws along the chain, the decoupler ``W`` in front (the gain set's own
+  when its entries are tuned; a reference feedforward is outside the loop and changes no figure here);
 * the pairing: per loop its measured output and the plant input its chain ends at.
 
 :func:`spec_requirements` maps the spec's limits to :data:`gaintune.verification.mimo.REQUIREMENTS`
@@ -29,6 +30,7 @@ from gaintune.errors import SpecError
 from gaintune.lti.mimo import DelayedSS, MimoLti, TfEntry, TfMatrix
 from gaintune.plants.mimo import as_mimo
 from gaintune.sim.mimo import architecture
+from gaintune.sim.mimo_blocks import with_candidate_W
 from gaintune.spec import TuningSpec
 from gaintune.verification.analysis import analysis_dt
 from gaintune.verification.margins import BreakFigures
@@ -88,6 +90,7 @@ def _poly_sum(terms: list[TfEntry]) -> TfEntry:
 def _controller(spec: TuningSpec, layout: GainLayout, full: np.ndarray, lti: MimoLti, arch) -> TfMatrix:
     """K (m x p): u = W v, v_k = C_k (v_parent - y_meas(k)); entry (j, i) sums the products of the laws
     along each chain from a loop measuring output i down to a loop feeding input j."""
+    arch = with_candidate_W(spec, layout, arch, list(lti.inputs), full)  # W with this gain set's tuned entries
     cols: dict[int, dict[str, float]] = {}
     for k, slot in enumerate(layout.slots):
         cols.setdefault(slot.loop, {})[slot.name] = float(full[k])
