@@ -221,12 +221,11 @@ def test_search_box_from_loop_rules_keeps_the_tuned_feedforward_entries() -> Non
     assert [(s.loop_name, s.name) for s in box.layout.tuned_slots][-1] == ("feedforward", "ff_a_u2")
 
 
-@pytest.mark.xfail(strict=True, reason="the MIMO stability count drops every integrator of a controller realised "
-                   "entry by entry (4 for W diag(PI, PI)) as hidden, where 2 are; fixed by the minimal-realisation "
-                   "count of gaintune.verification.mimo_stability (remove this mark when it lands)")
 def test_decoupled_pi_loop_that_settles_is_judged_stable() -> None:
     """Wood-Berry behind its steady-state decoupler with moderate PI gains: the simulated steps settle and
-    the Pade closed-loop poles are all in the left half-plane, so the verification must call it stable."""
+    the Pade closed-loop poles are all in the left half-plane, so the verification must call it stable.
+    Before, the stability count dropped all 4 integrators of W diag(PI, PI), realised entry by entry, as
+    hidden where 2 are, and judged it unstable."""
     d = load_model("wood_berry").example_spec()
     d["decoupler"] = {"inputs": ["R", "S"], "matrix": [[1.0, 18.9 / 12.8], [6.6 / 19.4, 1.0]]}
     spec = load_spec(d)
