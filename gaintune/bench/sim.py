@@ -23,6 +23,9 @@ Cases (each 2,000 time steps):
 * ``robot_arm6``: the nonlinear six-joint arm (``models/robot_arm6.yaml``: 18 states, casadi tapes,
   RK4; 18 loops, 54 gains, position -> velocity -> current PID per joint), the 0.1 rad step on the
   shoulder, dt = 1 ms over 2 s, on the MIMO simulator as ``wood_berry``.
+* ``quadrotor_ode``: the nonlinear quadrotor (``models/quadrotor_ode.yaml``: 12 states, casadi
+  tapes, RK4; 12 loops, 24 gains, hand-set cascades), the 1 m step in x, dt = 5 ms over 8 s (1,600
+  steps), as ``wood_berry``.
 
 Each batch holds distinct gain sets (nominal gains times a seeded log-uniform
 factor in [0.74, 1.35]). Reported per case and batch size:
@@ -88,9 +91,14 @@ NOMINAL_GAINS: dict[str, Gains] = {
         (f"q{k}", {"Kp": 10.0, "Ki": 1.0, "Kd": 1e-3}),
         (f"w{k}", {"Kp": 14.0 if k <= 3 else 0.85, "Ki": 140.0 if k <= 3 else 8.5, "Kd": 1e-3}),
         (f"i{k}", {"Kp": 5.0, "Ki": 1000.0, "Kd": 1e-5}))},
+    "quadrotor_ode": {**{name: gains for axis in (("x", "vx", "theta", "q"), ("y", "vy", "phi", "p"))
+                         for name, gains in zip(axis, ({"Kp": 1.0}, {"Kp": 0.2, "Ki": 0.05, "Kd": 0.01}, {"Kp": 6.0},
+                                                       {"Kp": 0.1, "Ki": 0.2, "Kd": 0.002}), strict=True)},
+                      "z": {"Kp": 1.5}, "vz": {"Kp": 5.0, "Ki": 1.0, "Kd": 0.01}, "psi": {"Kp": 5.0},
+                      "r": {"Kp": 0.2, "Ki": 0.2, "Kd": 0.001}},
 }
 #: The MIMO cases (gaintune.sim.mimo): timed through Simulator.run only.
-MIMO_CASES = ("wood_berry", "quadruple_tank", "robot_arm6")
+MIMO_CASES = ("wood_berry", "quadruple_tank", "robot_arm6", "quadrotor_ode")
 #: The single-input cases, with the NumPy baseline.
 CASES = tuple(k for k in NOMINAL_GAINS if k not in MIMO_CASES)
 
