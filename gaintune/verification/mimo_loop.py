@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gaintune.lti.mimo import DelayedSS, MimoLti, TfEntry, TfMatrix, block_diag
+from gaintune.verification.mimo_plant import plant_eigvals, plant_parts, registered
+from gaintune.verification.mimo_products import ProductPlan, product_plan, sparse_product
 
 __all__ = ["LoopPair", "PidLoop", "MimoLoop", "pid_entry", "decentralised_pid", "response", "solve_points",
            "hidden_modes", "char_freqs", "closed_loop_matrix"]
@@ -218,6 +220,15 @@ def _rank(X: np.ndarray, scale: float, tol: float = 1e-7) -> int:
 
 
 def hidden_modes(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> np.ndarray:
+    """:func:`_hidden_modes`, remembered for a plant realisation of :mod:`.mimo_plant` (plant-only work)."""
+    hit = registered(A, B, C)
+    if hit is None:
+        return _hidden_modes(A, B, C, floor)
+    parts, order = hit
+    return parts.memo(parts.hidden, (order, float(floor)), lambda: _hidden_modes(A, B, C, floor))
+
+
+def _hidden_modes(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> np.ndarray:
     """The eigenvalues of A right of Re s = ``floor`` |lambda|max that (A, B) cannot reach or C cannot
     see: feedback between these inputs and outputs cannot move them.
 
@@ -255,6 +266,16 @@ def hidden_modes(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> n
     return np.array(out, dtype=complex)
 
 
+def _modal_form(P: DelayedSS, outs: list[int], ins: list[int]) -> tuple:
+    """(ok, eigenvalues, C V, V^-1 B, D, output delays, input delays) of the channels ``outs`` x ``ins``
+    (ok: the eigenvectors V are well conditioned; a zero D or delay is None)."""
+    lam, V = np.linalg.eig(P.A)
+    ok = bool(np.linalg.cond(V) < 1e8)
+    D, d_out, d_in = P.D[np.ix_(outs, ins)], P.output_delays[outs], P.input_delays[ins]
+    return (ok, lam, P.C[outs] @ V if ok else None, np.linalg.solve(V, P.B[:, ins]) if ok else None,
+            D if np.any(D) else None, d_out if np.any(d_out) else None, d_in if np.any(d_in) else None)
+
+
 def _check_controller(K: MimoLti, plant: MimoLti) -> None:
     p, m = plant.shape
     if K.shape != (m, p):
@@ -280,6 +301,7 @@ class MimoLoop:
     _real: dict[int, tuple[tuple, tuple]] = field(default_factory=dict, repr=False)
     _modal: tuple | None = field(default=None, repr=False)
     _diag: bool | None = field(default=None, repr=False)
+    _plans: dict[str, ProductPlan] = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, plant: MimoLti, controller: MimoLti, pairing: Sequence[LoopPair]) -> MimoLoop:
@@ -332,12 +354,10 @@ class MimoLoop:
         if not isinstance(P, DelayedSS) or P.A.shape[0] == 0:
             return response(P, s, self.outs, self.ins)
         if self._modal is None:
-            lam, V = np.linalg.eig(P.A)
-            ok = bool(np.linalg.cond(V) < 1e8)
-            D, d_out, d_in = P.D[np.ix_(self.outs, self.ins)], P.output_delays[self.outs], P.input_delays[self.ins]
-            self._modal = (ok, lam, P.C[self.outs] @ V if ok else None,
-                           np.linalg.solve(V, P.B[:, self.ins]) if ok else None,
-                           D if np.any(D) else None, d_out if np.any(d_out) else None, d_in if np.any(d_in) else None)
+            parts = plant_parts(P, tuple(self.outs), tuple(self.ins))
+            if parts.modal is None:  # plant-only: once per plant object
+                parts.modal = _modal_form(P, self.outs, self.ins)
+            self._modal = parts.modal
         ok, lam, CV, VB, D, d_out, d_in = self._modal
         if not ok:
             return response(P, s, self.outs, self.ins)
@@ -387,9 +407,38 @@ class MimoLoop:
                 k = np.diagonal(response(K, s, self.ins, self.outs), axis1=1, axis2=2)
             with np.errstate(all="ignore"):
                 return k[:, :, None] * Gs if side == "input" else Gs * k[:, None, :]
+        if isinstance(self.controller, TfMatrix):
+            return self._sparse_loop_gains(s, side)
         Gs, Ks = self.channels(s)
         with np.errstate(all="ignore"):
             return Ks @ Gs if side == "input" else Gs @ Ks
+
+    def _plant_entries(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(rows, columns, values (len(s), entries)) of Gs: a transfer matrix's nonzero entries, else all."""
+        if isinstance(self.plant, TfMatrix):
+            return _tf_values(self.plant, s, tuple(self.outs), tuple(self.ins))
+        Gs = self._plant_channels(s)
+        rows, cols = np.divmod(np.arange(self.n_out * self.n_in), self.n_in)
+        return rows, cols, Gs.reshape(s.size, -1)
+
+    def _sparse_loop_gains(self, s: np.ndarray, side: str) -> np.ndarray:
+        """L from the nonzero entries of Ks and Gs only (:mod:`.mimo_products`). Where an entry is not
+        finite (a pole on the point) the dense product stands, whose inf * 0 = NaN the figures expect."""
+        assert isinstance(self.controller, TfMatrix)
+        kr, kc, kv = _tf_values(self.controller, s, tuple(self.ins), tuple(self.outs))
+        gr, gc, gv = self._plant_entries(s)
+        plan = self._plans.get(side)
+        if plan is None:
+            plan = (product_plan(kr, kc, gr, gc, (self.n_in, self.n_in)) if side == "input"
+                    else product_plan(gr, gc, kr, kc, (self.n_out, self.n_out)))
+            self._plans[side] = plan
+        L = sparse_product(plan, kv, gv) if side == "input" else sparse_product(plan, gv, kv)
+        bad = ~(np.all(np.isfinite(kv), axis=1) & np.all(np.isfinite(gv), axis=1))
+        if bad.any():
+            Gs, Ks = self.channels(s[bad])
+            with np.errstate(all="ignore"):
+                L[bad] = Ks @ Gs if side == "input" else Gs @ Ks
+        return L
 
     def sensitivity(self, s: np.ndarray, side: str) -> np.ndarray:
         """S at ``s`` on one side ("input" or "output"), (len(s), n, n)."""
@@ -405,8 +454,7 @@ class MimoLoop:
         of ``pade_order``; 0 drops them) and of the controller's loop channels."""
         if pade_order in self._real:
             return self._real[pade_order]
-        P = self.plant.pade_ss(pade_order)
-        plant = (P.A, P.B[:, self.ins], P.C[self.outs], P.D[np.ix_(self.outs, self.ins)])
+        plant = plant_parts(self.plant, tuple(self.outs), tuple(self.ins)).realisation(pade_order)
         K = self.controller
         if isinstance(K, TfMatrix):  # only the entries in the loop (a big sparse matrix realises slowly)
             ctrl = _tf_realisation(K, self.ins, self.outs)
@@ -429,7 +477,7 @@ def char_freqs(loop: MimoLoop) -> np.ndarray:
     """Characteristic frequencies (rad/s) of the loop: magnitudes of the plant's and the controller's
     poles, of the controller's zeros (PID corners) and 1/T of the largest delay ([1.0] when none)."""
     (Ap, _, _, _), (Ak, _, _, _) = loop.realisations(0)
-    f = [np.abs(np.linalg.eigvals(A)) for A in (Ap, Ak) if A.size]
+    f = [np.abs(plant_eigvals(A)) for A in (Ap, Ak) if A.size]
     K = loop.controller
     if isinstance(K, TfMatrix):
         f += [np.abs(np.roots(e.num)) for row in K.entries for e in row if not e.is_zero and e.num.size > 1]
