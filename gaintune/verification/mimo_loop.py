@@ -465,12 +465,17 @@ class MimoLoop:
         return plant, ctrl
 
     def max_delay(self) -> float:
-        """The largest delay of the loop channels (0 without delays)."""
-        P = self.plant
-        if isinstance(P, TfMatrix):
-            return max((P.entries[i][j].delay for i in self.outs for j in self.ins), default=0.0)
-        assert isinstance(P, DelayedSS)
-        return float(P.input_delays[self.ins].max(initial=0.0) + P.output_delays[self.outs].max(initial=0.0))
+        """The largest delay of the loop channels (0 without delays; plant-only, found once per plant)."""
+        parts = plant_parts(self.plant, tuple(self.outs), tuple(self.ins))
+        if parts.max_delay is None:
+            P = self.plant
+            if isinstance(P, TfMatrix):
+                parts.max_delay = max((P.entries[i][j].delay for i in self.outs for j in self.ins), default=0.0)
+            else:
+                assert isinstance(P, DelayedSS)
+                parts.max_delay = float(P.input_delays[self.ins].max(initial=0.0)
+                                        + P.output_delays[self.outs].max(initial=0.0))
+        return parts.max_delay
 
 
 def char_freqs(loop: MimoLoop) -> np.ndarray:

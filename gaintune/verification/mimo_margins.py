@@ -297,12 +297,23 @@ class _RowsEvaluator(Evaluator):
         ni = self.loop.n_in
         side = "output" if self.row >= ni else "input"
         k = self.row - ni if side == "output" else self.row
+        if side == "output" and ni < self.loop.n_out:
+            return self._output_row_by_inputs(s, k)
         n = self.loop.n_out if side == "output" else ni
         e = np.zeros((s.size, n, 1))
         e[:, k, 0] = 1.0
         with np.errstate(all="ignore"):
             x = solve_points(np.eye(n) + self.loop.loop_gains(s, side), e)
             return (1.0 / x[:, k, 0] - 1.0)[None, :]
+
+    def _output_row_by_inputs(self, s: np.ndarray, k: int) -> np.ndarray:
+        """Output row k on the smaller input side: S_o = I - Gs (I + Ks Gs)^-1 Ks, so
+        S_o[k, k] = 1 - Gs[k, :] x with (I + Ks Gs) x = Ks[:, k] (fewer inputs than outputs: a cascade)."""
+        Gs, Ks = self.loop.channels(s)
+        with np.errstate(all="ignore"):
+            x = solve_points(np.eye(self.loop.n_in) + self.loop.loop_gains(s, "input"), Ks[:, :, k : k + 1])
+            s_kk = 1.0 - np.einsum("wi,wi->w", Gs[:, k, :], x[:, :, 0])
+            return (1.0 / s_kk - 1.0)[None, :]
 
 
 def loop_at_a_time(loop: MimoLoop, w: np.ndarray, L: np.ndarray | None = None) -> list[BreakFigures]:

@@ -44,6 +44,7 @@ class PlantParts:
     eig: dict[int, np.ndarray] = field(default_factory=dict)  # Padé order -> eigenvalues of A
     hidden: dict[tuple[int, float], np.ndarray] = field(default_factory=dict)  # (order, floor) -> hidden modes
     modal: tuple | None = None  # the modal form of a state-space plant (MimoLoop._plant_channels)
+    max_delay: float | None = None  # the largest delay of the channels
 
     def realisation(self, order: int) -> tuple:
         """(A, B, C, D) of the loop channels, delays as Padé approximants of ``order`` (0 drops them)."""

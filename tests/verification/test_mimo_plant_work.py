@@ -108,3 +108,21 @@ def test_cascade_loop_gains_from_nonzero_entries_match_the_dense_product() -> No
         assert got.shape == want.shape
         assert np.array_equal(np.isnan(got[0]), np.isnan(want[0])) and np.isnan(want[0]).any()
         np.testing.assert_allclose(got[1:], want[1:], rtol=1e-12, atol=1e-12 * np.abs(want[1:]).max())
+
+
+def test_cascade_output_break_zoom_on_the_input_side_matches_the_output_sensitivity() -> None:
+    """The loop-at-a-time zoom of an output break of a cascade (18 outputs, 6 inputs) solves on the input side
+    (S_o = I - Gs S_i Ks): the same L_k = 1/S_o[k, k] - 1 as the output sensitivity's inverse, to rounding (both
+    lose digits in 1/S - 1 where |L_k| is small: ~1e-10 absolute here)."""
+    from gaintune.verification.mimo_margins import _RowsEvaluator
+
+    spec = load_spec(load_model("robot_arm6").example_spec())
+    ev = Evaluator(spec)
+    sl, _, _ = spec_margins(ev.spec, ev.plant, ev.layout, ev.layout.full(_candidates("robot_arm6", ev, 1))[0],
+                            aimed=True)
+    loop = MimoLoop.build(sl.plant, sl.controller, sl.pairing)
+    w = np.logspace(-1, 3, 50)
+    So = loop.sensitivity(1j * w, "output")
+    for k in (0, 7, 17):
+        got = _RowsEvaluator(loop, True, loop.n_in + k)(w)[0]
+        np.testing.assert_allclose(got, 1.0 / So[:, k, k] - 1.0, rtol=1e-6, atol=1e-8)
