@@ -144,9 +144,7 @@ def mimo_report(plant: MimoLti, controller: MimoLti, pairing: Sequence[LoopPair]
     def S_out(ww: np.ndarray) -> np.ndarray:
         return loop.sensitivity(1j * ww, "output")
 
-    with np.errstate(all="ignore"):
-        L = np.concatenate([1.0 / np.diagonal(Si, axis1=1, axis2=2).T - 1.0,
-                            1.0 / np.diagonal(So, axis1=1, axis2=2).T - 1.0])
+    L = lat_rows(loop, s, True, (Si, So))  # as the lean check takes them
     breaks = loop_at_a_time(loop, grid, L)
     notes = list(stab.notes)
     # w = 0 too: a static loop's disk margin can peak there (the satellite example)

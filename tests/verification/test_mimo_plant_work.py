@@ -112,9 +112,9 @@ def test_cascade_loop_gains_from_nonzero_entries_match_the_dense_product() -> No
 
 def test_cascade_output_break_zoom_on_the_input_side_matches_the_output_sensitivity() -> None:
     """The loop-at-a-time zoom of an output break of a cascade (18 outputs, 6 inputs) solves on the input side
-    (S_o = I - Gs S_i Ks): the same L_k = 1/S_o[k, k] - 1 as the output sensitivity's inverse, to rounding (both
-    lose digits in 1/S - 1 where |L_k| is small: ~1e-10 absolute here)."""
-    from gaintune.verification.mimo_margins import _RowsEvaluator
+    (S_o = I - Gs S_i Ks), as do the grid's rows: the same L_k = 1/S_o[k, k] - 1 as the output sensitivity's
+    inverse, to rounding (both lose digits in 1/S - 1 where |L_k| is small: ~1e-10 absolute here)."""
+    from gaintune.verification.mimo_margins import _RowsEvaluator, lat_rows
 
     spec = load_spec(load_model("robot_arm6").example_spec())
     ev = Evaluator(spec)
@@ -126,3 +126,10 @@ def test_cascade_output_break_zoom_on_the_input_side_matches_the_output_sensitiv
     for k in (0, 7, 17):
         got = _RowsEvaluator(loop, True, loop.n_in + k)(w)[0]
         np.testing.assert_allclose(got, 1.0 / So[:, k, k] - 1.0, rtol=1e-6, atol=1e-8)
+    rows = lat_rows(loop, 1j * w)  # the grid's rows take the same input-side form
+    np.testing.assert_allclose(rows[loop.n_in:], (1.0 / np.diagonal(So, axis1=1, axis2=2) - 1.0).T, rtol=1e-6,
+                               atol=1e-8)
+    with np.errstate(all="ignore"):  # at s = 0 (integrators) both forms give NaN, as the figures expect
+        So0 = np.linalg.inv(np.eye(loop.n_out) + loop.loop_gains(np.zeros(1), "output"))
+        assert np.array_equal(np.isnan(lat_rows(loop, np.zeros(1))[loop.n_in:, 0]),
+                              np.isnan(1.0 / np.diagonal(So0, axis1=1, axis2=2)[0] - 1.0))
