@@ -25,8 +25,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gaintune.verification.mimo_loop import MimoLoop, char_freqs, closed_loop_matrix, hidden_modes
-from gaintune.verification.mimo_plant import plant_eigvals
-from gaintune.verification.mimo_products import block_eigvals
 
 __all__ = ["MimoStability", "mimo_stability"]
 
@@ -155,7 +153,7 @@ def _open_loop_poles(loop: MimoLoop) -> np.ndarray:
     parts = []
     for A, B, C, _ in (P, Kc):
         if A.size:
-            parts.append(_drop(plant_eigvals(A), hidden_modes(A, B, C, -1e-6)))
+            parts.append(_drop(np.linalg.eigvals(A), hidden_modes(A, B, C, -1e-6)))
     return np.concatenate(parts) if parts else np.zeros(0, dtype=complex)
 
 
@@ -168,7 +166,7 @@ def mimo_stability(loop: MimoLoop, pade_order: int | None = None) -> MimoStabili
     P, Kc = loop.realisations(order)
     A = closed_loop_matrix(P, Kc)
     with np.errstate(all="ignore"):
-        poles = block_eigvals(A) if A.size and np.all(np.isfinite(A)) else np.zeros(0, dtype=complex)
+        poles = np.linalg.eigvals(A) if A.size and np.all(np.isfinite(A)) else np.zeros(0, dtype=complex)
     hid_p = hidden_modes(P[0], P[1], P[2], -1e-6)
     hid_k = hidden_modes(Kc[0], Kc[1], Kc[2], -1e-6)  # artefacts of the controller's realisation
     poles = _drop(poles, np.concatenate([hid_p, hid_k]))
