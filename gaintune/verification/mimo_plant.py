@@ -22,7 +22,7 @@ import numpy as np
 
 from gaintune.lti.mimo import MimoLti
 
-__all__ = ["PlantParts", "plant_parts", "registered", "plant_eigvals", "MAX_PLANTS"]
+__all__ = ["PlantParts", "plant_parts", "registered", "plant_eigvals", "plant_memo", "MAX_PLANTS"]
 
 #: Plants whose parts are kept.
 MAX_PLANTS = 8
@@ -42,7 +42,7 @@ class PlantParts:
     ins: tuple[int, ...]
     real: dict[int, tuple] = field(default_factory=dict)  # Padé order -> (A, B, C, D) of the loop channels
     eig: dict[int, np.ndarray] = field(default_factory=dict)  # Padé order -> eigenvalues of A
-    hidden: dict[tuple[int, float], np.ndarray] = field(default_factory=dict)  # (order, floor) -> hidden modes
+    hidden: dict[tuple, np.ndarray] = field(default_factory=dict)  # (order, floor) or (name, order) -> modes
     modal: tuple | None = None  # the modal form of a state-space plant (MimoLoop._plant_channels)
     max_delay: float | None = None  # the largest delay of the channels
 
@@ -104,3 +104,14 @@ def plant_eigvals(A: np.ndarray) -> np.ndarray:
         return np.linalg.eigvals(A)
     parts, order = hit
     return parts.memo(parts.eig, order, lambda: np.linalg.eigvals(A))
+
+
+def plant_memo(A: np.ndarray, B: np.ndarray, C: np.ndarray, name: str, compute: Callable[[], np.ndarray]
+               ) -> np.ndarray:
+    """``compute()``, remembered under ``name`` when (A, B, C) are a kept plant realisation's arrays (a
+    plant-only figure, e.g. its hidden modes); computed afresh for any other (a controller's) realisation."""
+    hit = registered(A, B, C)
+    if hit is None:
+        return compute()
+    parts, order = hit
+    return parts.memo(parts.hidden, (name, order), compute)

@@ -133,3 +133,25 @@ def test_cascade_output_break_zoom_on_the_input_side_matches_the_output_sensitiv
         So0 = np.linalg.inv(np.eye(loop.n_out) + loop.loop_gains(np.zeros(1), "output"))
         assert np.array_equal(np.isnan(lat_rows(loop, np.zeros(1))[loop.n_in:, 0]),
                               np.isnan(1.0 / np.diagonal(So0, axis1=1, axis2=2)[0] - 1.0))
+
+
+def test_plant_memo_computes_a_plant_figure_once_and_a_controller_figure_every_time() -> None:
+    """plant_memo keeps a figure of a kept plant realisation (same arrays: computed once) and never one of
+    any other realisation (a controller's, new every candidate)."""
+    from gaintune.lti.mimo import DelayedSS
+    from gaintune.verification.mimo_plant import plant_memo, plant_parts
+
+    plant = DelayedSS(-np.eye(2), np.eye(2), np.eye(2), np.zeros((2, 2)), inputs=("u0", "u1"), outputs=("y0", "y1"))
+    A, B, C, _ = plant_parts(plant, (0, 1), (0, 1)).realisation(0)
+    calls: list[int] = []
+
+    def figure() -> np.ndarray:
+        calls.append(1)
+        return np.array([1.0])
+
+    for _ in range(3):
+        assert plant_memo(A, B, C, "x", figure).tolist() == [1.0]
+    assert len(calls) == 1
+    for _ in range(2):
+        plant_memo(A.copy(), B, C, "x", figure)
+    assert len(calls) == 3
