@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gaintune.lti.mimo import DelayedSS, MimoLti, TfEntry, TfMatrix
-from gaintune.verification.mimo_plant import plant_eigvals, plant_parts, registered
+from gaintune.verification.mimo_plant import plant_eigvals, plant_parts, register_transient, registered
 from gaintune.verification.mimo_products import ProductPlan, product_plan, sparse_product
 from gaintune.verification.mimo_tf import _tf_realisation, _tf_response, _tf_values
 
@@ -398,14 +398,21 @@ class MimoLoop:
         if pade_order in self._real:
             return self._real[pade_order]
         plant = plant_parts(self.plant, tuple(self.outs), tuple(self.ins)).realisation(pade_order)
+        ctrl = next(iter(self._real.values()))[1] if self._real else self._controller_realisation()
+        self._real[pade_order] = (plant, ctrl)
+        return plant, ctrl
+
+    def _controller_realisation(self) -> tuple:
+        """(A, B, C, D) of the controller's loop channels, delay-free whatever the Padé order: one object
+        for every order, known to :func:`~.mimo_plant.plant_memo` while this loop is checked."""
         K = self.controller
         if isinstance(K, TfMatrix):  # only the entries in the loop (a big sparse matrix realises slowly)
             ctrl = _tf_realisation(K, self.ins, self.outs)
         else:
             Kc = K.pade_ss(0)
             ctrl = (Kc.A, Kc.B[:, self.outs], Kc.C[self.ins], Kc.D[np.ix_(self.ins, self.outs)])
-        self._real[pade_order] = (plant, ctrl)
-        return plant, ctrl
+        register_transient(K, ctrl)
+        return ctrl
 
     def max_delay(self) -> float:
         """The largest delay of the loop channels (0 without delays; plant-only, found once per plant)."""

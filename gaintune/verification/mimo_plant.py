@@ -22,13 +22,16 @@ import numpy as np
 
 from gaintune.lti.mimo import MimoLti
 
-__all__ = ["PlantParts", "plant_parts", "registered", "plant_eigvals", "plant_memo", "MAX_PLANTS"]
+__all__ = ["PlantParts", "plant_parts", "registered", "plant_eigvals", "plant_memo", "register_transient", "MAX_PLANTS"]
 
 #: Plants whose parts are kept.
 MAX_PLANTS = 8
 
 _LOCK = threading.Lock()
 _PARTS: OrderedDict[tuple[int, tuple[int, ...], tuple[int, ...]], PlantParts] = OrderedDict()
+#: Controller realisations known to plant_memo: the few most recent (one per loop being checked)
+_TRANSIENT: OrderedDict[int, PlantParts] = OrderedDict()
+_MAX_TRANSIENT = 4
 #: id(A) of a kept realisation -> (its parts, Padé order): how hidden_modes and eigvals recognise it
 _BY_A: dict[int, tuple[PlantParts, int]] = {}
 
@@ -115,3 +118,16 @@ def plant_memo(A: np.ndarray, B: np.ndarray, C: np.ndarray, name: str, compute: 
         return compute()
     parts, order = hit
     return parts.memo(parts.hidden, (name, order), compute)
+
+
+def register_transient(owner: MimoLti, real: tuple) -> None:
+    """Make the realisation ``real`` (A, B, C, D) of ``owner`` (a controller) known to :func:`plant_memo`
+    for a short while: a figure asked for twice within one check (its hidden modes, once per Padé order)
+    is then computed once. Only the most recent few are kept."""
+    parts = PlantParts(owner, (), (), real={0: real})
+    with _LOCK:
+        _TRANSIENT[id(real[0])] = parts
+        _BY_A[id(real[0])] = (parts, 0)
+        while len(_TRANSIENT) > _MAX_TRANSIENT:
+            key, _ = _TRANSIENT.popitem(last=False)
+            _BY_A.pop(key, None)
