@@ -348,13 +348,22 @@ class MimoLoop:
         rows, cols = np.divmod(np.arange(self.n_out * self.n_in), self.n_in)
         return rows, cols, Gs.reshape(s.size, -1)
 
+    def outputs_by_inputs(self) -> bool:
+        """Whether output-side figures are taken on the smaller input side from :meth:`input_side`: fewer
+        inputs than outputs (a cascade), a transfer-matrix controller, and this class's own responses (a
+        subclass with its own, the sampled loop, keeps the output-side solve)."""
+        cls = type(self)
+        own = cls.loop_gains is MimoLoop.loop_gains and cls.channels is MimoLoop.channels
+        return own and self.n_in < self.n_out and isinstance(self.controller, TfMatrix)
+
     def input_side(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(L_i = Ks Gs, Gs, Ks) at ``s`` from one evaluation of the entries."""
         s = np.asarray(s, dtype=complex).ravel()
-        if not isinstance(self.controller, TfMatrix) or self.diagonal_controller():
+        K = self.controller
+        if not self.outputs_by_inputs() or self.diagonal_controller() or not isinstance(K, TfMatrix):
             Gs, Ks = self.channels(s)
             return self.loop_gains(s, "input"), Gs, Ks
-        entries = (*_tf_values(self.controller, s, tuple(self.ins), tuple(self.outs)), *self._plant_entries(s))
+        entries = (*_tf_values(K, s, tuple(self.ins), tuple(self.outs)), *self._plant_entries(s))
         kr, kc, kv, gr, gc, gv = entries
         Gs = np.zeros((s.size, self.n_out, self.n_in), dtype=complex)
         Gs[:, gr, gc] = gv

@@ -267,13 +267,13 @@ def lat_rows(loop: MimoLoop, s: np.ndarray, outputs: bool = True,
              S: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Loop-at-a-time responses (rows, len(s)): the n_in plant inputs, then the n_out plant outputs
     (only the input rows when ``outputs`` is False); ``S``: (S_i, S_o) at ``s`` when known. With fewer
-    inputs than outputs (a cascade) the output rows come from the input side, as the zooms take them:
-    S_o[k, k] = 1 - (Gs S_i Ks)[k, k]."""
+    inputs than outputs (a cascade, :meth:`~.mimo_loop.MimoLoop.outputs_by_inputs`) the output rows come
+    from the input side, as the zooms take them: S_o[k, k] = 1 - (Gs S_i Ks)[k, k]."""
     if not outputs:
         with np.errstate(all="ignore"):
             Si = np.linalg.inv(np.eye(loop.n_in) + loop.loop_gains(s, "input")) if S is None else S[0]
             return 1.0 / np.diagonal(Si, axis1=1, axis2=2).T - 1.0
-    if loop.n_in < loop.n_out:
+    if loop.outputs_by_inputs():
         L, Gs, Ks = loop.input_side(s)
         with np.errstate(all="ignore"):
             Si = np.linalg.inv(np.eye(loop.n_in) + L) if S is None else S[0]
@@ -306,7 +306,7 @@ class _RowsEvaluator(Evaluator):
         ni = self.loop.n_in
         side = "output" if self.row >= ni else "input"
         k = self.row - ni if side == "output" else self.row
-        if side == "output" and ni < self.loop.n_out:
+        if side == "output" and self.loop.outputs_by_inputs():
             return self._output_row_by_inputs(s, k)
         n = self.loop.n_out if side == "output" else ni
         e = np.zeros((s.size, n, 1))

@@ -155,3 +155,28 @@ def test_plant_memo_computes_a_plant_figure_once_and_a_controller_figure_every_t
     for _ in range(2):
         plant_memo(A.copy(), B, C, "x", figure)
     assert len(calls) == 3
+
+
+def test_loop_subclass_with_its_own_responses_keeps_them_for_output_breaks() -> None:
+    """Regression: the input-side shortcut for a cascade's output breaks read the continuous entries directly,
+    so a loop class with its own loop gains (the sampled-data loop) had its output breaks judged on the
+    continuous loop. Such a class now keeps its own responses; the plain loop takes the shortcut."""
+    spec = load_spec(load_model("robot_arm6").example_spec())
+    ev = Evaluator(spec)
+    sl, _, _ = spec_margins(ev.spec, ev.plant, ev.layout, ev.layout.full(_candidates("robot_arm6", ev, 1))[0],
+                            aimed=True)
+
+    class Scaled(MimoLoop):  # its own responses: the plant doubled
+        def channels(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            Gs, Ks = super().channels(s)
+            return 2.0 * Gs, Ks
+
+        def loop_gains(self, s: np.ndarray, side: str) -> np.ndarray:
+            return 2.0 * super().loop_gains(s, side)
+
+    plain = MimoLoop.build(sl.plant, sl.controller, sl.pairing)
+    own = Scaled.build(sl.plant, sl.controller, sl.pairing)
+    assert plain.outputs_by_inputs() and not own.outputs_by_inputs()
+    L, Gs, _ = own.input_side(1j * np.array([1.0, 10.0]))
+    np.testing.assert_array_equal(L, 2.0 * plain.loop_gains(1j * np.array([1.0, 10.0]), "input"))
+    np.testing.assert_array_equal(Gs, 2.0 * plain.channels(1j * np.array([1.0, 10.0]))[0])
