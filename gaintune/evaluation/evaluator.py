@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -158,8 +159,10 @@ def mimo_requirement_scores(ev: Evaluator, tuned: np.ndarray, stability: bool = 
     FEASIBILITY_MARGIN to spare. ``stability`` is accepted for the interface: an unstable loop always
     scores as unstable (its margins mean nothing). The nominal plant only (the MIMO verdict has no robust set yet).
     """
-    from gaintune.verification.mimo_spec import graded, spec_margins
+    from gaintune.verification.mimo_spec import graded, loop_frame, spec_margins
 
+    if ev._mimo_frame is None:  # the plant side, built once: every candidate reuses its plant-only work
+        ev._mimo_frame = loop_frame(ev.spec, ev.plant)
     full = ev.layout.full(tuned)
     out = np.zeros((2, tuned.shape[0]))
     for b, row in enumerate(full):
@@ -169,7 +172,7 @@ def mimo_requirement_scores(ev: Evaluator, tuned: np.ndarray, stability: bool = 
             if not np.all(np.isfinite(row)):
                 hit = (DIVERGED_VIOLATION, DIVERGED_VIOLATION)
             else:
-                _, rep, lines = spec_margins(ev.spec, ev.plant, ev.layout, row, aimed=True)
+                _, rep, lines = spec_margins(ev.spec, ev.plant, ev.layout, row, aimed=True, frame=ev._mimo_frame)
                 hit = graded(rep, lines)
             if len(ev._mimo_memo) > 4096:
                 ev._mimo_memo.clear()
@@ -221,6 +224,7 @@ class Evaluator:
         self._constraint_models: list[LinearModel] | None = None
         self._noise_limit: np.ndarray | None = None
         self._mimo_memo: dict[bytes, tuple[float, float]] = {}  # gains -> MIMO (violation, shortfall)
+        self._mimo_frame: Any = None  # the MIMO check's plant side (verification.mimo_spec.loop_frame)
         #: the spec the requirement estimate judges: its limits moved to the search's aim (requirements.backoff)
         self._aim_spec = spec.model_copy(update={"requirements": spec.requirements.aimed()})
 

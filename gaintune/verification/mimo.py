@@ -21,6 +21,7 @@ from gaintune.lti.mimo import MimoLti
 from gaintune.verification.margins import MAG_FLOOR, BreakFigures
 from gaintune.verification.mimo_loop import LoopPair, MimoLoop, char_freqs
 from gaintune.verification.mimo_margins import MultiloopDisk, Peak, lat_rows, loop_at_a_time, multiloop_disk, sigma_peak
+from gaintune.verification.mimo_plant import plant_eigvals
 from gaintune.verification.mimo_stability import MimoStability, mimo_stability
 
 __all__ = ["MimoMargins", "MimoLine", "REQUIREMENTS", "mimo_report", "analysis_grid", "judge"]
@@ -93,7 +94,7 @@ def analysis_grid(loop: MimoLoop) -> np.ndarray:
         n = min(int(w_spin * T / 0.5) + 2, _SPIN_MAX)
         w = np.unique(np.concatenate([w, np.linspace(lo, w_spin, n)])) if w_spin > lo else w
     # not on an open-loop pole of the imaginary axis (L is infinite there: a NaN would poison the peaks)
-    poles = np.concatenate([np.linalg.eigvals(A) for A in (r[0] for r in loop.realisations(0)) if A.size]
+    poles = np.concatenate([plant_eigvals(A) for A in (r[0] for r in loop.realisations(0)) if A.size]
                            or [np.zeros(0, dtype=complex)])
     axis = np.abs(poles.imag[np.abs(poles.real) <= 1e-12 * np.maximum(1.0, np.abs(poles))])
     if axis.size:
@@ -143,9 +144,7 @@ def mimo_report(plant: MimoLti, controller: MimoLti, pairing: Sequence[LoopPair]
     def S_out(ww: np.ndarray) -> np.ndarray:
         return loop.sensitivity(1j * ww, "output")
 
-    with np.errstate(all="ignore"):
-        L = np.concatenate([1.0 / np.diagonal(Si, axis1=1, axis2=2).T - 1.0,
-                            1.0 / np.diagonal(So, axis1=1, axis2=2).T - 1.0])
+    L = lat_rows(loop, s, True, (Si, So))  # as the lean check takes them
     breaks = loop_at_a_time(loop, grid, L)
     notes = list(stab.notes)
     # w = 0 too: a static loop's disk margin can peak there (the satellite example)

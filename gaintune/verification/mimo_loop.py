@@ -20,7 +20,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gaintune.lti.mimo import DelayedSS, MimoLti, TfEntry, TfMatrix, block_diag
+from gaintune.lti.mimo import DelayedSS, MimoLti, TfEntry, TfMatrix
+from gaintune.verification.mimo_plant import plant_eigvals, plant_parts, register_transient, registered
+from gaintune.verification.mimo_products import ProductPlan, product_plan, sparse_product
+from gaintune.verification.mimo_tf import _tf_realisation, _tf_response, _tf_values
 
 __all__ = ["LoopPair", "PidLoop", "MimoLoop", "pid_entry", "decentralised_pid", "response", "solve_points",
            "hidden_modes", "char_freqs", "closed_loop_matrix"]
@@ -96,80 +99,6 @@ def decentralised_pid(plant: MimoLti, loops: Sequence[PidLoop]) -> TfMatrix:
     return TfMatrix(tuple(tuple(r) for r in rows), inputs=plant.outputs, outputs=plant.inputs)
 
 
-_NZ_CACHE: dict[tuple, tuple[TfMatrix, list[tuple[int, int, TfEntry]], tuple]] = {}
-
-
-def _nonzero(sys: TfMatrix, rows: tuple[int, ...], cols: tuple[int, ...]) -> list[tuple[int, int, TfEntry]]:
-    """(row, column, entry) of the nonzero entries of ``sys[rows, cols]``, remembered per matrix object."""
-    return _nz_data(sys, rows, cols)[0]
-
-
-def _nz_data(sys: TfMatrix, rows: tuple[int, ...], cols: tuple[int, ...]) -> tuple[list, tuple]:
-    """The nonzero entries and their coefficients stacked for a vectorised evaluation: (row indices,
-    column indices, numerators and denominators padded to one length, delays)."""
-    key = (id(sys), rows, cols)
-    hit = _NZ_CACHE.get(key)
-    if hit is not None and hit[0] is sys:
-        return hit[1], hit[2]
-    nz = [(a, b, sys.entries[i][j]) for a, i in enumerate(rows) for b, j in enumerate(cols)
-          if not sys.entries[i][j].is_zero]
-    k = max([max(e.num.size, e.den.size) for _, _, e in nz], default=1)
-    num = np.array([np.pad(np.asarray(e.num, float), (k - e.num.size, 0)) for _, _, e in nz]).reshape(len(nz), k)
-    den = np.array([np.pad(np.asarray(e.den, float), (k - e.den.size, 0)) for _, _, e in nz]).reshape(len(nz), k)
-    stacked = (np.array([a for a, _, _ in nz], dtype=int), np.array([b for _, b, _ in nz], dtype=int), num, den,
-               np.array([e.delay for _, _, e in nz]))
-    if len(_NZ_CACHE) > 256:
-        _NZ_CACHE.clear()
-    _NZ_CACHE[key] = (sys, nz, stacked)
-    return nz, stacked
-
-
-def _tf_values(sys: TfMatrix, s: np.ndarray, rows: tuple[int, ...], cols: tuple[int, ...]
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(row indices, column indices, values (len(s), entries)) of the nonzero entries of
-    ``sys[rows, cols]`` at ``s``, all at once (Horner over the stacked coefficients)."""
-    _, (ra, cb, num, den, delay) = _nz_data(sys, rows, cols)
-    n = np.zeros((s.size, ra.size), dtype=complex)
-    d = np.zeros((s.size, ra.size), dtype=complex)
-    for c in range(num.shape[1]):
-        n = n * s[:, None] + num[:, c]
-        d = d * s[:, None] + den[:, c]
-    with np.errstate(all="ignore"):  # an integrator at s = 0: inf, as meant
-        v = n / d
-        if np.any(delay):
-            v = v * np.exp(-s[:, None] * delay[None, :])
-    return ra, cb, v
-
-
-def _tf_response(sys: TfMatrix, s: np.ndarray, rows: tuple[int, ...], cols: tuple[int, ...]) -> np.ndarray:
-    """``sys[rows, cols]`` at ``s`` (len(s), len(rows), len(cols))."""
-    out = np.zeros((s.size, len(rows), len(cols)), dtype=complex)
-    ra, cb, v = _tf_values(sys, s, rows, cols)
-    if ra.size:
-        out[:, ra, cb] = v
-    return out
-
-
-def _tf_realisation(sys: TfMatrix, rows: Sequence[int], cols: Sequence[int]) -> tuple:
-    """(A, B, C, D) of the delay-free ``sys[rows, cols]``, entry by entry (zero entries add nothing)."""
-    As, Bs, Cs = [], [], []
-    D = np.zeros((len(rows), len(cols)))
-    for a, b, e in _nonzero(sys, tuple(rows), tuple(cols)):
-        A, B, C, Dij = e.realisation()
-        if e.den.size > 1:  # a static entry's realisation has a dummy state
-            As.append(A)
-            Bc = np.zeros((A.shape[0], len(cols)))
-            Bc[:, b] = B[:, 0]
-            Cr = np.zeros((len(rows), A.shape[0]))
-            Cr[a, :] = C[0, :]
-            Bs.append(Bc)
-            Cs.append(Cr)
-        D[a, b] = Dij[0, 0]
-    if not As:
-        return np.zeros((0, 0)), np.zeros((0, len(cols))), np.zeros((len(rows), 0)), D
-    return block_diag(*As), np.vstack(Bs), np.hstack(Cs), D
-
-
 def solve_points(M: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """``np.linalg.solve`` over a stack of points, with inf where a point's matrix is singular.
 
@@ -218,6 +147,15 @@ def _rank(X: np.ndarray, scale: float, tol: float = 1e-7) -> int:
 
 
 def hidden_modes(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> np.ndarray:
+    """:func:`_hidden_modes`, remembered for a plant realisation of :mod:`.mimo_plant` (plant-only work)."""
+    hit = registered(A, B, C)
+    if hit is None:
+        return _hidden_modes(A, B, C, floor)
+    parts, order = hit
+    return parts.memo(parts.hidden, (order, float(floor)), lambda: _hidden_modes(A, B, C, floor))
+
+
+def _hidden_modes(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> np.ndarray:
     """The eigenvalues of A right of Re s = ``floor`` |lambda|max that (A, B) cannot reach or C cannot
     see: feedback between these inputs and outputs cannot move them.
 
@@ -255,6 +193,16 @@ def hidden_modes(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float) -> n
     return np.array(out, dtype=complex)
 
 
+def _modal_form(P: DelayedSS, outs: list[int], ins: list[int]) -> tuple:
+    """(ok, eigenvalues, C V, V^-1 B, D, output delays, input delays) of the channels ``outs`` x ``ins``
+    (ok: the eigenvectors V are well conditioned; a zero D or delay is None)."""
+    lam, V = np.linalg.eig(P.A)
+    ok = bool(np.linalg.cond(V) < 1e8)
+    D, d_out, d_in = P.D[np.ix_(outs, ins)], P.output_delays[outs], P.input_delays[ins]
+    return (ok, lam, P.C[outs] @ V if ok else None, np.linalg.solve(V, P.B[:, ins]) if ok else None,
+            D if np.any(D) else None, d_out if np.any(d_out) else None, d_in if np.any(d_in) else None)
+
+
 def _check_controller(K: MimoLti, plant: MimoLti) -> None:
     p, m = plant.shape
     if K.shape != (m, p):
@@ -280,6 +228,7 @@ class MimoLoop:
     _real: dict[int, tuple[tuple, tuple]] = field(default_factory=dict, repr=False)
     _modal: tuple | None = field(default=None, repr=False)
     _diag: bool | None = field(default=None, repr=False)
+    _plans: dict[str, ProductPlan] = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, plant: MimoLti, controller: MimoLti, pairing: Sequence[LoopPair]) -> MimoLoop:
@@ -332,12 +281,10 @@ class MimoLoop:
         if not isinstance(P, DelayedSS) or P.A.shape[0] == 0:
             return response(P, s, self.outs, self.ins)
         if self._modal is None:
-            lam, V = np.linalg.eig(P.A)
-            ok = bool(np.linalg.cond(V) < 1e8)
-            D, d_out, d_in = P.D[np.ix_(self.outs, self.ins)], P.output_delays[self.outs], P.input_delays[self.ins]
-            self._modal = (ok, lam, P.C[self.outs] @ V if ok else None,
-                           np.linalg.solve(V, P.B[:, self.ins]) if ok else None,
-                           D if np.any(D) else None, d_out if np.any(d_out) else None, d_in if np.any(d_in) else None)
+            parts = plant_parts(P, tuple(self.outs), tuple(self.ins))
+            if parts.modal is None:  # plant-only: once per plant object
+                parts.modal = _modal_form(P, self.outs, self.ins)
+            self._modal = parts.modal
         ok, lam, CV, VB, D, d_out, d_in = self._modal
         if not ok:
             return response(P, s, self.outs, self.ins)
@@ -387,9 +334,63 @@ class MimoLoop:
                 k = np.diagonal(response(K, s, self.ins, self.outs), axis1=1, axis2=2)
             with np.errstate(all="ignore"):
                 return k[:, :, None] * Gs if side == "input" else Gs * k[:, None, :]
+        if isinstance(self.controller, TfMatrix):
+            return self._sparse_loop_gains(s, side)
         Gs, Ks = self.channels(s)
         with np.errstate(all="ignore"):
             return Ks @ Gs if side == "input" else Gs @ Ks
+
+    def _plant_entries(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(rows, columns, values (len(s), entries)) of Gs: a transfer matrix's nonzero entries, else all."""
+        if isinstance(self.plant, TfMatrix):
+            return _tf_values(self.plant, s, tuple(self.outs), tuple(self.ins))
+        Gs = self._plant_channels(s)
+        rows, cols = np.divmod(np.arange(self.n_out * self.n_in), self.n_in)
+        return rows, cols, Gs.reshape(s.size, -1)
+
+    def outputs_by_inputs(self) -> bool:
+        """Whether output-side figures are taken on the smaller input side from :meth:`input_side`: fewer
+        inputs than outputs (a cascade), a transfer-matrix controller, and this class's own responses (a
+        subclass with its own, the sampled loop, keeps the output-side solve)."""
+        cls = type(self)
+        own = cls.loop_gains is MimoLoop.loop_gains and cls.channels is MimoLoop.channels
+        return own and self.n_in < self.n_out and isinstance(self.controller, TfMatrix)
+
+    def input_side(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(L_i = Ks Gs, Gs, Ks) at ``s`` from one evaluation of the entries."""
+        s = np.asarray(s, dtype=complex).ravel()
+        K = self.controller
+        if not self.outputs_by_inputs() or self.diagonal_controller() or not isinstance(K, TfMatrix):
+            Gs, Ks = self.channels(s)
+            return self.loop_gains(s, "input"), Gs, Ks
+        entries = (*_tf_values(K, s, tuple(self.ins), tuple(self.outs)), *self._plant_entries(s))
+        kr, kc, kv, gr, gc, gv = entries
+        Gs = np.zeros((s.size, self.n_out, self.n_in), dtype=complex)
+        Gs[:, gr, gc] = gv
+        Ks = np.zeros((s.size, self.n_in, self.n_out), dtype=complex)
+        Ks[:, kr, kc] = kv
+        return self._sparse_loop_gains(s, "input", entries), Gs, Ks
+
+    def _sparse_loop_gains(self, s: np.ndarray, side: str, entries: tuple | None = None) -> np.ndarray:
+        """L from the nonzero entries of Ks and Gs only (:mod:`.mimo_products`); ``entries``: theirs at ``s``
+        when known. Where an entry is not finite (a pole on the point) the dense product stands, whose
+        inf * 0 = NaN the figures expect."""
+        assert isinstance(self.controller, TfMatrix)
+        if entries is None:
+            entries = (*_tf_values(self.controller, s, tuple(self.ins), tuple(self.outs)), *self._plant_entries(s))
+        kr, kc, kv, gr, gc, gv = entries
+        plan = self._plans.get(side)
+        if plan is None:
+            plan = (product_plan(kr, kc, gr, gc, (self.n_in, self.n_in)) if side == "input"
+                    else product_plan(gr, gc, kr, kc, (self.n_out, self.n_out)))
+            self._plans[side] = plan
+        L = sparse_product(plan, kv, gv) if side == "input" else sparse_product(plan, gv, kv)
+        bad = ~(np.all(np.isfinite(kv), axis=1) & np.all(np.isfinite(gv), axis=1))
+        if bad.any():
+            Gs, Ks = self.channels(s[bad])
+            with np.errstate(all="ignore"):
+                L[bad] = Ks @ Gs if side == "input" else Gs @ Ks
+        return L
 
     def sensitivity(self, s: np.ndarray, side: str) -> np.ndarray:
         """S at ``s`` on one side ("input" or "output"), (len(s), n, n)."""
@@ -405,31 +406,42 @@ class MimoLoop:
         of ``pade_order``; 0 drops them) and of the controller's loop channels."""
         if pade_order in self._real:
             return self._real[pade_order]
-        P = self.plant.pade_ss(pade_order)
-        plant = (P.A, P.B[:, self.ins], P.C[self.outs], P.D[np.ix_(self.outs, self.ins)])
+        plant = plant_parts(self.plant, tuple(self.outs), tuple(self.ins)).realisation(pade_order)
+        ctrl = next(iter(self._real.values()))[1] if self._real else self._controller_realisation()
+        self._real[pade_order] = (plant, ctrl)
+        return plant, ctrl
+
+    def _controller_realisation(self) -> tuple:
+        """(A, B, C, D) of the controller's loop channels, delay-free whatever the Padé order: one object
+        for every order, known to :func:`~.mimo_plant.plant_memo` while this loop is checked."""
         K = self.controller
         if isinstance(K, TfMatrix):  # only the entries in the loop (a big sparse matrix realises slowly)
             ctrl = _tf_realisation(K, self.ins, self.outs)
         else:
             Kc = K.pade_ss(0)
             ctrl = (Kc.A, Kc.B[:, self.outs], Kc.C[self.ins], Kc.D[np.ix_(self.ins, self.outs)])
-        self._real[pade_order] = (plant, ctrl)
-        return plant, ctrl
+        register_transient(K, ctrl)
+        return ctrl
 
     def max_delay(self) -> float:
-        """The largest delay of the loop channels (0 without delays)."""
-        P = self.plant
-        if isinstance(P, TfMatrix):
-            return max((P.entries[i][j].delay for i in self.outs for j in self.ins), default=0.0)
-        assert isinstance(P, DelayedSS)
-        return float(P.input_delays[self.ins].max(initial=0.0) + P.output_delays[self.outs].max(initial=0.0))
+        """The largest delay of the loop channels (0 without delays; plant-only, found once per plant)."""
+        parts = plant_parts(self.plant, tuple(self.outs), tuple(self.ins))
+        if parts.max_delay is None:
+            P = self.plant
+            if isinstance(P, TfMatrix):
+                parts.max_delay = max((P.entries[i][j].delay for i in self.outs for j in self.ins), default=0.0)
+            else:
+                assert isinstance(P, DelayedSS)
+                parts.max_delay = float(P.input_delays[self.ins].max(initial=0.0)
+                                        + P.output_delays[self.outs].max(initial=0.0))
+        return parts.max_delay
 
 
 def char_freqs(loop: MimoLoop) -> np.ndarray:
     """Characteristic frequencies (rad/s) of the loop: magnitudes of the plant's and the controller's
     poles, of the controller's zeros (PID corners) and 1/T of the largest delay ([1.0] when none)."""
     (Ap, _, _, _), (Ak, _, _, _) = loop.realisations(0)
-    f = [np.abs(np.linalg.eigvals(A)) for A in (Ap, Ak) if A.size]
+    f = [np.abs(plant_eigvals(A)) for A in (Ap, Ak) if A.size]
     K = loop.controller
     if isinstance(K, TfMatrix):
         f += [np.abs(np.roots(e.num)) for row in K.entries for e in row if not e.is_zero and e.num.size > 1]

@@ -263,14 +263,23 @@ def sigma_peak(X_at: Callable[[np.ndarray], np.ndarray], w: np.ndarray, X: np.nd
 # ------------------------------------------------------------------ loop at a time
 
 
-def lat_rows(loop: MimoLoop, s: np.ndarray, outputs: bool = True) -> np.ndarray:
+def lat_rows(loop: MimoLoop, s: np.ndarray, outputs: bool = True,
+             S: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Loop-at-a-time responses (rows, len(s)): the n_in plant inputs, then the n_out plant outputs
-    (only the input rows when ``outputs`` is False)."""
+    (only the input rows when ``outputs`` is False); ``S``: (S_i, S_o) at ``s`` when known. With fewer
+    inputs than outputs (a cascade, :meth:`~.mimo_loop.MimoLoop.outputs_by_inputs`) the output rows come
+    from the input side, as the zooms take them: S_o[k, k] = 1 - (Gs S_i Ks)[k, k]."""
     if not outputs:
         with np.errstate(all="ignore"):
-            Si = np.linalg.inv(np.eye(loop.n_in) + loop.loop_gains(s, "input"))
+            Si = np.linalg.inv(np.eye(loop.n_in) + loop.loop_gains(s, "input")) if S is None else S[0]
             return 1.0 / np.diagonal(Si, axis1=1, axis2=2).T - 1.0
-    Si, So = loop.sensitivities(s)
+    if loop.outputs_by_inputs():
+        L, Gs, Ks = loop.input_side(s)
+        with np.errstate(all="ignore"):
+            Si = np.linalg.inv(np.eye(loop.n_in) + L) if S is None else S[0]
+            so = 1.0 - np.einsum("wki,wik->wk", Gs, Si @ Ks)
+            return np.concatenate([1.0 / np.diagonal(Si, axis1=1, axis2=2).T - 1.0, 1.0 / so.T - 1.0])
+    Si, So = loop.sensitivities(s) if S is None else S
     with np.errstate(all="ignore"):
         return np.concatenate([1.0 / np.diagonal(Si, axis1=1, axis2=2).T - 1.0,
                                1.0 / np.diagonal(So, axis1=1, axis2=2).T - 1.0])
@@ -297,12 +306,23 @@ class _RowsEvaluator(Evaluator):
         ni = self.loop.n_in
         side = "output" if self.row >= ni else "input"
         k = self.row - ni if side == "output" else self.row
+        if side == "output" and self.loop.outputs_by_inputs():
+            return self._output_row_by_inputs(s, k)
         n = self.loop.n_out if side == "output" else ni
         e = np.zeros((s.size, n, 1))
         e[:, k, 0] = 1.0
         with np.errstate(all="ignore"):
             x = solve_points(np.eye(n) + self.loop.loop_gains(s, side), e)
             return (1.0 / x[:, k, 0] - 1.0)[None, :]
+
+    def _output_row_by_inputs(self, s: np.ndarray, k: int) -> np.ndarray:
+        """Output row k on the smaller input side: S_o = I - Gs (I + Ks Gs)^-1 Ks, so
+        S_o[k, k] = 1 - Gs[k, :] x with (I + Ks Gs) x = Ks[:, k] (fewer inputs than outputs: a cascade)."""
+        L, Gs, Ks = self.loop.input_side(s)
+        with np.errstate(all="ignore"):
+            x = solve_points(np.eye(self.loop.n_in) + L, Ks[:, :, k : k + 1])
+            s_kk = 1.0 - np.einsum("wi,wi->w", Gs[:, k, :], x[:, :, 0])
+            return (1.0 / s_kk - 1.0)[None, :]
 
 
 def loop_at_a_time(loop: MimoLoop, w: np.ndarray, L: np.ndarray | None = None) -> list[BreakFigures]:

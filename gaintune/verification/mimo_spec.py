@@ -19,6 +19,8 @@ search's violation built from the same lines: 0 exactly when every line passes w
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -40,8 +42,8 @@ from gaintune.verification.mimo_margins import MultiloopDisk, Peak, loop_at_a_ti
 from gaintune.verification.mimo_stability import mimo_stability
 from gaintune.verification.quick import FEASIBILITY_MARGIN, MAX_TERM, UNSTABLE_VIOLATION
 
-__all__ = ["SpecLoop", "spec_loop", "spec_requirements", "aimed_requirements", "spec_margins", "graded",
-           "MIMO_NOT_CHECKED"]
+__all__ = ["SpecLoop", "LoopFrame", "loop_frame", "spec_loop", "spec_requirements", "aimed_requirements",
+           "spec_margins", "graded", "MIMO_NOT_CHECKED"]
 
 #: Single-loop requirement fields the MIMO verdict does not judge (a note says so when they are set).
 MIMO_NOT_CHECKED = ("wc_min", "wc_max", "mks_max")
@@ -72,17 +74,28 @@ def _with_input_delays(lti: MimoLti, extra: np.ndarray) -> MimoLti:
     return replace(lti, entries=rows)
 
 
+def _trim(a: np.ndarray) -> np.ndarray:
+    """``a`` without leading zeros ([0.] when all are zero), as ``np.poly1d`` keeps coefficients."""
+    nz = np.flatnonzero(a)
+    return a[nz[0]:] if nz.size else np.zeros(1, dtype=a.dtype)
+
+
+def _pmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.polymul(a, b)`` for arrays, without its poly1d objects (a search builds thousands)."""
+    return np.convolve(_trim(a), _trim(b))
+
+
 def _poly_sum(terms: list[TfEntry]) -> TfEntry:
     """The sum of delay-free entries over the product of their denominators."""
     den = np.array([1.0])
     for t in terms:
-        den = np.polymul(den, t.den)
+        den = _pmul(den, t.den)
     num = np.array([0.0])
     for k, t in enumerate(terms):
         part = t.num
         for m, o in enumerate(terms):
             if m != k:
-                part = np.polymul(part, o.den)
+                part = _pmul(part, o.den)
         num = np.polyadd(num, part)
     return TfEntry(np.trim_zeros(num, "f") if np.any(num) else np.array([0.0]), den)
 
@@ -109,7 +122,7 @@ def _controller(spec: TuningSpec, layout: GainLayout, full: np.ndarray, lti: Mim
             if arch.parent[a] < 0:
                 break
             a = int(arch.parent[a])
-            prod = TfEntry(np.polymul(prod.num, laws[a].num), np.polymul(prod.den, laws[a].den))
+            prod = TfEntry(_pmul(prod.num, laws[a].num), _pmul(prod.den, laws[a].den))
     zero = TfEntry(np.array([0.0]), np.array([1.0]))
     rows = [[_poly_sum(terms[(j, i)]) if (j, i) in terms else zero for i in range(p)] for j in range(m)]
     return TfMatrix(tuple(tuple(r) for r in rows), inputs=lti.outputs, outputs=lti.inputs)
@@ -126,8 +139,43 @@ def _chain_input(arch, k: int, parent_of: dict[int, list[int]]) -> int:
     raise SpecError("loops", f"loop {k} drives no plant input through its chain")
 
 
-def spec_loop(spec: TuningSpec, plant: Any, layout: GainLayout, full: np.ndarray) -> SpecLoop:
-    """The MIMO loop ``spec`` describes with the gains ``full`` (one vector, layout order)."""
+@dataclass(frozen=True)
+class LoopFrame:
+    """The plant side of :func:`spec_loop`, the same for every gain set of one (spec, plant): built
+    once (:func:`loop_frame`), so every loop shares one plant object and its plant-only work
+    (:mod:`gaintune.verification.mimo_plant`)."""
+
+    spec: TuningSpec
+    source: Any  # the plant it was built from
+    arch: Any  # gaintune.sim.mimo.architecture
+    lti: MimoLti  # the plant's MIMO form, without the added delays
+    plant: MimoLti  # with the sampling, compute and actuator delays on the driven inputs
+    pairing: list[LoopPair]
+    extra_delay: float
+    dt: float
+
+
+_FRAMES: OrderedDict[tuple[int, int], LoopFrame] = OrderedDict()
+_FRAMES_LOCK = threading.Lock()
+
+
+def loop_frame(spec: TuningSpec, plant: Any) -> LoopFrame:
+    """The :class:`LoopFrame` of ``spec`` on ``plant`` (the same object for the same spec and plant objects)."""
+    key = (id(spec), id(plant))
+    with _FRAMES_LOCK:
+        hit = _FRAMES.get(key)
+        if hit is not None and hit.spec is spec and hit.source is plant:
+            _FRAMES.move_to_end(key)
+            return hit
+    frame = _build_frame(spec, plant)
+    with _FRAMES_LOCK:
+        _FRAMES[key] = frame
+        while len(_FRAMES) > 8:
+            _FRAMES.popitem(last=False)
+    return frame
+
+
+def _build_frame(spec: TuningSpec, plant: Any) -> LoopFrame:
     mp = as_mimo(plant)
     arch = architecture(spec, mp)
     lti = mp.lti()
@@ -144,7 +192,16 @@ def spec_loop(spec: TuningSpec, plant: Any, layout: GainLayout, full: np.ndarray
             children.setdefault(int(par), []).append(k)
     pairing = [LoopPair(spec.loop_names[i], int(arch.meas[k]), _chain_input(arch, k, children))
                for k, i in enumerate(arch.order)]
-    return SpecLoop(_with_input_delays(lti, delays), _controller(spec, layout, full, lti, arch), pairing, extra, dt)
+    return LoopFrame(spec, plant, arch, lti, _with_input_delays(lti, delays), pairing, extra, dt)
+
+
+def spec_loop(spec: TuningSpec, plant: Any, layout: GainLayout, full: np.ndarray,
+              frame: LoopFrame | None = None) -> SpecLoop:
+    """The MIMO loop ``spec`` describes with the gains ``full`` (one vector, layout order);
+    ``frame``: its :func:`loop_frame` (looked up when None)."""
+    fr = frame if frame is not None else loop_frame(spec, plant)
+    return SpecLoop(fr.plant, _controller(spec, layout, full, fr.lti, fr.arch), list(fr.pairing), fr.extra_delay,
+                    fr.dt)
 
 
 def spec_requirements(spec: TuningSpec) -> dict[str, float | dict[str, float]]:
@@ -234,15 +291,17 @@ def _needs(requirements: dict[str, Any]) -> set[str]:
 
 
 def spec_margins(spec: TuningSpec, plant: Any, layout: GainLayout, full: np.ndarray,
-                 w: np.ndarray | None = None, aimed: bool = False) -> tuple[SpecLoop, MimoMargins, list[MimoLine]]:
-    """The MIMO report and the requirement lines of one gain set (``aimed``: at the search's aim).
+                 w: np.ndarray | None = None, aimed: bool = False, frame: LoopFrame | None = None
+                 ) -> tuple[SpecLoop, MimoMargins, list[MimoLine]]:
+    """The MIMO report and the requirement lines of one gain set (``aimed``: at the search's aim;
+    ``frame``: the :func:`loop_frame` of ``spec`` and ``plant``, looked up when None).
 
     Raises
     ------
     SpecError
         For a requirement target that is not a loop, plant input, output or side.
     """
-    sl = spec_loop(spec, plant, layout, full)
+    sl = spec_loop(spec, plant, layout, full, frame)
     reqs = aimed_requirements(spec) if aimed else spec_requirements(spec)
     if aimed:  # the search's constraint: only the figures its requirements read
         rep = lean_report(sl, _needs(reqs), spec.verify.pade_order)
