@@ -25,6 +25,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gaintune.verification.mimo_loop import MimoLoop, char_freqs, closed_loop_matrix
+from gaintune.verification.mimo_plant import plant_eigvals, plant_memo
+from gaintune.verification.mimo_products import block_eigvals
 
 __all__ = ["MimoStability", "mimo_stability", "minimal_part", "hidden_modes_in_full", "trim_hidden", "contour_shift"]
 
@@ -237,7 +239,8 @@ def _open_loop_poles(loop: MimoLoop) -> np.ndarray:
     parts = []
     for A, B, C, _ in (P, Kc):
         if A.size:
-            parts.append(_drop(np.linalg.eigvals(A), hidden_modes_in_full(A, B, C, -1e-6)))
+            hid = plant_memo(A, B, C, "hidden", lambda A=A, B=B, C=C: hidden_modes_in_full(A, B, C, -1e-6))
+            parts.append(_drop(plant_eigvals(A), hid))
     return np.concatenate(parts) if parts else np.zeros(0, dtype=complex)
 
 
@@ -279,10 +282,10 @@ def mimo_stability(loop: MimoLoop, pade_order: int | None = None) -> MimoStabili
     P, Kc = loop.realisations(order)
     A = closed_loop_matrix(P, Kc)
     with np.errstate(all="ignore"):
-        poles = np.linalg.eigvals(A) if A.size and np.all(np.isfinite(A)) else np.zeros(0, dtype=complex)
-    hid_p = hidden_modes_in_full(P[0], P[1], P[2], -1e-6)
+        poles = block_eigvals(A) if A.size and np.all(np.isfinite(A)) else np.zeros(0, dtype=complex)
+    hid_p = plant_memo(*P[:3], "hidden", lambda: hidden_modes_in_full(P[0], P[1], P[2], -1e-6))  # plant-only
     # artefacts of the controller's realisation (a cascade's, entry by entry, repeats its integrators)
-    hid_k = hidden_modes_in_full(Kc[0], Kc[1], Kc[2], -1e-6)
+    hid_k = plant_memo(*Kc[:3], "hidden", lambda: hidden_modes_in_full(Kc[0], Kc[1], Kc[2], -1e-6))
     poles = _drop(poles, np.concatenate([hid_p, hid_k]))
     bad, marginal = _split_hidden(hid_p)
     _hidden_notes(bad, marginal, notes)
