@@ -180,14 +180,14 @@ def minimal_part(A: np.ndarray, B: np.ndarray, C: np.ndarray,
     return A2, (h[:, None] * Vh[:r])[:, :m], (U[:, :r] * h[None, :])[:p]
 
 
-def _split(A: np.ndarray, B: np.ndarray, C: np.ndarray, select) -> tuple[int, tuple, tuple]:
+def _split(A: np.ndarray, B: np.ndarray, C: np.ndarray, discrete: bool, thr: float) -> tuple[int, tuple, tuple]:
     """(k, right part (A_r, B_r, C_r), left part (A_l, B_l, C_l)): the additive split of (A, B, C)
-    into the eigenvalues ``select(re, im)`` picks (k of them) and the others, by the ordered real
+    into the k eigenvalues whose :func:`_criterion` exceeds ``thr`` and the others, by the ordered real
     Schur form block-diagonalised with a Sylvester solve. Only the (few) modes that matter to a
     stability count go through :func:`minimal_part`."""
     import scipy.linalg
 
-    T, Z, k = scipy.linalg.schur(A, output="real", sort=select)
+    T, Z, k = _ordered_schur(A, discrete, thr)
     ZB, CZ = Z.T @ B, C @ Z
     if k in (0, A.shape[0]):
         return k, (T[:k, :k], ZB[:k], CZ[:, :k]), (T[k:, k:], ZB[k:], CZ[:, k:])
@@ -195,14 +195,43 @@ def _split(A: np.ndarray, B: np.ndarray, C: np.ndarray, select) -> tuple[int, tu
     return k, (T[:k, :k], ZB[:k] - X @ ZB[k:], CZ[:, :k]), (T[k:, k:], ZB[k:], CZ[:, :k] @ X + CZ[:, k:])
 
 
-def _selector(A: np.ndarray, floor: float, discrete: bool):
-    """The eigenvalues that matter to a stability count: Re > ``floor`` |lambda|max, or (``discrete``)
-    |z| > 1 - 1e-6."""
-    if discrete:
-        return lambda re, im: re * re + im * im > (1.0 - 1e-6) ** 2
+def _criterion(re: np.ndarray, im: np.ndarray, discrete: bool) -> np.ndarray:
+    """What the split compares with its threshold: Re s, or (``discrete``) |z|^2."""
+    return re * re + im * im if discrete else re
+
+
+def _ordered_schur(A: np.ndarray, discrete: bool, thr: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """The real Schur form of A with the eigenvalues above ``thr`` first.
+
+    LAPACK refuses the reordering when an eigenvalue within rounding of the threshold moves across it
+    as the form is reordered ("leading eigenvalues do not satisfy sort condition"); the threshold then
+    moves into the widest nearby gap between the eigenvalues' criteria, where no rounding reaches."""
+    import scipy.linalg
+
+    for t in _thresholds(A, discrete, thr):
+        try:
+            return scipy.linalg.schur(A, output="real", sort=lambda re, im, t=t: _criterion(re, im, discrete) > t)
+        except (np.linalg.LinAlgError, ValueError):
+            continue
+    raise np.linalg.LinAlgError("no threshold separates the eigenvalues for an ordered Schur form")
+
+
+def _thresholds(A: np.ndarray, discrete: bool, thr: float) -> list[float]:
+    """``thr``, then the midpoint of the gap between the eigenvalues' criteria that holds ``thr`` (every
+    eigenvalue keeps its side), then the midpoints of the gaps next to it, nearest first."""
     ev = np.linalg.eigvals(A)
-    thr = floor * max(1.0, float(np.max(np.abs(ev))))
-    return lambda re, im: re > thr
+    v = np.unique(_criterion(ev.real, ev.imag, discrete))
+    i = int(np.searchsorted(v, thr, side="right"))  # v[:i] <= thr < v[i:]
+    order = sorted(range(v.size - 1), key=lambda j: (abs(j - (i - 1)), j))
+    return [thr] + [0.5 * (v[j] + v[j + 1]) for j in order[:4]]
+
+
+def _threshold(A: np.ndarray, floor: float, discrete: bool) -> float:
+    """The split's threshold: Re s > ``floor`` |lambda|max, or (``discrete``) |z| > 1 - 1e-6."""
+    if discrete:
+        return (1.0 - 1e-6) ** 2
+    ev = np.linalg.eigvals(A)
+    return floor * max(1.0, float(np.max(np.abs(ev))))
 
 
 def trim_hidden(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float = -1e-6,
@@ -213,7 +242,7 @@ def trim_hidden(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: float = -1e-
     are kept as they are."""
     if not A.size:
         return A, B, C, np.zeros(0, dtype=complex)
-    k, (Ar, Br, Cr), (Al, Bl, Cl) = _split(A, B, C, _selector(A, floor, discrete))
+    k, (Ar, Br, Cr), (Al, Bl, Cl) = _split(A, B, C, discrete, _threshold(A, floor, discrete))
     if k == 0:
         return A, B, C, np.zeros(0, dtype=complex)
     A2, B2, C2 = minimal_part(Ar, Br, Cr)
@@ -232,6 +261,11 @@ def hidden_modes_in_full(A: np.ndarray, B: np.ndarray, C: np.ndarray, floor: flo
     return trim_hidden(A, B, C, floor)[3]
 
 
+def _hidden(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """:func:`hidden_modes_in_full` at the stability count's floor, remembered for a kept plant realisation."""
+    return plant_memo(A, B, C, "hidden", lambda: hidden_modes_in_full(A, B, C, -1e-6))
+
+
 def _open_loop_poles(loop: MimoLoop) -> np.ndarray:
     """Delay-free open-loop poles of plant channels and controller that feedback can move (hidden ones
     are counted apart), for the Nyquist count."""
@@ -239,8 +273,7 @@ def _open_loop_poles(loop: MimoLoop) -> np.ndarray:
     parts = []
     for A, B, C, _ in (P, Kc):
         if A.size:
-            hid = plant_memo(A, B, C, "hidden", lambda A=A, B=B, C=C: hidden_modes_in_full(A, B, C, -1e-6))
-            parts.append(_drop(plant_eigvals(A), hid))
+            parts.append(_drop(plant_eigvals(A), _hidden(A, B, C)))
     return np.concatenate(parts) if parts else np.zeros(0, dtype=complex)
 
 
@@ -283,9 +316,9 @@ def mimo_stability(loop: MimoLoop, pade_order: int | None = None) -> MimoStabili
     A = closed_loop_matrix(P, Kc)
     with np.errstate(all="ignore"):
         poles = block_eigvals(A) if A.size and np.all(np.isfinite(A)) else np.zeros(0, dtype=complex)
-    hid_p = plant_memo(*P[:3], "hidden", lambda: hidden_modes_in_full(P[0], P[1], P[2], -1e-6))  # plant-only
+    hid_p = _hidden(P[0], P[1], P[2])  # plant-only: computed once per plant
     # artefacts of the controller's realisation (a cascade's, entry by entry, repeats its integrators)
-    hid_k = plant_memo(*Kc[:3], "hidden", lambda: hidden_modes_in_full(Kc[0], Kc[1], Kc[2], -1e-6))
+    hid_k = _hidden(Kc[0], Kc[1], Kc[2])
     poles = _drop(poles, np.concatenate([hid_p, hid_k]))
     bad, marginal = _split_hidden(hid_p)
     _hidden_notes(bad, marginal, notes)

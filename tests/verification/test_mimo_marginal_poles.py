@@ -131,3 +131,35 @@ def test_double_integrators_in_general_coordinates_get_a_consistent_nyquist_coun
             loops = [PidLoop("a", "y1", "u1", Kp=1, Kd=kd, Tf=0.01), PidLoop("b", "y2", "u2", Kp=1, Kd=2 * kd, Tf=0.01)]
             st = mimo_stability(MimoLoop.build(G, decentralised_pid(G, loops), loops))
             assert st.stable is stable and st.agree and st.nyquist_rhp == st.rhp_poles, (st.nyquist_rhp, st.rhp_poles)
+
+
+def test_ordered_schur_refused_by_lapack_moves_its_threshold_into_a_gap(monkeypatch) -> None:
+    """A tune of the nonlinear arm stopped with LinAlgError "Leading eigenvalues do not satisfy sort
+    condition": LAPACK refuses an ordered Schur form when an eigenvalue within rounding of the threshold
+    crosses it while the form is reordered. The split then retries with a threshold in a gap."""
+    import scipy.linalg
+
+    from gaintune.verification import mimo_stability as ms
+
+    rng = np.random.default_rng(3)
+    S = rng.normal(size=(5, 5))
+    A = S @ np.diag([-2.0, -1.0, -1e-9, 0.5, 1.0]) @ np.linalg.inv(S)
+    B, C = rng.normal(size=(5, 2)), rng.normal(size=(2, 5))
+    real = scipy.linalg.schur
+    calls = []
+
+    def refusing(a, output="real", sort=None):
+        calls.append(sort)
+        if len(calls) == 1:  # the first threshold, as LAPACK refused it in the arm's tune
+            raise np.linalg.LinAlgError("Leading eigenvalues do not satisfy sort condition.")
+        return real(a, output=output, sort=sort)
+
+    monkeypatch.setattr(scipy.linalg, "schur", refusing)
+    k, (Ar, Br, Cr), (Al, Bl, Cl) = ms._split(A, B, C, False, -1e-6)
+    # the same modes as the threshold asked for (Re > -1e-6), from a threshold in the gap that holds it
+    assert len(calls) == 2 and k == 3
+    np.testing.assert_allclose(np.sort(np.linalg.eigvals(Ar).real), [-1e-9, 0.5, 1.0], atol=1e-8)
+    s = 0.7j  # the split is additive: the parts' responses sum to the whole system's
+    whole = C @ np.linalg.solve(s * np.eye(5) - A, B)
+    parts = Cr @ np.linalg.solve(s * np.eye(3) - Ar, Br) + Cl @ np.linalg.solve(s * np.eye(2) - Al, Bl)
+    np.testing.assert_allclose(parts, whole, rtol=1e-9, atol=1e-9)
