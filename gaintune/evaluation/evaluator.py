@@ -153,13 +153,19 @@ def is_mimo_sim(sim: object) -> bool:
 def mimo_requirement_scores(ev: Evaluator, tuned: np.ndarray, stability: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """(violation, shortfall) of B gain sets of a MIMO spec, each (B,).
 
-    The same report and requirement lines as the MIMO verdict (:mod:`gaintune.verification.mimo_spec`),
+    The same loop, report and requirement lines as the MIMO verdict (the exact sampled loop of
+    :mod:`gaintune.verification.mimo_sampled_report`, or with ``verify.sampled: false`` the continuous
+    one of :mod:`gaintune.verification.mimo_spec`),
     the limits at the search's aim (``requirements.backoff``), graded as the single-loop case
     (:func:`gaintune.verification.mimo_spec.graded`): 0 exactly when every line holds with
     FEASIBILITY_MARGIN to spare. ``stability`` is accepted for the interface: an unstable loop always
     scores as unstable (its margins mean nothing). The nominal plant only (the MIMO verdict has no robust set yet).
     """
+    from gaintune.verification.mimo_sampled_report import sampled_margins
     from gaintune.verification.mimo_spec import graded, loop_frame, spec_margins
+
+    # the loop the verdict judges: the exact sampled loop by default (verify.sampled), else continuous + dt/2
+    margins = sampled_margins if ev.spec.verify.sampled else spec_margins
 
     if ev._mimo_frame is None:  # the plant side, built once: every candidate reuses its plant-only work
         ev._mimo_frame = loop_frame(ev.spec, ev.plant)
@@ -172,7 +178,7 @@ def mimo_requirement_scores(ev: Evaluator, tuned: np.ndarray, stability: bool = 
             if not np.all(np.isfinite(row)):
                 hit = (DIVERGED_VIOLATION, DIVERGED_VIOLATION)
             else:
-                _, rep, lines = spec_margins(ev.spec, ev.plant, ev.layout, row, aimed=True, frame=ev._mimo_frame)
+                _, rep, lines = margins(ev.spec, ev.plant, ev.layout, row, aimed=True, frame=ev._mimo_frame)
                 hit = graded(rep, lines)
             if len(ev._mimo_memo) > 4096:
                 ev._mimo_memo.clear()

@@ -21,9 +21,16 @@ from gaintune.plants.mimo import as_mimo
 from gaintune.spec import TuningSpec
 from gaintune.verification.mimo import MimoLine, MimoMargins, judge
 from gaintune.verification.mimo_loop import MimoLoop, char_freqs
-from gaintune.verification.mimo_margins import MultiloopDisk, loop_at_a_time, multiloop_disk, sigma_peak
+from gaintune.verification.mimo_margins import MultiloopDisk, Peak, loop_at_a_time, multiloop_disk, sigma_peak
 from gaintune.verification.mimo_sampled import SampledLoop, sampled_core, sampled_stability_mimo
-from gaintune.verification.mimo_spec import SpecLoop, spec_loop, spec_requirements
+from gaintune.verification.mimo_spec import (
+    LoopFrame,
+    SpecLoop,
+    aimed_requirements,
+    requirement_needs,
+    spec_loop,
+    spec_requirements,
+)
 
 __all__ = ["sampled_grid", "sampled_loop", "sampled_report", "sampled_margins"]
 
@@ -62,60 +69,86 @@ def sampled_loop(spec: TuningSpec, plant: Any, sl: SpecLoop) -> tuple[MimoLoop, 
     return base, SampledLoop.of(base, core)
 
 
-def sampled_report(base: MimoLoop, loop: SampledLoop, sigma: float = 0.0) -> MimoMargins:
+def sampled_report(base: MimoLoop, loop: SampledLoop, sigma: float = 0.0,
+                   needs: set[str] | None = None) -> MimoMargins:
     """:func:`gaintune.verification.mimo.mimo_report` of the sampled loop: the same figures by the
-    same functions, on :func:`sampled_grid`, with the discrete closed-loop stability."""
+    same functions, on :func:`sampled_grid`, with the discrete closed-loop stability.
+
+    ``needs`` (the search's check, as :func:`~gaintune.verification.mimo_spec.lean_report`): compute
+    only the figures it names (``break``, ``ms``, ``mt``, ``disk``), each equal to the full report's;
+    the others are placeholders no requirement reads, and an unstable loop stops after its stability."""
     stab = sampled_stability_mimo(loop, base)
+    P = loop.plant
+    none, disk0 = Peak(1.0, None), MultiloopDisk(0.0, 0.0, None, 1.0, 1.0, 0.0, 0.0, sigma)
+    rep = MimoMargins(loop.names, [P.inputs[j] for j in loop.loop_ins], [P.outputs[i] for i in loop.loop_outs],
+                      stab, [], [], none, none, none, none, disk0, replace(disk0), (0.0, 0.0), 0, list(stab.notes),
+                      [P.inputs[j] for j in loop.ins])
+    lean = needs is not None
+    if lean and not stab.stable:
+        return rep
+    want = needs if needs is not None else {"break", "ms", "mt", "disk"}
     grid = sampled_grid(base, loop)
+    rep.band, rep.grid_points = (float(grid[0]), float(grid[-1])), int(grid.size)
     Si, So = loop.sensitivities(1j * grid)
+    if "break" in want:
+        with np.errstate(all="ignore"):
+            L = np.concatenate([1.0 / np.diagonal(Si, axis1=1, axis2=2).T - 1.0,
+                                1.0 / np.diagonal(So, axis1=1, axis2=2).T - 1.0])
+        breaks = loop_at_a_time(loop, grid, L)
+        rep.input_breaks, rep.output_breaks = breaks[: loop.n_in], breaks[loop.n_in:]
+    _sampled_peaks_and_disks(rep, loop, grid, Si, So, want, sigma)
+    return rep
+
+
+def _sampled_peaks_and_disks(rep: MimoMargins, loop: SampledLoop, grid: np.ndarray, Si: np.ndarray,
+                             So: np.ndarray, want: set[str], sigma: float) -> None:
+    """The sigma peaks of S and T and the multiloop disk margins ``want`` names, into ``rep``."""
+    nyq = math.pi / loop.dt
     eye_i, eye_o = np.eye(loop.n_in), np.eye(loop.n_out)
 
     def S_in(ww: np.ndarray) -> np.ndarray:
-        return loop.sensitivity(1j * np.minimum(ww, math.pi / loop.dt), "input")
+        return loop.sensitivity(1j * np.minimum(ww, nyq), "input")
 
     def S_out(ww: np.ndarray) -> np.ndarray:
-        return loop.sensitivity(1j * np.minimum(ww, math.pi / loop.dt), "output")
+        return loop.sensitivity(1j * np.minimum(ww, nyq), "output")
 
-    with np.errstate(all="ignore"):
-        L = np.concatenate([1.0 / np.diagonal(Si, axis1=1, axis2=2).T - 1.0,
-                            1.0 / np.diagonal(So, axis1=1, axis2=2).T - 1.0])
-    breaks = loop_at_a_time(loop, grid, L)
-    notes = list(stab.notes)
     g0 = np.concatenate([[0.0], grid])
     Si0, So0 = np.concatenate([S_in(np.zeros(1)), Si]), np.concatenate([S_out(np.zeros(1)), So])
-    if stab.stable:
-        disks = [multiloop_disk(S_in, g0, Si0, sigma)]
-        disks.append(replace(disks[0]) if loop.diagonal_controller() else multiloop_disk(S_out, g0, So0, sigma))
-    else:
-        disks = [MultiloopDisk(0.0, 0.0, None, 1.0, 1.0, 0.0, 0.0, sigma) for _ in range(2)]
-        notes.append("the closed loop is unstable: multiloop disk margins are 0")
-    peaks = [sigma_peak(fn, g0, X) for fn, X in (
-        (S_in, Si0), (lambda ww: eye_i - S_in(ww), eye_i - Si0), (S_out, So0),
-        (lambda ww: eye_o - S_out(ww), eye_o - So0))]
-    P = loop.plant
-    return MimoMargins(loop.names, [P.inputs[j] for j in loop.loop_ins], [P.outputs[i] for i in loop.loop_outs],
-                       stab, breaks[: loop.n_in], breaks[loop.n_in:], peaks[0], peaks[1], peaks[2], peaks[3],
-                       disks[0], disks[1], (float(grid[0]), float(grid[-1])), int(grid.size), notes,
-                       [P.inputs[j] for j in loop.ins])
+    if "disk" in want:
+        if rep.stability.stable:
+            rep.disk_input = multiloop_disk(S_in, g0, Si0, sigma)
+            rep.disk_output = replace(rep.disk_input) if loop.diagonal_controller() else \
+                multiloop_disk(S_out, g0, So0, sigma)
+        else:
+            rep.notes.append("the closed loop is unstable: multiloop disk margins are 0")
+    if "ms" in want:
+        rep.ms_input, rep.ms_output = sigma_peak(S_in, g0, Si0), sigma_peak(S_out, g0, So0)
+    if "mt" in want:
+        rep.mt_input = sigma_peak(lambda ww: eye_i - S_in(ww), g0, eye_i - Si0)
+        rep.mt_output = sigma_peak(lambda ww: eye_o - S_out(ww), g0, eye_o - So0)
 
 
-def sampled_margins(spec: TuningSpec, plant: Any, layout: GainLayout,
-                    full: np.ndarray) -> tuple[SpecLoop, MimoMargins, list[MimoLine]]:
+def sampled_margins(spec: TuningSpec, plant: Any, layout: GainLayout, full: np.ndarray, aimed: bool = False,
+                    frame: LoopFrame | None = None) -> tuple[SpecLoop, MimoMargins, list[MimoLine]]:
     """The sampled loop's MIMO report and requirement lines of one gain set (as
-    :func:`~gaintune.verification.mimo_spec.spec_margins` gives the continuous ones).
+    :func:`~gaintune.verification.mimo_spec.spec_margins` gives the continuous ones; ``aimed``: the
+    search's check, at the search's aim and with only the figures its requirements read).
 
     Raises
     ------
     SpecError
         For a requirement target that is not a loop, plant input, output or side.
     """
-    sl = spec_loop(spec, plant, layout, full)
+    sl = spec_loop(spec, plant, layout, full, frame)
     base, loop = sampled_loop(spec, plant, sl)
-    rep = sampled_report(base, loop)
+    reqs = aimed_requirements(spec) if aimed else spec_requirements(spec)
+    rep = sampled_report(base, loop, needs=requirement_needs(reqs) if aimed else None)
+    if aimed and not rep.stability.stable:
+        return sl, rep, []  # graded() scores the instability; the lean report has no figures to judge
     if as_mimo(plant).nonlinear:  # the simulator steps the ODE itself by RK4, actuator delays in whole samples
         rep.notes.append("nonlinear plant: the sampled loop uses its linearisation, ZOH-sampled with exact delays")
     try:
-        lines = judge(rep, spec_requirements(spec))
+        lines = judge(rep, reqs)
     except ValueError as exc:
         raise SpecError("requirements.targets", str(exc)) from None
     return sl, rep, lines

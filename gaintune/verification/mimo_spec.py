@@ -281,7 +281,7 @@ def lean_report(sl: SpecLoop, needs: set[str], pade_order: int | None = None) ->
     return rep
 
 
-def _needs(requirements: dict[str, Any]) -> set[str]:
+def requirement_needs(requirements: dict[str, Any]) -> set[str]:
     """What :func:`lean_report` must compute for these requirements."""
     out = set()
     for name in requirements:
@@ -304,7 +304,7 @@ def spec_margins(spec: TuningSpec, plant: Any, layout: GainLayout, full: np.ndar
     sl = spec_loop(spec, plant, layout, full, frame)
     reqs = aimed_requirements(spec) if aimed else spec_requirements(spec)
     if aimed:  # the search's constraint: only the figures its requirements read
-        rep = lean_report(sl, _needs(reqs), spec.verify.pade_order)
+        rep = lean_report(sl, requirement_needs(reqs), spec.verify.pade_order)
     else:
         rep = mimo_report(sl.plant, sl.controller, sl.pairing, w=w, pade_order=spec.verify.pade_order)
     if aimed and not rep.stability.stable:

@@ -140,3 +140,53 @@ def test_stored_mimo_verdict_of_the_continuous_loop_does_not_vouch_for_the_sampl
     verdict, rep = verdict_at_dt(spec, gains, 0.5, stored=stored)
     assert verdict == "fail" and rep is not None and rep["sampled"] is True
     assert verdict_at_dt(spec, gains, 0.5, stored=verify(spec, gains, nonlinear=False))[0] == "fail"
+
+
+def _wb_spec(**req: float):
+    from gaintune.plants.library import load_model
+
+    d = load_model("wood_berry").example_spec()
+    d["requirements"] = {**d["requirements"], **req, "backoff": 0}
+    return load_spec(d)
+
+
+def test_lean_sampled_check_figures_equal_the_full_sampled_report() -> None:
+    from gaintune.evaluation.evaluator import Evaluator
+    from gaintune.verification.mimo_sampled_report import sampled_loop, sampled_report
+    from gaintune.verification.mimo_spec import spec_loop
+
+    spec = _wb_spec(mimo_ms_max=2.5, disk_margin_min=0.5, mimo_mt_max=3.0)
+    ev = Evaluator(spec)
+    full = ev.layout.from_dict({"xD": {"Kp": 0.375, "Ki": 0.375 / 8.29}, "xB": {"Kp": -0.075, "Ki": -0.075 / 23.6}})
+    base, loop = sampled_loop(spec, ev.plant, spec_loop(spec, ev.plant, ev.layout, full))
+    whole = sampled_report(base, loop)
+    for needs in ({"ms"}, {"mt"}, {"disk"}, {"break"}):
+        lean = sampled_report(base, loop, needs=needs)
+        assert lean.stability.stable == whole.stability.stable
+        if "ms" in needs:
+            assert (lean.ms_input, lean.ms_output) == (whole.ms_input, whole.ms_output)
+        if "mt" in needs:
+            assert (lean.mt_input, lean.mt_output) == (whole.mt_input, whole.mt_output)
+        if "disk" in needs:
+            assert (lean.disk_input, lean.disk_output) == (whole.disk_input, whole.disk_output)
+        if "break" in needs:
+            assert lean.input_breaks == whole.input_breaks and lean.output_breaks == whole.output_breaks
+
+
+def test_search_constraint_judges_the_sampled_loop_the_verdict_judges() -> None:
+    """Before, the search's MIMO constraint judged the continuous loop with a half-sample delay while the
+    verdict judged the exact sampled loop: `bench mimo`'s optimum at BLT's own Ms (2.472) met the search's
+    constraint and failed the verdict (sampled Ms 2.477). At dt = 1 min, BLT's gains have Ms 3.080 sampled
+    and 3.024 continuous + dt/2: with Ms <= 3.05 the search must call them infeasible, as the verdict does."""
+    from gaintune.evaluation.evaluator import Evaluator, mimo_requirement_scores
+
+    spec = _wb_spec(mimo_ms_max=3.05)
+    spec = spec.model_copy(update={"scenarios": [sc.model_copy(update={"dt": 1.0}) for sc in spec.scenarios]})
+    ev = Evaluator(spec)
+    rows = np.array([ev.layout.tuned_of(ev.layout.from_dict({"xD": {"Kp": 0.375 * k, "Ki": 0.375 * k / 8.29},
+                                                             "xB": {"Kp": -0.075 * k, "Ki": -0.075 * k / 23.6}}))
+                     for k in (0.8, 1.0)])
+    violation, _ = mimo_requirement_scores(ev, rows)
+    verdicts = [verify(spec, ev.layout.to_dict(ev.layout.full(r[None, :])[0]), nonlinear=False).verdict for r in rows]
+    assert verdicts == ["pass", "fail"]
+    assert violation[0] == 0.0 and violation[1] > 0.0
