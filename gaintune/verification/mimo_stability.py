@@ -184,11 +184,15 @@ def _split(A: np.ndarray, B: np.ndarray, C: np.ndarray, discrete: bool, thr: flo
     """(k, right part (A_r, B_r, C_r), left part (A_l, B_l, C_l)): the additive split of (A, B, C)
     into the k eigenvalues whose :func:`_criterion` exceeds ``thr`` and the others, by the ordered real
     Schur form block-diagonalised with a Sylvester solve. Only the (few) modes that matter to a
-    stability count go through :func:`minimal_part`."""
+    stability count go through :func:`minimal_part`. When no ordered Schur form can be had (see
+    :func:`_ordered_schur`), k = 0: nothing is trimmed, so every mode stays counted (the cautious side)."""
     import scipy.linalg
 
-    T, Z, k = _ordered_schur(A, discrete, thr)
-    ZB, CZ = Z.T @ B, C @ Z
+    try:
+        T, Q, Qi, k = _ordered_schur(A, discrete, thr)
+    except np.linalg.LinAlgError:
+        return 0, (A[:0, :0], B[:0], C[:, :0]), (A, B, C)
+    ZB, CZ = Qi @ B, C @ Q
     if k in (0, A.shape[0]):
         return k, (T[:k, :k], ZB[:k], CZ[:, :k]), (T[k:, k:], ZB[k:], CZ[:, k:])
     X = scipy.linalg.solve_sylvester(T[:k, :k], -T[k:, k:], -T[:k, k:])
@@ -200,19 +204,31 @@ def _criterion(re: np.ndarray, im: np.ndarray, discrete: bool) -> np.ndarray:
     return re * re + im * im if discrete else re
 
 
-def _ordered_schur(A: np.ndarray, discrete: bool, thr: float) -> tuple[np.ndarray, np.ndarray, int]:
-    """The real Schur form of A with the eigenvalues above ``thr`` first.
+def _ordered_schur(A: np.ndarray, discrete: bool, thr: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(T, Q, Q^-1, k): A = Q T Q^-1 with T real Schur, the k eigenvalues above ``thr`` first.
 
     LAPACK refuses the reordering when an eigenvalue within rounding of the threshold moves across it
     as the form is reordered ("leading eigenvalues do not satisfy sort condition"); the threshold then
-    moves into the widest nearby gap between the eigenvalues' criteria, where no rounding reaches."""
+    moves into the nearby gaps between the eigenvalues' criteria, where no rounding reaches, and, for
+    a badly scaled A (a cascade's controller realised entry by entry), the same is tried on A balanced
+    (``scipy.linalg.matrix_balance``: Q = D Z). LinAlgError when nothing works."""
     import scipy.linalg
 
-    for t in _thresholds(A, discrete, thr):
-        try:
-            return scipy.linalg.schur(A, output="real", sort=lambda re, im, t=t: _criterion(re, im, discrete) > t)
-        except (np.linalg.LinAlgError, ValueError):
-            continue
+    if not np.all(np.isfinite(A)):
+        raise np.linalg.LinAlgError("a non-finite matrix has no Schur form")
+    Ab, (sc, _) = scipy.linalg.matrix_balance(A, permute=False, separate=True)
+    for M, d in ((A, None), (Ab, sc)):
+        for t in _thresholds(M, discrete, thr):
+            def above(re: np.ndarray, im: np.ndarray, t: float = t) -> np.ndarray:
+                return _criterion(re, im, discrete) > t
+
+            try:
+                T, Z, k = scipy.linalg.schur(M, output="real", sort=above)
+            except (np.linalg.LinAlgError, ValueError):
+                continue
+            if d is None:
+                return T, Z, Z.T, k
+            return T, d[:, None] * Z, Z.T / d[None, :], k
     raise np.linalg.LinAlgError("no threshold separates the eigenvalues for an ordered Schur form")
 
 

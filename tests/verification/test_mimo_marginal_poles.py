@@ -163,3 +163,40 @@ def test_ordered_schur_refused_by_lapack_moves_its_threshold_into_a_gap(monkeypa
     whole = C @ np.linalg.solve(s * np.eye(5) - A, B)
     parts = Cr @ np.linalg.solve(s * np.eye(3) - Ar, Br) + Cl @ np.linalg.solve(s * np.eye(2) - Al, Bl)
     np.testing.assert_allclose(parts, whole, rtol=1e-9, atol=1e-9)
+
+
+def test_ordered_schur_of_a_badly_scaled_matrix_is_taken_balanced_or_nothing_is_trimmed(monkeypatch) -> None:
+    """A cascade controller realised entry by entry (B ~ 1e-7, C ~ 1e23) stopped a tune of the nonlinear arm
+    ("no threshold separates the eigenvalues"). The split then takes the Schur form of A balanced; when
+    nothing works it trims nothing, so every mode stays counted."""
+    import scipy.linalg
+
+    from gaintune.verification import mimo_stability as ms
+
+    rng = np.random.default_rng(4)
+    S = rng.normal(size=(4, 4)) * np.array([1e-6, 1.0, 1e6, 1.0])[:, None]
+    A = S @ np.diag([-3.0, -1.0, 0.5, 2.0]) @ np.linalg.inv(S)
+    B, C = rng.normal(size=(4, 1)), rng.normal(size=(1, 4))
+    real = scipy.linalg.schur
+
+    def refuse_unbalanced(a, output="real", sort=None):
+        if a is A:
+            raise np.linalg.LinAlgError("Leading eigenvalues do not satisfy sort condition.")
+        return real(a, output=output, sort=sort)
+
+    monkeypatch.setattr(scipy.linalg, "schur", refuse_unbalanced)
+    k, (Ar, Br, Cr), (Al, Bl, Cl) = ms._split(A, B, C, False, -1e-6)
+    assert k == 2
+    np.testing.assert_allclose(np.sort(np.linalg.eigvals(Ar).real), [0.5, 2.0], rtol=1e-6)
+    s = 0.3 + 1.1j
+    whole = C @ np.linalg.solve(s * np.eye(4) - A, B)
+    parts = Cr @ np.linalg.solve(s * np.eye(2) - Ar, Br) + Cl @ np.linalg.solve(s * np.eye(2) - Al, Bl)
+    np.testing.assert_allclose(parts, whole, rtol=1e-6)
+
+    def refuse(a, output="real", sort=None):
+        raise np.linalg.LinAlgError("Leading eigenvalues do not satisfy sort condition.")
+
+    monkeypatch.setattr(scipy.linalg, "schur", refuse)
+    k, _, left = ms._split(A, B, C, False, -1e-6)
+    assert k == 0 and left[0] is A  # nothing trimmed: the modes stay counted
+    assert ms.trim_hidden(A, B, C)[3].size == 0
