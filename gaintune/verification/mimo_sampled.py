@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gaintune.verification.mimo_loop import MimoLoop, closed_loop_matrix, response
-from gaintune.verification.mimo_stability import MimoStability, trim_hidden
+from gaintune.verification.mimo_stability import MimoStability, hidden_notes, trim_hidden
 
 __all__ = ["SampledCore", "SampledLoop", "sampled_core", "euler_controller", "sampled_stability_mimo"]
 
@@ -210,12 +210,7 @@ def sampled_stability_mimo(loop: SampledLoop, base: MimoLoop) -> MimoStability:
     hid = loop.core.hidden
     # a hidden chain on the unit circle comes out spread by rounding, as in the continuous count
     bad, marginal = hid[np.abs(hid) > 1.0 + 1e-6], hid[np.abs(hid) <= 1.0 + 1e-6]
-    if bad.size:
-        notes.append(f"unstable sampled plant mode(s) {np.round(bad, 6).tolist()} not seen by the loop channels: "
-                     "feedback cannot stabilise them")
-    if marginal.size:
-        notes.append(f"marginal sampled plant mode(s) {np.round(marginal, 6).tolist()} not seen by the loop "
-                     "channels: left out of the verdict")
+    hidden_notes(bad, marginal, notes, "sampled ")
     n_rhp = int(np.sum(np.abs(poles) >= _UNIT)) + int(bad.size)
     rho = float(np.max(np.abs(poles))) if poles.size else 0.0
     max_re = math.log(rho) / loop.dt if rho > 0 else -math.inf

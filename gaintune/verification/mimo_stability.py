@@ -133,13 +133,15 @@ def _drop(values: np.ndarray, remove: np.ndarray) -> np.ndarray:
     return values[keep]
 
 
-def _hidden_notes(bad: np.ndarray, marginal: np.ndarray, notes: list[str]) -> None:
+def hidden_notes(bad: np.ndarray, marginal: np.ndarray, notes: list[str], kind: str = "") -> None:
+    """Say which ``kind`` (e.g. ``sampled ``) plant modes the loop channels cannot see: unstable ones fail the
+    loop, marginal ones are left out of the verdict."""
     if bad.size:
-        notes.append(f"unstable plant mode(s) {np.round(bad, 6).tolist()} not seen by the loop channels: "
+        notes.append(f"unstable {kind}plant mode(s) {np.round(bad, 6).tolist()} not seen by the loop channels: "
                      "feedback cannot stabilise them")
     if marginal.size:
-        notes.append(f"marginal plant mode(s) {np.round(marginal, 6).tolist()} not seen by the loop channels: "
-                     "left out of the verdict")
+        notes.append(f"marginal {kind}plant mode(s) {np.round(marginal, 6).tolist()} not seen by the loop "
+                     "channels: left out of the verdict")
 
 
 def _split_hidden(hidden: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -337,7 +339,7 @@ def mimo_stability(loop: MimoLoop, pade_order: int | None = None) -> MimoStabili
     hid_k = _hidden(Kc[0], Kc[1], Kc[2])
     poles = _drop(poles, np.concatenate([hid_p, hid_k]))
     bad, marginal = _split_hidden(hid_p)
-    _hidden_notes(bad, marginal, notes)
+    hidden_notes(bad, marginal, notes)
     scale = max(1.0, float(np.max(np.abs(poles))) if poles.size else 1.0)
     rhp = int(np.sum(poles.real > -1e-12 * scale)) + int(bad.size)
     cf = char_freqs(loop)
