@@ -29,9 +29,21 @@ def test_wood_berry_rules_loop_by_loop_carry_each_loops_sign() -> None:
     np.testing.assert_allclose(rules["simc"]["xD"]["Kp"] / rules["simc"]["xD"]["Ki"], 8 * theta, rtol=1e-9)
 
 
-def test_chains_and_ties_have_no_per_loop_rules() -> None:
+def test_ties_have_no_per_loop_rules() -> None:
     spec = wood_berry(ties=[["xD.Ki", "xB.Ki"]])
     assert loop_rule_candidates(spec, build_plant(spec.plant)) == {}
+
+
+def test_chains_get_the_single_input_cascade_rules_so_the_search_box_needs_no_sobol_sample() -> None:
+    """Before, a chain of loops had no rule candidates: the 54-gain arm's search box spent 12,808 of a tune's
+    20,000 simulations on a Sobol sample, and RL alone found nothing feasible in the rest."""
+    spec = load_spec(load_model("robot_arm6_lin").example_spec())
+    plant = build_plant(spec.plant)
+    rules = loop_rule_candidates(spec, plant)
+    assert rules and all(set(g) == set(spec.loop_names) for g in rules.values())
+    box = search_box(spec, plant)
+    assert box.source is not None and box.source.split()[0] in rules
+    assert box.sims < 1000  # rules x scales x scenarios, not 1,024 Sobol points and zoom stages
 
 
 def test_search_box_centres_on_a_scaled_rule() -> None:
