@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -55,6 +56,16 @@ class MimoMargins:
     grid_points: int
     notes: list[str] = field(default_factory=list)
     break_inputs: list[str] = field(default_factory=list)  # the input of each input break
+
+    @classmethod
+    def unmeasured(cls, loops: list[str], stability: MimoStability, sigma: float = 0.0, **names: Any) -> MimoMargins:
+        """A report with only ``stability`` (and the ``names`` fields: inputs, outputs, break_inputs,
+        notes) filled: the placeholders a lean check leaves for the figures no requirement reads."""
+        none, disk0 = Peak(1.0, None), MultiloopDisk(0.0, 0.0, None, 1.0, 1.0, 0.0, 0.0, sigma)
+        base: dict[str, Any] = dict(inputs=[], outputs=[], input_breaks=[], output_breaks=[], ms_input=none,
+                                    mt_input=none, ms_output=none, mt_output=none, disk_input=disk0,
+                                    disk_output=replace(disk0), band=(0.0, 0.0), grid_points=0)
+        return cls(loops=loops, stability=stability, **{**base, **names})
 
     @property
     def ms(self) -> float:

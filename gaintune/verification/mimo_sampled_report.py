@@ -21,7 +21,7 @@ from gaintune.plants.mimo import as_mimo
 from gaintune.spec import TuningSpec
 from gaintune.verification.mimo import MimoLine, MimoMargins, judge
 from gaintune.verification.mimo_loop import MimoLoop, char_freqs
-from gaintune.verification.mimo_margins import MultiloopDisk, Peak, loop_at_a_time, multiloop_disk, sigma_peak
+from gaintune.verification.mimo_margins import loop_at_a_time, multiloop_disk, sigma_peak
 from gaintune.verification.mimo_sampled import SampledLoop, sampled_core, sampled_stability_mimo
 from gaintune.verification.mimo_spec import (
     LoopFrame,
@@ -79,10 +79,9 @@ def sampled_report(base: MimoLoop, loop: SampledLoop, sigma: float = 0.0,
     the others are placeholders no requirement reads, and an unstable loop stops after its stability."""
     stab = sampled_stability_mimo(loop, base)
     P = loop.plant
-    none, disk0 = Peak(1.0, None), MultiloopDisk(0.0, 0.0, None, 1.0, 1.0, 0.0, 0.0, sigma)
-    rep = MimoMargins(loop.names, [P.inputs[j] for j in loop.loop_ins], [P.outputs[i] for i in loop.loop_outs],
-                      stab, [], [], none, none, none, none, disk0, replace(disk0), (0.0, 0.0), 0, list(stab.notes),
-                      [P.inputs[j] for j in loop.ins])
+    rep = MimoMargins.unmeasured(loop.names, stab, sigma, inputs=[P.inputs[j] for j in loop.loop_ins],
+                                 outputs=[P.outputs[i] for i in loop.loop_outs], notes=list(stab.notes),
+                                 break_inputs=[P.inputs[j] for j in loop.ins])
     lean = needs is not None
     if lean and not stab.stable:
         return rep

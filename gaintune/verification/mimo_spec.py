@@ -38,7 +38,7 @@ from gaintune.verification.analysis import analysis_dt
 from gaintune.verification.margins import BreakFigures
 from gaintune.verification.mimo import REQUIREMENTS, MimoLine, MimoMargins, analysis_grid, judge, mimo_report
 from gaintune.verification.mimo_loop import LoopPair, MimoLoop, pid_entry
-from gaintune.verification.mimo_margins import MultiloopDisk, Peak, loop_at_a_time, multiloop_disk, sigma_peak
+from gaintune.verification.mimo_margins import loop_at_a_time, multiloop_disk, sigma_peak
 from gaintune.verification.mimo_stability import mimo_stability
 from gaintune.verification.quick import FEASIBILITY_MARGIN, MAX_TERM, UNSTABLE_VIOLATION
 
@@ -245,9 +245,7 @@ def lean_report(sl: SpecLoop, needs: set[str], pade_order: int | None = None) ->
     reads. An unstable loop stops after the stability check (its margins mean nothing)."""
     loop = MimoLoop.build(sl.plant, sl.controller, sl.pairing)
     stab = mimo_stability(loop, pade_order)
-    none = Peak(1.0, None)
-    disk0 = MultiloopDisk(0.0, 0.0, None, 1.0, 1.0, 0.0, 0.0, 0.0)
-    rep = MimoMargins(loop.names, [], [], stab, [], [], none, none, none, none, disk0, replace(disk0), (0.0, 0.0), 0)
+    rep = MimoMargins.unmeasured(loop.names, stab)
     if not stab.stable:
         return rep
     grid = analysis_grid(loop)
