@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from gaintune.cache import LRU
 from gaintune.controllers.layout import GainLayout
 from gaintune.errors import SpecError
 from gaintune.plants.mimo import as_mimo
@@ -22,7 +23,7 @@ from gaintune.spec import TuningSpec
 from gaintune.verification.mimo import MimoLine, MimoMargins, judge
 from gaintune.verification.mimo_loop import MimoLoop, char_freqs
 from gaintune.verification.mimo_margins import loop_at_a_time, multiloop_disk, sigma_peak
-from gaintune.verification.mimo_sampled import SampledLoop, sampled_core, sampled_stability_mimo
+from gaintune.verification.mimo_sampled import SampledCore, SampledLoop, sampled_core, sampled_stability_mimo
 from gaintune.verification.mimo_spec import (
     LoopFrame,
     SpecLoop,
@@ -33,6 +34,10 @@ from gaintune.verification.mimo_spec import (
 )
 
 __all__ = ["sampled_grid", "sampled_loop", "sampled_report", "sampled_margins"]
+
+#: The sampled plant of each (plant form, channels, dt, delays): the plant form is kept with it, so an
+#: id reused by another object never matches.
+_CORES: LRU[tuple, tuple[Any, SampledCore]] = LRU(32)
 
 #: Log-grid points per decade (at least; 200/n for n loops), as the continuous analysis grid.
 _PER_DECADE = 40
@@ -65,8 +70,12 @@ def sampled_loop(spec: TuningSpec, plant: Any, sl: SpecLoop) -> tuple[MimoLoop, 
     base = MimoLoop.build(lti, sl.controller, sl.pairing)
     acts = spec.actuators or {}
     act = np.array([float(getattr(acts.get(name), "delay", 0.0) or 0.0) for name in lti.inputs])
-    core = sampled_core(lti, base.ins, base.outs, sl.dt, act, spec.verify.compute_delay)
-    return base, SampledLoop.of(base, core)
+    key = (id(lti), tuple(base.ins), tuple(base.outs), float(sl.dt), act.tobytes(), int(spec.verify.compute_delay))
+    hit = _CORES.get(key)
+    if hit is None or hit[0] is not lti:  # plant-only work: once per plant, not once per candidate
+        hit = (lti, sampled_core(lti, base.ins, base.outs, sl.dt, act, spec.verify.compute_delay))
+        _CORES.put(key, hit)
+    return base, SampledLoop.of(base, hit[1])
 
 
 def sampled_report(base: MimoLoop, loop: SampledLoop, sigma: float = 0.0,

@@ -190,3 +190,25 @@ def test_search_constraint_judges_the_sampled_loop_the_verdict_judges() -> None:
     verdicts = [verify(spec, ev.layout.to_dict(ev.layout.full(r[None, :])[0]), nonlinear=False).verdict for r in rows]
     assert verdicts == ["pass", "fail"]
     assert violation[0] == 0.0 and violation[1] > 0.0
+
+
+def test_sampled_plant_is_built_once_per_plant_not_once_per_candidate(monkeypatch) -> None:
+    """The search's sampled check discretised the plant and trimmed its hidden modes again for every
+    candidate: plant-only work. It is now kept per plant form; the figures are unchanged."""
+    from gaintune.evaluation.evaluator import Evaluator, mimo_requirement_scores
+    from gaintune.verification import mimo_sampled_report as msr
+
+    spec = _wb_spec(mimo_ms_max=2.5)
+    ev = Evaluator(spec)
+    base = ev.layout.tuned_of(ev.layout.from_dict({"xD": {"Kp": 0.375, "Ki": 0.375 / 8.29},
+                                                   "xB": {"Kp": -0.075, "Ki": -0.075 / 23.6}}))
+    rows = base[None, :] * np.array([0.8, 0.9, 1.0, 1.1])[:, None]
+    msr._CORES.clear()
+    calls = []
+    real = msr.sampled_core
+    monkeypatch.setattr(msr, "sampled_core", lambda *a, **k: calls.append(1) or real(*a, **k))
+    cached, _ = mimo_requirement_scores(ev, rows)
+    assert len(calls) == 1
+    msr._CORES.clear()
+    fresh = [mimo_requirement_scores(Evaluator(spec), r[None, :])[0][0] for r in rows]
+    np.testing.assert_array_equal(cached, fresh)
