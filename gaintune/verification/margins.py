@@ -34,7 +34,7 @@ import numpy as np
 from gaintune.verification.cascade import Cascade
 from gaintune.verification.freqresp import Evaluator, zoom_roots
 
-__all__ = ["Crossing", "BreakFigures", "all_margins", "row_margins", "disk_from_alpha", "MAG_FLOOR",
+__all__ = ["Crossing", "BreakFigures", "judged_pm", "all_margins", "row_margins", "disk_from_alpha", "MAG_FLOOR",
            "GM_INF_LIMIT", "MAX_PHASE_LISTED"]
 
 #: |L| below this at a phase crossing counts as no crossing (GM > 80 dB is reported as inf).
@@ -54,6 +54,22 @@ class Crossing:
     value: float  # gain: PM deg; phase: GM dB (positive upper, negative lower)
     delay_margin: float | None = None  # gain crossings only
     binding: bool = False
+
+
+def judged_pm(pm_deg: float) -> float:
+    """The phase margin a requirement judges: the binding crossover's phase distance from -180 degrees,
+    either way, ``|pm_deg|``.
+
+    The reported PM keeps its sign (python-control's and MATLAB's convention: a crossover with
+    phase lead, e.g. +91 degrees, reports -89). Such a crossover is 89 degrees of phase away from
+    -1 in either direction, and the binding crossover is already chosen by this distance; closed-loop
+    stability is judged separately. Judging the signed value failed the velocity loops of a stable
+    cascade whose sensitivity peak was 1.01 (``test_crossover_with_phase_lead_is_judged_by_its_phase_distance``).
+
+    >>> judged_pm(-88.9), judged_pm(50.0)
+    (88.9, 50.0)
+    """
+    return abs(pm_deg)
 
 
 @dataclass

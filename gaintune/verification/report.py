@@ -63,7 +63,10 @@ class LoopFigures(_Out):
     gm_binding: Literal["increase", "reduction", "none"] = Field(
         description="Which gain margin gm_db is: increase (gm_upper_db), reduction (gm_lower_db), none (both inf).")
     gm_freq: float | None = Field(description="Phase-crossover frequency of the binding GM (rad/s).")
-    pm_deg: float = Field(description="Phase margin in degrees at the binding gain crossover.")
+    pm_deg: float = Field(
+        description="Phase margin in degrees at the binding gain crossover (the one nearest -180 degrees in phase), "
+        "signed as python-control and MATLAB give it: a crossover with phase lead reports a negative PM. The "
+        "pm_min_deg requirement judges |pm_deg|, the phase distance from -180 degrees either way.")
     pm_freq: float | None = Field(description="Gain-crossover frequency of the binding PM (rad/s).")
     delay_margin: float = Field(
         description="Extra input delay (s) the loop tolerates: min over gain crossovers of (PM mod 360, in rad) / wc.")

@@ -6,6 +6,7 @@ import math
 from typing import Literal
 
 from gaintune.spec import TuningSpec
+from gaintune.verification.margins import judged_pm
 from gaintune.verification.report import LoopFigures, RequirementLine, WorstCase
 
 __all__ = ["REQUIREMENTS", "requirement_lines", "not_applicable", "noise_line", "failing_reasons"]
@@ -31,7 +32,8 @@ def _candidates(attr: str, loops: list[LoopFigures], worst: list[WorstCase] | No
         (getattr(f, attr), f.loop, f.break_point, "nominal") for f in loops]
     if worst and attr != "pm_freq":  # the robust set records no crossover frequencies
         raw += [(getattr(w, attr), w.loop, w.break_point, "worst") for w in worst]
-    return [(0.0 if v is None else v, loop, brk, case) for v, loop, brk, case in raw]  # no gain crossover: wc = 0
+    out = [(0.0 if v is None else v, loop, brk, case) for v, loop, brk, case in raw]  # no gain crossover: wc = 0
+    return [(judged_pm(v), loop, brk, case) for v, loop, brk, case in out] if attr == "pm_deg" else out
 
 
 def _binding(cands: list[_Candidate], limit: float, kind: str) -> tuple[float, _Candidate]:

@@ -16,6 +16,7 @@ from gaintune.verification.analysis import Analysis, analyse
 from gaintune.verification.cascade import Cascade
 from gaintune.verification.figures import delay_samples
 from gaintune.verification.freqresp import DelayModel
+from gaintune.verification.margins import judged_pm
 from gaintune.verification.noise import noise_peaks
 from gaintune.verification.report import RobustReport, WorstCase
 from gaintune.verification.sampled import SampledPlant, sample_plant
@@ -59,7 +60,8 @@ def robust_samples(spec: TuningSpec) -> tuple[list[dict[str, float]], int, int]:
 
 #: The figures tracked over the robust set, and which way is worse.
 _WORSE: dict[str, Callable[[float, float], float]] = {
-    "gm_db": min, "pm_deg": min, "delay_margin": min, "ms": max, "mt": max, "disk_alpha": min}
+    "gm_db": min, "pm_deg": lambda a, b: min(a, b, key=judged_pm), "delay_margin": min, "ms": max, "mt": max,
+    "disk_alpha": min}
 #: (value, the sample attaining it), per figure, for one break point.
 _Tracked = dict[str, tuple[float, dict[str, float]]]
 #: (Mks or None, frequency or None) per loop, as :func:`gaintune.verification.noise.noise_peaks` gives.
