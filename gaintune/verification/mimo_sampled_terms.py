@@ -131,7 +131,7 @@ class SampledTerms:
                 v = (r[:, self.mode] * f[:, self.shift_of]) * self.coef[None, :]
                 out[:, self.entry[self.starts]] = np.add.reduceat(v, self.starts, axis=1)
             for b in self.solved:  # (two channels of one input may meet in one entry: add.at sums both)
-                np.add.at(out, (slice(None), b.targets.ravel()), self._solve(core, b, z).reshape(z.size, -1))
+                np.add.at(out.T, b.targets.ravel(), self._solve(core, b, z).reshape(z.size, -1).T)
         return out
 
     @staticmethod
