@@ -93,7 +93,7 @@ class SampledCore:
         """Whether :meth:`terms` cost less than the dense modal product (a plant of independent entries,
         a train of units): the terms (and solved blocks) against ``p N n_in`` products per point."""
         t = self.terms(n_in)
-        work = 4 * t.mode.size + sum(4 * b.states.size ** 2 * b.chans.size for b in t.solved)
+        work = 4 * t.mode.size + sum(4 * b.A.shape[0] ** 2 * b.G0.shape[1] for b in t.solved)
         return work < self.C.shape[0] * self.Ad.shape[0] * n_in
 
     def entries(self, z: np.ndarray, n_in: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -102,7 +102,7 @@ class SampledCore:
         z = np.asarray(z, dtype=complex).ravel()
         if self.sparse(n_in):
             t = self.terms(n_in)
-            return t.rows, t.cols, t.values(self, z)
+            return t.rows, t.cols, t.values(z)
         rows, cols = np.divmod(np.arange(self.C.shape[0] * n_in), n_in)
         return rows, cols, self.response_dense(z, n_in).reshape(z.size, -1)
 

@@ -18,14 +18,22 @@ pole) is solved per point instead, as the dense form does for the whole ``Ad``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from gaintune.verification.mimo_sampled import SampledCore
-
 __all__ = ["SampledTerms", "state_blocks"]
+
+class _Core(Protocol):
+    """What the terms read of a :class:`~gaintune.verification.mimo_sampled.SampledCore`."""
+
+    Ad: np.ndarray
+    C: np.ndarray
+    G0: np.ndarray
+    G1: np.ndarray
+    src: np.ndarray
+    d: np.ndarray
+
 
 #: Eigenvectors of a block conditioned worse than this: the block is solved per point.
 _COND_MAX = 1e8
@@ -45,17 +53,33 @@ def state_blocks(A: np.ndarray) -> list[np.ndarray]:
 
 @dataclass(frozen=True)
 class _SolvedBlock:
-    """A block evaluated by a solve per point: its states, its outputs' rows, its channels and their targets."""
+    """A block evaluated by a solve per point: its state matrix, its outputs' rows of C, its channels' columns
+    of G0 and G1 and their whole-sample delays, and the entry index of each (row, channel)."""
 
-    states: np.ndarray
-    rows: np.ndarray
-    chans: np.ndarray
-    targets: np.ndarray  # (len(rows), len(chans)): the entry index of each (row, channel)
+    A: np.ndarray
+    C: np.ndarray
+    G0: np.ndarray
+    G1: np.ndarray
+    d: np.ndarray
+    targets: np.ndarray  # (rows, channels)
+
+    def response(self, z: np.ndarray) -> np.ndarray:
+        """(len(z), rows, channels): C_b (zI - A_b)^-1 (G0 + G1 z^-1) z^-d per channel."""
+        from gaintune.verification.mimo_loop import solve_points
+
+        inv = 1.0 / z
+        f = inv[:, None] ** self.d[None, :]
+        Bz = (self.G0[None] + self.G1[None] * inv[:, None, None]) * f[:, None, :]
+        X = solve_points(z[:, None, None] * np.eye(self.A.shape[0]) - self.A[None], Bz)
+        return self.C[None] @ X
 
 
 @dataclass(frozen=True)
 class SampledTerms:
     """Gs(z) of a :class:`~gaintune.verification.mimo_sampled.SampledCore` as first-order terms.
+
+    The core's channels: ``x[k+1] = Ad x[k] + sum_c (G0[:, c] u_src(c)[k - d(c)] + G1[:, c] u_src(c)[k - d(c) - 1])``,
+    ``y = C x``.
 
     Term k adds ``coef[k] z^-shift[k] / (z - lam[mode[k]])`` to entry ``entry[k]``; the terms are
     sorted by entry (each entry's from ``starts``); ``rows``, ``cols``: the channel matrix position of
@@ -74,8 +98,8 @@ class SampledTerms:
     solved: tuple[_SolvedBlock, ...]
 
     @classmethod
-    def of(cls, core: SampledCore, n_in: int) -> SampledTerms:
-        """The terms of ``core``'s channels to its ``n_in`` driven inputs."""
+    def of(cls, core: _Core, n_in: int) -> SampledTerms:
+        """The terms of ``core``'s channels (Ad, C, G0, G1, src, d: a SampledCore's) to its ``n_in`` driven inputs."""
         lam: list[np.ndarray] = []
         parts: list[tuple[np.ndarray, ...]] = []  # (mode, coef, shift, flat target) per block
         solved: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
@@ -103,7 +127,7 @@ class SampledTerms:
         return cls._assemble(core, n_in, lam, parts, solved)
 
     @classmethod
-    def _assemble(cls, core: SampledCore, n_in: int, lam: list[np.ndarray], parts: list[tuple[np.ndarray, ...]],
+    def _assemble(cls, core: _Core, n_in: int, lam: list[np.ndarray], parts: list[tuple[np.ndarray, ...]],
                   solved: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> SampledTerms:
         """Sort the blocks' terms by entry and number the entries (those of solved blocks too)."""
         mode, coef, shift, target = (np.concatenate([p[k] for p in parts]) if parts else np.zeros(0)
@@ -114,13 +138,15 @@ class SampledTerms:
         entry = np.searchsorted(ents, target[order].astype(int))
         starts = np.flatnonzero(np.concatenate([[True], np.diff(entry) != 0])) if entry.size else entry
         shifts, shift_of = np.unique(shift[order].astype(int), return_inverse=True)
-        blocks = tuple(_SolvedBlock(idx, r, c, np.searchsorted(ents, r[:, None] * n_in + core.src[c][None, :]))
+        blocks = tuple(_SolvedBlock(core.Ad[np.ix_(idx, idx)], core.C[np.ix_(r, idx)], core.G0[np.ix_(idx, c)],
+                                    core.G1[np.ix_(idx, c)], core.d[c],
+                                    np.searchsorted(ents, r[:, None] * n_in + core.src[c][None, :]))
                        for idx, r, c in solved)
         return cls(n_in, ents // n_in, ents % n_in, np.concatenate(lam) if lam else np.zeros(0, dtype=complex),
                    mode[order].astype(int), coef[order].astype(complex), shifts, shift_of.ravel(), entry, starts,
                    blocks)
 
-    def values(self, core: SampledCore, z: np.ndarray) -> np.ndarray:
+    def values(self, z: np.ndarray) -> np.ndarray:
         """The entries at the points ``z``: (len(z), entries); inf or NaN on a pole, as the dense form."""
         out = np.zeros((z.size, self.rows.size), dtype=complex)
         with np.errstate(all="ignore"):
@@ -131,18 +157,5 @@ class SampledTerms:
                 v = (r[:, self.mode] * f[:, self.shift_of]) * self.coef[None, :]
                 out[:, self.entry[self.starts]] = np.add.reduceat(v, self.starts, axis=1)
             for b in self.solved:  # (two channels of one input may meet in one entry: add.at sums both)
-                np.add.at(out.T, b.targets.ravel(), self._solve(core, b, z).reshape(z.size, -1).T)
+                np.add.at(out.T, b.targets.ravel(), b.response(z).reshape(z.size, -1).T)
         return out
-
-    @staticmethod
-    def _solve(core: SampledCore, b: _SolvedBlock, z: np.ndarray) -> np.ndarray:
-        """A solved block's (len(z), rows, channels): C_b (zI - A_b)^-1 (G0 + G1 z^-1) z^-d per channel."""
-        from gaintune.verification.mimo_loop import solve_points
-
-        idx, c = b.states, b.chans
-        inv = 1.0 / z
-        f = inv[:, None] ** core.d[c][None, :]
-        Bz = (core.G0[np.ix_(idx, c)][None] + core.G1[np.ix_(idx, c)][None] * inv[:, None, None]) * f[:, None, :]
-        A = core.Ad[np.ix_(idx, idx)]
-        X = solve_points(z[:, None, None] * np.eye(idx.size) - A[None], Bz)
-        return core.C[np.ix_(b.rows, idx)][None] @ X
