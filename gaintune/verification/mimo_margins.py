@@ -264,9 +264,10 @@ def sigma_peak(X_at: Callable[[np.ndarray], np.ndarray], w: np.ndarray, X: np.nd
 
 
 def lat_rows(loop: MimoLoop, s: np.ndarray, outputs: bool = True,
-             S: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+             S: tuple[np.ndarray, np.ndarray | None] | None = None) -> np.ndarray:
     """Loop-at-a-time responses (rows, len(s)): the n_in plant inputs, then the n_out plant outputs
-    (only the input rows when ``outputs`` is False); ``S``: (S_i, S_o) at ``s`` when known. With fewer
+    (only the input rows when ``outputs`` is False); ``S``: (S_i, S_o) at ``s`` when known (S_o None:
+    not known, or not needed: the cascade's output rows below). With fewer
     inputs than outputs (a cascade, :meth:`~.mimo_loop.MimoLoop.outputs_by_inputs`) the output rows come
     from the input side, as the zooms take them: S_o[k, k] = 1 - (Gs S_i Ks)[k, k]."""
     if not outputs:
@@ -279,7 +280,7 @@ def lat_rows(loop: MimoLoop, s: np.ndarray, outputs: bool = True,
             Si = np.linalg.inv(np.eye(loop.n_in) + L) if S is None else S[0]
             so = 1.0 - np.einsum("wki,wik->wk", Gs, Si @ Ks)
             return np.concatenate([1.0 / np.diagonal(Si, axis1=1, axis2=2).T - 1.0, 1.0 / so.T - 1.0])
-    Si, So = loop.sensitivities(s) if S is None else S
+    Si, So = loop.sensitivities(s) if S is None or S[1] is None else (S[0], S[1])
     with np.errstate(all="ignore"):
         return np.concatenate([1.0 / np.diagonal(Si, axis1=1, axis2=2).T - 1.0,
                                1.0 / np.diagonal(So, axis1=1, axis2=2).T - 1.0])

@@ -20,7 +20,9 @@
 * **Figures**: the loop gains at ``z = e^{j w dt}``, ``0 < w <= pi/dt`` (:class:`SampledLoop`,
   a :class:`~gaintune.verification.mimo_loop.MimoLoop` whose responses are the sampled ones), so
   the loop-at-a-time margins, the multiloop disk margins and the MIMO Ms and Mt are those of
-  :mod:`.mimo_margins` on the discrete frequency grid.
+  :mod:`.mimo_margins` on the discrete frequency grid. A plant of independent entries (a train of
+  units) is evaluated from its nonzero first-order terms (:mod:`.mimo_sampled_terms`) and the loop
+  gains from the nonzero entries: the same values, to rounding, at a fraction of the dense products.
 """
 
 from __future__ import annotations
@@ -30,8 +32,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gaintune.verification.mimo_loop import MimoLoop, closed_loop_matrix, response
-from gaintune.verification.mimo_stability import MimoStability, hidden_notes, trim_hidden
+from gaintune.lti.mimo import TfMatrix
+from gaintune.verification.mimo_loop import MimoLoop, closed_loop_matrix, response, solve_points
+from gaintune.verification.mimo_products import block_eigvals
+from gaintune.verification.mimo_sampled_terms import SampledTerms
+from gaintune.verification.mimo_stability import MimoStability, hidden_notes, trim_hidden, trim_hidden_by_parts
+from gaintune.verification.mimo_tf import _tf_values
 
 __all__ = ["SampledCore", "SampledLoop", "sampled_core", "euler_controller", "sampled_stability_mimo"]
 
@@ -56,6 +62,7 @@ class SampledCore:
     dt: float
     hidden: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=complex))
     _modal: tuple | None = field(default=None, repr=False)
+    _terms: SampledTerms | None = field(default=None, repr=False)
 
     def _inputs(self, z: np.ndarray, G0: np.ndarray, G1: np.ndarray, n_in: int) -> np.ndarray:
         """sum_c (G0[:, c] + G1[:, c] z^-1) z^-d(c) per driven input: (len(z), rows of G0, n_in)."""
@@ -78,8 +85,42 @@ class SampledCore:
                 self._modal = ()
         return self._modal
 
+    def terms(self, n_in: int) -> SampledTerms:
+        """The plant's channels as first-order terms (:class:`SampledTerms`), built once per core."""
+        if self._terms is None or self._terms.n_in != n_in:
+            self._terms = SampledTerms.of(self, n_in)
+        return self._terms
+
+    def sparse(self, n_in: int) -> bool:
+        """Whether :meth:`terms` cost less than the dense modal product (a plant of independent entries,
+        a train of units): the terms (and solved blocks) against ``p N n_in`` products per point."""
+        t = self.terms(n_in)
+        work = 4 * t.mode.size + sum(4 * b.A.shape[0] ** 2 * b.G0.shape[1] for b in t.solved)
+        return work < self.C.shape[0] * self.Ad.shape[0] * n_in
+
+    def entries(self, z: np.ndarray, n_in: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(rows, columns, values (len(z), entries)) of Gs(z): the entries the plant's structure lets be
+        nonzero (:class:`SampledTerms`) when that is cheaper, else every entry."""
+        z = np.asarray(z, dtype=complex).ravel()
+        if self.sparse(n_in):
+            t = self.terms(n_in)
+            return t.rows, t.cols, t.values(z)
+        rows, cols = np.divmod(np.arange(self.C.shape[0] * n_in), n_in)
+        return rows, cols, self.response_dense(z, n_in).reshape(z.size, -1)
+
     def response(self, z: np.ndarray, n_in: int) -> np.ndarray:
-        """Gs(z) = C (zI - Ad)^-1 B(z): (len(z), p, n_in); modal when Ad's eigenvectors are well conditioned."""
+        """Gs(z) = C (zI - Ad)^-1 B(z): (len(z), p, n_in), by :meth:`entries` (zero elsewhere) or dense."""
+        z = np.asarray(z, dtype=complex).ravel()
+        if not self.sparse(n_in):
+            return self.response_dense(z, n_in)
+        out = np.zeros((z.size, self.C.shape[0], n_in), dtype=complex)
+        rows, cols, v = self.entries(z, n_in)
+        out[:, rows, cols] = v
+        return out
+
+    def response_dense(self, z: np.ndarray, n_in: int) -> np.ndarray:
+        """Gs(z) from the whole Ad at once (the reference :meth:`response` is pinned to): modal when Ad's
+        eigenvectors are well conditioned, else a solve per point."""
         z = np.asarray(z, dtype=complex).ravel()
         N = self.Ad.shape[0]
         if N == 0:
@@ -90,8 +131,6 @@ class SampledCore:
                 lam, CV, G0m, G1m = modal
                 X = self._inputs(z, G0m, G1m, n_in) / (z[:, None] - lam[None, :])[:, :, None]
                 return CV[None] @ X
-            from gaintune.verification.mimo_loop import solve_points
-
             Bz = self._inputs(z, self.G0, self.G1, n_in)
             return self.C[None] @ solve_points(z[:, None, None] * np.eye(N) - self.Ad[None], Bz)
 
@@ -183,11 +222,48 @@ class SampledLoop(MimoLoop):
             s_be = (1.0 - 1.0 / z) / self.dt
         return self.core.response(z, self.n_in), response(self.controller, s_be, self.ins, self.outs)
 
+    def _entries(self, s: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(controller rows, columns, values; plant rows, columns, values) of the nonzero entries at z = e^{s dt}."""
+        assert self.core is not None and isinstance(self.controller, TfMatrix)
+        z = np.exp(s * self.dt)
+        with np.errstate(all="ignore"):
+            s_be = (1.0 - 1.0 / z) / self.dt
+        return (*_tf_values(self.controller, s_be, tuple(self.ins), tuple(self.outs)), *self.core.entries(z, self.n_in))
+
+    def _sparse(self) -> bool:
+        """Whether the loop gains are taken from the nonzero entries (a transfer-matrix controller and a
+        plant of few nonzero entries, :meth:`SampledCore.sparse`)."""
+        assert self.core is not None
+        return isinstance(self.controller, TfMatrix) and self.core.sparse(self.n_in)
+
     def loop_gains(self, s: np.ndarray, side: str) -> np.ndarray:
-        """L at z = e^{s dt}: ``Ks Gs`` (side "input") or ``Gs Ks`` ("output")."""
+        """L at z = e^{s dt}: ``Ks Gs`` (side "input") or ``Gs Ks`` ("output"); from the nonzero entries alone
+        (:meth:`~.mimo_loop.MimoLoop._sparse_loop_gains`) when :meth:`_sparse`."""
+        if self._sparse():
+            s = np.asarray(s, dtype=complex).ravel()
+            return self._sparse_loop_gains(s, side, self._entries(s))
         Gs, Ks = self.channels(s)
         with np.errstate(all="ignore"):
             return Ks @ Gs if side == "input" else Gs @ Ks
+
+    def outputs_by_inputs(self) -> bool:
+        """Output-side rows from the smaller input side (:meth:`input_side`, the sampled entries): fewer
+        inputs than outputs (a cascade) and :meth:`_sparse`."""
+        return self.n_in < self.n_out and self._sparse()
+
+    def input_side(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(L_i = Ks Gs, Gs, Ks) of the sampled loop at ``s`` from one evaluation of the entries."""
+        s = np.asarray(s, dtype=complex).ravel()
+        if not self.outputs_by_inputs():
+            Gs, Ks = self.channels(s)
+            return self.loop_gains(s, "input"), Gs, Ks
+        entries = self._entries(s)
+        kr, kc, kv, gr, gc, gv = entries
+        Gs = np.zeros((s.size, self.n_out, self.n_in), dtype=complex)
+        Gs[:, gr, gc] = gv
+        Ks = np.zeros((s.size, self.n_in, self.n_out), dtype=complex)
+        Ks[:, kr, kc] = kv
+        return self._sparse_loop_gains(s, "input", entries), Gs, Ks
 
     def max_delay(self) -> float:
         """The longest delay of the sampled channels (s), whole samples and the hold's sample included."""
@@ -202,11 +278,11 @@ def sampled_stability_mimo(loop: SampledLoop, base: MimoLoop) -> MimoStability:
     notes: list[str] = []
     plant = loop.core.realisation(loop.n_in)
     Ak, Bk, Ck, Dk = base.realisations(0)[1]
-    Ak, Bk, Ck, _ = trim_hidden(Ak, Bk, Ck)
+    Ak, Bk, Ck = trim_hidden_by_parts(Ak, Bk, Ck)  # many chains: a chain at a time (trim_hidden's cost)
     ctrl = euler_controller(Ak, Bk, Ck, Dk, loop.dt)
     A = closed_loop_matrix(plant, ctrl)
     with np.errstate(all="ignore"):
-        poles = np.linalg.eigvals(A) if A.size and np.all(np.isfinite(A)) else np.zeros(0, dtype=complex)
+        poles = block_eigvals(A) if A.size and np.all(np.isfinite(A)) else np.zeros(0, dtype=complex)
     hid = loop.core.hidden
     # a hidden chain on the unit circle comes out spread by rounding, as in the continuous count
     bad, marginal = hid[np.abs(hid) > 1.0 + 1e-6], hid[np.abs(hid) <= 1.0 + 1e-6]

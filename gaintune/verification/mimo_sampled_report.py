@@ -22,7 +22,7 @@ from gaintune.plants.mimo import as_mimo
 from gaintune.spec import TuningSpec
 from gaintune.verification.mimo import MimoLine, MimoMargins, judge
 from gaintune.verification.mimo_loop import MimoLoop, char_freqs
-from gaintune.verification.mimo_margins import loop_at_a_time, multiloop_disk, sigma_peak
+from gaintune.verification.mimo_margins import lat_rows, loop_at_a_time, multiloop_disk, sigma_peak
 from gaintune.verification.mimo_sampled import SampledCore, SampledLoop, sampled_core, sampled_stability_mimo
 from gaintune.verification.mimo_spec import (
     LoopFrame,
@@ -97,20 +97,24 @@ def sampled_report(base: MimoLoop, loop: SampledLoop, sigma: float = 0.0,
     want = needs if needs is not None else {"break", "ms", "mt", "disk"}
     grid = sampled_grid(base, loop)
     rep.band, rep.grid_points = (float(grid[0]), float(grid[-1])), int(grid.size)
-    Si, So = loop.sensitivities(1j * grid)
+    Si = loop.sensitivity(1j * grid, "input")
+    # a cascade's output rows come from the input side (lat_rows): the larger output-side inverse only for peaks
+    peaks = bool(want & {"ms", "mt", "disk"})
+    So = loop.sensitivity(1j * grid, "output") if peaks or not loop.outputs_by_inputs() else None
     if "break" in want:
-        with np.errstate(all="ignore"):
-            L = np.concatenate([1.0 / np.diagonal(Si, axis1=1, axis2=2).T - 1.0,
-                                1.0 / np.diagonal(So, axis1=1, axis2=2).T - 1.0])
-        breaks = loop_at_a_time(loop, grid, L)
+        breaks = loop_at_a_time(loop, grid, lat_rows(loop, 1j * grid, True, (Si, So)))
         rep.input_breaks, rep.output_breaks = breaks[: loop.n_in], breaks[loop.n_in:]
     _sampled_peaks_and_disks(rep, loop, grid, Si, So, want, sigma)
     return rep
 
 
 def _sampled_peaks_and_disks(rep: MimoMargins, loop: SampledLoop, grid: np.ndarray, Si: np.ndarray,
-                             So: np.ndarray, want: set[str], sigma: float) -> None:
-    """The sigma peaks of S and T and the multiloop disk margins ``want`` names, into ``rep``."""
+                             So: np.ndarray | None, want: set[str], sigma: float) -> None:
+    """The sigma peaks of S and T and the multiloop disk margins ``want`` names, into ``rep`` (``So`` is
+    there when ``want`` names any)."""
+    if not want & {"ms", "mt", "disk"}:
+        return
+    assert So is not None
     nyq = math.pi / loop.dt
     eye_i, eye_o = np.eye(loop.n_in), np.eye(loop.n_out)
 
