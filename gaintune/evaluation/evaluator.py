@@ -158,27 +158,32 @@ def mimo_requirement_scores(ev: Evaluator, tuned: np.ndarray, stability: bool = 
     one of :mod:`gaintune.verification.mimo_spec`),
     the limits at the search's aim (``requirements.backoff``), graded as the single-loop case
     (:func:`gaintune.verification.mimo_spec.graded`): 0 exactly when every line holds with
-    FEASIBILITY_MARGIN to spare. ``stability`` is accepted for the interface: an unstable loop always
-    scores as unstable (its margins mean nothing). The nominal plant only (the MIMO verdict has no robust set yet).
+    FEASIBILITY_MARGIN to spare. ``stability=False`` (the repair's trial scales, whose answer is checked
+    in full) skips the closed-loop eigenvalues of the sampled loop, as the single-loop estimate skips its
+    stability count; the continuous check always counts. The nominal plant only (the MIMO verdict has no
+    robust set yet).
     """
     from gaintune.verification.mimo_sampled_report import sampled_margins
     from gaintune.verification.mimo_spec import graded, loop_frame, spec_margins
 
     # the loop the verdict judges: the exact sampled loop by default (verify.sampled), else continuous + dt/2
-    margins = sampled_margins if ev.spec.verify.sampled else spec_margins
-
     if ev._mimo_frame is None:  # the plant side, built once: every candidate reuses its plant-only work
         ev._mimo_frame = loop_frame(ev.spec, ev.plant)
+    skip = not stability and ev.spec.verify.sampled  # only the sampled check can leave its stability out
     full = ev.layout.full(tuned)
     out = np.zeros((2, tuned.shape[0]))
     for b, row in enumerate(full):
-        key = row.tobytes()
+        key = row.tobytes() + (b"-" if skip else b"")
         hit = ev._mimo_memo.get(key)
         if hit is None:
             if not np.all(np.isfinite(row)):
                 hit = (DIVERGED_VIOLATION, DIVERGED_VIOLATION)
             else:
-                _, rep, lines = margins(ev.spec, ev.plant, ev.layout, row, aimed=True, frame=ev._mimo_frame)
+                if ev.spec.verify.sampled:
+                    _, rep, lines = sampled_margins(ev.spec, ev.plant, ev.layout, row, aimed=True,
+                                                    frame=ev._mimo_frame, stability=not skip)
+                else:
+                    _, rep, lines = spec_margins(ev.spec, ev.plant, ev.layout, row, aimed=True, frame=ev._mimo_frame)
                 hit = graded(rep, lines)
             if len(ev._mimo_memo) > 4096:
                 ev._mimo_memo.clear()

@@ -32,6 +32,7 @@ from gaintune.verification.mimo_spec import (
     spec_loop,
     spec_requirements,
 )
+from gaintune.verification.mimo_stability import MimoStability
 
 __all__ = ["sampled_grid", "sampled_loop", "sampled_report", "sampled_margins"]
 
@@ -44,6 +45,11 @@ _PER_DECADE = 40
 #: Most points of the uniform grid that follows the delays' phase spin.
 _SPIN_MAX = 20000
 
+
+
+#: The stability of a loop whose check skipped it (:func:`sampled_report` with ``stability=False``).
+_UNCHECKED = MimoStability(True, "unchecked", 0, None, True, np.zeros(0, dtype=complex), 0, -math.inf,
+                           notes=["closed-loop stability not checked (a root find's trial point)"])
 
 def sampled_grid(base: MimoLoop, loop: SampledLoop) -> np.ndarray:
     """Frequencies (rad/s) up to the Nyquist frequency pi/dt (included): a log grid from 1/100 of the
@@ -79,14 +85,16 @@ def sampled_loop(spec: TuningSpec, plant: Any, sl: SpecLoop) -> tuple[MimoLoop, 
 
 
 def sampled_report(base: MimoLoop, loop: SampledLoop, sigma: float = 0.0,
-                   needs: set[str] | None = None) -> MimoMargins:
+                   needs: set[str] | None = None, stability: bool = True) -> MimoMargins:
     """:func:`gaintune.verification.mimo.mimo_report` of the sampled loop: the same figures by the
     same functions, on :func:`sampled_grid`, with the discrete closed-loop stability.
 
     ``needs`` (the search's check, as :func:`~gaintune.verification.mimo_spec.lean_report`): compute
     only the figures it names (``break``, ``ms``, ``mt``, ``disk``), each equal to the full report's;
-    the others are placeholders no requirement reads, and an unstable loop stops after its stability."""
-    stab = sampled_stability_mimo(loop, base)
+    the others are placeholders no requirement reads, and an unstable loop stops after its stability.
+    ``stability=False`` (a root find's trial points, whose answer is checked in full afterwards) skips the
+    closed-loop eigenvalues, over half of a 110-gain check, and reports the loop as stable, unchecked."""
+    stab = sampled_stability_mimo(loop, base) if stability else _UNCHECKED
     P = loop.plant
     rep = MimoMargins.unmeasured(loop.names, stab, sigma, inputs=[P.inputs[j] for j in loop.loop_ins],
                                  outputs=[P.outputs[i] for i in loop.loop_outs], notes=list(stab.notes),
@@ -141,10 +149,12 @@ def _sampled_peaks_and_disks(rep: MimoMargins, loop: SampledLoop, grid: np.ndarr
 
 
 def sampled_margins(spec: TuningSpec, plant: Any, layout: GainLayout, full: np.ndarray, aimed: bool = False,
-                    frame: LoopFrame | None = None) -> tuple[SpecLoop, MimoMargins, list[MimoLine]]:
+                    frame: LoopFrame | None = None, stability: bool = True
+                    ) -> tuple[SpecLoop, MimoMargins, list[MimoLine]]:
     """The sampled loop's MIMO report and requirement lines of one gain set (as
     :func:`~gaintune.verification.mimo_spec.spec_margins` gives the continuous ones; ``aimed``: the
-    search's check, at the search's aim and with only the figures its requirements read).
+    search's check, at the search's aim and with only the figures its requirements read; ``stability``:
+    False skips the closed-loop stability, see :func:`sampled_report`).
 
     Raises
     ------
@@ -154,7 +164,7 @@ def sampled_margins(spec: TuningSpec, plant: Any, layout: GainLayout, full: np.n
     sl = spec_loop(spec, plant, layout, full, frame)
     base, loop = sampled_loop(spec, plant, sl)
     reqs = aimed_requirements(spec) if aimed else spec_requirements(spec)
-    rep = sampled_report(base, loop, needs=requirement_needs(reqs) if aimed else None)
+    rep = sampled_report(base, loop, needs=requirement_needs(reqs) if aimed else None, stability=stability)
     if aimed and not rep.stability.stable:
         return sl, rep, []  # graded() scores the instability; the lean report has no figures to judge
     if as_mimo(plant).nonlinear:  # the simulator steps the ODE itself by RK4, actuator delays in whole samples

@@ -65,3 +65,27 @@ def test_cmaes_tunes_every_wood_berry_gain_jointly() -> None:
     box = search_box(spec, build_plant(spec.plant))
     centre_cost = box.candidates[box.source][2]
     assert res.cost <= centre_cost
+
+
+def test_repair_trial_points_skip_the_sampled_stability_and_the_answer_is_checked_in_full() -> None:
+    """The repair's trial scales skip the closed-loop eigenvalues (over half of a 110-gain check); their
+    margins are the full check's, an unstable trial point is not caught there, and the repaired answer is."""
+    from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
+    from gaintune.evaluation.evaluator import mimo_requirement_scores
+    from gaintune.evaluation.search_box import make_evaluator
+    from gaintune.verification.quick import UNSTABLE_VIOLATION
+
+    spec = wood_berry()
+    ev = make_evaluator(spec)
+    x0 = ev.layout.initial_tuned()
+    rows = x0 * np.array([[1.0], [1.6], [2.5], [40.0]])  # feasible, beyond the boundary, ..., unstable
+    full_v, _ = mimo_requirement_scores(ev, rows, stability=True)
+    lean_v, _ = mimo_requirement_scores(ev, rows, stability=False)
+    stable = full_v < UNSTABLE_VIOLATION
+    assert stable[:2].all() and not stable[-1]
+    np.testing.assert_array_equal(lean_v[stable], full_v[stable])
+    assert lean_v[-1] < UNSTABLE_VIOLATION  # the trial point's instability goes unseen ...
+    moved = onto_boundary_estimate(ev, rows)
+    # ... and every repaired answer passed the full check, stability included
+    assert moved.repaired.any()
+    assert (mimo_requirement_scores(ev, moved.tuned[moved.repaired], stability=True)[0] <= 0).all()
