@@ -16,7 +16,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
-from gaintune.envs.problem import GainProblem, Scored
+from gaintune.envs.problem import GainProblem, Scored, rank_reward
 from gaintune.sim.draws import Draws
 
 __all__ = ["BatchedGainVecEnv"]
@@ -77,7 +77,9 @@ class BatchedGainVecEnv(VecEnv):
              "tripped": bool(s.tripped[i]), "terminal_observation": last_obs[i], "TimeLimit.truncated": False}
             for i in range(self.num_envs)
         ]
-        return new_obs, s.reward.astype(np.float32), np.ones(self.num_envs, dtype=bool), infos
+        # one plant: the batch's centred ranks (fitness shaping, see gaintune.envs.problem)
+        reward = s.reward if self.problem.randomized else rank_reward(s.merit)
+        return new_obs, reward.astype(np.float32), np.ones(self.num_envs, dtype=bool), infos
 
     def close(self) -> None:
         """Nothing to release: the envs share one in-process simulator."""

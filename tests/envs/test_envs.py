@@ -9,8 +9,8 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 from gaintune.envs import ENV_IDS, BatchedGainVecEnv, GainProblem, GainTuningEnv, IterativeGainTuningEnv
-from gaintune.envs.problem import COST_CAP, VIOLATION_CAP
-from gaintune.evaluation.evaluator import DIVERGED_VIOLATION, TRIP_VIOLATION, scenario_cost
+from gaintune.envs.problem import COST_CAP, VIOLATION_CAP, rank_reward
+from gaintune.evaluation.evaluator import DIVERGED_VIOLATION, TRIP_VIOLATION, merit, scenario_cost
 from gaintune.spec import load_spec
 
 LAG3 = {"plant": {"tf": {"num": [1], "den": "(s+1)^3"}}, "loops": [{"type": "pid"}], "scenario": {"horizon": 15}}
@@ -150,11 +150,16 @@ def test_vec_env_uses_one_batched_simulation_per_scenario(lag3, monkeypatch):
     _, rewards, dones, infos = venv.step(actions)
     assert calls == [16]
     assert dones.all() and len(infos) == 16
-    # the same actions one by one through the single env give the same rewards
+    # the same actions one by one through the single env give the same scores; on one plant the batched
+    # env rewards their centred ranks within the batch (fitness shaping: gaintune.envs.problem)
     env = GainTuningEnv(lag3.spec, problem=lag3)
     env.reset(seed=0)
-    for i in (0, 7, 15):
-        assert env.step(actions[i])[1] == pytest.approx(float(rewards[i]), rel=1e-6)
+    merits = []
+    for i in range(16):
+        info = env.step(actions[i])[4]
+        merits.append(float(merit(np.array(info["cost"]), np.array(info["violation"]))))
+        assert info["cost"] == pytest.approx(infos[i]["cost"], rel=1e-9)
+    np.testing.assert_allclose(rewards, rank_reward(np.array(merits)), rtol=1e-6)
 
 
 def test_iterative_env_return_is_total_improvement(lag3):
