@@ -210,6 +210,34 @@ def _continuous_stability(cas: Cascade, lin: LinearModel, w: np.ndarray, T: floa
     return stable, max_re
 
 
+#: The plant side of recent estimates (grid, s and delay factor), by model object: see :func:`_frequencies`.
+_FREQ_CACHE: dict[tuple, tuple[LinearModel, SampledPlant | None, tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+
+
+def _frequencies(lin: LinearModel, T: float, n: int, sp: SampledPlant | None,
+                 order: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(grid w, s = j w then 0, the delay factor at s): the plant side of an estimate, gain-independent.
+
+    Remembered per model object (and sampled plant, delay, size and Pade order) as :func:`sample_plant` is:
+    a boundary move estimates the same plant ~5 times per answer. The arrays are read-only (shared).
+    """
+    key = (id(lin), id(sp), float(T), int(n), order)
+    hit = _FREQ_CACHE.get(key)
+    if hit is not None and hit[0] is lin and hit[1] is sp:
+        return hit[2]
+    w = _grid(lin, T, n)
+    if sp is not None:
+        w = sampled_grid(w, sp)
+    s = np.concatenate([1j * w, [0.0]])
+    out = (w, s, _delay_response(s, T, order))
+    for a in out:
+        a.setflags(write=False)
+    if len(_FREQ_CACHE) > 512:
+        _FREQ_CACHE.clear()
+    _FREQ_CACHE[key] = (lin, sp, out)
+    return out
+
+
 def _with_plant_input(x: np.ndarray) -> np.ndarray:
     """(R, B) -> (B, R + 1): the innermost loop's row repeated for the plant input, last.
 
@@ -248,12 +276,8 @@ def quick_margins(
     sp = sample_plant(lin, dt, vs.compute_delay, plant.kind == "nonlinear") if vs.sampled else None
     T = sp.total_delay if sp is not None else lin.delay + sampling_delay(spec) + vs.compute_delay * dt
     cas = build_cascade(spec, layout, full, lin)
-    w = _grid(lin, T, n_freq)
-    if sp is not None:
-        w = sampled_grid(w, sp)
-    s = np.concatenate([1j * w, [0.0]])
     order = spec.verify.pade_order
-    dly = _delay_response(s, T, order)
+    w, s, dly = _frequencies(lin, T, n_freq, sp, order)
     R, B = len(cas.loops), full.shape[0]
     with np.errstate(all="ignore"):
         L, L0, mks = _responses(cas, lin, s, dly, sp, peaks)
