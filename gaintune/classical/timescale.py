@@ -267,8 +267,25 @@ def scenario_defaults(spec: TuningSpec, plant: Plant | None = None) -> tuple[Tun
     for i in todo:
         scenarios[i], rec = _fill(i, scenarios[i], ps, _event_time(spec, scenarios[i]))
         records.append(rec)
+    return _with_scenarios(spec, scenarios), records
+
+
+def _with_scenarios(spec: TuningSpec, scenarios: list[ScenarioSpec]) -> TuningSpec:
+    """``spec`` with ``scenarios`` (its own, with dt/horizon filled in), checked as a full validation checks them.
+
+    Only the scenarios' dt and horizon differ from the validated ``spec``, so only the checks that read them
+    can fail: each scenario's (horizon/dt within the step limits) and the spec's delay-in-samples bound.
+    Those run here on a copy (a full re-validation of the spec cost ~1/20 of a tuner query); should one
+    fail, the spec is validated in full, which raises the located error a user sees.
+    """
     out = spec.model_copy(update={"scenarios": scenarios})
-    return TuningSpec.model_validate(out.model_dump()), records
+    try:
+        checked = [ScenarioSpec.model_validate(sc.model_dump()) for sc in scenarios]
+        out = spec.model_copy(update={"scenarios": checked})
+        out._check_delay_steps()
+    except ValueError:  # pydantic's ValidationError is one
+        return TuningSpec.model_validate(out.model_dump())
+    return out
 
 
 def resolve_scenarios(spec: TuningSpec, plant: Plant | None = None) -> TuningSpec:

@@ -88,11 +88,17 @@ class Plant(NamedParams):
         if key in self._cache:
             return self._cache[key]
         if self.kind == "lti":
-            A, B, C, D = _lti_matrices(self.spec, p)
-            n, q = A.shape[0], C.shape[0]
-            lin = LinearModel(A, B, C, D, self.delay(p), self.states, self.outputs, np.zeros(n), 0.0, np.zeros(q))
+            lin = self._lti_model(p, _lti_matrices(self.spec, p))
         else:
             lin = _linearize_ode(self, p)
+        return self._remember(key, lin)
+
+    def _lti_model(self, p: dict[str, float], mats: tuple[np.ndarray, ...]) -> LinearModel:
+        A, B, C, D = mats
+        n, q = A.shape[0], C.shape[0]
+        return LinearModel(A, B, C, D, self.delay(p), self.states, self.outputs, np.zeros(n), 0.0, np.zeros(q))
+
+    def _remember(self, key: tuple, lin: LinearModel) -> LinearModel:
         if len(self._cache) > 256:
             self._cache.clear()
         self._cache[key] = lin
@@ -322,5 +328,9 @@ def build_plant(spec: PlantSpec) -> Plant:
         if not name.isidentifier():
             raise SpecError("plant", f"name {name!r} must be an identifier")
     plant.delay()  # validates the delay expression
-    plant.linearize()  # validates the model at nominal parameters
+    if plant.kind == "lti":  # the nominal model from the matrices just built and checked (not built twice)
+        p = plant.with_params(None)
+        plant._remember(tuple(sorted(p.items())), plant._lti_model(p, (A, B, C, D)))
+    else:
+        plant.linearize()  # validates the model at nominal parameters
     return plant

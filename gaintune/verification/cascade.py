@@ -70,6 +70,36 @@ __all__ = ["LoopCtl", "Cascade", "build_cascade", "controller_state_index", "pid
 Resp = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
+
+#: The sampled plant's side of recent responses at a shared frequency array: see :func:`_sampled_plant_side`.
+_SAMPLED_SIDE: dict[tuple[int, int], tuple] = {}
+
+
+def _sampled_plant_side(s: np.ndarray, sp: SampledPlant) -> tuple:
+    """(X = u->x (W, n), P = u->y (W, q), integral operator, derivative operator) of ``sp`` at z = e^{s dt}.
+
+    Gain-independent: remembered when ``s`` is read-only, as the requirement estimate's grid is (one
+    array per plant, :func:`gaintune.verification.quick.quick_margins`; a boundary move estimates a plant
+    ~5 times per answer). The remembered arrays are read-only too.
+    """
+    shared = not s.flags.writeable
+    key = (id(s), id(sp))
+    hit = _SAMPLED_SIDE.get(key) if shared else None
+    if hit is not None and hit[0] is s and hit[1] is sp:
+        return hit[2]
+    with np.errstate(all="ignore"):
+        z = np.exp(s * sp.dt)
+        X, P = sp.responses(z)
+        _, integ, deriv = discrete_ops(z, sp.dt)
+    out = (X, P, integ, deriv)
+    if shared:
+        for a in (X, P, integ):
+            a.setflags(write=False)
+        if len(_SAMPLED_SIDE) > 512:
+            _SAMPLED_SIDE.clear()
+        _SAMPLED_SIDE[key] = (s, sp, out)
+    return out
+
 @dataclass
 class Cascade:
     """Controllers of a spec for a batch of gain sets, plus the loop names."""
@@ -131,10 +161,7 @@ class Cascade:
                    sampled: SampledPlant | None) -> list[Resp]:
         """Per loop (F_k, m_k, C_k) at ``s``: the continuous loop with the delay factor, or the sampled one."""
         if sampled is not None:
-            with np.errstate(all="ignore"):
-                z = np.exp(s * sampled.dt)
-                X, P = sampled.responses(z)
-                _, integ, deriv = discrete_ops(z, sampled.dt)
+            X, P, integ, deriv = _sampled_plant_side(s, sampled)
             return self.controller_responses(s, lin, X, P, (integ, deriv))
         X = plant_state_response(lin, s) * np.asarray(delay)[:, None]  # (W, n)
         P = X @ lin.C.T + (lin.D[:, 0][None, :] * np.asarray(delay)[:, None])  # (W, q)

@@ -210,12 +210,43 @@ def _continuous_stability(cas: Cascade, lin: LinearModel, w: np.ndarray, T: floa
     return stable, max_re
 
 
+#: The plant side of recent estimates (grid, s and delay factor), by model object: see :func:`_frequencies`.
+_FREQ_CACHE: dict[tuple, tuple[LinearModel, SampledPlant | None, tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+
+
+def _frequencies(lin: LinearModel, T: float, n: int, sp: SampledPlant | None,
+                 order: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(grid w, s = j w then 0, the delay factor at s): the plant side of an estimate, gain-independent.
+
+    Remembered per model object (and sampled plant, delay, size and Pade order) as :func:`sample_plant` is:
+    a boundary move estimates the same plant ~5 times per answer. The arrays are read-only (shared).
+    """
+    key = (id(lin), id(sp), float(T), int(n), order)
+    hit = _FREQ_CACHE.get(key)
+    if hit is not None and hit[0] is lin and hit[1] is sp:
+        return hit[2]
+    w = _grid(lin, T, n)
+    if sp is not None:
+        w = sampled_grid(w, sp)
+    s = np.concatenate([1j * w, [0.0]])
+    out = (w, s, _delay_response(s, T, order))
+    for a in out:
+        a.setflags(write=False)
+    if len(_FREQ_CACHE) > 512:
+        _FREQ_CACHE.clear()
+    _FREQ_CACHE[key] = (lin, sp, out)
+    return out
+
+
 def _with_plant_input(x: np.ndarray) -> np.ndarray:
     """(R, B) -> (B, R + 1): the innermost loop's row repeated for the plant input, last.
 
     The innermost loop's output is the plant input u, so the loop broken there and at the plant
     input is one loop: its row is analysed once and reported for both break points."""
-    return np.moveaxis(np.concatenate([x, x[-1:]]), 0, -1)
+    out = np.empty((x.shape[0] + 1, *x.shape[1:]), dtype=x.dtype)  # concatenate + moveaxis, without their
+    out[:-1] = x  # argument handling (called 6 times per estimate): the same values in the same layout
+    out[-1] = x[-1]
+    return out.transpose(*range(1, out.ndim), 0)
 
 
 def quick_margins(
@@ -248,12 +279,8 @@ def quick_margins(
     sp = sample_plant(lin, dt, vs.compute_delay, plant.kind == "nonlinear") if vs.sampled else None
     T = sp.total_delay if sp is not None else lin.delay + sampling_delay(spec) + vs.compute_delay * dt
     cas = build_cascade(spec, layout, full, lin)
-    w = _grid(lin, T, n_freq)
-    if sp is not None:
-        w = sampled_grid(w, sp)
-    s = np.concatenate([1j * w, [0.0]])
     order = spec.verify.pade_order
-    dly = _delay_response(s, T, order)
+    w, s, dly = _frequencies(lin, T, n_freq, sp, order)
     R, B = len(cas.loops), full.shape[0]
     with np.errstate(all="ignore"):
         L, L0, mks = _responses(cas, lin, s, dly, sp, peaks)
