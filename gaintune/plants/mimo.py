@@ -93,7 +93,7 @@ class MimoPlant(NamedParams):
     def lti(self, values: dict[str, float] | None = None) -> TfMatrix | DelayedSS:
         """The plant's :mod:`gaintune.lti.mimo` form for these parameters (memoised)."""
         if self._siso is not None:
-            return _siso_lti(self._siso, values)
+            return _siso_lti(self._siso, self.with_params(values))  # this view's parameters (a robust draw's)
         p = self.with_params(values)
         key = tuple(sorted(p.items()))
         hit = self._cache.get(key)

@@ -78,6 +78,12 @@ def _gain_rows(spec: TuningSpec, plant, gains: Gains, ps: dict[str, Any]) -> lis
     return rows
 
 
+def _draw_text(q) -> str:
+    """`` (draw K=1.2)``: the robust-set draw a MIMO worst-case line was read on."""
+    draw = getattr(q, "draw", None)
+    return " (draw " + ", ".join(f"{k}={_fmt(v, 4)}" for k, v in draw.items()) + ")" if draw else ""
+
+
 def _requirements(rep) -> list[dict[str, Any]]:
     names = {"gm_min_db": "gain margin >= (dB)", "pm_min_deg": "phase margin >= (deg)", "dm_min": "delay margin >= (s)",
              "ms_max": "Ms <=", "mt_max": "Mt <=", "mks_max": "Mks <=",
@@ -85,7 +91,7 @@ def _requirements(rep) -> list[dict[str, Any]]:
     return [{
         "name": names.get(q.requirement, q.requirement), "value": _fmt(q.value), "limit": _fmt(q.limit),
         "margin": _fmt(q.margin), "passed": q.passed, "status": q.status,
-        "where": f"{q.loop} / {q.break_point} / {q.case}" if q.loop else q.case,
+        "where": " / ".join(x for x in (q.loop, q.break_point, q.case) if x) + _draw_text(q),
     } for q in rep.requirements]
 
 

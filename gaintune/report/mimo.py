@@ -40,12 +40,41 @@ def _get(obj: Any, name: str, default: Any = None) -> Any:
     return getattr(obj, name, default)
 
 
-def mimo_margin_tables(margins: Any) -> dict[str, Any] | None:
+def _draw(where: Any, figure: str) -> str:
+    """The draw attaining a worst-case figure, as text (``K=1.2, T=3``)."""
+    d = _get(where or {}, figure) or {}
+    return ", ".join(f"{k}={_fmt(v, 4)}" for k, v in d.items())
+
+
+def _robust_rows(robust: Any, breaks: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], list[dict[str, Any]], str]:
+    """The worst-case rows of the robust set (a :class:`~gaintune.verification.report.RobustReport` or its
+    dict): per side and per break point (labelled as the nominal ``breaks`` rows), and a summary line."""
+    sides = [{"side": f"plant {_get(w, 'side')}s (worst case)", "ms": _fmt(_get(w, "ms"), 3), "ms_freq": "",
+              "mt": _fmt(_get(w, "mt"), 3), "alpha": _fmt(_get(w, "disk_alpha"), 3), "disk_gm": "", "disk_pm": "",
+              "disk_freq": "", "draw": f"Ms at {_draw(_get(w, 'where'), 'ms')}; alpha at "
+              f"{_draw(_get(w, 'where'), 'disk_alpha')}"} for w in _get(robust, "sides", []) or []]
+    rows = []
+    for k, w in enumerate(_get(robust, "worst", []) or []):
+        label = breaks[k]["break"] if k < len(breaks) else str(_get(w, "break_point"))
+        rows.append({"loop": _get(w, "loop"), "break": f"{label} (worst case)", "gm": _fmt(_get(w, "gm_db"), 3),
+                     "pm": _fmt(_get(w, "pm_deg"), 3), "dm": _fmt(_get(w, "delay_margin"), 3),
+                     "ms": _fmt(_get(w, "ms"), 3), "mt": _fmt(_get(w, "mt"), 3),
+                     "disk": _fmt(_get(w, "disk_alpha"), 3), "draw": f"GM at {_draw(_get(w, 'where'), 'gm_db')}"})
+    n, nu = _get(robust, "n_samples", 0), _get(robust, "n_unstable", 0)
+    summary = (f"robust set: {n} drawn plants ({_get(robust, 'n_corners', 0)} box corners + "
+               f"{_get(robust, 'n_monte_carlo', 0)} Monte-Carlo draws, seed {_get(robust, 'seed', 0)}), "
+               f"{nu} with an unstable closed loop; worst case over the stable ones")
+    return sides, rows, summary
+
+
+def mimo_margin_tables(margins: Any, robust: Any = None) -> dict[str, Any] | None:
     """The MIMO margin tables from a :class:`~gaintune.verification.mimo.MimoMargins` (or its dict); None if absent.
 
-    Returns ``{"stability": ..., "sides": rows, "breaks": rows, "notes": [...]}``: per side (plant
-    inputs, plant outputs) the peak sigma_max of S and T and the multiloop disk margin; per loop
-    the loop-at-a-time figures at its plant input and its plant output, all other loops closed.
+    Returns ``{"stability": ..., "sides": rows, "breaks": rows, "notes": [...], "robust": text}``: per
+    side (plant inputs, plant outputs) the peak sigma_max of S and T and the multiloop disk margin;
+    per loop the loop-at-a-time figures at its plant input and its plant output, all other loops
+    closed. ``robust`` (the verification's ``robust`` section) adds a worst-case row, with the draw
+    attaining it, after each nominal row; ``robust`` in the result is then the set's summary, else None.
     """
     if margins is None:
         return None
@@ -66,8 +95,13 @@ def mimo_margin_tables(margins: Any) -> dict[str, Any] | None:
                            "gm": _fmt(_get(f, "gm_db"), 3), "pm": _fmt(_get(f, "pm_deg"), 3),
                            "dm": _fmt(_get(f, "delay_margin"), 3), "ms": _fmt(_get(f, "ms"), 3),
                            "mt": _fmt(_get(f, "mt"), 3), "disk": _fmt(_get(f, "disk_alpha"), 3)})
+    summary = None
+    if robust is not None:
+        worst_sides, worst_breaks, summary = _robust_rows(robust, breaks)
+        sides = [r for pair in zip(sides, worst_sides, strict=False) for r in pair] + sides[len(worst_sides):]
+        breaks = [r for pair in zip(breaks, worst_breaks, strict=False) for r in pair] + breaks[len(worst_breaks):]
     stable = _get(stab, "stable")
-    return {"stable": stable, "stability": ("stable" if stable else "UNSTABLE") + f" ({_get(stab, 'method', '?')}, "
+    return {"robust": summary, "stable": stable, "stability": ("stable" if stable else "UNSTABLE") + f" ({_get(stab, 'method', '?')}, "
             f"max Re pole {_fmt(_get(stab, 'max_real_pole'))})", "sides": sides, "breaks": breaks,
             "notes": list(_get(margins, "notes", []) or [])}
 
@@ -225,7 +259,7 @@ def build_mimo_context(result: Any, *, command: str | None = None, margins: Any 
         "metric_keys": MIMO_METRIC_KEYS,
         "metrics": metric_rows,
         "time": figs,
-        "margins": mimo_margin_tables(margins),
+        "margins": mimo_margin_tables(margins, _get(rep, "robust") if rep is not None else None),
         "requirements": _requirements(rep) if rep is not None and not isinstance(rep, dict) else [],
         "search": _search_section(result, spec),
         "repro": _repro(result, command),

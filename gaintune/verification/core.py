@@ -135,7 +135,7 @@ def verify(
         from gaintune.verification.mimo_verdict import verify_mimo
 
         return verify_mimo(tspec, gains, plant=plant, layout=layout, spec_hash=spec_hash, nonlinear=nonlinear,
-                           elapsed_from=t0)
+                           elapsed_from=t0, robust=robust)
     setup = prepare(tspec, gains, plant, layout, cache, spec_hash, context)
     found = Findings(notes=fixed_gain_overrides(setup.spec, setup.layout, setup.full))
     nom = nominal_analysis(setup, found)

@@ -159,8 +159,11 @@ _FRAMES: OrderedDict[tuple[int, int], LoopFrame] = OrderedDict()
 _FRAMES_LOCK = threading.Lock()
 
 
-def loop_frame(spec: TuningSpec, plant: Any) -> LoopFrame:
-    """The :class:`LoopFrame` of ``spec`` on ``plant`` (the same object for the same spec and plant objects)."""
+def loop_frame(spec: TuningSpec, plant: Any, cache: bool = True) -> LoopFrame:
+    """The :class:`LoopFrame` of ``spec`` on ``plant`` (the same object for the same spec and plant objects;
+    ``cache=False``: built afresh and not kept, for a plant object used once, e.g. a robust draw)."""
+    if not cache:
+        return _build_frame(spec, plant)
     key = (id(spec), id(plant))
     with _FRAMES_LOCK:
         hit = _FRAMES.get(key)

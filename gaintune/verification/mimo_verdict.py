@@ -12,6 +12,11 @@ count on the exact delays. Either way: the loop-at-a-time margins at every drive
 measured output, the multiloop disk margins at the plant inputs and outputs, and the MIMO Ms and
 Mt. Each requirement gives one line at its binding place; the verdict fails naming the
 requirement and where.
+
+When the spec randomises plant parameters (``randomize.params``) the gains are also judged on the
+robust set the single-loop verdict draws (:mod:`.mimo_robust`): each requirement gets a second line,
+case ``worst``, the least margin over the stable drawn loops with the draw attaining it, and the
+verdict passes only when the nominal and the worst case pass and every drawn closed loop is stable.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from gaintune.spec import TuningSpec
 from gaintune.verification.figures import loop_figures
 from gaintune.verification.gains import coerce_gains, fixed_gain_overrides
 from gaintune.verification.mimo import REQUIREMENTS, MimoLine, MimoMargins
+from gaintune.verification.mimo_robust import MimoRobust, check_randomize, mimo_robust
 from gaintune.verification.mimo_sampled_report import sampled_margins
 from gaintune.verification.mimo_spec import MIMO_NOT_CHECKED, SpecLoop, spec_margins
 from gaintune.verification.nonlinear import nonlinear_check
@@ -35,6 +41,7 @@ from gaintune.verification.report import (
     MimoDisk,
     MimoFigures,
     RequirementLine,
+    RobustReport,
     StabilityReport,
     VerificationReport,
 )
@@ -81,12 +88,22 @@ def _figures(rep: MimoMargins) -> MimoFigures:
                        grid_points=rep.grid_points)
 
 
-def _reasons(stable: bool, lines: list[RequirementLine], nl_failed: bool) -> list[str]:
+def _case(q: RequirementLine) -> str:
+    """`` (worst case, draw K=1.2)`` for a worst-case line, nothing for a nominal one."""
+    if q.case != "worst":
+        return ""
+    draw = ", ".join(f"{k}={v:.4g}" for k, v in (q.draw or {}).items())
+    return f" (worst case, draw {draw})" if draw else " (worst case)"
+
+
+def _reasons(stable: bool, lines: list[RequirementLine], nl_failed: bool, rob: RobustReport | None = None) -> list[str]:
     out = [] if stable else ["closed loop unstable (all loops closed)"]
+    if rob is not None and rob.n_unstable:
+        out.append(f"robust: {rob.n_unstable} of {rob.n_samples} sampled plants give an unstable closed loop")
     failing = sorted((q for q in lines if q.applicable and not q.passed),
                      key=lambda q: q.margin / max(abs(q.limit), 1e-12))
     out += [f"{q.requirement}: {q.figure} = {q.value:.4g} vs limit {q.limit:.4g} (margin {q.margin:+.4g}) "
-            f"at {'/'.join(x for x in (q.loop, q.break_point) if x)}" for q in failing]
+            f"at {'/'.join(x for x in (q.loop, q.break_point) if x)}{_case(q)}" for q in failing]
     if nl_failed:
         out.append("nonlinear simulation diverged or tripped the safety monitor")
     return out
@@ -102,10 +119,25 @@ def _loop_note(sl: SpecLoop, cd: int, sampled: bool) -> str:
             f"input (dt/2 sample-and-hold at dt {sl.dt:.4g}{comp})")
 
 
+def _robust_lines(spec: TuningSpec, plant: Any, layout: GainLayout, full: np.ndarray, sampled: bool, dt: float,
+                  notes: list[str]) -> tuple[RobustReport, list[RequirementLine]]:
+    """The robust set's report section and its worst-case requirement lines (``case="worst"``, with their draw)."""
+    rob: MimoRobust = mimo_robust(spec, plant, layout, full, sampled, dt)
+    lines = [q.model_copy(update={"case": "worst", "draw": d})
+             for q, d in zip(mimo_lines(rob.worst_lines, rob.n_unstable == 0), rob.worst_draws, strict=True)]
+    r = rob.report
+    notes.append(f"robust set: {r.n_samples} drawn plants ({r.n_corners} box corners + {r.n_monte_carlo} Monte-Carlo "
+                 f"draws, seed {r.seed}), each judged as the nominal plant; the nonlinear check runs on the nominal "
+                 "plant only")
+    return r, lines
+
+
 def verify_mimo(spec: TuningSpec, gains: Any, plant: Any = None, layout: GainLayout | None = None,
-                spec_hash: str | None = None, nonlinear: bool = True, elapsed_from: float = 0.0) -> VerificationReport:
+                spec_hash: str | None = None, nonlinear: bool = True, elapsed_from: float = 0.0,
+                robust: bool | None = None) -> VerificationReport:
     """Verify one gain set of a MIMO spec (see the module docstring); ``gains`` as
-    :func:`gaintune.verification.verify` takes them."""
+    :func:`gaintune.verification.verify` takes them; ``robust``: judge the robust set too (default:
+    when the spec randomises plant parameters)."""
     import time
 
     t0 = elapsed_from or time.perf_counter()
@@ -116,17 +148,26 @@ def verify_mimo(spec: TuningSpec, gains: Any, plant: Any = None, layout: GainLay
     full = coerce_gains(layout, gains)
     notes = fixed_gain_overrides(spec, layout, full)
     sampled = bool(spec.verify.sampled)
+    robust = bool(spec.randomize.params or spec.randomize.delay) if robust is None else robust
+    if robust:
+        check_randomize(spec, plant)  # a bad randomize entry is refused before any analysis
     sl, rep, lines = (sampled_margins if sampled else spec_margins)(spec, plant, layout, full)
     stable = rep.stability.stable
     req_lines = mimo_lines(lines, stable)
     notes += list(rep.notes)
+    rob = None
+    if robust and spec.randomize.params:
+        rob, worst = _robust_lines(spec, plant, layout, full, sampled, sl.dt, notes)
+        req_lines += worst
+    elif robust:
+        notes.append("robust check requested but the spec randomises no plant parameter")
     notes.append(_loop_note(sl, spec.verify.compute_delay, sampled))
     skipped = [f for f in MIMO_NOT_CHECKED if f != "mks_max" and getattr(spec.requirements, f) is not None]
     if skipped:
         notes.append(f"not judged on several loops: {', '.join(skipped)}")
     nl = nonlinear_check(spec, plant, layout, full) if nonlinear else None
     nl_failed = nl is not None and nl.ran and nl.passed is False
-    reasons = _reasons(stable, req_lines, nl_failed)
+    reasons = _reasons(stable, req_lines, nl_failed, rob)
     verdict = "pass" if not reasons else "fail"
     figs = [loop_figures(f, sl.dt) for f in rep.input_breaks + rep.output_breaks] if stable else []
     return VerificationReport(
@@ -134,5 +175,5 @@ def verify_mimo(spec: TuningSpec, gains: Any, plant: Any = None, layout: GainLay
         verdict=verdict, reasons=reasons, delay=0.0, sampling_delay=0.0 if sampled else sl.extra_delay,
         sampled=sampled, dt=sl.dt, compute_delay=spec.verify.compute_delay, delay_method="exact",
         stability=_stability(rep, sampled),
-        analysis_band=rep.band, loops=figs, nonlinear=nl, requirements=req_lines, notes=notes,
+        analysis_band=rep.band, loops=figs, robust=rob, nonlinear=nl, requirements=req_lines, notes=notes,
         elapsed_s=time.perf_counter() - t0, mimo=_figures(rep))

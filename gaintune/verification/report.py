@@ -22,6 +22,7 @@ __all__ = [
     "StabilityReport",
     "PadeCheck",
     "WorstCase",
+    "WorstSide",
     "RobustReport",
     "NonlinearReport",
     "RequirementLine",
@@ -145,7 +146,7 @@ class WorstCase(_Out):
     """Worst figure over the robust sample set, per break point, with the sample attaining it."""
 
     loop: str
-    break_point: Literal["controller_output", "plant_input"]
+    break_point: Literal["controller_output", "plant_input", "plant_output"]
     gm_db: float
     pm_deg: float
     delay_margin: float
@@ -156,6 +157,16 @@ class WorstCase(_Out):
     disk_alpha: float
     where: dict[str, dict[str, float]] = Field(
         default_factory=dict, description="figure -> sample (parameter values, delay) attaining it.")
+
+
+class WorstSide(_Out):
+    """Worst MIMO-wide figures of one side (plant inputs or outputs) over the robust set, with the draw of each."""
+
+    side: Literal["input", "output"]
+    ms: float = Field(description="Peak sigma_max of S at this side.")
+    mt: float = Field(description="Peak sigma_max of T at this side.")
+    disk_alpha: float = Field(description="Multiloop disk margin alpha at this side.")
+    where: dict[str, dict[str, float]] = Field(default_factory=dict, description="figure -> draw attaining it.")
 
 
 class RobustReport(_Out):
@@ -169,6 +180,8 @@ class RobustReport(_Out):
     n_unstable: int
     unstable_samples: list[dict[str, float]] = Field(default_factory=list)
     worst: list[WorstCase] = Field(default_factory=list)
+    sides: list[WorstSide] = Field(
+        default_factory=list, description="MIMO verdict: the worst MIMO-wide figures per side over the stable draws.")
 
 
 class NonlinearReport(_Out):
@@ -195,6 +208,8 @@ class RequirementLine(_Out):
     loop: str | None = None
     break_point: str | None = None
     case: Literal["nominal", "worst"] = "nominal"
+    draw: dict[str, float] | None = Field(
+        None, description="MIMO verdict, worst case: the robust-set draw (parameter values) attaining the value.")
     applicable: bool = Field(
         True, description="False when the closed loop the figure is read on is unstable (nominal case: the nominal "
         "loop; worst case: any sampled plant): margins and sensitivity peaks of an unstable loop mean nothing. "

@@ -21,7 +21,7 @@ from gaintune.verification.noise import noise_peaks
 from gaintune.verification.report import RobustReport, WorstCase
 from gaintune.verification.sampled import SampledPlant, sample_plant
 
-__all__ = ["robust_samples", "robust_check", "RobustResult", "MAX_CORNERS", "DELAY_KEY"]
+__all__ = ["robust_samples", "robust_check", "RobustResult", "MAX_CORNERS", "DELAY_KEY", "WORSE", "public_sample"]
 
 #: Most box corners used (a random subset when 2^d is larger).
 MAX_CORNERS = 256
@@ -62,6 +62,8 @@ def robust_samples(spec: TuningSpec) -> tuple[list[dict[str, float]], int, int]:
 _WORSE: dict[str, Callable[[float, float], float]] = {
     "gm_db": min, "pm_deg": lambda a, b: min(a, b, key=judged_pm), "delay_margin": min, "ms": max, "mt": max,
     "disk_alpha": min}
+#: The figures tracked over the robust set per break point, and which way is worse (the MIMO robust set's too).
+WORSE = _WORSE
 #: (value, the sample attaining it), per figure, for one break point.
 _Tracked = dict[str, tuple[float, dict[str, float]]]
 #: (Mks or None, frequency or None) per loop, as :func:`gaintune.verification.noise.noise_peaks` gives.
@@ -107,9 +109,12 @@ def _track(worst: list[_Tracked], mks_worst: list[tuple[float | None, dict[str, 
                 worst[r][k] = (v, dict(smp))
 
 
-def _public(sample: dict[str, float]) -> dict[str, float]:
+def public_sample(sample: dict[str, float]) -> dict[str, float]:
     """A sample as reported: the delay under ``"delay"``."""
     return {("delay" if k == DELAY_KEY else k): v for k, v in sample.items()}
+
+
+_public = public_sample
 
 
 def _worst_cases(nominal: Analysis, worst: list[_Tracked], mks_worst: list[tuple[float | None, dict[str, float]]],
