@@ -27,7 +27,7 @@ from gaintune.report import plots
 from gaintune.report.loopmap import chains_of, loop_map_svg
 from gaintune.spec import TfEntrySpec, TuningSpec
 
-__all__ = ["build_mimo_context", "mimo_margin_tables", "MIMO_METRIC_KEYS"]
+__all__ = ["build_mimo_context", "mimo_margin_tables", "verified_margins", "MIMO_METRIC_KEYS"]
 
 #: The nominal metrics tabulated per scenario (besides the IAE of every chain).
 MIMO_METRIC_KEYS = ("iae", "effort", "overshoot", "settling_time", "peak_u", "sat_frac")
@@ -40,10 +40,24 @@ def _get(obj: Any, name: str, default: Any = None) -> Any:
     return getattr(obj, name, default)
 
 
-def _draw(where: Any, figure: str) -> str:
-    """The draw attaining a worst-case figure, as text (``K=1.2, T=3``)."""
-    d = _get(where or {}, figure) or {}
-    return ", ".join(f"{k}={_fmt(v, 4)}" for k, v in d.items())
+#: Worst-case figure -> its column's label.
+_LABELS = {"gm_db": "GM", "pm_deg": "PM", "delay_margin": "DM", "ms": "Ms", "mt": "Mt", "disk_alpha": "alpha"}
+
+
+def _draws(where: Any) -> str:
+    """Which draw attains each worst-case figure, grouped by draw (``GM, Ms at K=1.2; PM at K=3``)."""
+    groups: dict[str, list[str]] = {}
+    for fig, label in _LABELS.items():
+        d = _get(where or {}, fig)
+        if d:
+            groups.setdefault(", ".join(f"{k}={_fmt(v, 4)}" for k, v in d.items()), []).append(label)
+    return "; ".join(f"{', '.join(labels)} at {draw}" for draw, labels in groups.items())
+
+
+def _interleave(rows: list[dict[str, Any]], worst: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each nominal row followed by its worst-case row (the rows of either without a partner last)."""
+    n = min(len(rows), len(worst))
+    return [r for pair in zip(rows[:n], worst[:n], strict=True) for r in pair] + rows[n:] + worst[n:]
 
 
 def _robust_rows(robust: Any, breaks: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], list[dict[str, Any]], str]:
@@ -51,15 +65,14 @@ def _robust_rows(robust: Any, breaks: list[dict[str, Any]]) -> tuple[list[dict[s
     dict): per side and per break point (labelled as the nominal ``breaks`` rows), and a summary line."""
     sides = [{"side": f"plant {_get(w, 'side')}s (worst case)", "ms": _fmt(_get(w, "ms"), 3), "ms_freq": "",
               "mt": _fmt(_get(w, "mt"), 3), "alpha": _fmt(_get(w, "disk_alpha"), 3), "disk_gm": "", "disk_pm": "",
-              "disk_freq": "", "draw": f"Ms at {_draw(_get(w, 'where'), 'ms')}; alpha at "
-              f"{_draw(_get(w, 'where'), 'disk_alpha')}"} for w in _get(robust, "sides", []) or []]
+              "disk_freq": "", "draw": _draws(_get(w, "where"))} for w in _get(robust, "sides", []) or []]
     rows = []
     for k, w in enumerate(_get(robust, "worst", []) or []):
         label = breaks[k]["break"] if k < len(breaks) else str(_get(w, "break_point"))
         rows.append({"loop": _get(w, "loop"), "break": f"{label} (worst case)", "gm": _fmt(_get(w, "gm_db"), 3),
                      "pm": _fmt(_get(w, "pm_deg"), 3), "dm": _fmt(_get(w, "delay_margin"), 3),
                      "ms": _fmt(_get(w, "ms"), 3), "mt": _fmt(_get(w, "mt"), 3),
-                     "disk": _fmt(_get(w, "disk_alpha"), 3), "draw": f"GM at {_draw(_get(w, 'where'), 'gm_db')}"})
+                     "disk": _fmt(_get(w, "disk_alpha"), 3), "draw": _draws(_get(w, "where"))})
     n, nu = _get(robust, "n_samples", 0), _get(robust, "n_unstable", 0)
     summary = (f"robust set: {n} drawn plants ({_get(robust, 'n_corners', 0)} box corners + "
                f"{_get(robust, 'n_monte_carlo', 0)} Monte-Carlo draws, seed {_get(robust, 'seed', 0)}), "
@@ -98,12 +111,27 @@ def mimo_margin_tables(margins: Any, robust: Any = None) -> dict[str, Any] | Non
     summary = None
     if robust is not None:
         worst_sides, worst_breaks, summary = _robust_rows(robust, breaks)
-        sides = [r for pair in zip(sides, worst_sides, strict=False) for r in pair] + sides[len(worst_sides):]
-        breaks = [r for pair in zip(breaks, worst_breaks, strict=False) for r in pair] + breaks[len(worst_breaks):]
+        sides, breaks = _interleave(sides, worst_sides), _interleave(breaks, worst_breaks)
     stable = _get(stab, "stable")
-    return {"robust": summary, "stable": stable, "stability": ("stable" if stable else "UNSTABLE") + f" ({_get(stab, 'method', '?')}, "
+    return {"stable": stable, "stability": ("stable" if stable else "UNSTABLE") + f" ({_get(stab, 'method', '?')}, "
             f"max Re pole {_fmt(_get(stab, 'max_real_pole'))})", "sides": sides, "breaks": breaks,
-            "notes": list(_get(margins, "notes", []) or [])}
+            "notes": list(_get(margins, "notes", []) or []), "robust": summary}
+
+
+def verified_margins(rep: Any) -> Any:
+    """The :func:`mimo_margin_tables` input of a verification report (or its dict): its ``mimo`` figures
+    with the closed-loop stability and the loop-at-a-time figures the report keeps beside them
+    (``stability``, ``loops``); None when it has no MIMO figures."""
+    m = _get(rep, "mimo")
+    if m is None or _get(m, "stability") is not None:  # absent, or already in MimoMargins form
+        return m
+    loops = list(_get(rep, "loops", []) or [])
+    return {"loops": _get(m, "loops"), "inputs": _get(m, "inputs"), "outputs": _get(m, "outputs"),
+            "stability": _get(rep, "stability"),
+            "input_breaks": [f for f in loops if _get(f, "break_point") == "plant_input"],
+            "output_breaks": [f for f in loops if _get(f, "break_point") == "plant_output"],
+            **{f"{k}_{side}": {"value": _get(m, f"{k}_{side}")} for k in ("ms", "mt") for side in ("input", "output")},
+            "disk_input": _get(m, "disk_input"), "disk_output": _get(m, "disk_output"), "notes": []}
 
 
 def _plant_table(spec: TuningSpec, plant: Any) -> dict[str, Any]:
@@ -236,7 +264,7 @@ def build_mimo_context(result: Any, *, command: str | None = None, margins: Any 
     arch = mimo_architecture(spec, result.gains)
     rep = result.verification
     if margins is None and rep is not None:
-        margins = _get(rep, "mimo")
+        margins = verified_margins(rep)
     figs, metric_rows = _time_section(sim.spec, sim, full, arch)
     verdict = _get(rep, "verdict") if rep is not None else None
     return {
