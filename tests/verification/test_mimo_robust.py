@@ -112,3 +112,16 @@ def test_loop_graph_on_a_single_input_plant_judges_each_drawn_parameter_not_the_
     rep = verify(load_spec(spec), {"l": {"Kp": 1.0, "Ki": 1.0}}, nonlinear=False)
     nominal, worst = (next(q for q in rep.requirements if q.case == c) for c in ("nominal", "worst"))
     assert worst.draw == {"K": 3.0} and worst.value == pytest.approx(nominal.value - 20 * 0.47712125472, abs=1e-6)
+
+
+def test_mimo_verdict_fails_when_a_drawn_closed_loop_is_unstable() -> None:
+    data = wood_berry_k11(randomize={"params": {"K11": {"low": 12.8, "high": 80.0}}}, mimo_ms_max=3.0)
+    data["verify"] = {"robust_samples": 2}
+    rep = verify(load_spec(data), GAINS, nonlinear=False)
+    assert rep.stability.stable and rep.verdict == "fail"
+    assert rep.reasons == ["robust: 1 of 4 sampled plants give an unstable closed loop"]
+    assert rep.robust is not None and rep.robust.unstable_samples == [{"K11": 80.0}]
+    nominal, worst = rep.requirements
+    assert nominal.passed and nominal.applicable and worst.case == "worst" and not worst.applicable
+    alone = verify(load_spec(wood_berry_k11(k11=80.0, mimo_ms_max=3.0)), GAINS, nonlinear=False)
+    assert not alone.stability.stable
