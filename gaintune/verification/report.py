@@ -418,12 +418,15 @@ def _robust_lines(r: RobustReport) -> list[str]:
     lines = ["", f"robust: {r.n_samples} samples ({r.n_corners} corners + {r.n_monte_carlo} draws), "
              f"{r.n_unstable} unstable"]
     for w in r.worst:
-        brk = "ctrl" if w.break_point == "controller_output" else "u"
+        brk = {"controller_output": "ctrl", "plant_output": "y"}.get(w.break_point, "u")
         lines.append(
             f"{w.loop:<12} {brk:<8} worst GM {_f(w.gm_db, '{:.2f}')} dB, PM {_f(w.pm_deg, '{:.1f}')} deg, "
             f"DM {_f(w.delay_margin)} s, Ms {_f(w.ms, '{:.2f}')}, Mt {_f(w.mt, '{:.2f}')}"
             + (f", Mks {_f(w.mks, '{:.4g}')}" if w.mks is not None else "")
         )
+    for sd in r.sides:  # the MIMO verdict's worst MIMO-wide figures
+        lines.append(f"{'MIMO':<12} {sd.side + 's':<8} worst Ms {_f(sd.ms, '{:.3f}')}, Mt {_f(sd.mt, '{:.3f}')}, "
+                     f"disk a {_f(sd.disk_alpha, '{:.3f}')}")
     return lines
 
 
@@ -432,6 +435,8 @@ def _requirement_table(requirements: list[RequirementLine]) -> list[str]:
     lines = ["", "requirements:"]
     for q in requirements:
         where = "/".join(x for x in (q.loop, q.break_point, q.case) if x) if q.loop else q.case
+        if q.draw:
+            where += " (draw " + ", ".join(f"{k}={v:.4g}" for k, v in q.draw.items()) + ")"
         if not q.applicable:
             lines.append(f"  N/A  {q.requirement:<11} {NOT_APPLICABLE} at {where}")
             continue
