@@ -163,17 +163,18 @@ def mimo_robust(spec: TuningSpec, plant: Any, layout: GainLayout, full: np.ndarr
     check_randomize(spec, plant)
     samples, n_corners, n_mc = robust_samples(spec)
     margins = sampled_margins if sampled else spec_margins
-    stable_w, any_w, unstable = _Worst(), _Worst(), []
+    w, unstable = _Worst(), []
+    first: list[tuple[MimoLine, _Sample]] = []
     for smp in samples:
         drawn = drawn_plant(plant, smp)
         _, rep, lines = margins(spec, drawn, layout, full, frame=loop_frame(spec, drawn, cache=False))
+        first = first or [(q, smp) for q in lines]
         if rep.stability.stable:
-            stable_w.add(rep, lines, smp)
+            w.add(rep, lines, smp)
         else:
             unstable.append(smp)
-        any_w.lines = any_w.lines or [(q, smp) for q in lines]
-    w = stable_w if stable_w.lines else any_w  # no stable draw: the lines say so (not applicable)
+    picked = w.lines or first  # no stable draw: the first draw's lines, not applicable (the loop is unstable)
     rob = RobustReport(n_samples=len(samples), n_corners=n_corners, n_monte_carlo=n_mc, seed=spec.search.seed,
                        n_unstable=len(unstable), unstable_samples=[public_sample(u) for u in unstable[:20]],
-                       worst=_worst_cases(stable_w, dt), sides=_worst_sides(stable_w))
-    return MimoRobust(rob, [q for q, _ in w.lines], [public_sample(s) for _, s in w.lines], len(unstable))
+                       worst=_worst_cases(w, dt), sides=_worst_sides(w))
+    return MimoRobust(rob, [q for q, _ in picked], [public_sample(s) for _, s in picked], len(unstable))

@@ -125,3 +125,12 @@ def test_mimo_verdict_fails_when_a_drawn_closed_loop_is_unstable() -> None:
     assert nominal.passed and nominal.applicable and worst.case == "worst" and not worst.applicable
     alone = verify(load_spec(wood_berry_k11(k11=80.0, mimo_ms_max=3.0)), GAINS, nonlinear=False)
     assert not alone.stability.stable
+
+
+def test_mimo_robust_set_with_no_stable_draw_gives_lines_not_applicable_and_no_worst_figures() -> None:
+    data = wood_berry_k11(randomize={"params": {"K11": {"low": 80.0, "high": 200.0}}}, mimo_ms_max=3.0)
+    data["verify"] = {"robust_samples": 2}
+    rep = verify(load_spec(data), GAINS, nonlinear=False)
+    assert rep.reasons == ["robust: 4 of 4 sampled plants give an unstable closed loop"]
+    assert rep.robust is not None and rep.robust.worst == [] and rep.robust.sides == []
+    assert [(q.case, q.applicable) for q in rep.requirements] == [("nominal", True), ("worst", False)]
