@@ -107,7 +107,8 @@ def verify(
         ``{loop: {gain: value}}``, or a vector of all gains (layout order) or of the tuned gains only.
     robust
         Evaluate the randomisation set (box corners + ``verify.robust_samples`` draws); default:
-        when the spec randomises plant parameters or the delay.
+        when the spec randomises plant parameters or the delay. A MIMO spec judges every drawn
+        plant's MIMO report (:mod:`gaintune.verification.mimo_robust`).
     nonlinear
         Run the nonlinear simulation check (skipped with a note if :mod:`gaintune.sim` is missing).
     plant, layout
