@@ -160,8 +160,8 @@ def mimo_requirement_scores(ev: Evaluator, tuned: np.ndarray, stability: bool = 
     (:func:`gaintune.verification.mimo_spec.graded`): 0 exactly when every line holds with
     FEASIBILITY_MARGIN to spare. ``stability=False`` (the repair's trial scales, whose answer is checked
     in full) skips the closed-loop eigenvalues of the sampled loop, as the single-loop estimate skips its
-    stability count; the continuous check always counts. The nominal plant only (the MIMO verdict has no
-    robust set yet).
+    stability count; the continuous check always counts. The nominal plant only: the verdict also judges
+    the robust set (:mod:`gaintune.verification.mimo_robust`), the search's constraint does not yet.
     """
     from gaintune.verification.mimo_sampled_report import sampled_margins
     from gaintune.verification.mimo_spec import graded, loop_frame, spec_margins
