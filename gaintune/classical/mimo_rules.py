@@ -13,6 +13,7 @@ such per-loop path, nor has a transfer-matrix plant under a chain: no candidates
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -68,9 +69,27 @@ def _chain_plant(lti, outs: list[int], j: int) -> dict[str, Any] | None:
     if len(outs) == 1:
         return _path_plant(lti, outs[0], j)
     if isinstance(lti, TfMatrix):
-        return None
+        return _tf_chain_plant(lti, outs, j)
     return {"ss": {"A": lti.A.tolist(), "B": lti.B[:, j:j + 1].tolist(), "C": lti.C[outs, :].tolist(),
                    "outputs": [f"y{k}" for k in range(len(outs))]}, "delay": float(lti.input_delays[j])}
+
+
+def _tf_chain_plant(lti: TfMatrix, outs: list[int], j: int) -> dict[str, Any] | None:
+    """The single-input plant spec from input j to the outputs ``outs`` of a transfer-function matrix:
+    the column's entries realised one by one, the delay they share at the input and the rest of each
+    entry's delay as a second-order Pade approximant. Only a start for the rules: the search box scores
+    every rule candidate on the true plant."""
+    col = [lti.entries[o][j] for o in outs]
+    if any(e.is_zero for e in col):
+        return None
+    shared = min(e.delay for e in col)
+    sub = TfMatrix(tuple((replace(e, delay=e.delay - shared),) for e in col), (lti.inputs[j],),
+                   tuple(f"y{k}" for k in range(len(outs))))
+    ss = sub.pade_ss(order=2)
+    if np.any(ss.D):
+        return None
+    return {"ss": {"A": ss.A.tolist(), "B": ss.B.tolist(), "C": ss.C.tolist(), "outputs": list(ss.outputs)},
+            "delay": float(shared)}
 
 
 def _chain_rules(spec: TuningSpec, mp, lti, chain: list[int]) -> dict[str, Gains]:
