@@ -364,12 +364,16 @@ class MimoLoop:
             Gs, Ks = self.channels(s)
             return self.loop_gains(s, "input"), Gs, Ks
         entries = (*_tf_values(K, s, tuple(self.ins), tuple(self.outs)), *self._plant_entries(s))
+        return self._sparse_loop_gains(s, "input", entries), *self._dense_channels(s, entries)
+
+    def _dense_channels(self, s: np.ndarray, entries: tuple) -> tuple[np.ndarray, np.ndarray]:
+        """(Gs, Ks) as dense arrays from the nonzero ``entries`` = (kr, kc, kv, gr, gc, gv) at ``s``."""
         kr, kc, kv, gr, gc, gv = entries
         Gs = np.zeros((s.size, self.n_out, self.n_in), dtype=complex)
         Gs[:, gr, gc] = gv
         Ks = np.zeros((s.size, self.n_in, self.n_out), dtype=complex)
         Ks[:, kr, kc] = kv
-        return self._sparse_loop_gains(s, "input", entries), Gs, Ks
+        return Gs, Ks
 
     def _sparse_loop_gains(self, s: np.ndarray, side: str, entries: tuple | None = None) -> np.ndarray:
         """L from the nonzero entries of Ks and Gs only (:mod:`.mimo_products`); ``entries``: theirs at ``s``

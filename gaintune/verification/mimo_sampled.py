@@ -258,12 +258,7 @@ class SampledLoop(MimoLoop):
             Gs, Ks = self.channels(s)
             return self.loop_gains(s, "input"), Gs, Ks
         entries = self._entries(s)
-        kr, kc, kv, gr, gc, gv = entries
-        Gs = np.zeros((s.size, self.n_out, self.n_in), dtype=complex)
-        Gs[:, gr, gc] = gv
-        Ks = np.zeros((s.size, self.n_in, self.n_out), dtype=complex)
-        Ks[:, kr, kc] = kv
-        return self._sparse_loop_gains(s, "input", entries), Gs, Ks
+        return self._sparse_loop_gains(s, "input", entries), *self._dense_channels(s, entries)
 
     def max_delay(self) -> float:
         """The longest delay of the sampled channels (s), whole samples and the hold's sample included."""
