@@ -6,22 +6,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import pytest
 from fastapi.testclient import TestClient
-
-from gaintune_api.main import create_app
-from gaintune_api.settings import Settings
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "verification"))
 from test_mimo_robust import GAINS, RANDOM_K11, wood_berry_k11  # noqa: E402
-
-
-@pytest.fixture(scope="module")
-def client(tmp_path_factory):
-    d = tmp_path_factory.mktemp("api")
-    s = Settings(_env_file=None, db_path=d / "jobs.db", data_dir=d, workers=0, warmup=False, compute_processes=0)
-    with TestClient(create_app(s), raise_server_exceptions=False) as c:
-        yield c
 
 
 def test_api_verify_of_a_randomised_mimo_spec_reports_the_worst_case_and_its_draw(client: TestClient) -> None:
