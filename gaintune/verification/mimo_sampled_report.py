@@ -47,9 +47,11 @@ _SPIN_MAX = 20000
 
 
 
-#: The stability of a loop whose check skipped it (:func:`sampled_report` with ``stability=False``).
-_UNCHECKED = MimoStability(True, "unchecked", 0, None, True, np.zeros(0, dtype=complex), 0, -math.inf,
-                           notes=["closed-loop stability not checked (a root find's trial point)"])
+def _unchecked() -> MimoStability:
+    """The stability of a loop whose check skipped it (:func:`sampled_report` with ``stability=False``): a fresh
+    object each time, so no report shares its notes list."""
+    return MimoStability(True, "unchecked", 0, None, True, np.zeros(0, dtype=complex), 0, -math.inf,
+                         notes=["closed-loop stability not checked (a root find's trial point)"])
 
 def sampled_grid(base: MimoLoop, loop: SampledLoop) -> np.ndarray:
     """Frequencies (rad/s) up to the Nyquist frequency pi/dt (included): a log grid from 1/100 of the
@@ -94,7 +96,7 @@ def sampled_report(base: MimoLoop, loop: SampledLoop, sigma: float = 0.0,
     the others are placeholders no requirement reads, and an unstable loop stops after its stability.
     ``stability=False`` (a root find's trial points, whose answer is checked in full afterwards) skips the
     closed-loop eigenvalues, over half of a 110-gain check, and reports the loop as stable, unchecked."""
-    stab = sampled_stability_mimo(loop, base) if stability else _UNCHECKED
+    stab = sampled_stability_mimo(loop, base) if stability else _unchecked()
     P = loop.plant
     rep = MimoMargins.unmeasured(loop.names, stab, sigma, inputs=[P.inputs[j] for j in loop.loop_ins],
                                  outputs=[P.outputs[i] for i in loop.loop_outs], notes=list(stab.notes),
