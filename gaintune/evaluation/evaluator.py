@@ -151,24 +151,21 @@ def is_mimo_sim(sim: object) -> bool:
 
 
 def mimo_requirement_scores(ev: Evaluator, tuned: np.ndarray, stability: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """(violation, shortfall) of B gain sets of a MIMO spec, each (B,).
+    """(violation, shortfall) of B gain sets of a MIMO spec, each (B,): the worst over
+    :attr:`Evaluator.mimo_constraint_plants` (the nominal plant, and the randomisation box corners).
 
     The same loop, report and requirement lines as the MIMO verdict (the exact sampled loop of
     :mod:`gaintune.verification.mimo_sampled_report`, or with ``verify.sampled: false`` the continuous
     one of :mod:`gaintune.verification.mimo_spec`),
     the limits at the search's aim (``requirements.backoff``), graded as the single-loop case
     (:func:`gaintune.verification.mimo_spec.graded`): 0 exactly when every line holds with
-    FEASIBILITY_MARGIN to spare. ``stability=False`` (the repair's trial scales, whose answer is checked
-    in full) skips the closed-loop eigenvalues of the sampled loop, as the single-loop estimate skips its
-    stability count; the continuous check always counts. The nominal plant only: the verdict also judges
-    the robust set (:mod:`gaintune.verification.mimo_robust`), the search's constraint does not yet.
+    FEASIBILITY_MARGIN to spare on every plant judged. ``stability=False`` (the repair's trial scales, whose
+    answer is checked in full) skips the closed-loop eigenvalues of the sampled loop on every plant, as the
+    single-loop estimate skips its stability count; the continuous check always counts. The verdict's robust
+    set (:mod:`gaintune.verification.mimo_robust`) also has ``verify.robust_samples`` Monte-Carlo draws, which
+    this check does not judge: a worst case strictly inside the box can still fail the verdict.
     """
-    from gaintune.verification.mimo_sampled_report import sampled_margins
-    from gaintune.verification.mimo_spec import graded, loop_frame, spec_margins
-
-    # the loop the verdict judges: the exact sampled loop by default (verify.sampled), else continuous + dt/2
-    if ev._mimo_frame is None:  # the plant side, built once: every candidate reuses its plant-only work
-        ev._mimo_frame = loop_frame(ev.spec, ev.plant)
+    plants = ev.mimo_constraint_plants  # the plant sides, built once: every candidate reuses their plant-only work
     skip = not stability and ev.spec.verify.sampled  # only the sampled check can leave its stability out
     full = ev.layout.full(tuned)
     out = np.zeros((2, tuned.shape[0]))
@@ -176,20 +173,32 @@ def mimo_requirement_scores(ev: Evaluator, tuned: np.ndarray, stability: bool = 
         key = row.tobytes() + (b"-" if skip else b"")
         hit = ev._mimo_memo.get(key)
         if hit is None:
-            if not np.all(np.isfinite(row)):
-                hit = (DIVERGED_VIOLATION, DIVERGED_VIOLATION)
-            else:
-                if ev.spec.verify.sampled:
-                    _, rep, lines = sampled_margins(ev.spec, ev.plant, ev.layout, row, aimed=True,
-                                                    frame=ev._mimo_frame, stability=not skip)
-                else:
-                    _, rep, lines = spec_margins(ev.spec, ev.plant, ev.layout, row, aimed=True, frame=ev._mimo_frame)
-                hit = graded(rep, lines)
+            hit = (DIVERGED_VIOLATION, DIVERGED_VIOLATION) if not np.all(np.isfinite(row)) else \
+                _mimo_worst_grade(ev, plants, row, skip)
             if len(ev._mimo_memo) > 4096:
                 ev._mimo_memo.clear()
             ev._mimo_memo[key] = hit
         out[:, b] = hit
     return out[0], out[1]
+
+
+def _mimo_worst_grade(ev: Evaluator, plants: list[tuple[Any, Any]], row: np.ndarray,
+                      skip: bool) -> tuple[float, float]:
+    """The worst (violation, shortfall) of one gain vector over ``plants`` ((plant, loop frame) pairs)."""
+    from gaintune.verification.mimo_sampled_report import sampled_margins
+    from gaintune.verification.mimo_spec import graded, spec_margins
+
+    worst = (-np.inf, -np.inf)
+    for plant, frame in plants:
+        # the loop the verdict judges: the exact sampled loop by default (verify.sampled), else continuous + dt/2
+        if ev.spec.verify.sampled:
+            _, rep, lines = sampled_margins(ev.spec, plant, ev.layout, row, aimed=True, frame=frame,
+                                            stability=not skip)
+        else:
+            _, rep, lines = spec_margins(ev.spec, plant, ev.layout, row, aimed=True, frame=frame)
+        v, short = graded(rep, lines)
+        worst = (max(worst[0], v), max(worst[1], short))
+    return worst
 
 
 class Evaluator:
@@ -235,7 +244,7 @@ class Evaluator:
         self._constraint_models: list[LinearModel] | None = None
         self._noise_limit: np.ndarray | None = None
         self._mimo_memo: dict[bytes, tuple[float, float]] = {}  # gains -> MIMO (violation, shortfall)
-        self._mimo_frame: Any = None  # the MIMO check's plant side (verification.mimo_spec.loop_frame)
+        self._mimo_plants: list[tuple[Any, Any]] | None = None  # the MIMO check's plants and their loop frames
         #: the spec the requirement estimate judges: its limits moved to the search's aim (requirements.backoff)
         self._aim_spec = spec.model_copy(update={"requirements": spec.requirements.aimed()})
 
@@ -261,6 +270,37 @@ class Evaluator:
                     models.append(dataclasses.replace(lin, delay=float(c.delay[i])))
             self._constraint_models = models
         return self._constraint_models
+
+    @property
+    def mimo_constraint_plants(self) -> list[tuple[Any, Any]]:
+        """(plant, loop frame) pairs the MIMO requirement check judges (:func:`mimo_requirement_scores`).
+
+        The nominal plant, and with ``randomize.params`` the box corners of the verdict's robust set
+        (:func:`gaintune.verification.robust.robust_samples`: the same corners, in its order), the first
+        MAX_PENALTY_CORNERS of them, each a drawn plant (:func:`gaintune.verification.mimo_robust.drawn_plant`).
+        Each plant's :func:`~gaintune.verification.mimo_spec.loop_frame` is built once, here, so every
+        candidate reuses its plant-only work (and the plant's sampled core).
+
+        Raises
+        ------
+        SpecError
+            For a ``randomize`` entry the MIMO robust set does not draw
+            (:func:`gaintune.verification.mimo_robust.check_randomize`).
+        """
+        if self._mimo_plants is None:
+            from gaintune.verification.mimo_robust import check_randomize, drawn_plant
+            from gaintune.verification.mimo_spec import loop_frame
+            from gaintune.verification.robust import robust_samples
+
+            plants: list[tuple[Any, Any]] = [(self.plant, loop_frame(self.spec, self.plant))]
+            if self.spec.randomize.params or self.spec.randomize.delay:
+                check_randomize(self.spec, self.plant)
+                samples, n_corners, _ = robust_samples(self.spec)
+                for smp in samples[: min(n_corners, MAX_PENALTY_CORNERS)]:
+                    drawn = drawn_plant(self.plant, smp)
+                    plants.append((drawn, loop_frame(self.spec, drawn, cache=False)))
+            self._mimo_plants = plants
+        return self._mimo_plants
 
     def requirement_violation(self, tuned: np.ndarray) -> np.ndarray:
         """(B,) worst-case requirement violation over :attr:`constraint_models` (0 when all hold)."""

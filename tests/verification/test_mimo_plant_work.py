@@ -66,7 +66,7 @@ def test_mimo_requirement_check_reuses_plant_work_with_identical_figures(name: s
     tuned = _candidates(name, ev, 4)
     violation, _ = mimo_requirement_scores(ev, tuned)  # warms the plant work on this evaluator
     frame = loop_frame(ev.spec, ev.plant)
-    assert ev._mimo_frame is frame and frame.plant is loop_frame(ev.spec, ev.plant).plant
+    assert ev.mimo_constraint_plants == [(ev.plant, frame)] and frame.plant is loop_frame(ev.spec, ev.plant).plant
     for b, t in enumerate(tuned):
         full = ev.layout.full(t[None])[0]
         _, cached, lines = spec_margins(ev.spec, ev.plant, ev.layout, full, aimed=True, frame=frame)
