@@ -2,8 +2,10 @@
 loop's lean report at the search's aim) on built-in models.
 
 Run from the repository root: ``python bench/tools/time_mimo_check.py [-n N] [--profile] [--repair] [wood_berry
-robot_arm6 process_train]``. Candidates: the hand gains of ``tests/plants/test_big_models.py`` (BLT PI on Wood-Berry)
-scaled by exp(N(0, 0.3)) per gain (seed 3), as a search's neighbourhood. One warm-up candidate first
+wood_berry_k11 robot_arm6 process_train]``. ``wood_berry_k11`` is the Wood-Berry example with its R -> xD gain K11
+uniform on [10, 16] (``randomize.params``; ``tests/verification/test_mimo_robust.py``): the check judges the
+nominal plant and the 2 box corners. Candidates: the hand gains of ``tests/plants/test_big_models.py`` (BLT PI on
+Wood-Berry) scaled by exp(N(0, 0.3)) per gain (seed 3), as a search's neighbourhood. One warm-up candidate first
 (plant-only work, imports); then each candidate is checked on its own (the memo cleared), process CPU
 time beside wall time. ``--profile`` prints the cProfile of the timed candidates (top 25 by cumulative time).
 ``--repair`` also moves the n candidates onto the requirement boundary as one batch
@@ -26,17 +28,25 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path[:0] = [str(ROOT / "tests" / "plants"), str(ROOT / "tests" / "verification")]
 
 from test_big_models import _arm_gains, _process_gains  # noqa: E402
+from test_mimo_robust import RANDOM_K11, wood_berry_k11  # noqa: E402
 
 from gaintune.evaluation.evaluator import Evaluator, mimo_requirement_scores  # noqa: E402
 from gaintune.plants.library import load_model  # noqa: E402
-from gaintune.spec import load_spec  # noqa: E402
+from gaintune.spec import TuningSpec, load_spec  # noqa: E402
 
 
 def _blt() -> dict:
     return {"xD": {"Kp": 0.375, "Ki": 0.375 / 8.29}, "xB": {"Kp": -0.075, "Ki": -0.075 / 23.6}}
 
 
-CASES = {"wood_berry": _blt, "robot_arm6": _arm_gains, "process_train": _process_gains}
+CASES = {"wood_berry": _blt, "wood_berry_k11": _blt, "robot_arm6": _arm_gains, "process_train": _process_gains}
+
+
+def case_spec(name: str) -> TuningSpec:
+    """The spec of case ``name``: the model's example, or the randomised Wood-Berry."""
+    if name == "wood_berry_k11":
+        return load_spec(wood_berry_k11(randomize=RANDOM_K11))
+    return load_spec(load_model(name).example_spec())
 
 
 def candidates(ev: Evaluator, gains: dict, n: int, seed: int = 3, scale: float = 1.0) -> np.ndarray:
@@ -48,7 +58,7 @@ def candidates(ev: Evaluator, gains: dict, n: int, seed: int = 3, scale: float =
 
 def time_model(name: str, n: int, profile: bool = False) -> tuple[float, float, np.ndarray]:
     """(CPU ms, wall ms) per candidate over n candidates, and their violations."""
-    ev = Evaluator(load_spec(load_model(name).example_spec()))
+    ev = Evaluator(case_spec(name))
     rows = candidates(ev, CASES[name](), n + 1)
     mimo_requirement_scores(ev, rows[:1])  # warm-up: plant-only work, imports
     prof = cProfile.Profile() if profile else None
@@ -74,7 +84,7 @@ def count_repair(name: str, n: int, per_loop: bool = False, scale: float = 1.0) 
     from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
     from gaintune.verification import mimo_sampled_report as msr
 
-    ev = Evaluator(load_spec(load_model(name).example_spec()))
+    ev = Evaluator(case_spec(name))
     rows = candidates(ev, CASES[name](), n + 1, scale=scale)
     mimo_requirement_scores(ev, rows[:1])  # warm-up
     ev._mimo_memo.clear()
