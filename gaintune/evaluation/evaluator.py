@@ -162,8 +162,9 @@ def mimo_requirement_scores(ev: Evaluator, tuned: np.ndarray, stability: bool = 
     FEASIBILITY_MARGIN to spare on every plant judged. ``stability=False`` (the repair's trial scales, whose
     answer is checked in full) skips the closed-loop eigenvalues of the sampled loop on every plant, as the
     single-loop estimate skips its stability count; the continuous check always counts. The verdict's robust
-    set (:mod:`gaintune.verification.mimo_robust`) also has ``verify.robust_samples`` Monte-Carlo draws, which
-    this check does not judge: a worst case strictly inside the box can still fail the verdict.
+    set (:mod:`gaintune.verification.mimo_robust`) also has ``verify.robust_samples`` Monte-Carlo draws and,
+    with more than 3 randomised parameters, corners beyond the first MAX_PENALTY_CORNERS, which this check
+    does not judge: a worst case there can still fail the verdict.
     """
     plants = ev.mimo_constraint_plants  # the plant sides, built once: every candidate reuses their plant-only work
     skip = not stability and ev.spec.verify.sampled  # only the sampled check can leave its stability out
@@ -303,11 +304,13 @@ class Evaluator:
         return self._mimo_plants
 
     def requirement_violation(self, tuned: np.ndarray) -> np.ndarray:
-        """(B,) worst-case requirement violation over :attr:`constraint_models` (0 when all hold)."""
+        """(B,) worst-case requirement violation over :attr:`constraint_models` (a MIMO spec:
+        :attr:`mimo_constraint_plants`), 0 when all hold."""
         return self.requirement_scores(tuned)[0]
 
     def requirement_scores(self, tuned: np.ndarray, stability: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """(violation, shortfall), each (B,), worst case over :attr:`constraint_models`.
+        """(violation, shortfall), each (B,), worst case over :attr:`constraint_models` (a MIMO spec:
+        :attr:`mimo_constraint_plants`, by :func:`mimo_requirement_scores`).
 
         See :func:`gaintune.verification.quick.requirement_scores`: the shortfall is signed (<= 0 when
         every requirement holds) and is what :mod:`gaintune.evaluation.boundary_estimate` solves along a gain direction.
