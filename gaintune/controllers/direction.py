@@ -195,6 +195,27 @@ def _undecided(i: int, why: str) -> SpecError:
     )
 
 
+def _innermost_rule(gi: PathGain, out: str) -> tuple[int, str, float, str]:
+    """(sign, rule, gain, reason) of the innermost loop from its path's leading term; _Undecided(why)."""
+    if gi.order > 0:
+        power = "s" if gi.order == 1 else f"s^{gi.order}"
+        raise _Undecided(f"the static gain from the actuator to {out!r} is zero (G ~ {_g(gi.coef)} {power})")
+    if gi.order == 0:
+        if gi.rhp_real % 2:
+            return (
+                gi.stabilising_sign, "unstable", gi.coef,
+                f"plant static gain {_g(gi.coef)} with {gi.rhp_real} real unstable pole(s): "
+                "only the opposite sign can stabilise it",
+            )
+        return gi.stabilising_sign, "static_gain", gi.coef, f"plant static gain {_g(gi.coef)}"
+    power = "s" if gi.order == -1 else f"s^{-gi.order}"
+    flip = f", {gi.rhp_real} real unstable pole(s)" if gi.rhp_real % 2 else ""
+    return (
+        gi.stabilising_sign, "velocity_gain", gi.coef,
+        f"integrating plant, velocity gain {_g(gi.coef)} (G ~ {_g(gi.coef)}/{power}{flip})",
+    )
+
+
 def _loop_rule(spec: TuningSpec, lin: Any, meas: list[int], i: int) -> tuple[int, str, float, str]:
     """(sign, rule, gain, reason) of loop i read from one linear model; _Undecided(why) when it cannot."""
     outputs = lin.outputs
@@ -207,24 +228,9 @@ def _loop_rule(spec: TuningSpec, lin: Any, meas: list[int], i: int) -> tuple[int
         w = _siso_decoupler(spec)
         if w == 0:
             raise _Undecided("the decoupler's gain is 0")
-        gi = PathGain(gi.order, gi.coef * w, gi.rhp_real)  # the loop's output reaches the actuator times w
-        if gi.order > 0:
-            power = "s" if gi.order == 1 else f"s^{gi.order}"
-            raise _Undecided(f"the static gain from the actuator to {out!r} is zero (G ~ {_g(gi.coef)} {power})")
-        if gi.order == 0:
-            if gi.rhp_real % 2:
-                return (
-                    gi.stabilising_sign, "unstable", gi.coef,
-                    f"plant static gain {_g(gi.coef)} with {gi.rhp_real} real unstable pole(s): "
-                    "only the opposite sign can stabilise it",
-                )
-            return gi.stabilising_sign, "static_gain", gi.coef, f"plant static gain {_g(gi.coef)}"
-        power = "s" if gi.order == -1 else f"s^{-gi.order}"
-        flip = f", {gi.rhp_real} real unstable pole(s)" if gi.rhp_real % 2 else ""
-        return (
-            gi.stabilising_sign, "velocity_gain", gi.coef,
-            f"integrating plant, velocity gain {_g(gi.coef)} (G ~ {_g(gi.coef)}/{power}{flip})",
-        )
+        # the loop's output reaches the actuator times w
+        sign, rule, gain, reason = _innermost_rule(PathGain(gi.order, gi.coef * w, gi.rhp_real), out)
+        return sign, rule, gain, reason + (f" (the plant's times the decoupler's gain {_g(w)})" if w != 1 else "")
     inner = outputs[meas[i + 1]]
     gn = _outputs_gain(lin, meas[i + 1])
     if gn is None:
@@ -402,10 +408,7 @@ def _compute(spec: TuningSpec, plant: Any) -> tuple[LoopDirection, ...]:
                         f"the {word} changes sign over the randomize.params box ({_g(gain)} at nominal, "
                         f"{_g(gain_c)} at {at})",
                     )
-        w = _siso_decoupler(spec)
         for i, (sign, rule, gain, reason) in found.items():
-            if i == len(spec.loops) - 1 and w != 1.0:
-                reason += f" (the plant's times the decoupler's gain {_g(w)})"
             out[i] = LoopDirection(sign, "auto", rule, gain, reason)
     return tuple(d for d in out if d is not None)
 

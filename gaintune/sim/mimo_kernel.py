@@ -10,7 +10,9 @@ vectorises), as in the single-input kernel (:mod:`gaintune.sim.kernel`). Per ste
 2. divergence every 8 steps (NaN, inf or beyond ``div_bound``: the lane is dead, its state held at
    0, its metrics inf) and the safety monitor (a trip holds every actuator at its safe value);
 3. the loops in graph order (a loop's setpoint is a reference, or the output of the loop that
-   drives it), each with the discrete PID law of :mod:`gaintune.controllers.pid`;
+   drives it), each with the discrete PID law of :mod:`gaintune.controllers.pid`; the feedforward
+   ``F r`` is computed first, so a clamping loop that drives an input directly holds its integrator
+   when that input saturates on its output plus the feedforward, as when its own limits saturate;
 4. the actuators: ``W v + F r`` (the loops' outputs, through the static decoupler when there is one,
    plus the reference feedforward), saturation, rate limit; each into its input's delay line.
    ``W`` is (1, m, L) for the whole batch or (B, m, L), one per candidate (tuned decoupler entries);
@@ -110,7 +112,7 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
         kk = np.zeros((4, n_ode, C))
         Wc = np.zeros((m, L, C))  # this chunk's W (and F), lane by lane
         Fc = np.zeros((m, L, C if n_ff > 0 else 0))
-        ffu = np.zeros((m, C))  # the feedforward part of each input (back-calculation leaves it out)
+        ffu = np.zeros((m, C))  # the feedforward part of each input (the anti-windup leaves it out)
         for j in range(nl):
             b = cand[b0 + j]
             wb = b if W.shape[0] > 1 else 0
@@ -178,6 +180,15 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
                         trip[j] = 1.0
                         acc[_TRIP, j] = 1.0
                         acc[_TRIPT, j] = t
+            # ---- the feedforward of this step, known before the loops (the roots' setpoints are references)
+            for a in range(m if n_ff > 0 else 0):
+                for j in range(nl):
+                    ffu[a, j] = 0.0
+                for r in range(nr):
+                    lr = roots[r]
+                    rv = ref[root_row[lr], k]
+                    for j in range(nl):
+                        ffu[a, j] += Fc[a, lr, j] * rv
             # ---- loops in graph order (the discrete law of gaintune.controllers.pid)
             for l in range(L):
                 pl = parent[l]
@@ -194,6 +205,10 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
                     for j in range(nl):
                         edp[l, j] = cwl * sp[l, j] - y[ml, j]  # no derivative kick at the start
                 clamp, backcalc = aw[l] == 1, aw[l] == 2
+                # a clamping loop driving an input directly also judges that actuator's saturation of its
+                # output plus the feedforward added there (the loop's own limits do not see the feedforward)
+                da = direct[l] if clamp and n_ff > 0 else -1
+                alo, ahi = (u_lo[da], u_hi[da]) if da >= 0 else (-np.inf, np.inf)
                 for j in range(nl):
                     s_l = sp[l, j]
                     ym = y[ml, j]
@@ -209,7 +224,12 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
                         it += g[2, l, j] * awe[l, j]
                     vu = pterm + it + dv
                     vs = min(max(vu, g[5, l, j]), g[6, l, j])
-                    if clamp and vs != vu and e * (vu - vs) * g[7, l, j] > 0:
+                    hold = clamp and vs != vu and e * (vu - vs) * g[7, l, j] > 0
+                    if da >= 0:
+                        tot = vs + ffu[da, j]
+                        ts = min(max(tot, alo), ahi)
+                        hold = hold or (ts != tot and e * (tot - ts) * g[7, l, j] > 0)
+                    if hold:
                         it = iold
                         vu = pterm + it + dv
                         vs = min(max(vu, g[5, l, j]), g[6, l, j])
@@ -224,11 +244,7 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
                     for l in range(L):
                         v += Wc[a, l, j] * vout[l, j]
                     if n_ff > 0:
-                        f = 0.0
-                        for r in range(nr):
-                            f += Fc[a, roots[r], j] * sp[roots[r], j]  # an outer loop's setpoint: the reference
-                        ffu[a, j] = f
-                        v += f
+                        v += ffu[a, j]
                     v = min(max(v, ulo), uhi)
                     if ra < np.inf:
                         v = min(max(v, uprev[a, j] - ra), uprev[a, j] + ra)

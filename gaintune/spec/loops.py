@@ -111,7 +111,8 @@ class LoopSpec(_Model):
             "with an odd number of real unstable poles: the opposite sign). The innermost loop's path runs from "
             "the actuator to its output, an outer loop's from its inner loop's setpoint, inner loops closed; "
             "behind a decoupler the actuator is the decoupler's column at the input the chain drives "
-            "(tuned entries at their start value). When auto cannot tell (e.g. zero static gain) the spec is rejected: set direct or reverse. "
+            "(tuned entries at their start value). When auto cannot tell (e.g. zero static gain) the spec is "
+            "rejected: set direct or reverse. "
             "Bounds are magnitudes either way. Not for LQ loops."
         ),
     )
