@@ -27,6 +27,14 @@ their linearisation there):
   the actuator near ``s = 0``: the ratio of static gains, or of velocity gains
   when the ratio integrates (position over speed = ``1/s``).
 
+Behind a static decoupler ``u = W v`` (``spec.decoupler``) a loop's output reaches the plant
+through the column of ``W`` at the input its chain drives, so the paths above are read from that
+column, ``G(s) W[:, j]``, instead of input j alone (a single-input plant: ``G`` times its 1 x 1
+``W``). A tuned entry is read at the value the search starts from (its ``value``, else its bounds'
+geometric centre); its bounds have one sign, so the entry itself never changes sign, but a
+candidate far from the start may flip the column's path: that candidate's loop is wrongly signed,
+unstable, and rejected by the verification like any other unstable candidate.
+
 When plant parameters are randomised the sign must be the same at every
 corner of the ``randomize.params`` box (one parameter at a time when there are
 more than :data:`MAX_CORNER_PARAMS`); a sign change is a ``SpecError`` too.
@@ -187,6 +195,27 @@ def _undecided(i: int, why: str) -> SpecError:
     )
 
 
+def _innermost_rule(gi: PathGain, out: str) -> tuple[int, str, float, str]:
+    """(sign, rule, gain, reason) of the innermost loop from its path's leading term; _Undecided(why)."""
+    if gi.order > 0:
+        power = "s" if gi.order == 1 else f"s^{gi.order}"
+        raise _Undecided(f"the static gain from the actuator to {out!r} is zero (G ~ {_g(gi.coef)} {power})")
+    if gi.order == 0:
+        if gi.rhp_real % 2:
+            return (
+                gi.stabilising_sign, "unstable", gi.coef,
+                f"plant static gain {_g(gi.coef)} with {gi.rhp_real} real unstable pole(s): "
+                "only the opposite sign can stabilise it",
+            )
+        return gi.stabilising_sign, "static_gain", gi.coef, f"plant static gain {_g(gi.coef)}"
+    power = "s" if gi.order == -1 else f"s^{-gi.order}"
+    flip = f", {gi.rhp_real} real unstable pole(s)" if gi.rhp_real % 2 else ""
+    return (
+        gi.stabilising_sign, "velocity_gain", gi.coef,
+        f"integrating plant, velocity gain {_g(gi.coef)} (G ~ {_g(gi.coef)}/{power}{flip})",
+    )
+
+
 def _loop_rule(spec: TuningSpec, lin: Any, meas: list[int], i: int) -> tuple[int, str, float, str]:
     """(sign, rule, gain, reason) of loop i read from one linear model; _Undecided(why) when it cannot."""
     outputs = lin.outputs
@@ -196,23 +225,12 @@ def _loop_rule(spec: TuningSpec, lin: Any, meas: list[int], i: int) -> tuple[int
     if gi is None:
         raise _Undecided(f"output {out!r} shows no readable response to the actuator near s = 0")
     if i == last:
-        if gi.order > 0:
-            power = "s" if gi.order == 1 else f"s^{gi.order}"
-            raise _Undecided(f"the static gain from the actuator to {out!r} is zero (G ~ {_g(gi.coef)} {power})")
-        if gi.order == 0:
-            if gi.rhp_real % 2:
-                return (
-                    gi.stabilising_sign, "unstable", gi.coef,
-                    f"plant static gain {_g(gi.coef)} with {gi.rhp_real} real unstable pole(s): "
-                    "only the opposite sign can stabilise it",
-                )
-            return gi.stabilising_sign, "static_gain", gi.coef, f"plant static gain {_g(gi.coef)}"
-        power = "s" if gi.order == -1 else f"s^{-gi.order}"
-        flip = f", {gi.rhp_real} real unstable pole(s)" if gi.rhp_real % 2 else ""
-        return (
-            gi.stabilising_sign, "velocity_gain", gi.coef,
-            f"integrating plant, velocity gain {_g(gi.coef)} (G ~ {_g(gi.coef)}/{power}{flip})",
-        )
+        w = _siso_decoupler(spec)
+        if w == 0:
+            raise _Undecided("the decoupler's gain is 0")
+        # the loop's output reaches the actuator times w
+        sign, rule, gain, reason = _innermost_rule(PathGain(gi.order, gi.coef * w, gi.rhp_real), out)
+        return sign, rule, gain, reason + (f" (the plant's times the decoupler's gain {_g(w)})" if w != 1 else "")
     inner = outputs[meas[i + 1]]
     gn = _outputs_gain(lin, meas[i + 1])
     if gn is None:
@@ -235,32 +253,70 @@ def _loop_rule(spec: TuningSpec, lin: Any, meas: list[int], i: int) -> tuple[int
     )
 
 
+def _siso_decoupler(spec: TuningSpec) -> float:
+    """A single-input plant's 1 x 1 decoupler gain (its start value when tuned), 1 without one."""
+    from gaintune.spec.blocks import entry_value
+
+    return entry_value(spec.decoupler.matrix[0][0]) if spec.decoupler is not None else 1.0
+
+
 def _is_mimo(spec: TuningSpec, plant: Any) -> bool:
     from gaintune.plants.mimo import MimoPlant
 
     return isinstance(plant, MimoPlant) or any(lp.drives is not None for lp in spec.loops)
 
 
-def _entry_gain(lti: Any, o: int, j: int) -> PathGain | None:
-    """The low-frequency behaviour ``K s^m`` of the path from input j to output o of a MIMO form."""
-    from gaintune.lti.mimo import TfMatrix
+def _entry_gain(lti: Any, o: int, col: dict[int, float]) -> PathGain | None:
+    """The low-frequency behaviour ``K s^m`` of the path from the input combination ``col`` ({input: weight},
+    a decoupler's column or one input) to output o of a MIMO form; delays do not change it."""
+    from gaintune.lti.mimo import TfMatrix, block_diag
 
-    if isinstance(lti, TfMatrix):
-        e = lti.entries[o][j]
-        if e.is_zero:
+    if isinstance(lti, TfMatrix):  # the entries of row o in parallel, each weighted
+        parts = [(w, lti.entries[o][j].realisation()) for j, w in col.items()
+                 if w != 0 and not lti.entries[o][j].is_zero]
+        if not parts:
             return None
-        A, B, C, D = e.realisation()
-        return path_gain(A, B[:, 0], C[0], float(D[0, 0]))
-    return path_gain(lti.A, lti.B[:, j], lti.C[o], float(lti.D[o, j]))
+        A = block_diag(*[p[0] for _, p in parts])
+        b = np.concatenate([w * p[1][:, 0] for w, p in parts])
+        c = np.concatenate([p[2][0] for _, p in parts])
+        return path_gain(A, b, c, sum(w * float(p[3][0, 0]) for w, p in parts))
+    w = np.zeros(lti.B.shape[1])
+    for j, v in col.items():
+        w[j] = v
+    return path_gain(lti.A, lti.B @ w, lti.C[o], float(lti.D[o] @ w))
+
+
+def _column(spec: TuningSpec, inputs: list[str], j: int) -> tuple[dict[int, float], str]:
+    """How a loop output that drives input j reaches the plant: {input: weight} and a note for the reason.
+
+    Through a decoupler ``u = W v`` that is column ``W[:, j]``, tuned entries at the value the search
+    starts from (their spec value, else their bounds' geometric centre); else input j alone.
+    """
+    from gaintune.spec.blocks import entry_value, is_tuned
+
+    dec = spec.decoupler
+    if dec is None or inputs[j] not in dec.inputs:
+        return {j: 1.0}, ""
+    b = dec.inputs.index(inputs[j])
+    col = {inputs.index(dec.inputs[a]): entry_value(row[b]) for a, row in enumerate(dec.matrix)}
+    tuned = [f"decoupler.matrix[{a}][{b}]" for a, row in enumerate(dec.matrix) if is_tuned(row[b])]
+    terms = ""
+    for i, w in col.items():
+        if w != 0:
+            body = inputs[i] if abs(w) == 1 else f"{_g(abs(w))} {inputs[i]}"
+            terms += (f" {'-' if w < 0 else '+'} " if terms else ("-" if w < 0 else "")) + body
+    start = f"; tuned {', '.join(tuned)} at the search's start value" if tuned else ""
+    return col, f" through the decoupler's column ({terms or '0'}{start})"
 
 
 def _mimo_direction(spec: TuningSpec, plant: Any, i: int) -> LoopDirection:
     """Loop i's action on a MIMO plant (or a loop graph), read as the single-input rules read a cascade.
 
-    A loop driving an input: the path from the input its chain ends on to its output, ``K s^m``
-    (static gain for m = 0, velocity gain for an integrating path). A loop driving another loop's
-    setpoint: the ratio of its path to the inner loop's (the inner loop closed): static gains, or
-    velocity gains when the ratio integrates.
+    A loop driving an input: the path from the input its chain ends on (through the decoupler's
+    column at that input, when there is one) to its output, ``K s^m`` (static gain for m = 0,
+    velocity gain for an integrating path). A loop driving another loop's setpoint: the ratio of its
+    path to the inner loop's (the inner loop closed): static gains, or velocity gains when the ratio
+    integrates.
     """
     from gaintune.plants.mimo import as_mimo
     from gaintune.spec.mimo import chain_input, drive_target
@@ -273,24 +329,26 @@ def _mimo_direction(spec: TuningSpec, plant: Any, i: int) -> LoopDirection:
     kind, target = drive_target(loop.drives) if loop.drives is not None else ("input", "")
     if loop.drives is None and i + 1 < len(spec.loops):
         kind, target = "loop", names[i + 1]
-    gi = _entry_gain(lti, o, j)
-    path = f"from {mp.input_names[j]} to {mp.outputs[o]}"
+    col, note = _column(spec, mp.input_names, j)
+    gi = _entry_gain(lti, o, col)
+    src = f"{names[i]}'s output" if note else mp.input_names[j]
+    path = f"from {src} to {mp.outputs[o]}{note}"
     if gi is None:
         raise _undecided(i, f"the path {path} shows no readable response near s = 0")
     order, coef = gi.order, gi.coef
     if kind == "loop":
         inner = spec.loops[names.index(target)]
         o2 = mp.outputs.index(inner.measure or mp.outputs[0])
-        gn = _entry_gain(lti, o2, j)
+        gn = _entry_gain(lti, o2, col)
         if gn is None or gn.coef == 0:
             raise _undecided(i, f"the inner loop's output {mp.outputs[o2]!r} shows no readable response to "
-                             f"{mp.input_names[j]}")
+                             f"{mp.input_names[j]}{note}")
         order, coef = gi.order - gn.order, gi.coef / gn.coef
-        path = f"from the setpoint of {target} to {mp.outputs[o]} ({target} closed)"
+        path = f"from the setpoint of {target} to {mp.outputs[o]} ({target} closed{note})"
     if order > 0 or not np.isfinite(coef) or coef == 0:
         raise _undecided(i, f"the static gain {path} is zero")
     if order == 0:
-        return LoopDirection(1 if coef > 0 else -1, "auto", "static_gain", coef, f"static gain {path} {_g(coef)}")
+        return LoopDirection(1 if coef > 0 else -1, "auto", "static_gain", coef, f"static gain {_g(coef)} {path}")
     power = "s" if order == -1 else f"s^{-order}"
     return LoopDirection(1 if coef > 0 else -1, "auto", "velocity_gain", coef,
                          f"integrating path {path}, velocity gain {_g(coef)} (~ {_g(coef)}/{power})")
@@ -363,7 +421,8 @@ _CACHE: dict[str, tuple[LoopDirection, ...]] = {}
 def _key(spec: TuningSpec) -> str:
     loops = [(lp.measure, lp.type, lp.direction, lp.drives) for lp in spec.loops]
     box = {k: d.box for k, d in spec.randomize.params.items()}
-    return json.dumps([spec.plant.model_dump(mode="json"), loops, box], sort_keys=True, default=str)
+    dec = spec.decoupler.model_dump(mode="json") if spec.decoupler is not None else None  # it sets the paths
+    return json.dumps([spec.plant.model_dump(mode="json"), loops, box, dec], sort_keys=True, default=str)
 
 
 def resolve_directions(spec: TuningSpec, plant: Any = None) -> tuple[LoopDirection, ...]:

@@ -264,13 +264,28 @@ def _state_and_pid_step(h: _Header) -> list[str]:
     ]
 
 
-def pid_step(P: str, U: str) -> list[str]:
-    """``<P>_pid_step``: one sample of one PID loop (the simulator's discrete law, see the module docstring)."""
+def pid_step(P: str, U: str, actuator: bool = False) -> list[str]:
+    """``<P>_pid_step``: one sample of one PID loop (the simulator's discrete law, see the module docstring).
+
+    ``actuator``: the step also takes ``ff, alo, ahi``, the feedforward added to the loop's output at the
+    input it drives and that input's limits, and the clamp also holds I when ``sat(v + ff)`` saturates
+    and the error drives further (the MIMO kernel's rule; +-INFINITY limits for a loop behind a decoupler).
+    """
+    extra = ", double ff, double alo, double ahi" if actuator else ""
+    hold = [
+        f"    hold = c->aw == {U}_AW_CLAMP && vs != vu && e * (vu - vs) * c->ki > 0.0;",
+        f"    if (c->aw == {U}_AW_CLAMP && !hold) {{  /* the input's saturation of v + ff */",
+        "        double tot = vs + ff, ts = tot < alo ? alo : (tot > ahi ? ahi : tot);",
+        "        hold = ts != tot && e * (tot - ts) * c->ki > 0.0;",
+        "    }",
+        "    if (hold) {",
+    ] if actuator else [f"    if (c->aw == {U}_AW_CLAMP && vs != vu && e * (vu - vs) * c->ki > 0.0) {{"]
     return [
         "/* One PID loop: setpoint sp, measurement y -> saturated output. */",
-        f"static inline double {P}_pid_step(const {P}_pid_coef *c, {P}_state *s, int l, double sp, double y)",
+        f"static inline double {P}_pid_step(const {P}_pid_coef *c, {P}_state *s, int l, double sp, double y{extra})",
         "{",
         "    double e = sp - y, ed = c->c * sp - y, dterm, pterm, iold, it, vu, vs;",
+        *(["    int hold;"] if actuator else []),
         "    if (!s->started) s->ed_prev[l] = ed;  /* no derivative kick */",
         "    dterm = c->al * s->D[l] + c->be * (ed - s->ed_prev[l]);",
         "    s->ed_prev[l] = ed;",
@@ -281,7 +296,7 @@ def pid_step(P: str, U: str) -> list[str]:
         f"    if (c->aw == {U}_AW_BACKCALC) it += c->kb * {U}_DT * s->awe[l];",
         "    vu = pterm + it + dterm;",
         "    vs = vu < c->lo ? c->lo : (vu > c->hi ? c->hi : vu);",
-        f"    if (c->aw == {U}_AW_CLAMP && vs != vu && e * (vu - vs) * c->ki > 0.0) {{",
+        *hold,
         "        it = iold;  /* conditional integration */",
         "        vu = pterm + it + dterm;",
         "        vs = vu < c->lo ? c->lo : (vu > c->hi ? c->hi : vu);",

@@ -11,6 +11,9 @@ The header implements exactly one step of :mod:`gaintune.sim.mimo_kernel` for on
    feedforward, each saturated to its limits, then rate limited;
 3. back-calculation loops that drive an input directly track the applied value (less the feedforward).
 
+With a feedforward, ``FF r`` is computed before the loops, and a clamping loop that drives an input directly
+also holds its integrator when that input saturates on the loop's output plus the feedforward.
+
 Integrators start at 0 (the signals are deviations from the operating point, as the simulator's).
 """
 
@@ -71,7 +74,7 @@ def to_c_mimo(spec: TuningSpec, gains: Gains, st: _Stamp, dt: float, prefix: str
     P, U = prefix.lower(), prefix.upper()
     guard = f"{U}_{_ident(spec.name).upper()}_GAINS_H"
     lines = [*_banner(spec, st, a, P, U, dt), f"#ifndef {guard}", f"#define {guard}", "", "#include <math.h>", "",
-             *_macros(st, a, U, dt), *_tables(a, P, U, dt), *_state(a, P), *pid_step(P, U),
+             *_macros(st, a, U, dt), *_tables(a, P, U, dt), *_state(a, P), *pid_step(P, U, a["FF"] is not None),
              *_step(P, U, a["FF"] is not None),
              f"#endif /* {guard} */", ""]
     _no_redefinition(lines)
@@ -201,8 +204,13 @@ def _ff_table(a: dict[str, Any], U: str) -> list[str]:
 
 def _step(P: str, U: str, ff: bool = False) -> list[str]:
     """``<p>_step``: the kernel's arithmetic, step for step (``ff``: with the reference feedforward)."""
-    add_ff = [f"        {{ double f = 0.0; int c; for (c = 0; c < {U}_N_CHAINS; ++c) f += {U}_FF[j][c] * r[c]; "
-              "s->ff[j] = f; v += f; }"] if ff else []
+    # the feedforward first: a clamping loop that drives an input directly judges its saturation
+    ff_first = [f"    for (j = 0; j < {U}_N_INPUTS; ++j) {{ double f = 0.0; int c; "
+                f"for (c = 0; c < {U}_N_CHAINS; ++c) f += {U}_FF[j][c] * r[c]; s->ff[j] = f; }}"] if ff else []
+    add_ff = ["        v += s->ff[j];"] if ff else []
+    call = (f"{P}_pid_step(&{U}_PID[l], s, l, sp, y[{U}_MEAS[l]], d >= 0 ? s->ff[d] : 0.0, "
+            f"d >= 0 ? {U}_U_MIN[d] : -INFINITY, d >= 0 ? {U}_U_MAX[d] : INFINITY)" if ff else
+            f"{P}_pid_step(&{U}_PID[l], s, l, sp, y[{U}_MEAS[l]])")
     track = (f"s->awe[l] += u[{U}_DIRECT[l]] - s->ff[{U}_DIRECT[l]] - s->v[l];" if ff else
              f"s->awe[l] += u[{U}_DIRECT[l]] - s->v[l];")
     return [
@@ -211,10 +219,12 @@ def _step(P: str, U: str, ff: bool = False) -> list[str]:
         f"                           double u[{U}_N_INPUTS])",
         "{",
         "    int l, j;",
+        *ff_first,
         f"    for (l = 0; l < {U}_N_LOOPS; ++l) {{",
         f"        double sp = {U}_PARENT[l] < 0 ? r[{U}_CHAIN[l]] : s->v[{U}_PARENT[l]];",
+        *([f"        int d = {U}_DIRECT[l];"] if ff else []),
         "        s->sp[l] = sp;",
-        f"        s->v[l] = {P}_pid_step(&{U}_PID[l], s, l, sp, y[{U}_MEAS[l]]);",
+        f"        s->v[l] = {call};",
         "    }",
         f"    for (j = 0; j < {U}_N_INPUTS; ++j) {{",
         "        double v = 0.0;",

@@ -10,7 +10,9 @@ vectorises), as in the single-input kernel (:mod:`gaintune.sim.kernel`). Per ste
 2. divergence every 8 steps (NaN, inf or beyond ``div_bound``: the lane is dead, its state held at
    0, its metrics inf) and the safety monitor (a trip holds every actuator at its safe value);
 3. the loops in graph order (a loop's setpoint is a reference, or the output of the loop that
-   drives it), each with the discrete PID law of :mod:`gaintune.controllers.pid`;
+   drives it), each with the discrete PID law of :mod:`gaintune.controllers.pid`; the feedforward
+   ``F r`` is computed first, so a clamping loop that drives an input directly holds its integrator
+   when that input saturates on its output plus the feedforward, as when its own limits saturate;
 4. the actuators: ``W v + F r`` (the loops' outputs, through the static decoupler when there is one,
    plus the reference feedforward), saturation, rate limit; each into its input's delay line.
    ``W`` is (1, m, L) for the whole batch or (B, m, L), one per candidate (tuned decoupler entries);
@@ -110,7 +112,8 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
         kk = np.zeros((4, n_ode, C))
         Wc = np.zeros((m, L, C))  # this chunk's W (and F), lane by lane
         Fc = np.zeros((m, L, C if n_ff > 0 else 0))
-        ffu = np.zeros((m, C))  # the feedforward part of each input (back-calculation leaves it out)
+        ffu = np.zeros((m, C))  # the feedforward part of each input (the anti-windup leaves it out)
+        iprev = np.zeros(C)  # a loop's integrator before this step's update
         for j in range(nl):
             b = cand[b0 + j]
             wb = b if W.shape[0] > 1 else 0
@@ -178,6 +181,15 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
                         trip[j] = 1.0
                         acc[_TRIP, j] = 1.0
                         acc[_TRIPT, j] = t
+            # ---- the feedforward of this step, known before the loops (the roots' setpoints are references)
+            for a in range(m if n_ff > 0 else 0):
+                for j in range(nl):
+                    ffu[a, j] = 0.0
+                for r in range(nr):
+                    lr = roots[r]
+                    rv = ref[root_row[lr], k]
+                    for j in range(nl):
+                        ffu[a, j] += Fc[a, lr, j] * rv
             # ---- loops in graph order (the discrete law of gaintune.controllers.pid)
             for l in range(L):
                 pl = parent[l]
@@ -204,6 +216,7 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
                     dterm[l, j] = dv
                     pterm = g[0, l, j] * (bwl * s_l - ym)
                     iold = integ[l, j]
+                    iprev[j] = iold
                     it = iold + g[1, l, j] * e
                     if backcalc:
                         it += g[2, l, j] * awe[l, j]
@@ -216,6 +229,9 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
                     integ[l, j] = it
                     awe[l, j] = vs - vu
                     vout[l, j] = vs
+                if clamp and n_ff > 0 and direct[l] >= 0:
+                    _clamp_at_input(l, direct[l], nl, ml, bwl, u_lo, u_hi, sp, y, g, ffu, iprev, integ, dterm, awe,
+                                    vout)
             # ---- actuators
             for a in range(m):
                 ulo, uhi, ra = u_lo[a], u_hi[a], rate[a] * dt
@@ -224,11 +240,7 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
                     for l in range(L):
                         v += Wc[a, l, j] * vout[l, j]
                     if n_ff > 0:
-                        f = 0.0
-                        for r in range(nr):
-                            f += Fc[a, roots[r], j] * sp[roots[r], j]  # an outer loop's setpoint: the reference
-                        ffu[a, j] = f
-                        v += f
+                        v += ffu[a, j]
                     v = min(max(v, ulo), uhi)
                     if ra < np.inf:
                         v = min(max(v, uprev[a, j] - ra), uprev[a, j] + ra)
@@ -329,6 +341,27 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
             x, xn = xn, x
         _finish(nl, b0, cand, n_steps, dt, kst, target, alive, trip, acc, chain, eff, mark, y, meas, step_root,
                 out, chain_out, eff_out)
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _clamp_at_input(l, a, nl, ml, bwl, u_lo, u_hi, sp, y, g, ffu, iprev, integ, dterm, awe, vout):
+    """Clamping loop ``l`` driving input ``a`` directly: hold its integrator where ``sat(v + ff)`` saturates
+    at the input and the error drives further (its own limits do not see the feedforward added there).
+
+    A pass of its own after the loop's law, so a batch without feedforward runs the law's loop unchanged;
+    holding again where the law already held recomputes the same values."""
+    alo, ahi = u_lo[a], u_hi[a]
+    for j in range(nl):
+        e = sp[l, j] - y[ml, j]
+        tot = vout[l, j] + ffu[a, j]
+        ts = min(max(tot, alo), ahi)
+        if ts != tot and e * (tot - ts) * g[7, l, j] > 0:
+            it = iprev[j]
+            vu = g[0, l, j] * (bwl * sp[l, j] - y[ml, j]) + it + dterm[l, j]
+            vs = min(max(vu, g[5, l, j]), g[6, l, j])
+            integ[l, j] = it
+            awe[l, j] = vs - vu
+            vout[l, j] = vs
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")

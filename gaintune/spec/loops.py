@@ -109,8 +109,10 @@ class LoopSpec(_Model):
             "positive), for a negative path gain; auto: from the sign of the static gain of the path this loop "
             "controls at the nominal operating point (integrating path: of its velocity gain; open-loop unstable "
             "with an odd number of real unstable poles: the opposite sign). The innermost loop's path runs from "
-            "the actuator to its output, an outer loop's from its inner loop's setpoint, inner loops closed. "
-            "When auto cannot tell (e.g. zero static gain) the spec is rejected: set direct or reverse. "
+            "the actuator to its output, an outer loop's from its inner loop's setpoint, inner loops closed; "
+            "behind a decoupler the actuator is the decoupler's column at the input the chain drives "
+            "(tuned entries at their start value). When auto cannot tell (e.g. zero static gain) the spec is "
+            "rejected: set direct or reverse. "
             "Bounds are magnitudes either way. Not for LQ loops."
         ),
     )

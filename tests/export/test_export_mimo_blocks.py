@@ -95,6 +95,19 @@ def test_c_header_feedforward_with_saturation_and_back_calculation_matches_the_s
     assert _c_vs_sim(tmp_path, spec, gains) <= TOL
 
 
+@needs_gcc
+def test_c_header_clamp_ignoring_feedforward_saturation_follows_the_fixed_kernel(tmp_path) -> None:
+    """Clamping loops driving inputs directly, a feedforward that saturates R on the xD step (issue 28): the
+    header holds the integrator when the input saturates on the loop's output plus the feedforward, as the
+    kernel now does (the old header, judging the loop's own limits only, is off by far more than TOL)."""
+    spec = _spec("clamping", decoupler=None,
+                 actuators={"R": {"limits": [-0.4, 0.4]}, "S": {"limits": [-0.3, 0.3]}},
+                 feedforward=[{"loop": "xB", "input": "S", "gain": -0.2}, {"loop": "xD", "input": "R", "gain": 0.3}])
+    gains = {k: v for k, v in GAINS.items() if k in ("xD", "xB")}
+    assert "hold = ts != tot" in export_gains(spec, gains, "c", verdict="pass")
+    assert _c_vs_sim(tmp_path, spec, gains) <= TOL
+
+
 def test_payload_and_matlab_carry_the_tuned_w_and_feedforward() -> None:
     spec = _spec()
     p = json.loads(export_gains(spec, GAINS, "json", verdict="pass"))
