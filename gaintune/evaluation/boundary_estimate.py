@@ -154,17 +154,30 @@ class _Bracket:
 
 
 def _ladder(ev: Evaluator, t: np.ndarray, d: np.ndarray, g0: np.ndarray) -> _Bracket:
-    """Bracket the boundary of each candidate in ``t`` with the :data:`LADDER` of scales, all in one estimate.
+    """Bracket the boundary of each candidate in ``t`` with the :data:`LADDER` of scales.
 
-    ``d``: the move's exponents, (n,) for every candidate or one row per candidate."""
+    ``d``: the move's exponents, (n,) for every candidate or one row per candidate. The largest feasible
+    scale brackets the boundary with the rung before it. The single-loop estimate scores every rung in one
+    batch; a MIMO check costs a whole loop analysis per row, so there the rungs are scored one at a time,
+    each only on the rows no earlier rung made feasible: the same bracket from fewer checks.
+    """
     x_floor = np.log(alpha_floor(ev.layout, t, d))
     xs = np.maximum(np.log1p(-np.array(LADDER))[None, :], x_floor[:, None])  # (n, L)
     n, n_ladder = xs.shape
     dd = np.broadcast_to(d, t.shape)[:, None, :]  # one direction per candidate
+    trial = t[:, None, :] * np.exp(xs)[..., None] ** dd  # (n, L, d)
+    lv, lg = np.full((n, n_ladder), np.inf), np.full((n, n_ladder), np.inf)
     # the root find checks margins only (stability is 2/3 of the estimate's cost); the answer is checked in full
-    lv, lg = ev.requirement_scores((t[:, None, :] * np.exp(xs)[..., None] ** dd).reshape(n * n_ladder, -1),
-                                   stability=False)
-    lv, lg = lv.reshape(n, n_ladder), lg.reshape(n, n_ladder)
+    if not ev.is_mimo:
+        v, g = ev.requirement_scores(trial.reshape(n * n_ladder, -1), stability=False)
+        lv, lg = v.reshape(n, n_ladder), g.reshape(n, n_ladder)
+    else:
+        open_ = np.arange(n)
+        for k in range(n_ladder):
+            lv[open_, k], lg[open_, k] = ev.requirement_scores(trial[open_, k], stability=False)
+            open_ = open_[lv[open_, k] > 0]
+            if not open_.size:
+                break
     ok = lv <= 0
     first = np.argmax(ok, axis=1)  # the largest feasible scale on the ladder
     i = np.arange(n)
