@@ -26,7 +26,8 @@ class KernelCache(FunctionCache):
 
     def load_overload(self, sig, target_context):
         rtsys.initialize(target_context)  # idempotent
-        return self._load_overload(sig, target_context)
+        with self._guard_against_spurious_io_errors():  # numba's own guard (Windows file locks)
+            return self._load_overload(sig, target_context)
 
 
 def use_kernel_cache(dispatcher):
