@@ -55,7 +55,7 @@ def _simulator(spec, plant, layout):
     """(simulator, layout) of ``spec``: the verification context's, or for several inputs or a loop graph
     (no single-input linear model) the MIMO simulator's."""
     from gaintune.plants import build_plant
-    from gaintune.sim.mimo import needs_mimo
+    from gaintune.sim.simulator import needs_mimo
 
     p = plant if plant is not None else build_plant(spec.plant)
     if needs_mimo(spec, p):

@@ -129,7 +129,8 @@ def check_spec(spec: TuningSpec, settings: Settings, purpose: Purpose, *, prefix
         if purpose == "tune":
             layout.require_tuned()
         if purpose in ("tune", "simulate"):
-            from gaintune.sim.mimo import MimoSimulator, needs_mimo
+            from gaintune.sim.mimo import MimoSimulator
+            from gaintune.sim.simulator import needs_mimo
 
             if needs_mimo(spec, plant):  # several inputs or a loop graph: its loops resolved against the plant
                 MimoSimulator(spec, plant, layout)

@@ -116,7 +116,7 @@ def _run_rule(spec: TuningSpec, method: str, ev: Any) -> BaselineResult:
     from gaintune.plants import build_plant
 
     plant = getattr(ev, "plant", None) or build_plant(spec.plant)
-    from gaintune.sim.mimo import needs_mimo
+    from gaintune.sim.simulator import needs_mimo
 
     if needs_mimo(spec, plant):  # several inputs or a loop graph: the rule loop by loop, on each loop's own path
         from gaintune.classical.mimo_rules import loop_rule_candidates

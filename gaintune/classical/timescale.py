@@ -40,7 +40,7 @@ from gaintune.classical.fotd import NoModelError, fit_fotd, path_poles_zeros, si
 from gaintune.controllers.direction import measured_indices
 from gaintune.errors import SpecError
 from gaintune.lti.statespace import StateSpace
-from gaintune.plants.plant import Plant, build_plant
+from gaintune.plants.plant import Plant, build_plant, is_mimo_plant
 from gaintune.spec import MAX_STEPS, ScenarioDefault, ScenarioSpec, TuningSpec
 
 __all__ = ["LoopScale", "PlantScale", "plant_scale", "resolve_scenarios", "scenario_defaults",
@@ -134,9 +134,7 @@ def _round_up(x: float) -> float:
 
 def plant_scale(spec: TuningSpec, plant: Plant) -> PlantScale:
     """The plant-derived ``dt`` and horizon (counted from the last event) of ``spec``'s scenarios."""
-    from gaintune.plants.mimo import MimoPlant
-
-    if isinstance(plant, MimoPlant):
+    if is_mimo_plant(plant):
         return _scale_of(spec, plant, _mimo_paths(spec, plant), math.inf)
     lin = plant.linearize()
     delay = float(lin.delay)

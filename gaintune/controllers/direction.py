@@ -261,9 +261,9 @@ def _siso_decoupler(spec: TuningSpec) -> float:
 
 
 def _is_mimo(spec: TuningSpec, plant: Any) -> bool:
-    from gaintune.plants.mimo import MimoPlant
+    from gaintune.plants.plant import is_mimo_plant
 
-    return isinstance(plant, MimoPlant) or any(lp.drives is not None for lp in spec.loops)
+    return is_mimo_plant(plant) or any(lp.drives is not None for lp in spec.loops)
 
 
 def _entry_gain(lti: Any, o: int, col: dict[int, float]) -> PathGain | None:

@@ -32,6 +32,7 @@ show the plain cost, never a penalised figure.
 from __future__ import annotations
 
 import dataclasses
+import sys
 from dataclasses import dataclass
 from typing import Any
 
@@ -145,9 +146,8 @@ def aggregate(costs: np.ndarray, how: str, alpha: float = 0.2) -> np.ndarray:
 
 def is_mimo_sim(sim: object) -> bool:
     """Whether ``sim`` is the MIMO simulator (:class:`gaintune.sim.mimo.MimoSimulator`)."""
-    from gaintune.sim.mimo import MimoSimulator
-
-    return isinstance(sim, MimoSimulator)
+    mimo = sys.modules.get("gaintune.sim.mimo")  # not imported (a single-input problem): no MimoSimulator exists
+    return mimo is not None and isinstance(sim, mimo.MimoSimulator)
 
 
 def mimo_requirement_scores(ev: Evaluator, tuned: np.ndarray, stability: bool = True) -> tuple[np.ndarray, np.ndarray]:

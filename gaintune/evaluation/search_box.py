@@ -47,7 +47,7 @@ from gaintune.evaluation.evaluator import Evaluator
 from gaintune.plants import build_plant
 from gaintune.plants.plant import Plant
 from gaintune.sim import Simulator
-from gaintune.sim.mimo import needs_mimo
+from gaintune.sim.simulator import needs_mimo
 from gaintune.spec import Gains, TuningSpec
 from gaintune.spec.backoff import BackoffSpec
 

@@ -77,7 +77,7 @@ def _unique_idents(names: list[str], style: str) -> None:
 def is_mimo(spec: TuningSpec) -> bool:
     """Whether ``spec`` runs on the MIMO simulator (several plant inputs, a loop graph, actuators or a decoupler)."""
     from gaintune.plants import build_plant
-    from gaintune.sim.mimo import needs_mimo
+    from gaintune.sim.simulator import needs_mimo
 
     if spec.plant.tf_matrix is not None or spec.actuators is not None or spec.decoupler is not None:
         return True

@@ -1,6 +1,6 @@
 """The whole MIMO architecture as the export formats carry it: loops, graph wiring, actuators, decoupler.
 
-A spec with several plant inputs or a loop graph (:func:`gaintune.sim.mimo.needs_mimo`) runs on
+A spec with several plant inputs or a loop graph (:func:`gaintune.sim.simulator.needs_mimo`) runs on
 :class:`gaintune.sim.mimo.MimoSimulator`; :func:`mimo_architecture` resolves it the same way
 (:func:`gaintune.sim.mimo.architecture`): every loop's parallel-form law, in *evaluation order*
 (a loop whose output is another loop's setpoint comes before it), what it measures and drives,

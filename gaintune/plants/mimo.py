@@ -22,16 +22,10 @@ from gaintune.plants.coefs import coef_matrix, poly
 from gaintune.plants.params import NamedParams
 from gaintune.spec import MAX_ORDER, PlantSpec, SignalSpec, TfEntrySpec
 
-__all__ = ["MimoPlant", "is_mimo_plant_spec", "build_mimo_plant", "as_mimo", "MAX_MIMO_STATES"]
+__all__ = ["MimoPlant", "build_mimo_plant", "as_mimo", "MAX_MIMO_STATES"]
 
 #: Largest total state count of a MIMO plant (every entry's realisation together).
 MAX_MIMO_STATES = 200
-
-
-def is_mimo_plant_spec(spec: PlantSpec) -> bool:
-    """Whether ``spec`` (a resolved plant, not a model reference) has the several-input form."""
-    return spec.tf_matrix is not None or (spec.ss is not None and spec.ss.is_mimo) or (
-        spec.ode is not None and spec.ode.is_mimo)
 
 
 @dataclass

@@ -30,7 +30,7 @@ from gaintune.spec import MAX_ORDER, OdeSpec, PlantSpec, StateSpaceSpec, Transfe
 if TYPE_CHECKING:  # pragma: no cover
     import casadi as ca
 
-__all__ = ["Plant", "LinearModel", "build_plant"]
+__all__ = ["Plant", "LinearModel", "build_plant", "is_mimo_plant_spec", "is_mimo_plant"]
 
 
 @dataclass(frozen=True)
@@ -289,6 +289,21 @@ def _resolve_model(spec: PlantSpec) -> PlantSpec:
     return base.model_copy(update={"params": params, "delay": delay})
 
 
+def is_mimo_plant_spec(spec: PlantSpec) -> bool:
+    """Whether ``spec`` (a resolved plant, not a model reference) has the several-input form.
+
+    This and :func:`is_mimo_plant` are here, not in :mod:`gaintune.plants.mimo`: a single-input
+    problem does not import that module.
+    """
+    return spec.tf_matrix is not None or (spec.ss is not None and spec.ss.is_mimo) or (
+        spec.ode is not None and spec.ode.is_mimo)
+
+
+def is_mimo_plant(plant: object) -> bool:
+    """Whether ``plant`` is a :class:`gaintune.plants.mimo.MimoPlant` (its ``kind`` is ``"mimo"``)."""
+    return getattr(plant, "kind", None) == "mimo"
+
+
 def build_plant(spec: PlantSpec) -> Plant:
     """Validate a plant spec numerically at its nominal parameters and build a :class:`Plant`.
 
@@ -299,9 +314,9 @@ def build_plant(spec: PlantSpec) -> Plant:
     """
     if spec.model is not None:
         spec = _resolve_model(spec)
-    from gaintune.plants.mimo import build_mimo_plant, is_mimo_plant_spec
-
     if is_mimo_plant_spec(spec):  # several inputs: the shared MIMO form (gaintune.lti.mimo)
+        from gaintune.plants.mimo import build_mimo_plant
+
         return build_mimo_plant(spec)  # type: ignore[return-value]  # a MimoPlant stands in where its forms apply
     params = dict(spec.params)
     if spec.ode is not None:

@@ -3,7 +3,7 @@
 :class:`MimoSimulator` has the interface of :class:`gaintune.sim.Simulator` (``spec``, ``plant``,
 ``layout``, ``nominal_draws``, ``run`` returning a :class:`~gaintune.sim.SimResult` with the same
 metric names), so the evaluator, the reward, the optimisers and the search use it unchanged:
-``Simulator(spec)`` returns one for a spec that needs it (:func:`needs_mimo`).
+``Simulator(spec)`` returns one for a spec that needs it (:func:`gaintune.sim.simulator.needs_mimo`).
 
 Metrics: the single-input names, where ``iae``/``ise``/``itae`` sum the integrals of every chain's
 outer error (``iae.<loop>`` etc. per chain, by its outer loop), ``effort`` and ``tv`` sum over the
@@ -34,15 +34,9 @@ from gaintune.sim.result import SimResult
 from gaintune.spec import ProfileSpec, ScenarioSpec, TuningSpec, check_delay_samples
 from gaintune.spec.mimo import drive_target, is_graph
 
-__all__ = ["MimoSimulator", "Architecture", "architecture", "needs_mimo", "plant_channels"]
+__all__ = ["MimoSimulator", "Architecture", "architecture", "plant_channels"]
 
 AW_CODES = {"none": 0, "clamping": 1, "back_calculation": 2}
-
-
-def needs_mimo(spec: TuningSpec, plant) -> bool:
-    """Whether ``spec`` on ``plant`` runs on this simulator: a MIMO plant, or loops that say what they drive."""
-    return (isinstance(plant, MimoPlant) or is_graph(spec) or spec.actuators is not None or spec.decoupler is not None
-            or spec.feedforward is not None or any(sc.disturbance.state is not None for sc in spec.scenarios))
 
 
 @dataclass(frozen=True)

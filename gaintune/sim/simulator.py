@@ -20,7 +20,7 @@ import numpy as np
 
 from gaintune.classical.timescale import resolve_scenarios
 from gaintune.controllers.layout import GainLayout
-from gaintune.plants.plant import Plant, build_plant
+from gaintune.plants.plant import Plant, build_plant, is_mimo_plant
 from gaintune.sim import draws as draws_mod
 from gaintune.sim.build import SimSetup
 from gaintune.sim.draws import Draws
@@ -28,8 +28,21 @@ from gaintune.sim.kernel import METRICS, run_kernel
 from gaintune.sim.kernel_args import KernelArgs
 from gaintune.sim.result import SimResult
 from gaintune.spec import ScenarioSpec, TuningSpec
+from gaintune.spec.mimo import is_graph
 
-__all__ = ["Simulator", "SimResult", "KernelArgs", "METRICS", "simulate"]
+__all__ = ["Simulator", "SimResult", "KernelArgs", "METRICS", "simulate", "needs_mimo"]
+
+
+def needs_mimo(spec: TuningSpec, plant) -> bool:
+    """Whether ``spec`` on ``plant`` runs on the MIMO simulator (:mod:`gaintune.sim.mimo`).
+
+    It does for a MIMO plant, or loops that say what they drive;
+    ``plant`` None asks the spec alone. Here, not in :mod:`gaintune.sim.mimo`: a single-input
+    problem does not import the MIMO simulator.
+    """
+    return (is_mimo_plant(plant) or is_graph(spec) or spec.actuators is not None
+            or spec.decoupler is not None or spec.feedforward is not None
+            or any(sc.disturbance.state is not None for sc in spec.scenarios))
 
 
 class Simulator:
@@ -48,10 +61,10 @@ class Simulator:
         # the one dispatch: several inputs, or loops wired as a graph, run on the MIMO simulator, which
         # has this interface (gaintune.sim.mimo); every caller (evaluator, search, API) stays as it is
         if cls is Simulator:
-            from gaintune.sim.mimo import MimoSimulator, needs_mimo
-
             built = plant if plant is not None else build_plant(spec.plant)
             if needs_mimo(spec, built):
+                from gaintune.sim.mimo import MimoSimulator
+
                 return MimoSimulator(spec, built, layout)
             obj = super().__new__(cls)
             obj._built = built  # type: ignore[attr-defined]  # read once by __init__

@@ -66,11 +66,10 @@ def loop_frequency_responses(spec: TuningSpec, plant: Plant, layout: GainLayout,
 
 
 def _is_mimo(spec: TuningSpec, plant: Plant | None) -> bool:
-    """Whether ``spec`` needs the MIMO verdict (:func:`gaintune.sim.mimo.needs_mimo`); the plant is built
+    """Whether ``spec`` needs the MIMO verdict (:func:`gaintune.sim.simulator.needs_mimo`); the plant is built
     only for a model reference (a plain single-input spec is recognised from the spec)."""
-    from gaintune.plants import build_plant
-    from gaintune.plants.mimo import is_mimo_plant_spec
-    from gaintune.sim.mimo import needs_mimo
+    from gaintune.plants.plant import build_plant, is_mimo_plant_spec
+    from gaintune.sim.simulator import needs_mimo
 
     if plant is None and getattr(spec.plant, "model", None) is None:
         return is_mimo_plant_spec(spec.plant) or needs_mimo(spec, None)

@@ -1,7 +1,7 @@
 """The MIMO verification of a spec's gains: the loop it describes, its requirements, its graded violation.
 
 A spec needs it when its plant has several inputs or its loops say what they drive
-(:func:`gaintune.sim.mimo.needs_mimo`). :func:`spec_loop` turns the spec and one gain set into the
+(:func:`gaintune.sim.simulator.needs_mimo`). :func:`spec_loop` turns the spec and one gain set into the
 :func:`gaintune.verification.mimo.mimo_report` arguments:
 
 * the plant's :mod:`gaintune.lti.mimo` form, with ``dt/2`` (sample-and-hold, largest scenario dt),

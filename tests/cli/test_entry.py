@@ -123,3 +123,18 @@ def test_the_program_runs_with_the_raised_gc_threshold_and_an_embedding_caller_k
     res = subprocess.run([sys.executable, "-c", embedded], capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert res.stdout.rstrip().endswith("threshold 700")
+
+
+def test_a_fresh_tuner_query_runs_no_cyclic_collection_at_the_raised_threshold() -> None:
+    """A fresh ``gaintune tuner query`` allocates ~155,000 objects once the threshold is raised (numba's
+    and scipy's imports among them): at GC_THRESHOLD0 it runs no collection (at 50,000 it ran three,
+    each walking those start-up objects)."""
+    code = ("import atexit, gc\nn = [0]\n"
+            "gc.callbacks.append(lambda phase, info: n.__setitem__(0, n[0] + (phase == 'start' "
+            "and gc.get_threshold()[0] > 700)))\n"
+            "atexit.register(lambda: print('collections', n[0]))\n"
+            "from gaintune.cli import app\n"
+            "app(['tuner', 'query', 'fotd_pi_ms1.4', '-p', 'K=2', '-p', 'T=60', '-p', 'L=10', '--json'])")
+    res = run_main(code)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.rstrip().endswith("collections 0"), res.stdout[-200:]

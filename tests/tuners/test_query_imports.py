@@ -7,10 +7,14 @@ times are ``gaintune bench tuners``' figures).
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
+
+import gaintune
 
 #: A child that answers one query through the library, then reports its modules and the loaded kernel variants.
 PROBE = """
@@ -25,8 +29,9 @@ print(json.dumps({"verdict": answer.verdict, "modules": sorted(sys.modules),
 
 @pytest.fixture(scope="module")
 def probed(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """The probe's report, from one fresh process in an empty folder."""
-    proc = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True,
+    """The probe's report, from one fresh process in an empty folder (importing this tree's gaintune)."""
+    env = {**os.environ, "PYTHONPATH": str(Path(gaintune.__file__).resolve().parents[1])}
+    proc = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True, env=env,
                           cwd=tmp_path_factory.mktemp("probe"), timeout=900, check=False)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -52,3 +57,17 @@ def test_tuner_query_in_a_fresh_process_loads_one_kernel_variant(probed: dict) -
     (loading a compiled variant from numba's cache costs ~30 ms of CPU)."""
     got = probed
     assert got["single"] == 1 and got["serial"] == 0, got
+
+
+def test_tuner_query_in_a_fresh_process_skips_numbas_registries_and_the_mimo_modules(probed: dict) -> None:
+    """Loading the cached kernel does not refresh numba's target context (every typing and lowering
+    registry: ~0.16 s of a fresh query; :class:`gaintune.sim.kernel_cache.KernelCache`), and a
+    single-input problem does not import the MIMO plant and simulator modules (their predicates live
+    beside the SISO ones)."""
+    mods = set(probed["modules"])
+    assert "numba" in mods and "gaintune.sim.kernel_cache" in mods
+    refresh_only = {"numba.typed.typeddict", "numba.np.random.generator_methods", "numba.np.npyimpl",
+                    "numba.cpython.mathimpl", "numba.experimental.function_type"}
+    assert not mods & refresh_only, sorted(mods & refresh_only)
+    mimo = {"gaintune.plants.mimo", "gaintune.sim.mimo", "gaintune.sim.mimo_kernel"}
+    assert not mods & mimo, sorted(mods & mimo)

@@ -71,6 +71,7 @@ import numpy as np
 
 from gaintune.sim import tape as T
 from gaintune.sim.kernel_args import KernelArgs
+from gaintune.sim.kernel_cache import use_kernel_cache
 from gaintune.sim.threads import sim_threads
 
 from .law import actuator, controllers, init_loops
@@ -303,12 +304,13 @@ def _compile(lanes: int, name: str):
     caches apart; ``CHUNK`` is frozen into the variant as a compile-time constant.
     The qualname carries :data:`_TAG`, since numba's cache sees only this file.
     ``nogil``: :func:`simulate_kernel_parallel` runs chunk ranges of one batch on threads.
+    The cache is a :class:`gaintune.sim.kernel_cache.KernelCache`: a cached variant loads without numba's full set-up.
     """
     glb = dict(_kernel.__globals__, CHUNK=lanes)
     fn = types.FunctionType(_kernel.__code__, glb, "_kernel")
     fn.__qualname__ = f"{name}_{_TAG}"
-    return nb.njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract"},
-                   pipeline_class=SerialKernelCompiler)(fn)
+    return use_kernel_cache(nb.njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract"},
+                                    pipeline_class=SerialKernelCompiler)(fn))
 
 
 #: The compiled variants, each called with a record's fields and then the range of chunks to run:
