@@ -113,7 +113,6 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
         Wc = np.zeros((m, L, C))  # this chunk's W (and F), lane by lane
         Fc = np.zeros((m, L, C if n_ff > 0 else 0))
         ffu = np.zeros((m, C))  # the feedforward part of each input (the anti-windup leaves it out)
-        iprev = np.zeros(C)  # a loop's integrator before this step's update
         for j in range(nl):
             b = cand[b0 + j]
             wb = b if W.shape[0] > 1 else 0
@@ -206,6 +205,10 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
                     for j in range(nl):
                         edp[l, j] = cwl * sp[l, j] - y[ml, j]  # no derivative kick at the start
                 clamp, backcalc = aw[l] == 1, aw[l] == 2
+                # a clamping loop that drives an input directly also judges that input's saturation of v + ff
+                da = direct[l]
+                clamp_ff = clamp and n_ff > 0 and da >= 0
+                alo, ahi = (u_lo[da], u_hi[da]) if clamp_ff else (-np.inf, np.inf)
                 for j in range(nl):
                     s_l = sp[l, j]
                     ym = y[ml, j]
@@ -216,7 +219,6 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
                     dterm[l, j] = dv
                     pterm = g[0, l, j] * (bwl * s_l - ym)
                     iold = integ[l, j]
-                    iprev[j] = iold
                     it = iold + g[1, l, j] * e
                     if backcalc:
                         it += g[2, l, j] * awe[l, j]
@@ -226,12 +228,16 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
                         it = iold
                         vu = pterm + it + dv
                         vs = min(max(vu, g[5, l, j]), g[6, l, j])
+                    if clamp_ff:
+                        tot = vs + ffu[da, j]
+                        ts = min(max(tot, alo), ahi)
+                        if ts != tot and e * (tot - ts) * g[7, l, j] > 0:
+                            it = iold
+                            vu = pterm + it + dv
+                            vs = min(max(vu, g[5, l, j]), g[6, l, j])
                     integ[l, j] = it
                     awe[l, j] = vs - vu
                     vout[l, j] = vs
-                if clamp and n_ff > 0 and direct[l] >= 0:
-                    _clamp_at_input(l, direct[l], nl, ml, bwl, u_lo, u_hi, sp, y, g, ffu, iprev, integ, dterm, awe,
-                                    vout)
             # ---- actuators
             for a in range(m):
                 ulo, uhi, ra = u_lo[a], u_hi[a], rate[a] * dt
@@ -341,27 +347,6 @@ def mimo_kernel(c_lo, c_hi, cand, chunk_start, n_steps, dt, pidx, Ad, bstart, bs
             x, xn = xn, x
         _finish(nl, b0, cand, n_steps, dt, kst, target, alive, trip, acc, chain, eff, mark, y, meas, step_root,
                 out, chain_out, eff_out)
-
-
-@nb.njit(cache=True, nogil=True, error_model="numpy")
-def _clamp_at_input(l, a, nl, ml, bwl, u_lo, u_hi, sp, y, g, ffu, iprev, integ, dterm, awe, vout):
-    """Clamping loop ``l`` driving input ``a`` directly: hold its integrator where ``sat(v + ff)`` saturates
-    at the input and the error drives further (its own limits do not see the feedforward added there).
-
-    A pass of its own after the loop's law, so a batch without feedforward runs the law's loop unchanged;
-    holding again where the law already held recomputes the same values."""
-    alo, ahi = u_lo[a], u_hi[a]
-    for j in range(nl):
-        e = sp[l, j] - y[ml, j]
-        tot = vout[l, j] + ffu[a, j]
-        ts = min(max(tot, alo), ahi)
-        if ts != tot and e * (tot - ts) * g[7, l, j] > 0:
-            it = iprev[j]
-            vu = g[0, l, j] * (bwl * sp[l, j] - y[ml, j]) + it + dterm[l, j]
-            vs = min(max(vu, g[5, l, j]), g[6, l, j])
-            integ[l, j] = it
-            awe[l, j] = vs - vu
-            vout[l, j] = vs
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
