@@ -202,6 +202,12 @@ class Evaluator:
                 out[:, i : i + _CHUNK] = self._eval(s[i : i + _CHUNK])
             return out
 
+    def rows_at(self, w: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """L of row ``rows[i]`` at ``w[i]``, (len(w),): what a zoom asks, each bracket for its own row.
+        Here every row is formed and the asked one kept; an evaluator whose rows cost separately (the
+        MIMO loop-at-a-time rows) forms only the asked one."""
+        return self(w)[rows, np.arange(np.size(w))]
+
     def _point(self, s: np.ndarray) -> _Point:
         """The per-frequency factors at ``s``."""
         sp = self.sampled
@@ -308,8 +314,8 @@ def zoom_roots(ev: Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray, 
     a, b = np.log(lo), np.log(hi)
     k = np.arange(lo.size)
     if La is None or Lb is None:
-        Lab = ev(np.concatenate([lo, hi]))
-        La, Lb = Lab[rows, k], Lab[rows, k + lo.size]
+        Lab = ev.rows_at(np.concatenate([lo, hi]), np.concatenate([rows, rows]))
+        La, Lb = Lab[: lo.size], Lab[lo.size :]
     fa = fn(La, k)
     fb = fn(Lb, k)
     side = np.zeros(lo.size)
@@ -323,7 +329,7 @@ def zoom_roots(ev: Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray, 
             cc = np.where(FA != FB, (A * FB - Bv * FA) / (FB - FA), 0.5 * (A + Bv))
         bad = ~np.isfinite(cc) | (cc <= np.minimum(A, Bv)) | (cc >= np.maximum(A, Bv))
         cc = np.where(bad, 0.5 * (A + Bv), cc)
-        Lcc = ev(np.exp(cc))[rows[act], np.arange(act.size)]
+        Lcc = ev.rows_at(np.exp(cc), rows[act])
         fc = fn(Lcc, act)
         c[act] = cc
         Lc[act] = Lcc

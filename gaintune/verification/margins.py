@@ -35,12 +35,14 @@ from gaintune.verification.cascade import Cascade
 from gaintune.verification.freqresp import Evaluator, zoom_roots
 
 __all__ = ["Crossing", "BreakFigures", "judged_pm", "all_margins", "row_margins", "disk_from_alpha", "MAG_FLOOR",
-           "GM_INF_LIMIT", "MAX_PHASE_LISTED"]
+           "GM_INF_LIMIT", "MAX_PHASE_LISTED", "PEAK_FIGURES"]
 
 #: |L| below this at a phase crossing counts as no crossing (GM > 80 dB is reported as inf).
 MAG_FLOOR = 1e-4
 #: GM beyond this factor (80 dB) is reported as inf.
 GM_INF_LIMIT = 1.0 / MAG_FLOOR
+#: The peak figures of a break point: Ms, Mt and the disk margin's 1/alpha.
+PEAK_FIGURES = ("ms", "mt", "disk")
 #: Points per round of the peak zoom.
 _ZOOM = 24
 
@@ -125,8 +127,7 @@ def _zoom_peaks(ev: Evaluator, lo: np.ndarray, hi: np.ndarray, rows: np.ndarray,
     t = np.linspace(0.0, 1.0, _ZOOM)
     for _ in range(rounds):
         W = np.exp(np.log(lo)[:, None] + (np.log(hi) - np.log(lo))[:, None] * t[None, :])
-        L = ev(W.ravel())
-        f = _peak_values(L[rows[:, None], np.arange(W.size).reshape(W.shape)], q)
+        f = _peak_values(ev.rows_at(W.ravel(), np.repeat(rows, W.shape[1])).reshape(W.shape), q)
         j = np.argmax(f, axis=1)
         better = f[k, j] > best_v
         best_v = np.where(better, f[k, j], best_v)
@@ -354,8 +355,10 @@ def _phase_crossing_lists(pb: _PhaseBrackets, wp: np.ndarray, kp_: np.ndarray, d
     return gm_w, gm_k, omitted
 
 
-def _peaks(ev: Evaluator, w: np.ndarray, L: np.ndarray) -> list[list[tuple[float, float]]]:
-    """Per row, (w, value) of the Ms, Mt and 1/alpha peaks (all rows and figures zoomed together)."""
+def _peaks(ev: Evaluator, w: np.ndarray, L: np.ndarray,
+           figures: tuple[str, ...] = PEAK_FIGURES) -> list[list[tuple[float, float]]]:
+    """Per row, (w, value) of the Ms, Mt and 1/alpha peaks (all rows and figures zoomed together);
+    a figure not in ``figures`` keeps its grid maximum (a lower bound), for a caller that reads it not."""
     R = L.shape[0]
     rows = np.tile(np.arange(R), 3)
     q = np.repeat(np.arange(3), R)
@@ -364,19 +367,23 @@ def _peaks(ev: Evaluator, w: np.ndarray, L: np.ndarray) -> list[list[tuple[float
     V = _figure_values(np.tile(S, (3, 1)), q)  # (3R, W), figure-major
     jj = np.argmax(V, axis=1)
     Vmax = V[np.arange(3 * R), jj]
-    Vj = [Vmax[qi * R : (qi + 1) * R] for qi in range(3)]
-    lo = w[np.maximum(jj - 1, 0)]
-    hi = w[np.minimum(jj + 1, w.size - 1)]
+    pw, pv = w[jj], Vmax.copy()
+    zoom = np.isin(q, [PEAK_FIGURES.index(f) for f in figures])
+    lo = w[np.maximum(jj - 1, 0)][zoom]
+    hi = w[np.minimum(jj + 1, w.size - 1)][zoom]
     with np.errstate(divide="ignore", invalid="ignore"):
-        pw, pv = _zoom_peaks(ev, lo, hi, rows, q)
-    return [[(float(pw[qi * R + r]), float(max(pv[qi * R + r], Vj[qi][r]))) for qi in range(3)] for r in range(R)]
+        pw[zoom], pv[zoom] = _zoom_peaks(ev, lo, hi, rows[zoom], q[zoom])
+    pv = np.maximum(pv, Vmax)
+    return [[(float(pw[qi * R + r]), float(pv[qi * R + r])) for qi in range(3)] for r in range(R)]
 
 
 def _margins(ev: Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names: list[tuple[str, str]],
-             L0: np.ndarray, Lend: np.ndarray | None = None) -> list[BreakFigures]:
+             L0: np.ndarray, Lend: np.ndarray | None = None,
+             peaks: tuple[str, ...] = PEAK_FIGURES) -> list[BreakFigures]:
     """Figures per row from the grid (w, L, |L|); ``L0``: L at w = 0 per row. ``Lend``: a
     sampled loop's L at the grid's last point, the Nyquist frequency, where it is real: an end
-    point of the Nyquist curve like w = 0 (its crossing is added from ``Lend``, not bracketed)."""
+    point of the Nyquist curve like w = 0 (its crossing is added from ``Lend``, not bracketed).
+    ``peaks``: the peak figures to zoom in on (:func:`_peaks`)."""
     R = L.shape[0]
     with np.errstate(invalid="ignore"):
         fin = np.isfinite(aL) & (aL > 0)
@@ -389,18 +396,20 @@ def _margins(ev: Evaluator, w: np.ndarray, L: np.ndarray, aL: np.ndarray, names:
     gm_w, gm_k, omitted = _phase_crossing_lists(pb, wp, kp_, done, R, ends)
     pm_w = [wg[r_g == r] for r in range(R)]
     pm_deg = [np.degrees(np.angle(Lg[r_g == r])) for r in range(R)]
-    peaks = _peaks(ev, w, L)
-    return [_figures_for_row(names[r], gm_w[r], gm_k[r], pm_w[r], pm_deg[r], peaks[r], omitted[r]) for r in range(R)]
+    peak_values = _peaks(ev, w, L, peaks)
+    return [_figures_for_row(names[r], gm_w[r], gm_k[r], pm_w[r], pm_deg[r], peak_values[r], omitted[r])
+            for r in range(R)]
 
 
 def row_margins(ev: Evaluator, w: np.ndarray, L: np.ndarray, names: list[tuple[str, str]],
-                L0: np.ndarray) -> list[BreakFigures]:
+                L0: np.ndarray, peaks: tuple[str, ...] = PEAK_FIGURES) -> list[BreakFigures]:
     """Figures of any continuous loop responses: rows of ``L`` on the grid ``w`` (break points named
     ``(loop, break point)``), ``L0`` at w = 0 per row; ``ev`` evaluates the rows at any frequency
-    (the zooms call it). The MIMO loop-at-a-time margins use it (:mod:`.mimo_margins`)."""
+    (the zooms call it). The MIMO loop-at-a-time margins use it (:mod:`.mimo_margins`). ``peaks``:
+    the peak figures zoomed in on; the others (a check that reads them not) keep their grid maximum."""
     with np.errstate(invalid="ignore"):
         aL = np.abs(L)
-    return _margins(ev, w, L, aL, names, L0)
+    return _margins(ev, w, L, aL, names, L0, peaks=peaks)
 
 
 def all_margins(ev: Evaluator, w, L, aL, cas: Cascade, L0, Lend=None) -> list[BreakFigures]:

@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from gaintune.verification.freqresp import Evaluator
-from gaintune.verification.margins import BreakFigures, row_margins
+from gaintune.verification.margins import PEAK_FIGURES, BreakFigures, row_margins
 from gaintune.verification.mimo_loop import MimoLoop, solve_points
 
 __all__ = ["Peak", "MultiloopDisk", "mu_bounds", "osborne", "disk_range", "multiloop_disk", "sigma_peak",
@@ -287,11 +287,12 @@ def lat_rows(loop: MimoLoop, s: np.ndarray, outputs: bool = True,
 
 
 class _RowsEvaluator(Evaluator):
-    """Loop-at-a-time rows as the SISO analysis' evaluator (it only calls it and reads spin_T): every
-    row (``row`` None), or one: S_kk from one solve of (I + L) x = e_k, a third of an inverse."""
+    """Loop-at-a-time rows as the SISO analysis' evaluator (it reads spin_T and calls it): every row
+    at once (``__call__``), or the zooms' question, one row per point (:meth:`rows_at`): S_kk from one
+    solve of (I + L) x = e_k per point, a third of an inverse, all points of all rows in one batch."""
 
-    def __init__(self, loop: MimoLoop, outputs: bool, row: int | None = None):  # no cascade here
-        self.loop, self.outputs, self.row = loop, outputs, row
+    def __init__(self, loop: MimoLoop, outputs: bool):  # no cascade here
+        self.loop, self.outputs = loop, outputs
         #: the delays a loop-at-a-time response can carry: its own channel and a return through another
         self.spin_T = 2.0 * loop.max_delay()
         self.calls = 0
@@ -301,36 +302,51 @@ class _RowsEvaluator(Evaluator):
         self.calls += 1
         w = np.asarray(w, dtype=float)
         self.points += w.size
-        s = -shift + 1j * w
-        if self.row is None:
-            return lat_rows(self.loop, s, self.outputs)
-        ni = self.loop.n_in
-        side = "output" if self.row >= ni else "input"
-        k = self.row - ni if side == "output" else self.row
-        if side == "output" and self.loop.outputs_by_inputs():
-            return self._output_row_by_inputs(s, k)
-        n = self.loop.n_out if side == "output" else ni
+        return lat_rows(self.loop, -shift + 1j * w, self.outputs)
+
+    def rows_at(self, w: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        self.calls += 1
+        w, rows = np.asarray(w, dtype=float), np.asarray(rows, dtype=np.int64)
+        self.points += w.size
+        s, ni = 1j * w, self.loop.n_in
+        out = np.empty(w.size, dtype=complex)
+        inp = rows < ni
+        if inp.any():
+            out[inp] = self._side_rows(s[inp], rows[inp], "input")
+        if not inp.all():
+            k = rows[~inp] - ni
+            by_inputs = self.loop.outputs_by_inputs()
+            out[~inp] = self._output_rows_by_inputs(s[~inp], k) if by_inputs else self._side_rows(s[~inp], k, "output")
+        return out
+
+    def _side_rows(self, s: np.ndarray, k: np.ndarray, side: str) -> np.ndarray:
+        """1/S_kk - 1 of channel k[i] at s[i] on one side: (I + L) x = e_k, S_kk = x_k."""
+        n = self.loop.n_out if side == "output" else self.loop.n_in
+        p = np.arange(s.size)
         e = np.zeros((s.size, n, 1))
-        e[:, k, 0] = 1.0
+        e[p, k, 0] = 1.0
         with np.errstate(all="ignore"):
             x = solve_points(np.eye(n) + self.loop.loop_gains(s, side), e)
-            return (1.0 / x[:, k, 0] - 1.0)[None, :]
+            return 1.0 / x[p, k, 0] - 1.0
 
-    def _output_row_by_inputs(self, s: np.ndarray, k: int) -> np.ndarray:
-        """Output row k on the smaller input side: S_o = I - Gs (I + Ks Gs)^-1 Ks, so
+    def _output_rows_by_inputs(self, s: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """Output row k[i] at s[i] on the smaller input side: S_o = I - Gs (I + Ks Gs)^-1 Ks, so
         S_o[k, k] = 1 - Gs[k, :] x with (I + Ks Gs) x = Ks[:, k] (fewer inputs than outputs: a cascade)."""
         L, Gs, Ks = self.loop.input_side(s)
+        p = np.arange(s.size)
         with np.errstate(all="ignore"):
-            x = solve_points(np.eye(self.loop.n_in) + L, Ks[:, :, k : k + 1])
-            s_kk = 1.0 - np.einsum("wi,wi->w", Gs[:, k, :], x[:, :, 0])
-            return (1.0 / s_kk - 1.0)[None, :]
+            x = solve_points(np.eye(self.loop.n_in) + L, Ks[p, :, k][:, :, None])
+            s_kk = 1.0 - np.einsum("wi,wi->w", Gs[p, k, :], x[:, :, 0])
+            return 1.0 / s_kk - 1.0
 
 
-def loop_at_a_time(loop: MimoLoop, w: np.ndarray, L: np.ndarray | None = None) -> list[BreakFigures]:
+def loop_at_a_time(loop: MimoLoop, w: np.ndarray, L: np.ndarray | None = None,
+                   peaks: tuple[str, ...] = PEAK_FIGURES) -> list[BreakFigures]:
     """Margins at every driven plant input (break point ``plant_input``, named after the loop that
     drives it) and measured output (``plant_output``, named after its loop), all other channels
-    closed; ``L``: :func:`lat_rows` on ``w`` when known.
-    Each break point is analysed on its own (its zooms evaluate only its own row).
+    closed; ``L``: :func:`lat_rows` on ``w`` when known; ``peaks``: the peak figures zoomed in on
+    (:func:`~gaintune.verification.margins.row_margins`).
+    All break points are analysed together; a zoom evaluates each point's own row only.
 
     With a diagonal controller (decentralised loops) breaking loop k at its plant input or at its
     plant output opens the same SISO loop (``C_k`` in series either way): it is analysed once, copied."""
@@ -341,8 +357,7 @@ def loop_at_a_time(loop: MimoLoop, w: np.ndarray, L: np.ndarray | None = None) -
     names = ([(loop.input_label(k), "plant_input") for k in range(loop.n_in)]
              + [(nm, "plant_output") for nm in loop.names])
     rows = loop.n_in if diag else loop.n_in + loop.n_out
-    figs = [row_margins(_RowsEvaluator(loop, not diag, r), w, L[r : r + 1], [names[r]], L0[r : r + 1])[0]
-            for r in range(rows)]
+    figs = row_margins(_RowsEvaluator(loop, not diag), w, L[:rows], names[:rows], L0[:rows], peaks)
     if diag:
         figs += [replace(f, break_point="plant_output", crossings=[replace(c) for c in f.crossings]) for f in figs]
     return figs

@@ -28,6 +28,7 @@ from gaintune.verification.mimo_spec import (
     LoopFrame,
     SpecLoop,
     aimed_requirements,
+    break_peaks,
     requirement_needs,
     spec_loop,
     spec_requirements,
@@ -112,7 +113,7 @@ def sampled_report(base: MimoLoop, loop: SampledLoop, sigma: float = 0.0,
     peaks = bool(want & {"ms", "mt", "disk"})
     So = loop.sensitivity(1j * grid, "output") if peaks or not loop.outputs_by_inputs() else None
     if "break" in want:
-        breaks = loop_at_a_time(loop, grid, lat_rows(loop, 1j * grid, True, (Si, So)))
+        breaks = loop_at_a_time(loop, grid, lat_rows(loop, 1j * grid, True, (Si, So)), break_peaks(needs))
         rep.input_breaks, rep.output_breaks = breaks[: loop.n_in], breaks[loop.n_in:]
     _sampled_peaks_and_disks(rep, loop, grid, Si, So, want, sigma)
     return rep

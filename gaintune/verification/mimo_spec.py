@@ -35,7 +35,7 @@ from gaintune.sim.mimo import architecture
 from gaintune.sim.mimo_blocks import with_candidate_W
 from gaintune.spec import TuningSpec
 from gaintune.verification.analysis import analysis_dt
-from gaintune.verification.margins import BreakFigures
+from gaintune.verification.margins import PEAK_FIGURES, BreakFigures
 from gaintune.verification.mimo import REQUIREMENTS, MimoLine, MimoMargins, analysis_grid, judge, mimo_report
 from gaintune.verification.mimo_loop import LoopPair, MimoLoop, pid_entry
 from gaintune.verification.mimo_margins import loop_at_a_time, multiloop_disk, sigma_peak
@@ -43,7 +43,7 @@ from gaintune.verification.mimo_stability import mimo_stability
 from gaintune.verification.quick import FEASIBILITY_MARGIN, MAX_TERM, UNSTABLE_VIOLATION
 
 __all__ = ["SpecLoop", "LoopFrame", "loop_frame", "spec_loop", "spec_requirements", "aimed_requirements",
-           "spec_margins", "graded", "MIMO_NOT_CHECKED"]
+           "spec_margins", "graded", "requirement_needs", "break_peaks", "MIMO_NOT_CHECKED"]
 
 #: Single-loop requirement fields the MIMO verdict does not judge (a note says so when they are set).
 MIMO_NOT_CHECKED = ("wc_min", "wc_max", "mks_max")
@@ -274,7 +274,7 @@ def lean_report(sl: SpecLoop, needs: set[str], pade_order: int | None = None) ->
             same = side == "output" and loop.diagonal_controller()
             setattr(rep, f"disk_{side}", replace(rep.disk_input) if same else multiloop_disk(S_at, g0, S, 0.0))
     if "break" in needs:
-        breaks: list[BreakFigures] = loop_at_a_time(loop, grid)
+        breaks: list[BreakFigures] = loop_at_a_time(loop, grid, peaks=break_peaks(needs))
         rep.input_breaks, rep.output_breaks = breaks[: loop.n_in], breaks[loop.n_in:]
         rep.inputs = [sl.plant.inputs[j] for j in loop.loop_ins]
         rep.outputs = [sl.plant.outputs[i] for i in loop.loop_outs]
@@ -282,13 +282,26 @@ def lean_report(sl: SpecLoop, needs: set[str], pade_order: int | None = None) ->
     return rep
 
 
+#: a break point's figure -> the peak it reads (the others are read from crossings)
+_BREAK_PEAK = {"ms": "ms", "mt": "mt", "disk_gm_db": "disk"}
+
+
 def requirement_needs(requirements: dict[str, Any]) -> set[str]:
-    """What :func:`lean_report` must compute for these requirements."""
+    """What :func:`lean_report` must compute for these requirements: ``break`` (loop-at-a-time, with
+    ``break_ms``, ``break_mt``, ``break_disk`` for the break peaks it reads), ``ms``, ``mt``, ``disk``."""
     out = set()
     for name in requirements:
         figure, _, scope = REQUIREMENTS[name]
         out.add("break" if scope == "break" else figure if figure in ("ms", "mt") else "disk")
+        if scope == "break" and figure in _BREAK_PEAK:
+            out.add(f"break_{_BREAK_PEAK[figure]}")
     return out
+
+
+def break_peaks(needs: set[str] | None) -> tuple[str, ...]:
+    """The break-point peaks to zoom in on: every one for a full report (``needs`` None), else those
+    :func:`requirement_needs` named (the others keep their grid maximum, which no requirement reads)."""
+    return PEAK_FIGURES if needs is None else tuple(f for f in PEAK_FIGURES if f"break_{f}" in needs)
 
 
 def spec_margins(spec: TuningSpec, plant: Any, layout: GainLayout, full: np.ndarray,

@@ -127,7 +127,7 @@ def test_cascade_output_break_zoom_on_the_input_side_matches_the_output_sensitiv
     w = np.logspace(-1, 3, 50)
     So = loop.sensitivity(1j * w, "output")
     for k in (0, 7, 17):
-        got = _RowsEvaluator(loop, True, loop.n_in + k)(w)[0]
+        got = _RowsEvaluator(loop, True).rows_at(w, np.full(w.size, loop.n_in + k))
         np.testing.assert_allclose(got, 1.0 / So[:, k, k] - 1.0, rtol=1e-6, atol=1e-8)
     rows = lat_rows(loop, 1j * w)  # the grid's rows take the same input-side form
     np.testing.assert_allclose(rows[loop.n_in:], (1.0 / np.diagonal(So, axis1=1, axis2=2) - 1.0).T, rtol=1e-6,

@@ -160,7 +160,7 @@ def test_lean_sampled_check_figures_equal_the_full_sampled_report() -> None:
     full = ev.layout.from_dict({"xD": {"Kp": 0.375, "Ki": 0.375 / 8.29}, "xB": {"Kp": -0.075, "Ki": -0.075 / 23.6}})
     base, loop = sampled_loop(spec, ev.plant, spec_loop(spec, ev.plant, ev.layout, full))
     whole = sampled_report(base, loop)
-    for needs in ({"ms"}, {"mt"}, {"disk"}, {"break"}):
+    for needs in ({"ms"}, {"mt"}, {"disk"}, {"break", "break_ms", "break_mt", "break_disk"}):
         lean = sampled_report(base, loop, needs=needs)
         assert lean.stability.stable == whole.stability.stable
         if "ms" in needs:
@@ -171,6 +171,31 @@ def test_lean_sampled_check_figures_equal_the_full_sampled_report() -> None:
             assert (lean.disk_input, lean.disk_output) == (whole.disk_input, whole.disk_output)
         if "break" in needs:
             assert lean.input_breaks == whole.input_breaks and lean.output_breaks == whole.output_breaks
+
+
+def test_lean_break_figures_skip_only_the_peaks_no_requirement_reads() -> None:
+    """The 110-gain check spent two thirds of its break peaks' zooms on Mt and disk peaks that no requirement
+    read (the example asks GM, PM and Ms per break). A lean check zooms only the peaks its requirements name:
+    those and every crossing figure equal the full report's; a skipped peak keeps its grid maximum (a lower
+    bound, never above the zoomed value)."""
+    from dataclasses import replace
+
+    from gaintune.evaluation.evaluator import Evaluator
+    from gaintune.verification.mimo_sampled_report import sampled_loop, sampled_report
+    from gaintune.verification.mimo_spec import requirement_needs, spec_loop
+
+    spec = _wb_spec()
+    ev = Evaluator(spec)
+    full = ev.layout.from_dict({"xD": {"Kp": 0.375, "Ki": 0.375 / 8.29}, "xB": {"Kp": -0.075, "Ki": -0.075 / 23.6}})
+    base, loop = sampled_loop(spec, ev.plant, spec_loop(spec, ev.plant, ev.layout, full))
+    needs = requirement_needs({"gm_min_db": 6.0, "pm_min_deg": 45.0, "ms_max": 2.0})
+    assert needs == {"break", "break_ms"}
+    whole, lean = sampled_report(base, loop), sampled_report(base, loop, needs=needs)
+    for a, b in zip(whole.input_breaks + whole.output_breaks, lean.input_breaks + lean.output_breaks, strict=True):
+        assert replace(b, mt=a.mt, mt_freq=a.mt_freq, disk_alpha=a.disk_alpha, disk_gm_db=a.disk_gm_db,
+                       disk_pm_deg=a.disk_pm_deg, disk_freq=a.disk_freq) == a
+        assert b.mt <= a.mt and b.disk_alpha >= a.disk_alpha
+    assert any(b.mt < a.mt for a, b in zip(whole.input_breaks, lean.input_breaks, strict=True))
 
 
 def test_search_constraint_judges_the_sampled_loop_the_verdict_judges() -> None:
