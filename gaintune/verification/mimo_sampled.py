@@ -34,7 +34,7 @@ import numpy as np
 
 from gaintune.lti.mimo import TfMatrix
 from gaintune.verification.mimo_loop import MimoLoop, closed_loop_matrix, response, solve_points
-from gaintune.verification.mimo_products import block_eigvals
+from gaintune.verification.mimo_products import BLOCK_MIN, block_eigvals, divergence_rate
 from gaintune.verification.mimo_sampled_terms import SampledTerms
 from gaintune.verification.mimo_stability import MimoStability, hidden_notes, trim_hidden, trim_hidden_by_parts
 from gaintune.verification.mimo_tf import _tf_values
@@ -265,10 +265,16 @@ class SampledLoop(MimoLoop):
         return self.delay_s
 
 
-def sampled_stability_mimo(loop: SampledLoop, base: MimoLoop) -> MimoStability:
+def sampled_stability_mimo(loop: SampledLoop, base: MimoLoop, screen: bool = False) -> MimoStability:
     """Closed-loop stability of the sampled loop from the eigenvalues of its transition matrix: the
     plant channels with their input buffers, and the controller of ``base`` (its continuous
-    realisation, modes it cannot show trimmed, mapped by :func:`euler_controller`)."""
+    realisation, modes it cannot show trimmed, mapped by :func:`euler_controller`).
+
+    ``screen`` (a search's check only, never a verdict): a loop that
+    :func:`~gaintune.verification.mimo_products.divergence_rate` finds diverging is reported unstable
+    without its eigenvalues (method ``growth``, one unstable pole counted, the growth rate as the
+    spectral radius). A random search's candidates are mostly such loops, and on the 110-gain train the
+    eigenvalues were 86 % of CMA-ES's time."""
     assert loop.core is not None
     notes: list[str] = []
     plant = loop.core.realisation(loop.n_in)
@@ -276,6 +282,11 @@ def sampled_stability_mimo(loop: SampledLoop, base: MimoLoop) -> MimoStability:
     Ak, Bk, Ck = trim_hidden_by_parts(Ak, Bk, Ck)  # many chains: a chain at a time (trim_hidden's cost)
     ctrl = euler_controller(Ak, Bk, Ck, Dk, loop.dt)
     A = closed_loop_matrix(plant, ctrl)
+    rate = divergence_rate(A) if screen and A.shape[0] >= BLOCK_MIN and np.all(np.isfinite(A)) else None
+    if rate is not None:
+        return MimoStability(False, "growth", 1, None, True, np.zeros(0, dtype=complex), 0, math.log(rate) / loop.dt,
+                             loop.core.hidden, [f"the closed loop grows {rate:.4g}-fold a sample: unstable "
+                                                "(screened, poles not computed)"])
     with np.errstate(all="ignore"):
         poles = block_eigvals(A) if A.size and np.all(np.isfinite(A)) else np.zeros(0, dtype=complex)
     hid = loop.core.hidden

@@ -97,7 +97,8 @@ def sampled_report(base: MimoLoop, loop: SampledLoop, sigma: float = 0.0,
     the others are placeholders no requirement reads, and an unstable loop stops after its stability.
     ``stability=False`` (a root find's trial points, whose answer is checked in full afterwards) skips the
     closed-loop eigenvalues, over half of a 110-gain check, and reports the loop as stable, unchecked."""
-    stab = sampled_stability_mimo(loop, base) if stability else _unchecked()
+    # the search's check (lean) may call a clearly diverging loop unstable without its eigenvalues
+    stab = sampled_stability_mimo(loop, base, screen=needs is not None) if stability else _unchecked()
     P = loop.plant
     rep = MimoMargins.unmeasured(loop.names, stab, sigma, inputs=[P.inputs[j] for j in loop.loop_ins],
                                  outputs=[P.outputs[i] for i in loop.loop_outs], notes=list(stab.notes),

@@ -40,7 +40,7 @@ class MimoStability:
     """Closed-loop stability of the MIMO loop: the verdict, both counts and the poles."""
 
     stable: bool
-    method: str  # "nyquist" (exact delays decide) | "poles"
+    method: str  # "nyquist" (exact delays decide) | "poles" | "growth" (a search check's screen) | "unchecked"
     rhp_poles: int  # closed-loop eigenvalues with Re >= 0 (Padé), hidden unstable modes included
     nyquist_rhp: int | None  # generalised Nyquist count (exact delays); None when not computable
     agree: bool
