@@ -33,12 +33,14 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from gaintune.plants.plant import LinearModel, Plant
+from gaintune.provenance import cpus_here
 from gaintune.sim import SimResult, Simulator
 from gaintune.sim import draws as draws_mod
 from gaintune.sim.draws import Draws
@@ -169,18 +171,31 @@ def mimo_requirement_scores(ev: Evaluator, tuned: np.ndarray, stability: bool = 
     plants = ev.mimo_constraint_plants  # the plant sides, built once: every candidate reuses their plant-only work
     skip = not stability and ev.spec.verify.sampled  # only the sampled check can leave its stability out
     full = ev.layout.full(tuned)
-    out = np.zeros((2, tuned.shape[0]))
-    for b, row in enumerate(full):
-        key = row.tobytes() + (b"-" if skip else b"")
-        hit = ev._mimo_memo.get(key)
-        if hit is None:
-            hit = (DIVERGED_VIOLATION, DIVERGED_VIOLATION) if not np.all(np.isfinite(row)) else \
-                _mimo_worst_grade(ev, plants, row, skip)
-            if len(ev._mimo_memo) > 4096:
-                ev._mimo_memo.clear()
-            ev._mimo_memo[key] = hit
-        out[:, b] = hit
+    keys = [row.tobytes() + (b"-" if skip else b"") for row in full]
+    todo = {k: row for k, row in zip(keys, full, strict=True) if k not in ev._mimo_memo}
+    if len(ev._mimo_memo) + len(todo) > 4096:
+        ev._mimo_memo.clear()
+    ev._mimo_memo.update(_check_rows(ev, plants, todo, skip))
+    out = np.array([ev._mimo_memo[k] for k in keys]).reshape(len(keys), 2).T
     return out[0], out[1]
+
+
+def _check_rows(ev: Evaluator, plants: list[tuple[Any, Any]], rows: dict[bytes, np.ndarray],
+                skip: bool) -> dict[bytes, tuple[float, float]]:
+    """:func:`_mimo_worst_grade` of each row, on a thread per CPU when there are several rows: a check's time
+    is mostly LAPACK (eigenvalues, solves), which runs outside the GIL, and gaintune keeps BLAS on one thread
+    (:mod:`gaintune`), so the other CPUs would sit idle. Each row's figures are its own: the order of the work
+    changes none of them."""
+    def grade(row: np.ndarray) -> tuple[float, float]:
+        if not np.all(np.isfinite(row)):
+            return DIVERGED_VIOLATION, DIVERGED_VIOLATION
+        return _mimo_worst_grade(ev, plants, row, skip)
+
+    workers = min(len(rows), cpus_here())
+    if workers < 2:
+        return {k: grade(row) for k, row in rows.items()}
+    with ThreadPoolExecutor(workers) as pool:
+        return dict(zip(rows, pool.map(grade, rows.values()), strict=True))
 
 
 def _mimo_worst_grade(ev: Evaluator, plants: list[tuple[Any, Any]], row: np.ndarray,

@@ -27,6 +27,7 @@ import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from gaintune.provenance import cpus_here
 from gaintune.sim.kernel.drivers import COMPILED
 from gaintune.sim.simulator import Simulator
 from gaintune.spec import load_spec
@@ -92,11 +93,6 @@ def _child(name: str) -> subprocess.Popen:
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
 
 
-def _cpus() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
 
 
 def precompile(variants: Sequence[str], on_progress: Callable[[int, int], None] | None = None,
@@ -121,7 +117,7 @@ def precompile(variants: Sequence[str], on_progress: Callable[[int, int], None] 
         instead, as numba does without this.
     """
     run = _Run(list(variants), on_progress)
-    width = max(1, processes or _cpus())
+    width = max(1, processes or cpus_here())
     here, others = (run.todo, []) if width == 1 else (run.todo[:1], run.todo[1:])
     slots = threading.Semaphore(max(1, width - 1))  # children at a time, beside this process's compile
     waiters = [threading.Thread(target=run.child, args=(name, slots), daemon=True) for name in others]

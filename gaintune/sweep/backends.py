@@ -27,6 +27,7 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 from gaintune.errors import GaintuneError
+from gaintune.provenance import cpus_here
 from gaintune.sweep.worker import Hook, error_record, run_item
 
 __all__ = ["OnRecord", "run_local", "run_ray", "cpus_here", "import_ray"]
@@ -34,12 +35,6 @@ __all__ = ["OnRecord", "run_local", "run_ray", "cpus_here", "import_ray"]
 OnRecord = Callable[[dict[str, Any]], None]
 
 
-def cpus_here() -> int:
-    """The CPUs this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
 
 
 def _die_with_driver(driver: int) -> None:

@@ -89,7 +89,7 @@ def test_repair_trial_points_skip_the_eigenvalues_on_every_corner(monkeypatch) -
     ev = Evaluator(load_spec(wood_berry_k11(randomize=RANDOM_K11, mimo_ms_max=2.0)))
     calls = []
     real = msr.sampled_stability_mimo
-    monkeypatch.setattr(msr, "sampled_stability_mimo", lambda *a: calls.append(1) or real(*a))
+    monkeypatch.setattr(msr, "sampled_stability_mimo", lambda *a, **k: calls.append(1) or real(*a, **k))
     lean = mimo_requirement_scores(ev, _tuned(ev, GAINS), stability=False)
     assert calls == []
     full = mimo_requirement_scores(ev, _tuned(ev, GAINS), stability=True)
