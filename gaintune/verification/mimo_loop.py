@@ -366,6 +366,34 @@ class MimoLoop:
         entries = (*_tf_values(K, s, tuple(self.ins), tuple(self.outs)), *self._plant_entries(s))
         return self._sparse_loop_gains(s, "input", entries), *self._dense_channels(s, entries)
 
+    def input_side_rows(self, s: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(L_i, Gs[p, k[p], :], Ks[p, :, k[p]]) at the points ``s``: what an output row's zoom reads, without
+        the dense Gs and Ks of every point (73 MB at the 110-gain train's 4,752 zoom points)."""
+        s = np.asarray(s, dtype=complex).ravel()
+        K = self.controller
+        if not self.outputs_by_inputs() or self.diagonal_controller() or not isinstance(K, TfMatrix):
+            return self._rows_of_dense(s, k)
+        entries = (*_tf_values(K, s, tuple(self.ins), tuple(self.outs)), *self._plant_entries(s))
+        return self._sparse_loop_gains(s, "input", entries), *self._channel_rows(k, entries)
+
+    def _rows_of_dense(self, s: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`input_side_rows` from the dense :meth:`input_side`."""
+        L, Gs, Ks = self.input_side(s)
+        p = np.arange(s.size)
+        return L, Gs[p, k, :], Ks[p, :, k]
+
+    def _channel_rows(self, k: np.ndarray, entries: tuple) -> tuple[np.ndarray, np.ndarray]:
+        """(Gs[p, k[p], :], Ks[p, :, k[p]]) from the nonzero ``entries`` = (kr, kc, kv, gr, gc, gv): the same
+        values :meth:`_dense_channels` would hold there."""
+        kr, kc, kv, gr, gc, gv = entries
+        g_row = np.zeros((kv.shape[0], self.n_in), dtype=complex)
+        k_col = np.zeros((kv.shape[0], self.n_in), dtype=complex)
+        p, e = np.nonzero(np.asarray(gr)[None, :] == k[:, None])
+        g_row[p, np.asarray(gc)[e]] = gv[p, e]
+        p, e = np.nonzero(np.asarray(kc)[None, :] == k[:, None])
+        k_col[p, np.asarray(kr)[e]] = kv[p, e]
+        return g_row, k_col
+
     def _dense_channels(self, s: np.ndarray, entries: tuple) -> tuple[np.ndarray, np.ndarray]:
         """(Gs, Ks) as dense arrays from the nonzero ``entries`` = (kr, kc, kv, gr, gc, gv) at ``s``."""
         kr, kc, kv, gr, gc, gv = entries

@@ -332,11 +332,10 @@ class _RowsEvaluator(Evaluator):
     def _output_rows_by_inputs(self, s: np.ndarray, k: np.ndarray) -> np.ndarray:
         """Output row k[i] at s[i] on the smaller input side: S_o = I - Gs (I + Ks Gs)^-1 Ks, so
         S_o[k, k] = 1 - Gs[k, :] x with (I + Ks Gs) x = Ks[:, k] (fewer inputs than outputs: a cascade)."""
-        L, Gs, Ks = self.loop.input_side(s)
-        p = np.arange(s.size)
+        L, g_row, k_col = self.loop.input_side_rows(s, k)
         with np.errstate(all="ignore"):
-            x = solve_points(np.eye(self.loop.n_in) + L, Ks[p, :, k][:, :, None])
-            s_kk = 1.0 - np.einsum("wi,wi->w", Gs[p, k, :], x[:, :, 0])
+            x = solve_points(np.eye(self.loop.n_in) + L, k_col[:, :, None])
+            s_kk = 1.0 - np.einsum("wi,wi->w", g_row, x[:, :, 0])
             return 1.0 / s_kk - 1.0
 
 

@@ -260,6 +260,14 @@ class SampledLoop(MimoLoop):
         entries = self._entries(s)
         return self._sparse_loop_gains(s, "input", entries), *self._dense_channels(s, entries)
 
+    def input_side_rows(self, s: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`~.mimo_loop.MimoLoop.input_side_rows` of the sampled loop."""
+        s = np.asarray(s, dtype=complex).ravel()
+        if not self.outputs_by_inputs():
+            return self._rows_of_dense(s, k)
+        entries = self._entries(s)
+        return self._sparse_loop_gains(s, "input", entries), *self._channel_rows(k, entries)
+
     def max_delay(self) -> float:
         """The longest delay of the sampled channels (s), whole samples and the hold's sample included."""
         return self.delay_s
