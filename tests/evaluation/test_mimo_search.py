@@ -101,3 +101,23 @@ def test_chains_on_a_transfer_function_matrix_get_the_cascade_rules() -> None:
     for gains in rules.values():
         assert set(gains) == set(spec.loop_names)
         assert all(v > 0 for g in gains.values() for v in g.values())
+
+
+def test_mimo_checks_on_threads_equal_the_checks_one_at_a_time(monkeypatch) -> None:
+    """A batch's MIMO checks run on a thread per CPU (LAPACK outside the GIL). Each row's violation and
+    shortfall must not depend on that: the same floats as one thread, rows repeated in the batch included,
+    on both stability settings."""
+    from gaintune.evaluation import evaluator as evmod
+
+    spec = wood_berry()
+    rows = []
+    for run in range(2):
+        ev = evmod.Evaluator(spec)
+        base = ev.layout.initial_tuned()
+        cand = base[None] * np.exp(np.random.default_rng(4).normal(0.0, 0.4, (6, base.size)))
+        cand = np.concatenate([cand, cand[:2]])  # repeated rows: one check each, the same answer
+        monkeypatch.setattr(evmod, "cpus_here", lambda run=run: 1 if run == 0 else 2)
+        rows.append([evmod.mimo_requirement_scores(ev, cand, stability=s) for s in (True, False)])
+    for (v1, g1), (v2, g2) in zip(rows[0], rows[1], strict=True):
+        assert np.array_equal(v1, v2) and np.array_equal(g1, g2)
+        assert np.array_equal(v1[-2:], v1[:2])
