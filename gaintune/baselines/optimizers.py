@@ -65,6 +65,7 @@ class OptResult:
     n_sims: int
     n_evals: int
     wall_time: float
+    #: (simulations, cost of the best candidate) from the first feasible candidate on
     history: list[tuple[int, float]] = field(default_factory=list)
     details: dict[str, Any] = field(default_factory=dict)
     feasible: bool = True
@@ -151,7 +152,8 @@ class Budgeted:
             self.best_cost = float(cost[k])
             self.best_violation = float(viol[k])
             self.best_z = z[k].copy()
-        self.history.append((self.used, self.best_cost))
+        if self.best_violation <= 0:  # an anytime curve of feasible costs: an infeasible best is no answer yet
+            self.history.append((self.used, self.best_cost))
         return np.where(np.isfinite(c), c, BAD_COST)
 
     def result(self, method: str, t0: float, **details: Any) -> OptResult:

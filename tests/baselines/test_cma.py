@@ -44,3 +44,31 @@ def test_a_cmaes_that_needs_scipy_stats_is_imported_as_usual(fresh_python, tmp_p
     code = (f"import sys, json\nsys.path.insert(0, {str(tmp_path)!r})\nfrom gaintune.baselines.cma import load_cma\n"
             "C = load_cma()\nprint(json.dumps(dict(ok=float(C.norm.cdf(0.0)) == 0.5, mod=C.__module__)))")
     assert fresh_python(code) == {"ok": True, "mod": "cmaes"}
+
+
+def test_cmaes_history_shows_no_cost_before_a_feasible_candidate() -> None:
+    """`bench scaling` read CMA-ES's history as its best feasible cost: on the 110-gain train, where CMA-ES
+    found nothing feasible in 500 simulations, its row showed the unstable start's cost (3.10 x RL's answer)
+    as if it were an answer. The history now holds feasible costs only: none when nothing is feasible."""
+    from types import SimpleNamespace
+
+    from gaintune.baselines.optimizers import cmaes_search
+
+    class Box:
+        layout = SimpleNamespace(log_lo=np.zeros(2), log_hi=np.ones(2), n_tuned=2,
+                                 initial_tuned=lambda: np.full(2, 1.5))
+
+        def __init__(self, limit: float) -> None:
+            self.limit = limit  # feasible where ln x0 <= limit
+
+        def evaluate(self, tuned: np.ndarray) -> SimpleNamespace:
+            cost = np.sum(np.log(tuned) ** 2, axis=1)
+            violation = np.maximum(np.log(tuned[:, 0]) - self.limit, 0.0)
+            return SimpleNamespace(cost=cost, violation=violation, merit=np.where(violation > 0, 1e3 + violation, cost))
+
+    r = cmaes_search(Box(0.3), 200, seed=0)
+    assert r.feasible and r.history
+    costs = [c for _, c in r.history]
+    assert costs == sorted(costs, reverse=True) and costs[-1] == r.cost
+    never = cmaes_search(Box(-1.0), 200, seed=0)  # the unit box starts at ln x = 0: nothing is feasible
+    assert not never.feasible and never.history == []
