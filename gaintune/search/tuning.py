@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.preprocessing import get_action_dim
 from stable_baselines3.common.vec_env import VecEnv
 
@@ -30,6 +31,7 @@ from gaintune.search.agents import load_agent, load_weights, make_agent
 from gaintune.search.budget import refine_reserve, rollout_sims
 from gaintune.search.budget import rl_budget as rl_budget_of
 from gaintune.search.diagnosis import diagnose
+from gaintune.search.mean_in_box import MeanInBox
 from gaintune.search.monitor import Cancel, SearchMonitor, StopCallback
 from gaintune.search.result import Progress, Provenance, SettleInfo, TuneResult
 from gaintune.spec import Gains, TuningSpec
@@ -242,9 +244,11 @@ def _train(problem: GainProblem, plan: _Plan, options: TuneOptions) -> _Trained:
     if options.warm_start is not None:  # the spec's agent with the saved weights, read as weights only
         load_weights(agent, options.warm_start)
         agent.set_random_seed(s.seed)
+    callbacks: list[BaseCallback] = [StopCallback(monitor, plan.batch)]
+    if s.algo in ("ppo", "a2c") and horizon == 1 and not problem.randomized:  # a Gaussian mean on one plant
+        callbacks.append(MeanInBox(_nominal_obs(problem)))
     if plan.rl_budget >= plan.batch:
-        agent.learn(total_timesteps=plan.steps, callback=StopCallback(monitor, plan.batch),
-                    reset_num_timesteps=options.warm_start is None)
+        agent.learn(total_timesteps=plan.steps, callback=callbacks, reset_num_timesteps=options.warm_start is None)
     problem.on_score = None
     return _Trained(agent=agent, monitor=monitor, horizon=horizon, rl_sims=monitor.sims)
 
