@@ -42,8 +42,8 @@ class BaselineResult(BaseModel):
     violation: float | None = Field(None, description="Requirement violation of the gains (0 = feasible).")
     settle: dict[str, Any] | None = Field(None, description="What the exact boundary step did (optimisers only).")
     history: list[tuple[int, float]] = Field(
-        default_factory=list, description="(simulations, best feasible cost so far) for optimisers, from the first feasible "
-        "candidate on."
+        default_factory=list,
+        description="(simulations, best feasible cost so far) for optimisers, from the first feasible candidate on.",
     )
     details: dict[str, Any] = Field(default_factory=dict)
 
