@@ -172,11 +172,13 @@ def mimo_requirement_scores(ev: Evaluator, tuned: np.ndarray, stability: bool = 
     skip = not stability and ev.spec.verify.sampled  # only the sampled check can leave its stability out
     full = ev.layout.full(tuned)
     keys = [row.tobytes() + (b"-" if skip else b"") for row in full]
-    todo = {k: row for k, row in zip(keys, full, strict=True) if k not in ev._mimo_memo}
-    if len(ev._mimo_memo) + len(todo) > 4096:
+    grades = {k: ev._mimo_memo[k] for k in keys if k in ev._mimo_memo}
+    found = _check_rows(ev, plants, {k: row for k, row in zip(keys, full, strict=True) if k not in grades}, skip)
+    if len(ev._mimo_memo) + len(found) > 4096:
         ev._mimo_memo.clear()
-    ev._mimo_memo.update(_check_rows(ev, plants, todo, skip))
-    out = np.array([ev._mimo_memo[k] for k in keys]).reshape(len(keys), 2).T
+    ev._mimo_memo.update(found)
+    grades.update(found)
+    out = np.array([grades[k] for k in keys]).reshape(len(keys), 2).T
     return out[0], out[1]
 
 

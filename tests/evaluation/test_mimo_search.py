@@ -121,3 +121,18 @@ def test_mimo_checks_on_threads_equal_the_checks_one_at_a_time(monkeypatch) -> N
     for (v1, g1), (v2, g2) in zip(rows[0], rows[1], strict=True):
         assert np.array_equal(v1, v2) and np.array_equal(g1, g2)
         assert np.array_equal(v1[-2:], v1[:2])
+
+
+def test_mimo_memo_cleared_when_full_keeps_the_batchs_earlier_hits() -> None:
+    """The memo of MIMO checks is cleared when it would pass 4,096 entries. A batch mixing a remembered row
+    with new ones, at that size, must still answer every row (a clear between the lookup and the read lost
+    the remembered row: KeyError)."""
+    from gaintune.evaluation import evaluator as evmod
+
+    ev = evmod.Evaluator(wood_berry())
+    base = ev.layout.initial_tuned()
+    rows = base[None] * np.array([[1.0], [0.9]])
+    first, _ = evmod.mimo_requirement_scores(ev, rows[:1])
+    ev._mimo_memo.update({bytes([i % 256, i // 256]): (0.0, 0.0) for i in range(4096 - len(ev._mimo_memo))})
+    both, _ = evmod.mimo_requirement_scores(ev, rows)
+    assert both[0] == first[0] and len(ev._mimo_memo) <= 4096
