@@ -80,9 +80,14 @@ def sampled_loop(spec: TuningSpec, plant: Any, sl: SpecLoop) -> tuple[MimoLoop, 
     acts = spec.actuators or {}
     act = np.array([float(getattr(acts.get(name), "delay", 0.0) or 0.0) for name in lti.inputs])
     key = (id(lti), tuple(base.ins), tuple(base.outs), float(sl.dt), act.tobytes(), int(spec.verify.compute_delay))
-    hit = _CORES.get(key)
-    if hit is None or hit[0] is not lti:  # plant-only work: once per plant, not once per candidate
-        hit = (lti, sampled_core(lti, base.ins, base.outs, sl.dt, act, spec.verify.compute_delay))
+
+    def build() -> tuple[Any, SampledCore]:
+        return lti, sampled_core(lti, base.ins, base.outs, sl.dt, act, spec.verify.compute_delay)
+
+    # plant-only work: once per plant, not once per candidate (nor once per thread checking a batch's rows)
+    hit = _CORES.get_or_build(key, build)
+    if hit[0] is not lti:  # the id of a plant form since freed: not this plant
+        hit = build()
         _CORES.put(key, hit)
     return base, SampledLoop.of(base, hit[1])
 
