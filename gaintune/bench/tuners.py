@@ -274,10 +274,27 @@ def _timing_rows(timing: Mapping[str, Any], refine: int | None) -> list[list[Any
         if fresh.get("cpu_median_s") is not None:
             rows.append(["fresh process, its CPU time (user + system), median / max",
                          f"{fmt(fresh['cpu_median_s'])} / {fmt(fresh['cpu_max_s'])}", "s"])
+        rows += _floor_rows(fresh)
         rows += [
                  ["fresh-process answers that printed valid JSON", f"{fresh['json_ok']} / {fresh['ok']}", "-"],
                  ["torch imported by the query (same CLI path, in a child)", fmt(fresh["torch_imported"]), "-"]]
         rows += [[f"failed run (exit {x['code']})", x["error"], "-"] for x in fresh["failures"][:3]]
+    return rows
+
+
+def _floor_rows(fresh: Mapping[str, Any]) -> list[list[Any]]:
+    """The import-only processes timed beside the queries, and the query's median minus theirs."""
+    floor = fresh.get("floor")  # results written before the floor was timed have none
+    if not floor or floor.get("median_s") is None:
+        return []
+    rows = [[f"beside each: a fresh `{floor['command']}` (the numeric libraries alone), median / max wall",
+             f"{fmt(floor['median_s'])} / {fmt(floor['max_s'])}", "s"]]
+    if floor.get("cpu_median_s") is not None:
+        rows.append(["the same, its CPU time (user + system), median / max",
+                     f"{fmt(floor['cpu_median_s'])} / {fmt(floor['cpu_max_s'])}", "s"])
+    if fresh.get("median_s") is not None:
+        rows.append(["fresh query minus those imports, median wall (gaintune's CLI, spec, modules and the answer)",
+                     fmt(fresh["median_s"] - floor["median_s"]), "s"])
     return rows
 
 

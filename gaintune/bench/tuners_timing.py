@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["TORCH_PROBE", "query_argv", "percentiles", "in_process_timing", "fresh_process_timing"]
+__all__ = ["TORCH_PROBE", "FLOOR", "query_argv", "percentiles", "in_process_timing", "fresh_process_timing"]
 
 #: A child that runs one CLI command in-process (``sys.argv[1:]``) and reports whether torch was imported.
 TORCH_PROBE = """
@@ -39,6 +39,11 @@ except Exception as exc:
 print()
 print("torch_imported=" + str("torch" in sys.modules))
 """
+
+#: The numeric libraries every answer runs on (the policy and the arrays, the simulator's compiled kernel, the
+#: discretisation and the verification's linear algebra): a fresh process that only imports them is the floor
+#: under a fresh query on this machine, timed beside it.
+FLOOR = "import numpy, numba, scipy.linalg"
 
 #: A fresh process that does not answer within this many seconds counts as failed.
 TIMEOUT_S = 600.0
@@ -113,13 +118,25 @@ def _is_json(text: str) -> bool:
     return True
 
 
-def fresh_process_timing(name: str, plants: Sequence[Mapping[str, float]], runs: int) -> dict[str, Any]:
-    """``runs`` fresh ``gaintune tuner query`` processes (plants in turn) and the torch probe.
+def _medians(runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Wall and CPU times of the runs that exited 0: the lists, their medians and maxima."""
+    ok = [d for d in runs if d["code"] == 0]
+    walls = [d["wall_s"] for d in ok]
+    cpus = [d["cpu_s"] for d in ok if d["cpu_s"] is not None]
+    return {"wall_s": walls, "median_s": float(np.median(walls)) if walls else None,
+            "max_s": max(walls) if walls else None, "cpu_s": cpus,
+            "cpu_median_s": float(np.median(cpus)) if cpus else None, "cpu_max_s": max(cpus) if cpus else None}
 
-    Returns the wall times of the runs that exited 0, their median and max, the same of their CPU times
+
+def fresh_process_timing(name: str, plants: Sequence[Mapping[str, float]], runs: int) -> dict[str, Any]:
+    """``runs`` fresh ``gaintune tuner query`` processes (plants in turn), each followed by a fresh process
+    that only imports the numeric libraries (:data:`FLOOR`), and the torch probe.
+
+    Returns the wall times of the queries that exited 0, their median and max, the same of their CPU times
     (user + system: on a shared machine the load inflates the wall time far more), how many printed valid
-    JSON, the failures (exit code and last stderr line) and ``torch_imported`` (None when the probe
-    printed no answer).
+    JSON, the failures (exit code and last stderr line), ``floor`` (the same figures of the import-only
+    processes, interleaved with the queries so that both see the same load) and ``torch_imported`` (None
+    when the probe printed no answer).
     """
     from gaintune.bench.startup import compile_bytecode
 
@@ -127,18 +144,17 @@ def fresh_process_timing(name: str, plants: Sequence[Mapping[str, float]], runs:
     exe = _gaintune_command()
     with tempfile.TemporaryDirectory() as tmp:  # an empty working folder: no local package shadows the install
         warm = _run([*exe, *query_argv(name, plants[0])], tmp)  # fills numba's cache and the OS file cache
-        done = [_run([*exe, *query_argv(name, plants[i % len(plants)])], tmp) for i in range(runs)]
+        done, floor = [], []
+        for i in range(runs):
+            done.append(_run([*exe, *query_argv(name, plants[i % len(plants)])], tmp))
+            floor.append(_run([sys.executable, "-c", FLOOR], tmp))
         probe = _run([sys.executable, "-c", TORCH_PROBE, *query_argv(name, plants[0])], tmp)
     ok = [d for d in done if d["code"] == 0]
-    walls = [d["wall_s"] for d in ok]
-    cpus = [d["cpu_s"] for d in ok if d["cpu_s"] is not None]
     m = re.search(r"^torch_imported=(True|False)$", probe["stdout"], re.M)
     return {
         "command": " ".join(["gaintune", *query_argv(name, plants[0])]),
-        "runs": runs, "ok": len(ok), "json_ok": sum(_is_json(d["stdout"]) for d in ok),
-        "wall_s": walls, "median_s": float(np.median(walls)) if walls else None,
-        "max_s": max(walls) if walls else None, "cpu_s": cpus,
-        "cpu_median_s": float(np.median(cpus)) if cpus else None, "cpu_max_s": max(cpus) if cpus else None,
+        "runs": runs, "ok": len(ok), "json_ok": sum(_is_json(d["stdout"]) for d in ok), **_medians(done),
+        "floor": {"command": f'python -c "{FLOOR}"', **_medians(floor)},
         "warm_up": {"code": warm["code"], "wall_s": warm["wall_s"]},
         "failures": [{"code": d["code"], "error": d["error"]} for d in done if d["code"] != 0],
         "torch_imported": None if m is None else m.group(1) == "True",

@@ -156,6 +156,19 @@ def test_fresh_process_timing_reports_a_failing_query_instead_of_raising() -> No
     assert fresh["runs"] == 1 and fresh["ok"] == 0 and fresh["median_s"] is None
     assert fresh["failures"][0]["code"] not in (0, None) and fresh["failures"][0]["error"]
     assert fresh["torch_imported"] in (True, False)  # the probe answers even when the command fails
+    floor = fresh["floor"]  # the import-only process beside each query runs whatever the query did
+    assert "numba" in floor["command"] and len(floor["wall_s"]) == 1 and floor["median_s"] > 0
+
+
+def test_timing_table_gives_the_import_floor_and_the_query_minus_it() -> None:
+    fresh = {"command": "gaintune tuner query x", "runs": 3, "ok": 3, "json_ok": 3, "median_s": 0.9, "max_s": 1.0,
+             "cpu_median_s": 0.85, "cpu_max_s": 0.95, "failures": [], "torch_imported": False,
+             "floor": {"command": 'python -c "import numpy"', "median_s": 0.6, "max_s": 0.7, "cpu_median_s": 0.55,
+                       "cpu_max_s": 0.65}}
+    rows = {r[0]: r[1] for r in TB._floor_rows(fresh)}
+    assert any("numeric libraries alone" in k and v == "0.6 / 0.7" for k, v in rows.items()), rows
+    assert [v for k, v in rows.items() if k.startswith("fresh query minus")] == ["0.3"]
+    assert TB._floor_rows({k: v for k, v in fresh.items() if k != "floor"}) == []  # older results: no rows
 
 
 def test_update_render_of_a_shipped_only_run_lists_the_two_runs_and_says_the_critic_came_with_the_folder() -> None:
