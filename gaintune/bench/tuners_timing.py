@@ -118,8 +118,8 @@ def _is_json(text: str) -> bool:
     return True
 
 
-def _medians(runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """Wall and CPU times of the runs that exited 0: the lists, their medians and maxima."""
+def _time_figures(runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Wall and CPU times of the runs that exited 0: the lists, their medians and their maxima."""
     ok = [d for d in runs if d["code"] == 0]
     walls = [d["wall_s"] for d in ok]
     cpus = [d["cpu_s"] for d in ok if d["cpu_s"] is not None]
@@ -153,8 +153,8 @@ def fresh_process_timing(name: str, plants: Sequence[Mapping[str, float]], runs:
     m = re.search(r"^torch_imported=(True|False)$", probe["stdout"], re.M)
     return {
         "command": " ".join(["gaintune", *query_argv(name, plants[0])]),
-        "runs": runs, "ok": len(ok), "json_ok": sum(_is_json(d["stdout"]) for d in ok), **_medians(done),
-        "floor": {"command": f'python -c "{FLOOR}"', **_medians(floor)},
+        "runs": runs, "ok": len(ok), "json_ok": sum(_is_json(d["stdout"]) for d in ok), **_time_figures(done),
+        "floor": {"command": f'python -c "{FLOOR}"', **_time_figures(floor)},
         "warm_up": {"code": warm["code"], "wall_s": warm["wall_s"]},
         "failures": [{"code": d["code"], "error": d["error"]} for d in done if d["code"] != 0],
         "torch_imported": None if m is None else m.group(1) == "True",
