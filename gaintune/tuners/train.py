@@ -20,7 +20,7 @@ import hashlib
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -189,34 +189,14 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
     critic from ``critic.npz`` (a folder without either starts a fresh critic, trained alone first).
     ``keep_agent`` writes ``agent.zip`` into the tuner folder; a TD3 tuner always gets ``critic.npz``.
     """
-    from gaintune.search.agents import load_weights
-    from gaintune.tuners.env import ContextBanditVecEnv
-
     s = settings or TrainSettings()
     if warm_start is not None:  # the policy already answers: explore near it, learn more from each simulation
         s = dataclasses.replace(s, noise_start=min(s.noise_start, UPDATE_NOISE),
                                 gradient_steps=max(s.gradient_steps, UPDATE_GRADIENT_STEPS))
     out = Path(out)
-    warmup = 0  # episodes whose gradient steps train the critic only (a fresh critic beside a trained actor)
-    if warm_start is None:
-        fit_box(problem)
-    else:
-        _warm_box(problem, warm_start)
-    env = ContextBanditVecEnv(problem, s.n_envs, s.contexts_per_step, seed=s.seed)
-    agent = _make_agent(env, s)
-    if warm_start is not None:
-        warmup = _warm_agent(agent, Path(warm_start))
-        agent.num_timesteps = 0
-        if hasattr(agent, "learning_starts"):  # the actor already answers: no random warm-up episodes
-            agent.learning_starts = s.n_envs
+    env, agent, warmup = _setup(problem, s, warm_start)
     ckpt = _Checkpoint(out, s.key(problem))
-    state = ckpt.load() if resume else None
-    if state is not None:
-        load_weights(agent, ckpt.dir / "agent.zip", field="resume")
-        env.rng = np.random.default_rng([s.seed, int(state["episodes"])])  # fresh contexts after the resume point
-        env.n_sims = int(state["sims"])
-    state = state or {"episodes": 0, "sims": 0, "elapsed_s": 0.0, "curve": [], "resumed": 0}
-    state["resumed"] = state.get("resumed", 0) + (1 if state["episodes"] else 0)
+    state = _start_state(ckpt, agent, env, s, resume)
     curve_set = _curve_set(problem, s)
     if not state["curve"]:  # where the run starts (a warm start's policy, or an untrained one)
         state["curve"].append({"episodes": 0, "sims": 0, "elapsed_s": 0.0, "reward": None,
@@ -239,6 +219,49 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
         if on_progress:
             on_progress(int(state["episodes"]), s.episodes, {**state["curve"][-1], "ratio": ratio})
         ckpt.save(agent, state)
+    _write_artefact(out, name or out.name, problem, agent, s, state, warm_start, keep_agent)
+    ckpt.clear()
+    return out
+
+
+def _setup(problem: TunerProblem, s: TrainSettings, warm_start: str | Path | None) -> tuple[Any, Any, int]:
+    """(environment, agent, warm-up episodes): the gain box fitted (or taken from ``warm_start``) and the agent
+    made, a warm start's actor and critic loaded. The warm-up episodes train the critic only (a fresh critic
+    beside a trained actor)."""
+    from gaintune.tuners.env import ContextBanditVecEnv
+
+    if warm_start is None:
+        fit_box(problem)
+    else:
+        _warm_box(problem, warm_start)
+    env = ContextBanditVecEnv(problem, s.n_envs, s.contexts_per_step, seed=s.seed)
+    agent = _make_agent(env, s)
+    warmup = 0
+    if warm_start is not None:
+        warmup = _warm_agent(agent, Path(warm_start))
+        agent.num_timesteps = 0
+        if hasattr(agent, "learning_starts"):  # the actor already answers: no random warm-up episodes
+            agent.learning_starts = s.n_envs
+    return env, agent, warmup
+
+
+def _start_state(ckpt: _Checkpoint, agent: Any, env: Any, s: TrainSettings, resume: bool) -> dict[str, Any]:
+    """The run's state: a checkpoint's (its agent loaded, fresh contexts after its resume point) or a new one."""
+    from gaintune.search.agents import load_weights
+
+    state = ckpt.load() if resume else None
+    if state is not None:
+        load_weights(agent, ckpt.dir / "agent.zip", field="resume")
+        env.rng = np.random.default_rng([s.seed, int(state["episodes"])])  # fresh contexts after the resume point
+        env.n_sims = int(state["sims"])
+    state = state or {"episodes": 0, "sims": 0, "elapsed_s": 0.0, "curve": [], "resumed": 0}
+    state["resumed"] = state.get("resumed", 0) + (1 if state["episodes"] else 0)
+    return state
+
+
+def _write_artefact(out: Path, name: str, problem: TunerProblem, agent: Any, s: TrainSettings,
+                    state: Mapping[str, Any], warm_start: str | Path | None, keep_agent: bool) -> None:
+    """The exported policy validated on held-out contexts, and the tuner folder written (atomically)."""
     policy = _exported(agent, len(problem.variables), s.seed)
     val = validate(problem, policy, s.validation, s.seed)
     training = {"algo": s.algo, "settings": {**s.__dict__, "net_arch": list(s.net_arch),
@@ -248,12 +271,10 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
                 "curve": state["curve"]}
     if warm_start is not None:
         training["warm_start"] = str(warm_start)
-    art = Artefact(name or out.name, problem, policy, training, val,
+    art = Artefact(name, problem, policy, training, val,
                    meta={"versions": versions(), "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())},
                    files=_files(agent, keep_agent))
     artefact.save(out, art)
-    ckpt.clear()
-    return out
 
 
 def _files(agent: Any, keep_agent: bool) -> dict[str, bytes]:
