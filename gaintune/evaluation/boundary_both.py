@@ -6,12 +6,16 @@ inside the boundary (Ms 1.2 under a 1.4 limit, say) is conservative, and its cos
 higher than that of the same controller shape on the boundary. :func:`onto_boundary` therefore
 also moves every feasible interior candidate **outward** along its loop-gain scale
 (``tuned * alpha**d``, alpha > 1, the same move), onto the boundary of the estimate, and keeps
-the outward point only where it lowers the plain cost (one evaluation of both). A
+the outward point only where it lowers the plain cost (one evaluation of both). Where the
+feasible scales form several runs (a lag-dominant PID: feasible at low gain and again on an
+island of high gain), the upper boundary of each run is a landing, and the cheapest is kept. A
 constrained optimum usually lies on the boundary, so the policy then only has to choose the
 controller's shape; the repair chooses its scale, for every context.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -25,6 +29,10 @@ __all__ = ["BothMove", "onto_boundary", "SCAN"]
 #: boundary below and above the given gains, from an unstable start (1e-3) to a timid one (1e3).
 SCAN = np.geomspace(1e-3, 1e3, 31)
 _ONE = 15
+#: Steps that close a landing's bracket (a row stops once within the tolerance): the search repair's regula-falsi
+#: steps, then bisection. An answer is moved once, and where a PID shape's shortfall bends sharply inside the
+#: bracket, regula falsi alone stops short of the boundary (12 % above the cost on it, on a lag-dominant plant).
+CLOSE_STEPS = 10
 
 
 class BothMove(EstimateMove):
@@ -68,8 +76,26 @@ def _feasible_end(ok: np.ndarray) -> int | None:
     return int(below[-1]) if below.size else None
 
 
-def _scan(ev: Evaluator, given: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[int | None]]:
-    """The scan's log scales (B, L), kept inside the box, with the estimate's verdict and shortfall at each."""
+def _start_points(ok: np.ndarray) -> list[int]:
+    """The scan points the move starts from: :func:`_feasible_end` (where there is one) first, then the top of
+    every other feasible run of the scan (empty: no feasible scale).
+
+    Along the loop-gain scale the feasible set can be several runs: a lag-dominant PID shape is feasible at
+    low gain, infeasible over a band, and feasible again on an island of high gain, where its optimum lies
+    (the regression test ``test_move_finds_the_high_gain_island_of_a_lag_dominant_pid``). Landing only next
+    to the given gains made the answer depend on the gains' scale, which the tuner's action does not set,
+    and put a cliff in the reward beside the optimum. Every run's upper boundary is therefore a candidate,
+    and the cheapest landing is kept.
+    """
+    first = _feasible_end(ok)
+    tops = [j for j in range(ok.size) if ok[j] and (j + 1 == ok.size or not ok[j + 1])]
+    return ([] if first is None else [first]) + [j for j in tops if j != first]
+
+
+def _scan(ev: Evaluator, given: np.ndarray,
+          d: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[list[int]], np.ndarray]:
+    """The scan's log scales (B, L), kept inside the box, the estimate's shortfall at each, each row's
+    :func:`_start_points`, and whether the given gains (scale 1) are feasible in it (B,)."""
     B = len(given)
     lo = np.log(np.maximum(alpha_floor(ev.layout, given, d), 1e-300))
     hi = np.log(alpha_ceiling(ev.layout, given, d))
@@ -79,7 +105,7 @@ def _scan(ev: Evaluator, given: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, 
     v, g = ev.requirement_scores((given[:, None, :] * np.exp(xs)[..., None] ** d).reshape(B * n, -1),
                                  stability=False)
     ok = v.reshape(B, n) <= 0
-    return xs, g.reshape(B, n), [_feasible_end(row) for row in ok]
+    return xs, g.reshape(B, n), [_start_points(row) for row in ok], ok[:, _ONE].copy()
 
 
 def _largest_stable(ev: Evaluator, t: np.ndarray, d: np.ndarray, xs: np.ndarray, end: int | None) -> float:
@@ -96,12 +122,13 @@ def _largest_stable(ev: Evaluator, t: np.ndarray, d: np.ndarray, xs: np.ndarray,
 def onto_boundary(ev: Evaluator, tuned: np.ndarray) -> BothMove:
     """Move infeasible candidates inward and feasible interior ones outward onto the requirement boundary.
 
-    One estimate scans :data:`SCAN` scales of each candidate's loop gain (inside the search box); the
+    One estimate scans :data:`SCAN` scales of each candidate's loop gain (inside the search box). The
     boundary next to the given gains (above them when they are feasible, below when they are not, an
-    unstable start included) is bracketed there and closed by regula falsi to within
-    :data:`gaintune.evaluation.boundary_estimate.TOL`. A feasible candidate keeps the lower-cost of where it
-    was and where it moved (one evaluation of both; row by row for a single candidate, see :func:`_evaluate`).
-    A candidate no scale makes feasible is left as it is.
+    unstable start included) is bracketed there, and so is the upper boundary of every other feasible run
+    of the scan (:func:`_start_points`); each is closed by regula falsi to within
+    :data:`gaintune.evaluation.boundary_estimate.TOL`. The lowest-cost landing is kept, and a feasible
+    candidate keeps its given gains where no landing costs less (one evaluation of each; row by row for a
+    single candidate, see :func:`_evaluate`). A candidate no scale makes feasible is left as it is.
 
     Parameters
     ----------
@@ -123,54 +150,79 @@ def onto_boundary(ev: Evaluator, tuned: np.ndarray) -> BothMove:
         res = BothMove(given.copy(), scores.violation, np.ones(B), np.zeros(B, dtype=bool))
         res.scores = scores
         return res
-    x, ends, v_land, v_given = _landing(ev, given, d)
-    # a feasible candidate moved outward keeps the given gains where the move did not lower the cost
-    stay = np.array([e is not None and e >= _ONE and x[b] != 0.0 for b, e in enumerate(ends)], dtype=np.bool_)
+    land = _landing(ev, given, d)
+    x = land.x
+    # a feasible candidate moved outward keeps the given gains where no move lowered the cost
+    moved = np.zeros(B, dtype=np.bool_)
+    np.logical_or.at(moved, land.row, x != 0.0)
+    stay = land.keep & moved
     # the landing's full estimate was computed by the move (the given gains' too, where they may stay)
-    v = np.concatenate([v_land, v_given[stay]])
+    v = np.concatenate([land.v_land, land.v_given[stay]])
     unknown = np.isnan(v)
-    rows = np.vstack([given * np.exp(x)[:, None] ** d, given[stay]])
+    rows = np.vstack([given[land.row] * np.exp(x)[:, None] ** d, given[stay]])
     if unknown.any():
         v[unknown] = ev.requirement_violation(rows[unknown])
     both = _evaluate(ev, rows, v) if B == 1 else ev.evaluate(rows, violation=v)
-    pick = np.arange(B)
-    for k, b in zip(B + np.arange(int(stay.sum())), np.nonzero(stay)[0], strict=True):
-        if both.merit[k] <= both.merit[b]:
-            pick[b], x[b] = k, 0.0
-    out = given * np.exp(x)[:, None] ** d
-    res = BothMove(out, both.violation[pick], np.exp(x), x != 0.0)
+    pick, scale = _cheapest(land, both.merit, stay, B)
+    out = given * np.exp(scale)[:, None] ** d
+    res = BothMove(out, both.violation[pick], np.exp(scale), scale != 0.0)
     res.scores = _take(both, pick)
     return res
 
 
-def _landing(ev: Evaluator, given: np.ndarray,
-             d: np.ndarray) -> tuple[np.ndarray, list[int | None], np.ndarray, np.ndarray]:
-    """(log scale to apply per row, the scan's feasible end per row, the full estimate's violation at the
-    landing point and at the given gains (NaN where not computed)): the scan, the bracket closed by regula
-    falsi, and the full estimate's check of the landing point."""
-    xs, g, ends = _scan(ev, given, d)
-    B = len(given)
-    x = np.zeros(B)
-    for b, e in enumerate(ends):
-        if e is not None:
-            x[b] = xs[b, e]
-    rows = [b for b, e in enumerate(ends) if e is not None and e + 1 < xs.shape[1] and xs[b, e + 1] > xs[b, e]]
-    if rows:
-        r = np.array(rows)
-        lo = np.array([ends[b] for b in rows], dtype=np.int64)
+def _cheapest(land: _Landing, merit: np.ndarray, stay: np.ndarray, B: int) -> tuple[np.ndarray, np.ndarray]:
+    """(row of the evaluated rows to return, log scale applied) per candidate: the lowest-merit landing (the
+    first on a tie, the one next to the given gains), or the given gains where they may stay and cost no more."""
+    pick = np.full(B, -1)
+    scale = np.zeros(B)
+    for k, (b, x) in enumerate(zip(land.row.tolist(), land.x.tolist(), strict=True)):
+        if pick[b] < 0 or merit[k] < merit[pick[b]]:
+            pick[b], scale[b] = k, x
+    for k, b in enumerate(np.nonzero(stay)[0].tolist(), start=land.row.size):
+        if merit[k] <= merit[pick[b]]:
+            pick[b], scale[b] = k, 0.0
+    return pick, scale
+
+
+@dataclass
+class _Landing:
+    """The move's landing points, one per start point of each row's scan (a row without one: its given
+    gains, scale 0), the full estimate's violation at each, and at the given gains that may stay."""
+
+    row: np.ndarray  # (C,) the candidate each landing belongs to, ascending
+    x: np.ndarray  # (C,) log scale of the landing
+    v_land: np.ndarray  # (C,) full estimate's violation at the landing
+    keep: np.ndarray  # (B,) the given gains are feasible in the scan: they may stay
+    v_given: np.ndarray  # (B,) full estimate's violation at the given gains (NaN where not kept)
+
+
+def _landing(ev: Evaluator, given: np.ndarray, d: np.ndarray) -> _Landing:
+    """The scan, each start point's bracket closed by regula falsi, and the full estimate's check of every
+    landing point (where it refuses one, the largest scan point at or below it that it takes)."""
+    xs, g, starts, keep = _scan(ev, given, d)
+    B, n = xs.shape
+    per_row: list[list[int | None]] = [list(s) if s else [None] for s in starts]  # None: no feasible scale
+    row = np.array([b for b in range(B) for _ in per_row[b]], dtype=np.int64)
+    end = [e for b in range(B) for e in per_row[b]]
+    x = np.array([0.0 if e is None else xs[b, e] for b, e in zip(row.tolist(), end, strict=True)])
+    open_ = [k for k, (b, e) in enumerate(zip(row.tolist(), end, strict=True))
+             if e is not None and e + 1 < n and xs[b, e + 1] > xs[b, e]]
+    if open_:
+        r, lo = row[open_], np.array([end[k] for k in open_], dtype=np.int64)
         br = _Bracket(t=given[r], xg=xs[r, lo].copy(), gg=g[r, lo].copy(), xb=xs[r, lo + 1].copy(),
                       gb=g[r, lo + 1].copy(), found=np.ones(r.size, dtype=np.bool_))
-        _regula_falsi(ev, br, d)
-        x[r] = br.xg
-    # the full estimate (stability included) decides; where it refuses the point, the largest scan point it takes.
-    # The given gains that may stay (feasible in the scan) are checked in the same call: the caller's cost
-    # comparison needs their violation (the estimate is row by row, so batching changes nothing).
-    keep = np.array([e is not None and e >= _ONE for e in ends], dtype=np.bool_)
-    v = ev.requirement_scores(np.vstack([given * np.exp(x)[:, None] ** d, given[keep]]))[0]
-    v_land, v_given = v[:B].copy(), np.full(B, np.nan)
-    v_given[keep] = v[B:]
-    for row in np.nonzero(v_land > 0)[0].tolist():
-        x[row] = _largest_stable(ev, given[row], d, xs[row], ends[row])
+        _regula_falsi(ev, br, d, CLOSE_STEPS)
+        x[open_] = br.xg
+    # the full estimate (stability included) decides. The given gains that may stay (feasible in the scan)
+    # are checked in the same call: the caller's cost comparison needs their violation (the estimate is
+    # row by row, so batching changes nothing).
+    v = ev.requirement_scores(np.vstack([given[row] * np.exp(x)[:, None] ** d, given[keep]]))[0]
+    C = row.size
+    v_land, v_given = v[:C].copy(), np.full(B, np.nan)
+    v_given[keep] = v[C:]
+    for k in np.nonzero(v_land > 0)[0].tolist():
+        b = int(row[k])
+        x[k] = _largest_stable(ev, given[b], d, xs[b], end[k])
         # the largest scan point the full estimate takes is feasible; none: the given gains, not checked here
-        v_land[row] = 0.0 if x[row] != 0.0 else v_given[row]
-    return x, ends, v_land, v_given
+        v_land[k] = 0.0 if x[k] != 0.0 else v_given[b]
+    return _Landing(row, x, v_land, keep, v_given)

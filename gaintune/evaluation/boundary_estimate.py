@@ -186,21 +186,25 @@ def _ladder(ev: Evaluator, t: np.ndarray, d: np.ndarray, g0: np.ndarray) -> _Bra
                     gb=np.where(first > 0, lg[i, prev], g0), found=np.asarray(ok.any(axis=1)))
 
 
-def _regula_falsi(ev: Evaluator, br: _Bracket, d: np.ndarray) -> None:
-    """Close each bracket onto ``g = -TOL/2`` with :data:`SECANT_STEPS` safeguarded regula-falsi steps (in place).
+def _regula_falsi(ev: Evaluator, br: _Bracket, d: np.ndarray, steps: int = SECANT_STEPS) -> None:
+    """Close each bracket onto ``g = -TOL/2`` with ``steps`` safeguarded steps (in place): regula falsi for
+    the first :data:`SECANT_STEPS`, bisection after them.
 
-    A step whose secant is undefined, or whose infeasible end is unstable, bisects instead.
+    A step whose secant is undefined, or whose infeasible end is unstable, bisects instead. Bisection after
+    :data:`SECANT_STEPS` closes the brackets that regula falsi leaves open: where the shortfall bends
+    sharply inside the bracket (another peak taking over at the limit), each secant step moves the
+    feasible end by a few per cent of the bracket only.
     """
     xg, gg, xb, gb = br.xg, br.gg, br.xb, br.gb
     dd = np.broadcast_to(d, br.t.shape)  # one direction per candidate
-    for _ in range(SECANT_STEPS):
+    for step in range(steps):
         act = gg < -TOL  # rows whose feasible end is still too far inside
         if not act.any():
             break
         target = -0.5 * TOL
         with np.errstate(all="ignore"):
             xs_ = xg + (target - gg) * (xb - xg) / (gb - gg)
-        bisect = ~np.isfinite(xs_) | (gb >= UNSTABLE_VIOLATION)
+        bisect = ~np.isfinite(xs_) | (gb >= UNSTABLE_VIOLATION) | (step >= SECANT_STEPS)
         xm = np.where(bisect, 0.5 * (xg + xb), xs_)
         w = xb - xg  # keep the trial strictly inside the bracket
         xm = np.clip(xm, xg + 0.02 * w, xb - 0.02 * w)

@@ -88,3 +88,28 @@ def test_sampled_plant_side_is_remembered_only_for_a_read_only_grid():
     Xf, Pf = sp.responses(np.exp(s * sp.dt))
     np.testing.assert_array_equal(X, Xf)
     np.testing.assert_array_equal(P, Pf)
+
+
+def record(commit: str) -> dict:
+    """The answers this test compares with: ``Tuner.query`` on the first 8 held-out plants of ``gaintune bench
+    tuners`` for the FOTD PI and PID tuners at Ms 1.4 (float.hex). Re-record only when the answers change on
+    purpose (a retrained tuner, a changed move): ``python tests/tuners/test_query_speed_paths.py COMMIT``."""
+    from gaintune.bench.tuners_refs import held_out_plants
+
+    rows = []
+    for name in ("fotd_pi_ms1.4", "fotd_pid_ms1.4"):
+        tuner = Tuner.load(name)
+        for params in held_out_plants(8):
+            a = tuner.query(params)
+            rows.append({"tuner": name, "params": {k: float(v).hex() for k, v in params.items()},
+                         "gains": {lp: {g: float(x).hex() for g, x in gs.items()} for lp, gs in a.gains.items()},
+                         "cost": float(a.cost).hex(), "verdict": a.verdict})
+    return {"about": "Tuner.query answers on the first 8 held-out plants of gaintune bench tuners (seed 12345), "
+                     f"recorded at commit {commit} (float.hex)", "answers": rows}
+
+
+if __name__ == "__main__":
+    import sys
+
+    out = Path(__file__).parent / "data" / "held_out_answers.json"
+    out.write_text(json.dumps(record(sys.argv[1]), indent=1) + "\n")
