@@ -30,8 +30,8 @@ __all__ = ["BothMove", "onto_boundary", "SCAN"]
 SCAN = np.geomspace(1e-3, 1e3, 31)
 _ONE = 15
 #: Steps that close a landing's bracket (a row stops once within the tolerance): the search repair's regula-falsi
-#: steps, then bisection. An answer is moved once, and where a PID shape's shortfall bends sharply inside the
-#: bracket, regula falsi alone stops short of the boundary (12 % above the cost on it, on a lag-dominant plant).
+#: steps, then the Illinois form. An answer is moved once, and where a PID shape's shortfall bends sharply inside
+#: the bracket, regula falsi alone stops short of the boundary (12 % above the cost on it, on a lag-dominant plant).
 CLOSE_STEPS = 10
 
 

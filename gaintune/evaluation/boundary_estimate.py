@@ -188,23 +188,30 @@ def _ladder(ev: Evaluator, t: np.ndarray, d: np.ndarray, g0: np.ndarray) -> _Bra
 
 def _regula_falsi(ev: Evaluator, br: _Bracket, d: np.ndarray, steps: int = SECANT_STEPS) -> None:
     """Close each bracket onto ``g = -TOL/2`` with ``steps`` safeguarded steps (in place): regula falsi for
-    the first :data:`SECANT_STEPS`, bisection after them.
+    the first :data:`SECANT_STEPS`, its Illinois form after them.
 
-    A step whose secant is undefined, or whose infeasible end is unstable, bisects instead. Bisection after
-    :data:`SECANT_STEPS` closes the brackets that regula falsi leaves open: where the shortfall bends
-    sharply inside the bracket (another peak taking over at the limit), each secant step moves the
-    feasible end by a few per cent of the bracket only.
+    A step whose secant is undefined, or whose infeasible end is unstable, bisects instead. Plain regula
+    falsi keeps one end for good where the shortfall bends inside the bracket (another peak taking over at
+    the limit, on a PID loop): each step then moves the other end a few per cent of the bracket only. The
+    Illinois form halves the weight of an end kept twice running, so the trials cross the boundary and the
+    bracket closes. The first :data:`SECANT_STEPS` are the search repair's, unchanged.
     """
     xg, gg, xb, gb = br.xg, br.gg, br.xb, br.gb
     dd = np.broadcast_to(d, br.t.shape)  # one direction per candidate
+    target = -0.5 * TOL
+    wg, wb = np.ones(xg.shape), np.ones(xg.shape)  # Illinois weights of each end's distance to the target
+    last = np.zeros(xg.shape, dtype=np.int8)  # the end the previous trial replaced: 1 feasible, -1 infeasible
     for step in range(steps):
         act = gg < -TOL  # rows whose feasible end is still too far inside
         if not act.any():
             break
-        target = -0.5 * TOL
         with np.errstate(all="ignore"):
-            xs_ = xg + (target - gg) * (xb - xg) / (gb - gg)
-        bisect = ~np.isfinite(xs_) | (gb >= UNSTABLE_VIOLATION) | (step >= SECANT_STEPS)
+            if step < SECANT_STEPS:
+                xs_ = xg + (target - gg) * (xb - xg) / (gb - gg)
+            else:
+                hg, hb = (gg - target) * wg, (gb - target) * wb
+                xs_ = xg - hg * (xb - xg) / (hb - hg)
+        bisect = ~np.isfinite(xs_) | (gb >= UNSTABLE_VIOLATION)
         xm = np.where(bisect, 0.5 * (xg + xb), xs_)
         w = xb - xg  # keep the trial strictly inside the bracket
         xm = np.clip(xm, xg + 0.02 * w, xb - 0.02 * w)
@@ -215,3 +222,6 @@ def _regula_falsi(ev: Evaluator, br: _Bracket, d: np.ndarray, steps: int = SECAN
         gg[a] = np.where(good, tg, gg[a])
         xb[a] = np.where(good, xb[a], xm[a])
         gb[a] = np.where(good, gb[a], tg)
+        wg[a] = np.where(good, 1.0, np.where(last[a] == -1, 0.5 * wg[a], wg[a]))
+        wb[a] = np.where(good, np.where(last[a] == 1, 0.5 * wb[a], wb[a]), 1.0)
+        last[a] = np.where(good, 1, -1)
