@@ -378,6 +378,9 @@ def build_parser() -> BenchParser:
                     help="instead: 'tuner update' vs a cold start on a changed family (writes tuners_update.*)")
     ap.add_argument("--update-episodes", type=int_range(1024, 1_000_000), default=8192,
                     help="training episodes of each --update run (default 8192)")
+    ap.add_argument("--update-curve-every", type=int_range(16, 1_000_000), default=256,
+                    help="episodes between the training curve's points in --update (default 256; a run that reaches "
+                         "1.01 at its first point is counted there, so a finer curve measures an early crossing)")
     ap.add_argument("--shipped-only", action="store_true",
                     help="with --update: only the cold start and the update from the shipped tuner (skips training a "
                          "base with its agent, as long as a shipped tuner's training, and the tune --warm-start runs)")
@@ -428,7 +431,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _main_update(args: Any, out: Path, command: str) -> int:
     """``--update``: the learning-on figure alone (two trainings)."""
     load0 = [round(x, 2) for x in os.getloadavg()]
-    r = measure_update(args.tuner or DEFAULT_TUNER["pi"], args.update_episodes, with_agent=not args.shipped_only)
+    r = measure_update(args.tuner or DEFAULT_TUNER["pi"], args.update_episodes, with_agent=not args.shipped_only,
+                       curve_every=args.update_curve_every)
     if not args.shipped_only:
         r["warm_start"] = measure_warm_start()
     r["command"] = command

@@ -17,12 +17,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-__all__ = ["LAG", "TARGET", "changed_spec", "sims_to", "measure_update"]
+__all__ = ["LAG", "TARGET", "CURVE_EVERY", "changed_spec", "sims_to", "measure_update"]
 
 #: The added sensor lag, in units of L + T.
 LAG = 0.2
 #: The curve's median cost / optimum both runs must reach.
 TARGET = 1.01
+#: Default episodes between curve points (``--update-curve-every``).
+CURVE_EVERY = 256
 
 
 def changed_spec(ms_max: float = 1.4) -> Any:
@@ -63,18 +65,22 @@ def _base_with_agent(tmp: Path, seed: int) -> Path:
 
 
 def measure_update(base: str = "fotd_pi_ms1.4", episodes: int = 8192, seed: int = 0,
-                   with_agent: bool = True) -> dict[str, Any]:
+                   with_agent: bool = True, curve_every: int = CURVE_EVERY) -> dict[str, Any]:
     """Train cold and warm on :func:`changed_spec`; the simulations each needed to reach :data:`TARGET`.
 
     Two warm runs: from ``base`` (a shipped tuner: its actor and, when the folder has ``critic.npz``, its
     critic; else a fresh critic) and, with ``with_agent``, from a folder trained here with its agent kept.
+    ``curve_every``: episodes between curve points (the training's chunk, so also the steps of its noise
+    schedule); a run that reaches the target at its first point is counted at that point's simulations.
     """
     from gaintune.tuners import artefact
     from gaintune.tuners.problems import SpecProblem
     from gaintune.tuners.train import TrainSettings, train
 
-    common: dict[str, Any] = {"episodes": episodes, "seed": seed, "chunk": 256, "validation": 8, "curve_contexts": 8}
-    out: dict[str, Any] = {"base": base, "lag": LAG, "target": TARGET, "episodes": episodes, "seed": seed}
+    common: dict[str, Any] = {"episodes": episodes, "seed": seed, "chunk": curve_every, "validation": 8,
+                              "curve_contexts": 8}
+    out: dict[str, Any] = {"base": base, "lag": LAG, "target": TARGET, "episodes": episodes, "seed": seed,
+                           "curve_every": curve_every}
     out["base_has_critic"] = artefact.critic_sha256(artefact.resolve(base)) is not None
     with tempfile.TemporaryDirectory() as tmp:
         starts: dict[str, Path | None] = {"cold": None, "update": artefact.resolve(base)}
@@ -130,7 +136,7 @@ def render_update(r: dict[str, Any], command: str) -> str:
     lines = [f"# {command}", "",
              f"Changed family: FOTD with a sensor lag {r['lag']} (L+T) added, PI, load step, Ms <= 1.4; cold start vs "
              f"`tuner update` from the shipped `{r['base']}` ({shipped}){agent}, {r['episodes']:,} "
-             f"episodes each, seed {r['seed']}, a curve point every 256 episodes."
+             f"episodes each, seed {r['seed']}, a curve point every {r.get('curve_every', CURVE_EVERY)} episodes."
              + (f" Load average: {r['loadavg']}." if r.get("loadavg") else ""), "",
              md_table(["run", f"training sims to median ratio <= {r['target']}", "wall s", "validation median",
                        "validation worst"], rows), ""]

@@ -125,10 +125,11 @@ def onto_boundary(ev: Evaluator, tuned: np.ndarray) -> BothMove:
     One estimate scans :data:`SCAN` scales of each candidate's loop gain (inside the search box). The
     boundary next to the given gains (above them when they are feasible, below when they are not, an
     unstable start included) is bracketed there, and so is the upper boundary of every other feasible run
-    of the scan (:func:`_start_points`); each is closed by regula falsi to within
-    :data:`gaintune.evaluation.boundary_estimate.TOL`. The lowest-cost landing is kept, and a feasible
-    candidate keeps its given gains where no landing costs less (one evaluation of each; row by row for a
-    single candidate, see :func:`_evaluate`). A candidate no scale makes feasible is left as it is.
+    of the scan (:func:`_start_points`); each is closed to within :data:`gaintune.evaluation.boundary_estimate.TOL`
+    in at most :data:`CLOSE_STEPS` steps (regula falsi, then its Illinois form). The lowest-cost landing is
+    kept, and a feasible candidate keeps its given gains where no landing costs less (one evaluation of each;
+    row by row for a single candidate, see :func:`_evaluate`). A candidate no scale makes feasible is left
+    as it is.
 
     Parameters
     ----------

@@ -180,7 +180,23 @@ def test_update_render_of_a_shipped_only_run_lists_the_two_runs_and_says_the_cri
          "cold": {**run, "sims_to_target": 1500}, "update": run, "ratio_update": 5.0, "ratio": 5.0}
     md = render_update(r, "gaintune bench tuners --update --shipped-only")
     assert "actor and critic arrays" in md and "cold / update simulations: **5.0x**" in md
-    assert "update_with_agent" not in md
+    assert "update_with_agent" not in md and "a curve point every 256 episodes" in md
+    assert "a curve point every 64 episodes" in render_update({**r, "curve_every": 64}, "gaintune bench tuners")
+
+
+def test_update_curve_every_reaches_the_training_chunk(monkeypatch, tmp_path) -> None:
+    import gaintune.bench.tuners as TB
+
+    seen = {}
+
+    def fake_measure(base, episodes, with_agent=True, curve_every=256):
+        seen.update(base=base, episodes=episodes, curve_every=curve_every)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(TB, "measure_update", fake_measure)
+    with pytest.raises(SystemExit):
+        TB.main(["--update", "--shipped-only", "--update-curve-every", "64", "--out", str(tmp_path)])
+    assert seen == {"base": "fotd_pi_ms1.4", "episodes": 8192, "curve_every": 64}
 
 
 def test_algo_compare_render_gives_each_learners_held_out_ratios() -> None:
