@@ -45,7 +45,13 @@ from gaintune.bench.tuners_refs import (
     rule_gains,
 )
 from gaintune.bench.tuners_timing import fresh_process_timing, in_process_timing
-from gaintune.bench.tuners_update import measure_update, measure_warm_start, render_update, training_figures
+from gaintune.bench.tuners_update import (
+    CURVE_EVERY,
+    measure_update,
+    measure_warm_start,
+    render_update,
+    training_figures,
+)
 from gaintune.fmt import fmt
 
 __all__ = ["DEFAULT_TUNER", "MS_MAX", "TunerUnavailable", "load_tuner", "measure", "render", "main"]
@@ -378,9 +384,10 @@ def build_parser() -> BenchParser:
                     help="instead: 'tuner update' vs a cold start on a changed family (writes tuners_update.*)")
     ap.add_argument("--update-episodes", type=int_range(1024, 1_000_000), default=8192,
                     help="training episodes of each --update run (default 8192)")
-    ap.add_argument("--update-curve-every", type=int_range(16, 1_000_000), default=256,
-                    help="episodes between the training curve's points in --update (default 256; a run that reaches "
-                         "1.01 at its first point is counted there, so a finer curve measures an early crossing)")
+    ap.add_argument("--update-curve-every", type=int_range(16, 1_000_000), default=CURVE_EVERY,
+                    help=f"episodes between the training curve's points in --update (default {CURVE_EVERY}; a run "
+                         "that reaches 1.01 at its first point is counted there, so a finer curve measures an early "
+                         "crossing)")
     ap.add_argument("--shipped-only", action="store_true",
                     help="with --update: only the cold start and the update from the shipped tuner (skips training a "
                          "base with its agent, as long as a shipped tuner's training, and the tune --warm-start runs)")

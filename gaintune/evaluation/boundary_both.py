@@ -64,21 +64,10 @@ def _evaluate(ev: Evaluator, rows: np.ndarray, violation: np.ndarray) -> Scores:
                   [])
 
 
-def _feasible_end(ok: np.ndarray) -> int | None:
-    """Index of the scan's feasible point to move from: the top of the feasible run that holds the given
-    gains, or, when they are infeasible, the largest feasible scale below them (None: no feasible scale)."""
-    if ok[_ONE]:
-        j = _ONE
-        while j + 1 < ok.size and ok[j + 1]:
-            j += 1
-        return j
-    below = np.nonzero(ok[:_ONE])[0]
-    return int(below[-1]) if below.size else None
-
-
 def _start_points(ok: np.ndarray) -> list[int]:
-    """The scan points the move starts from: :func:`_feasible_end` (where there is one) first, then the top of
-    every other feasible run of the scan (empty: no feasible scale).
+    """The scan points the move starts from: the top of every feasible run of the scan, the one next to the
+    given gains first (the top of the run that holds them or, when they are infeasible, of the nearest run
+    below them); empty when no scale is feasible.
 
     Along the loop-gain scale the feasible set can be several runs: a lag-dominant PID shape is feasible at
     low gain, infeasible over a band, and feasible again on an island of high gain, where its optimum lies
@@ -87,9 +76,9 @@ def _start_points(ok: np.ndarray) -> list[int]:
     and put a cliff in the reward beside the optimum. Every run's upper boundary is therefore a candidate,
     and the cheapest landing is kept.
     """
-    first = _feasible_end(ok)
     tops = [j for j in range(ok.size) if ok[j] and (j + 1 == ok.size or not ok[j + 1])]
-    return ([] if first is None else [first]) + [j for j in tops if j != first]
+    near = [j for j in tops if j >= _ONE][:1] if ok[_ONE] else [j for j in tops if j < _ONE][-1:]
+    return near + [j for j in tops if j not in near]
 
 
 def _scan(ev: Evaluator, given: np.ndarray,

@@ -206,7 +206,7 @@ def _regula_falsi(ev: Evaluator, br: _Bracket, d: np.ndarray, steps: int = SECAN
         if not act.any():
             break
         with np.errstate(all="ignore"):
-            if step < SECANT_STEPS:
+            if step < SECANT_STEPS:  # the weighted form below with unit weights, written as before: the same bits
                 xs_ = xg + (target - gg) * (xb - xg) / (gb - gg)
             else:
                 hg, hb = (gg - target) * wg, (gb - target) * wb
