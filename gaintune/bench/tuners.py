@@ -385,9 +385,8 @@ def build_parser() -> BenchParser:
     ap.add_argument("--update-episodes", type=int_range(1024, 1_000_000), default=8192,
                     help="training episodes of each --update run (default 8192)")
     ap.add_argument("--update-curve-every", type=int_range(16, 1_000_000), default=CURVE_EVERY,
-                    help=f"episodes between the training curve's points in --update (default {CURVE_EVERY}; a run "
-                         "that reaches 1.01 at its first point is counted there, so a finer curve measures an early "
-                         "crossing)")
+                    help=f"episodes of each --update run's training chunk (default {CURVE_EVERY}): its curve has a "
+                         "point at every chunk's end, and inside the first chunk at 64, 128, ... episodes")
     ap.add_argument("--shipped-only", action="store_true",
                     help="with --update: only the cold start and the update from the shipped tuner (skips training a "
                          "base with its agent, as long as a shipped tuner's training, and the tune --warm-start runs)")

@@ -70,8 +70,9 @@ def measure_update(base: str = "fotd_pi_ms1.4", episodes: int = 8192, seed: int 
 
     Two warm runs: from ``base`` (a shipped tuner: its actor and, when the folder has ``critic.npz``, its
     critic; else a fresh critic) and, with ``with_agent``, from a folder trained here with its agent kept.
-    ``curve_every``: episodes between curve points (the training's chunk, so also the steps of its noise
-    schedule); a run that reaches the target at its first point is counted at that point's simulations.
+    ``curve_every``: the training's chunk (so also the steps of its noise schedule). The curve has a point at
+    every chunk's end and, inside the first chunk, at ``n_envs`` (64) episodes doubling
+    (:func:`gaintune.tuners.train._early_points`); a run is counted at the first point that reaches the target.
     """
     from gaintune.tuners import artefact
     from gaintune.tuners.problems import SpecProblem
@@ -136,7 +137,8 @@ def render_update(r: dict[str, Any], command: str) -> str:
     lines = [f"# {command}", "",
              f"Changed family: FOTD with a sensor lag {r['lag']} (L+T) added, PI, load step, Ms <= 1.4; cold start vs "
              f"`tuner update` from the shipped `{r['base']}` ({shipped}){agent}, {r['episodes']:,} "
-             f"episodes each, seed {r['seed']}, a curve point every {r.get('curve_every', CURVE_EVERY)} episodes."
+             f"episodes each, seed {r['seed']}, a training chunk of {r.get('curve_every', CURVE_EVERY)} episodes "
+             "(a curve point at each chunk's end, and inside the first chunk at 64, 128, ... episodes)."
              + (f" Load average: {r['loadavg']}." if r.get("loadavg") else ""), "",
              md_table(["run", f"training sims to median ratio <= {r['target']}", "wall s", "validation median",
                        "validation worst"], rows), ""]

@@ -210,14 +210,13 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
         if hasattr(agent, "policy_delay"):
             agent.policy_delay = 10**9 if state["episodes"] < warmup else 2
         _set_noise(agent, s, int(state["episodes"]))
-        agent.learn(chunk, reset_num_timesteps=False, callback=_progress_callback(on_progress, state, env, s, t0, base))
+        watch = _CurveWatch(problem, curve_set, state, env, _early_points(s, int(state["episodes"])))
+        agent.learn(chunk, reset_num_timesteps=False,
+                    callback=_progress_callback(on_progress, state, env, s, (t0, base), watch))
         state.update(episodes=int(agent.num_timesteps), sims=env.n_sims, elapsed_s=base + time.perf_counter() - t0)
-        ratio = _curve_point(problem, from_sb3(agent), curve_set)
-        state["curve"].append({"episodes": state["episodes"], "sims": state["sims"],
-                               "elapsed_s": round(state["elapsed_s"], 2), "reward": env.last.get("reward"),
-                               "median_ratio": ratio})
+        point = watch.add(agent, state["elapsed_s"])
         if on_progress:
-            on_progress(int(state["episodes"]), s.episodes, {**state["curve"][-1], "ratio": ratio})
+            on_progress(int(state["episodes"]), s.episodes, {**point, "ratio": point["median_ratio"]})
         ckpt.save(agent, state)
     _write_artefact(out, name or out.name, problem, agent, s, state, warm_start, keep_agent)
     ckpt.clear()
@@ -363,15 +362,56 @@ def _curve_set(problem: TunerProblem, s: TrainSettings) -> list[tuple[dict[str, 
     return out
 
 
-def _progress_callback(on_progress: Any, state: dict[str, Any], env: Any, s: TrainSettings, t0: float,
-                       base: float) -> Any:
+def _early_points(s: TrainSettings, done: int) -> list[int]:
+    """Episodes of the curve's extra points inside the first chunk: ``n_envs`` doubling, below the chunk's end.
+
+    The curve's points at chunk ends are what the noise schedule and the checkpoints step by; a warm
+    start (``tuner update``) reaches its target inside the first chunk, and "simulations to the target"
+    can be read only as finely as the curve has points there (docs/tuners.md, "update").
+    """
+    end = min(s.chunk, s.episodes)
+    out, e = [], s.n_envs
+    while e < end:
+        if e > done:
+            out.append(e)
+        e *= 2
+    return out
+
+
+class _CurveWatch:
+    """Training-curve points: at the end of each chunk, and at the early points the rollouts pass inside it."""
+
+    def __init__(self, problem: TunerProblem, curve_set: list[tuple[dict[str, float], float]],
+                 state: dict[str, Any], env: Any, early: list[int]) -> None:
+        self.problem, self.curve_set, self.state, self.env, self.early = problem, curve_set, state, env, early
+
+    def add(self, agent: Any, elapsed_s: float) -> dict[str, Any]:
+        """Append the point of ``agent`` now (its episodes, the simulations so far) and return it."""
+        point = {"episodes": int(agent.num_timesteps), "sims": int(self.env.n_sims), "elapsed_s": round(elapsed_s, 2),
+                 "reward": self.env.last.get("reward"),
+                 "median_ratio": _curve_point(self.problem, from_sb3(agent), self.curve_set)}
+        self.state["curve"].append(point)
+        return point
+
+    def passed(self, agent: Any, elapsed_s: float) -> None:
+        """Add a point when the rollouts have passed the next early point (the NumPy policy: no RNG drawn)."""
+        if self.early and agent.num_timesteps >= self.early[0]:
+            self.early = [e for e in self.early if e > agent.num_timesteps]
+            self.add(agent, elapsed_s)
+
+
+def _progress_callback(on_progress: Any, state: dict[str, Any], env: Any, s: TrainSettings,
+                       clock: tuple[float, float], watch: _CurveWatch) -> Any:
     from stable_baselines3.common.callbacks import BaseCallback
+
+    t0, base = clock
 
     class _Cb(BaseCallback):
         def _on_step(self) -> bool:
             return True
 
         def _on_rollout_end(self) -> None:  # every env step for TD3, every rollout for PPO
+            watch.passed(self.model, base + time.perf_counter() - t0)
             if on_progress:
                 on_progress(int(self.model.num_timesteps), s.episodes,
                             {"reward": env.last.get("reward"), "sims": env.n_sims,

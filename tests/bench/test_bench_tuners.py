@@ -180,8 +180,8 @@ def test_update_render_of_a_shipped_only_run_lists_the_two_runs_and_says_the_cri
          "cold": {**run, "sims_to_target": 1500}, "update": run, "ratio_update": 5.0, "ratio": 5.0}
     md = render_update(r, "gaintune bench tuners --update --shipped-only")
     assert "actor and critic arrays" in md and "cold / update simulations: **5.0x**" in md
-    assert "update_with_agent" not in md and "a curve point every 256 episodes" in md
-    assert "a curve point every 64 episodes" in render_update({**r, "curve_every": 64}, "gaintune bench tuners")
+    assert "update_with_agent" not in md and "a training chunk of 256 episodes" in md
+    assert "a training chunk of 64 episodes" in render_update({**r, "curve_every": 64}, "gaintune bench tuners")
 
 
 def test_update_curve_every_reaches_the_training_chunk(monkeypatch, tmp_path) -> None:

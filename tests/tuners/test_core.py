@@ -217,3 +217,26 @@ def test_action_along_the_loop_gain_scale_changes_nothing_the_actor_could_drift_
     ratio = box.to_tuned(a)[0]
     assert ratio[1] / ratio[0] != pytest.approx(box.to_tuned(np.array([[0.1, 0.4]]))[0][1]
                                                 / box.to_tuned(np.array([[0.1, 0.4]]))[0][0])
+
+
+def test_training_curve_has_doubling_points_inside_the_first_chunk(tiny):
+    from gaintune.tuners.train import _early_points
+
+    curve = json.loads((tiny / "tuner.json").read_text())["training"]["curve"]
+    assert [p["episodes"] for p in curve] == [0, 32, 64, 128, 256, 512]
+    assert [p["sims"] for p in curve] == sorted(p["sims"] for p in curve) and curve[1]["sims"] > 0
+    assert _early_points(TINY, 0) == [32, 64, 128] and _early_points(TINY, 64) == [128]
+    assert _early_points(TINY, 256) == []
+
+
+def test_early_curve_points_draw_no_random_numbers_the_training_uses(tiny):
+    """The exploration noise (SB3's NormalActionNoise) draws from NumPy's global generator: a curve point
+    taken between rollouts must leave it alone, so extra points never change the trained policy."""
+    from gaintune.tuners.train import _curve_point
+
+    tuner = Tuner.load(tiny)
+    ctx = tuner.problem.centre()
+    np.random.seed(5)
+    before = np.random.get_state()[1].copy()
+    _curve_point(tuner.problem, tuner.policy, [(ctx, 1.0)])
+    assert np.array_equal(np.random.get_state()[1], before)
