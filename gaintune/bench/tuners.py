@@ -46,6 +46,7 @@ from gaintune.bench.tuners_refs import (
 )
 from gaintune.bench.tuners_timing import fresh_process_timing, in_process_timing
 from gaintune.bench.tuners_update import (
+    CHUNK,
     CURVE_EVERY,
     measure_update,
     measure_warm_start,
@@ -385,8 +386,8 @@ def build_parser() -> BenchParser:
     ap.add_argument("--update-episodes", type=int_range(1024, 1_000_000), default=8192,
                     help="training episodes of each --update run (default 8192)")
     ap.add_argument("--update-curve-every", type=int_range(16, 1_000_000), default=CURVE_EVERY,
-                    help=f"episodes of each --update run's training chunk (default {CURVE_EVERY}): its curve has a "
-                         "point at every chunk's end, and inside the first chunk at 64, 128, ... episodes")
+                    help=f"episodes between the training curves' points in --update (default {CURVE_EVERY}; a "
+                         f"measurement only: both runs train in chunks of {CHUNK} episodes whatever it is)")
     ap.add_argument("--shipped-only", action="store_true",
                     help="with --update: only the cold start and the update from the shipped tuner (skips training a "
                          "base with its agent, as long as a shipped tuner's training, and the tune --warm-start runs)")

@@ -17,14 +17,16 @@ import time
 from pathlib import Path
 from typing import Any
 
-__all__ = ["LAG", "TARGET", "CURVE_EVERY", "changed_spec", "sims_to", "measure_update"]
+__all__ = ["LAG", "TARGET", "CURVE_EVERY", "CHUNK", "changed_spec", "sims_to", "measure_update"]
 
 #: The added sensor lag, in units of L + T.
 LAG = 0.2
 #: The curve's median cost / optimum both runs must reach.
 TARGET = 1.01
-#: Default episodes between curve points (``--update-curve-every``).
-CURVE_EVERY = 256
+#: Default episodes between curve points (``--update-curve-every``): a measurement only, the training is the same.
+CURVE_EVERY = 64
+#: Episodes of a training chunk (checkpoint, and step of the noise schedule) of both runs.
+CHUNK = 256
 
 
 def changed_spec(ms_max: float = 1.4) -> Any:
@@ -70,18 +72,18 @@ def measure_update(base: str = "fotd_pi_ms1.4", episodes: int = 8192, seed: int 
 
     Two warm runs: from ``base`` (a shipped tuner: its actor and, when the folder has ``critic.npz``, its
     critic; else a fresh critic) and, with ``with_agent``, from a folder trained here with its agent kept.
-    ``curve_every``: the training's chunk (so also the steps of its noise schedule). The curve has a point at
-    every chunk's end and, inside the first chunk, at ``n_envs`` (64) episodes doubling
-    (:func:`gaintune.tuners.train._early_points`); a run is counted at the first point that reaches the target.
+    ``curve_every``: episodes between the curves' points (:attr:`TrainSettings.curve_every`; both runs train
+    in chunks of :data:`CHUNK` whatever it is). A run is counted at the first point that reaches the target, so
+    the figure is read to within ``curve_every`` episodes: both runs cross inside their first few chunks.
     """
     from gaintune.tuners import artefact
     from gaintune.tuners.problems import SpecProblem
     from gaintune.tuners.train import TrainSettings, train
 
-    common: dict[str, Any] = {"episodes": episodes, "seed": seed, "chunk": curve_every, "validation": 8,
-                              "curve_contexts": 8}
+    common: dict[str, Any] = {"episodes": episodes, "seed": seed, "chunk": CHUNK, "curve_every": curve_every,
+                              "validation": 8, "curve_contexts": 8}
     out: dict[str, Any] = {"base": base, "lag": LAG, "target": TARGET, "episodes": episodes, "seed": seed,
-                           "curve_every": curve_every}
+                           "curve_every": curve_every, "chunk": CHUNK}
     out["base_has_critic"] = artefact.critic_sha256(artefact.resolve(base)) is not None
     with tempfile.TemporaryDirectory() as tmp:
         starts: dict[str, Path | None] = {"cold": None, "update": artefact.resolve(base)}
@@ -137,8 +139,7 @@ def render_update(r: dict[str, Any], command: str) -> str:
     lines = [f"# {command}", "",
              f"Changed family: FOTD with a sensor lag {r['lag']} (L+T) added, PI, load step, Ms <= 1.4; cold start vs "
              f"`tuner update` from the shipped `{r['base']}` ({shipped}){agent}, {r['episodes']:,} "
-             f"episodes each, seed {r['seed']}, a training chunk of {r.get('curve_every', CURVE_EVERY)} episodes "
-             "(a curve point at each chunk's end, and inside the first chunk at 64, 128, ... episodes)."
+             f"episodes each, seed {r['seed']}, " + _resolution(r)
              + (f" Load average: {r['loadavg']}." if r.get("loadavg") else ""), "",
              md_table(["run", f"training sims to median ratio <= {r['target']}", "wall s", "validation median",
                        "validation worst"], rows), ""]
@@ -162,6 +163,15 @@ def render_update(r: dict[str, Any], command: str) -> str:
                   f"cold / warm-start simulations: {w['ratio']:.1f}x" if w["ratio"] else
                   "cold / warm-start simulations: not comparable (a run did not reach the target)"]
     return "\n".join(lines) + "\n"
+
+
+def _resolution(r: dict[str, Any]) -> str:
+    """The curve's resolution and the training chunk, as the result records them (older results: chunk = curve)."""
+    every = r.get("curve_every", 256)
+    chunk = r.get("chunk", every)
+    if chunk == every:
+        return f"a curve point every {every} episodes (the training chunk)."
+    return f"a curve point every {every} episodes, training chunks of {chunk} episodes."
 
 
 def _sims_to_curve(curve: list[Any], target_cost: float) -> int | None:

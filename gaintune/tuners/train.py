@@ -7,7 +7,8 @@
 moves to that context's best gains. PPO is kept for comparison (``algo: ppo``); on the FOTD family
 it places the answer less precisely for the same episodes (docs/tuners.md). After every
 :attr:`TrainSettings.chunk` episodes the agent is saved (SB3's format, read back as weights only)
-with the run's state and a training-curve point; a killed run given the same output folder resumes
+with the run's state and a training-curve point (and with :attr:`TrainSettings.curve_every` a point
+every that many episodes, the training unchanged); a killed run given the same output folder resumes
 from there. At the end the actor is exported to plain arrays (checked against torch on random
 inputs), validated on held-out contexts against their own optimum, and written atomically as a
 tuner folder.
@@ -58,7 +59,9 @@ class TrainSettings:
     ``algo`` is ``td3`` (default: a deterministic actor on a learned reward model, which is what a
     one-step bandit needs to place the answer precisely) or ``ppo``. Exploration noise (TD3's action
     noise, PPO's policy std) is annealed geometrically from ``noise_start`` to ``noise_end`` over the
-    run, so the answer settles as the policy improves.
+    run, so the answer settles as the policy improves. The training curve has a point at the end of every
+    ``chunk`` (the checkpoint and noise-schedule step) and, with ``curve_every``, also every ``curve_every``
+    episodes: a measurement only (``gaintune bench tuners --update`` reads it finely), the training is the same.
     """
 
     episodes: int = 36_000
@@ -77,12 +80,15 @@ class TrainSettings:
     critic_arch: tuple[int, ...] = (256, 256)
     validation: int = 24
     curve_contexts: int = 8
+    curve_every: int | None = None
 
     def __post_init__(self) -> None:
         if self.algo not in ("td3", "ppo"):
             raise SpecError("algo", f"a tuner trains with td3 or ppo, not {self.algo!r}")
         if self.episodes < 1 or self.n_envs % self.contexts_per_step:
             raise SpecError("episodes", "need episodes >= 1 and n_envs a multiple of contexts_per_step")
+        if self.curve_every is not None and self.curve_every < 1:
+            raise SpecError("curve_every", f"episodes between curve points must be >= 1, got {self.curve_every}")
 
     def key(self, problem: TunerProblem) -> str:
         """Hash of what a checkpoint depends on: the problem, its box and these settings."""
@@ -210,7 +216,7 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
         if hasattr(agent, "policy_delay"):
             agent.policy_delay = 10**9 if state["episodes"] < warmup else 2
         _set_noise(agent, s, int(state["episodes"]))
-        watch = _CurveWatch(problem, curve_set, state, env, _early_points(s, int(state["episodes"])))
+        watch = _CurveWatch(problem, curve_set, state, env, s.curve_every)
         agent.learn(chunk, reset_num_timesteps=False,
                     callback=_progress_callback(on_progress, state, env, s, (t0, base), watch))
         state.update(episodes=int(agent.num_timesteps), sims=env.n_sims, elapsed_s=base + time.perf_counter() - t0)
@@ -362,41 +368,31 @@ def _curve_set(problem: TunerProblem, s: TrainSettings) -> list[tuple[dict[str, 
     return out
 
 
-def _early_points(s: TrainSettings, done: int) -> list[int]:
-    """Episodes of the curve's extra points inside the first chunk: ``n_envs`` doubling, below the chunk's end.
-
-    The curve's points at chunk ends are what the noise schedule and the checkpoints step by; a warm
-    start (``tuner update``) reaches its target inside the first chunk, and "simulations to the target"
-    can be read only as finely as the curve has points there (docs/tuners.md, "update").
-    """
-    end = min(s.chunk, s.episodes)
-    out, e = [], s.n_envs
-    while e < end:
-        if e > done:
-            out.append(e)
-        e *= 2
-    return out
-
-
 class _CurveWatch:
-    """Training-curve points: at the end of each chunk, and at the early points the rollouts pass inside it."""
+    """Training-curve points: at the end of each chunk and, with ``curve_every``, whenever the episodes
+    cross a multiple of it (taken as the next rollout starts, so after the last one's gradient steps)."""
 
     def __init__(self, problem: TunerProblem, curve_set: list[tuple[dict[str, float], float]],
-                 state: dict[str, Any], env: Any, early: list[int]) -> None:
-        self.problem, self.curve_set, self.state, self.env, self.early = problem, curve_set, state, env, early
+                 state: dict[str, Any], env: Any, every: int | None) -> None:
+        self.problem, self.curve_set, self.state, self.env, self.every = problem, curve_set, state, env, every
 
     def add(self, agent: Any, elapsed_s: float) -> dict[str, Any]:
-        """Append the point of ``agent`` now (its episodes, the simulations so far) and return it."""
-        point = {"episodes": int(agent.num_timesteps), "sims": int(self.env.n_sims), "elapsed_s": round(elapsed_s, 2),
-                 "reward": self.env.last.get("reward"),
-                 "median_ratio": _curve_point(self.problem, from_sb3(agent), self.curve_set)}
-        self.state["curve"].append(point)
-        return point
+        """Append the point of ``agent`` now (its episodes, the simulations so far) unless it has one; return it.
+
+        The policy is scored as NumPy arrays on the fixed curve contexts: no random number is drawn, so the
+        points never change the training (``test_curve_points_draw_no_random_numbers_the_training_uses``)."""
+        curve = self.state["curve"]
+        if curve and curve[-1]["episodes"] == int(agent.num_timesteps):
+            return curve[-1]
+        curve.append({"episodes": int(agent.num_timesteps), "sims": int(self.env.n_sims),
+                      "elapsed_s": round(elapsed_s, 2), "reward": self.env.last.get("reward"),
+                      "median_ratio": _curve_point(self.problem, from_sb3(agent), self.curve_set)})
+        return curve[-1]
 
     def passed(self, agent: Any, elapsed_s: float) -> None:
-        """Add a point when the rollouts have passed the next early point (the NumPy policy: no RNG drawn)."""
-        if self.early and agent.num_timesteps >= self.early[0]:
-            self.early = [e for e in self.early if e > agent.num_timesteps]
+        """Add a point when the episodes have crossed a multiple of ``curve_every`` since the last point."""
+        last = int(self.state["curve"][-1]["episodes"]) if self.state["curve"] else 0
+        if self.every and int(agent.num_timesteps) // self.every > last // self.every:
             self.add(agent, elapsed_s)
 
 
@@ -410,8 +406,10 @@ def _progress_callback(on_progress: Any, state: dict[str, Any], env: Any, s: Tra
         def _on_step(self) -> bool:
             return True
 
-        def _on_rollout_end(self) -> None:  # every env step for TD3, every rollout for PPO
+        def _on_rollout_start(self) -> None:  # after the last rollout's gradient steps
             watch.passed(self.model, base + time.perf_counter() - t0)
+
+        def _on_rollout_end(self) -> None:  # every env step for TD3, every rollout for PPO
             if on_progress:
                 on_progress(int(self.model.num_timesteps), s.episodes,
                             {"reward": env.last.get("reward"), "sims": env.n_sims,

@@ -180,11 +180,12 @@ def test_update_render_of_a_shipped_only_run_lists_the_two_runs_and_says_the_cri
          "cold": {**run, "sims_to_target": 1500}, "update": run, "ratio_update": 5.0, "ratio": 5.0}
     md = render_update(r, "gaintune bench tuners --update --shipped-only")
     assert "actor and critic arrays" in md and "cold / update simulations: **5.0x**" in md
-    assert "update_with_agent" not in md and "a training chunk of 256 episodes" in md
-    assert "a training chunk of 64 episodes" in render_update({**r, "curve_every": 64}, "gaintune bench tuners")
+    assert "update_with_agent" not in md and "a curve point every 256 episodes (the training chunk)" in md
+    finer = render_update({**r, "curve_every": 64, "chunk": 256}, "gaintune bench tuners")
+    assert "a curve point every 64 episodes, training chunks of 256 episodes" in finer
 
 
-def test_update_curve_every_reaches_the_training_chunk(monkeypatch, tmp_path) -> None:
+def test_update_curve_every_reaches_the_training_settings(monkeypatch, tmp_path) -> None:
     import gaintune.bench.tuners as TB
 
     seen = {}
@@ -195,8 +196,25 @@ def test_update_curve_every_reaches_the_training_chunk(monkeypatch, tmp_path) ->
 
     monkeypatch.setattr(TB, "measure_update", fake_measure)
     with pytest.raises(SystemExit):
-        TB.main(["--update", "--shipped-only", "--update-curve-every", "64", "--out", str(tmp_path)])
-    assert seen == {"base": "fotd_pi_ms1.4", "episodes": 8192, "curve_every": 64}
+        TB.main(["--update", "--shipped-only", "--update-curve-every", "32", "--out", str(tmp_path)])
+    assert seen == {"base": "fotd_pi_ms1.4", "episodes": 8192, "curve_every": 32}
+
+
+def test_update_runs_train_in_chunks_of_256_whatever_the_curve(monkeypatch) -> None:
+    """The curve's resolution is a measurement: both runs get the same chunk (noise schedule, checkpoints)."""
+    import gaintune.bench.tuners_update as U
+    import gaintune.tuners.train as T
+
+    seen = []
+
+    def fake_train(problem, out, settings, warm_start=None, resume=True):
+        seen.append((settings.chunk, settings.curve_every))
+        raise SystemExit(0)
+
+    monkeypatch.setattr(T, "train", fake_train)
+    with pytest.raises(SystemExit):
+        U.measure_update(episodes=1024, with_agent=False, curve_every=64)
+    assert seen == [(U.CHUNK, 64)] and U.CHUNK == 256
 
 
 def test_algo_compare_render_gives_each_learners_held_out_ratios() -> None:

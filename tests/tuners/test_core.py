@@ -219,17 +219,21 @@ def test_action_along_the_loop_gain_scale_changes_nothing_the_actor_could_drift_
                                                 / box.to_tuned(np.array([[0.1, 0.4]]))[0][0])
 
 
-def test_training_curve_has_doubling_points_inside_the_first_chunk(tiny):
-    from gaintune.tuners.train import _early_points
+def test_curve_every_adds_points_between_chunks_and_leaves_the_training_as_it_was(tiny, tmp_path):
+    """``curve_every`` is a measurement: the same run with a point every 64 episodes trains the same policy."""
+    import dataclasses
 
-    curve = json.loads((tiny / "tuner.json").read_text())["training"]["curve"]
-    assert [p["episodes"] for p in curve] == [0, 32, 64, 128, 256, 512]
-    assert [p["sims"] for p in curve] == sorted(p["sims"] for p in curve) and curve[1]["sims"] > 0
-    assert _early_points(TINY, 0) == [32, 64, 128] and _early_points(TINY, 64) == [128]
-    assert _early_points(TINY, 256) == []
+    fine = train(FamilyProblem("fotd", "pi", 1.4), tmp_path / "fine", dataclasses.replace(TINY, curve_every=64))
+    doc = json.loads((fine / "tuner.json").read_text())
+    coarse = json.loads((tiny / "tuner.json").read_text())
+    assert [p["episodes"] for p in coarse["training"]["curve"]] == [0, 256, 512]
+    assert [p["episodes"] for p in doc["training"]["curve"]] == [0, 64, 128, 192, 256, 320, 384, 448, 512]
+    assert [p["sims"] for p in doc["training"]["curve"]][4::4] == [p["sims"] for p in coarse["training"]["curve"]][1:]
+    a, b = Tuner.load(tiny).policy, Tuner.load(fine).policy
+    assert all(np.array_equal(x, y) for x, y in zip(a.weights, b.weights, strict=True))
 
 
-def test_early_curve_points_draw_no_random_numbers_the_training_uses(tiny):
+def test_curve_points_draw_no_random_numbers_the_training_uses(tiny):
     """The exploration noise (SB3's NormalActionNoise) draws from NumPy's global generator: a curve point
     taken between rollouts must leave it alone, so extra points never change the trained policy."""
     from gaintune.tuners.train import _curve_point
@@ -240,3 +244,8 @@ def test_early_curve_points_draw_no_random_numbers_the_training_uses(tiny):
     before = np.random.get_state()[1].copy()
     _curve_point(tuner.problem, tuner.policy, [(ctx, 1.0)])
     assert np.array_equal(np.random.get_state()[1], before)
+
+
+def test_curve_every_below_one_is_refused_naming_it():
+    with pytest.raises(SpecError, match="curve_every"):
+        TrainSettings(curve_every=0)
