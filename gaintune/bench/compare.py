@@ -46,6 +46,7 @@ from gaintune.bench.suite import (
     suite_names,
     timed_row,
 )
+from gaintune.evaluation.evaluator import DIVERGED_COST
 from gaintune.fmt import fmt
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -72,8 +73,8 @@ DEFAULT_METHODS: tuple[str, ...] = (
     "zn_step", "zn_ultimate", "simc", "amigo", "imc", "random", "cmaes", "de", "nelder_mead", "rl", "reference",
 )
 
-#: Costs at or above this are divergence (see :data:`gaintune.evaluation.evaluator.DIVERGED_COST`).
-DIVERGED = 1e6
+#: Costs at or above this are divergence (:data:`gaintune.evaluation.evaluator.DIVERGED_COST`).
+DIVERGED = DIVERGED_COST
 
 
 # ------------------------------------------------------------------ helpers

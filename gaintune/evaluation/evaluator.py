@@ -61,10 +61,15 @@ __all__ = [
     "Evaluator",
 ]
 
-#: Cost given to a diverged run: finite, so optimisers can rank it, and far above any real cost.
-DIVERGED_COST = 1e6
-#: Merit of an infeasible candidate is this plus its violation: above every feasible cost.
-INFEASIBLE_MERIT = 1e7
+#: Cost given to a diverged run: finite, so optimisers can rank it, and far above any real cost. A cost is in
+#: the plant's own units and can be large: a load step on a process gain of 1e4 over 200 s has an IAE of
+#: 2.7e6, which a cap of 1e6 once called divergence, so every candidate "diverged" and the search was blind
+#: (``test_a_large_real_cost_is_not_divergence_and_the_search_still_finds_the_boundary``). Divergence is the
+#: simulator's flag (a state beyond ``safety.divergence_bound``, NaN or inf) or a non-finite cost.
+DIVERGED_COST = 1e30
+#: Merit of an infeasible candidate is this times (1 + its violation): above every feasible cost, and a
+#: product, not a sum, so that the violation's ordering survives at this magnitude.
+INFEASIBLE_MERIT = 1e31
 #: Smallest violation of a run whose simulation diverged (as an unstable closed loop).
 DIVERGED_VIOLATION = 10.0
 #: Violation added when the safety monitor tripped (a trip is never an acceptable answer).
@@ -74,14 +79,14 @@ MAX_PENALTY_CORNERS = 8
 
 
 def merit(cost: np.ndarray, violation: np.ndarray) -> np.ndarray:
-    """Feasibility-first scalar (lower is better): the cost when feasible, else INFEASIBLE_MERIT + violation.
+    """Feasibility-first scalar (lower is better): the cost when feasible, else INFEASIBLE_MERIT * (1 + violation).
 
     Every optimiser here (CMA-ES, DE, Nelder-Mead, random search, the monitor's best-so-far)
     only compares values, so this scalar encodes the ranking exactly.
     """
     cost = np.asarray(cost, dtype=float)
     violation = np.asarray(violation, dtype=float)
-    return np.where(violation > 0, INFEASIBLE_MERIT + violation, np.minimum(cost, DIVERGED_COST))
+    return np.where(violation > 0, INFEASIBLE_MERIT * (1.0 + violation), np.minimum(cost, DIVERGED_COST))
 
 
 @dataclass
@@ -389,7 +394,7 @@ class Evaluator:
             res = self.sim.run(full, draws, i, traces=traces)
             cost = scenario_cost(res.metrics, self.spec.objective, sc)
             total += sc.weight * cost
-            diverged |= cost >= DIVERGED_COST
+            diverged |= cost >= DIVERGED_COST  # scenario_cost's mark of a diverged run (or a non-finite cost)
             tripped |= res.metrics["tripped"]
             results.append(res)
         self.n_sims += B * K * len(self.spec.scenarios)

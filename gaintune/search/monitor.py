@@ -73,7 +73,10 @@ class SearchMonitor:
         self.n_tripped += int(s.tripped.sum())
         m = s.merit
         i = int(np.argmin(m))
-        if m[i] < self.best_merit * (1 - 1e-3):
+        # progress that resets the patience: the first batch, the first feasible answer, or a feasible cost
+        # 0.1 % lower (a lower violation alone is not: the search may creep along an infeasible region)
+        first = not np.isfinite(self.best_merit)
+        if first or (s.feasible[i] and (not self.best_feasible or m[i] < self.best_merit * (1 - 1e-3))):
             self.best_at = self.sims
         if m[i] < self.best_merit:
             self.best_merit = float(m[i])

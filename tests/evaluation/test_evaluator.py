@@ -53,9 +53,37 @@ def test_unsettled_run_is_charged_the_horizon() -> None:
 
 def test_diverged_and_non_finite_costs_are_capped() -> None:
     obj = ObjectiveSpec()
-    c = scenario_cost(metrics(iae=[1.0, np.inf, 1.0, 5e6], diverged=[True, False, False, False]), obj, ScenarioSpec(dt=0.01, horizon=20.0))
-    assert c[0] == DIVERGED_COST and c[1] == DIVERGED_COST and c[3] == DIVERGED_COST
+    c = scenario_cost(metrics(iae=[1.0, np.inf, 1.0, 5e6, 1e31], diverged=[True, False, False, False, False]), obj,
+                      ScenarioSpec(dt=0.01, horizon=20.0))
+    assert c[0] == DIVERGED_COST and c[1] == DIVERGED_COST and c[4] == DIVERGED_COST
     assert c[2] == pytest.approx(1.0 + 0.01 * 10.0)
+    assert c[3] == pytest.approx(5e6 + 0.01 * 10.0)  # a large real cost is a cost, not divergence
+
+
+BIG_GAIN = {"plant": {"tf": {"num": [1e4], "den": "100*s + 1"}, "delay": 100}, "loops": [{"name": "main", "type": "pi"}],
+            "scenarios": [{"name": "load", "reference": {"kind": "none"},
+                           "disturbance": {"kind": "step", "entry": "input", "amplitude": 1.0, "time": 0.0}}],
+            "objective": {"measure": "iae", "effort_weight": 0.0},
+            "requirements": {"gm_min_db": None, "pm_min_deg": None, "ms_max": 1.4}}
+
+
+def test_a_large_real_cost_is_not_divergence_and_the_search_still_finds_the_boundary() -> None:
+    """Regression: a process gain of 1e4 (a pressure in Pa per valve fraction, say) gives a load IAE of ~2.7e6.
+    Costs from 1e6 up counted as divergence, so every candidate "diverged" at the same cost, the search was
+    blind, and `tune` handed out a PASS at Ms 1.03 under a 1.4 limit, its response unsettled at the horizon.
+    The same problem in units where K = 1 must give the same answer, scaled."""
+    from gaintune.evaluation.boundary_both import onto_boundary
+
+    answers = []
+    for k in (1.0, 1e4):
+        data = {**BIG_GAIN, "plant": {**BIG_GAIN["plant"], "tf": {"num": [k], "den": "100*s + 1"}}}
+        ev = Evaluator(load_spec(data))
+        move = onto_boundary(ev, np.array([[0.1 / k, 0.001 / k]]))  # a timid PI: the move goes out to Ms 1.4
+        assert not move.scores.diverged[0] and move.scores.violation[0] == 0
+        answers.append((move.tuned[0] * k, float(move.scores.cost[0]) / k))
+    (g1, c1), (g2, c2) = answers
+    np.testing.assert_allclose(g2, g1, rtol=1e-6)
+    assert c1 == pytest.approx(c2, rel=1e-6) and 200 < c1 < 400  # IAE ~2.7e6 at K = 1e4
 
 
 def test_aggregate_mean_worst_cvar() -> None:
@@ -137,6 +165,9 @@ def test_merit_ranks_every_feasible_candidate_above_every_infeasible_one() -> No
     assert v[0] == 0.0 and v[1] > 0.0
     s = ev.evaluate(np.array([[0.3, 0.1], [6.0, 5.0]]))
     assert s.feasible.tolist() == [True, False] and s.merit[1] > INFEASIBLE_MERIT
+    # the violation's order survives the magnitude of an infeasible merit
+    assert merit(np.ones(3), np.array([1e-9, 2e-9, 0.5])).tolist() == sorted(merit(np.ones(3), np.array([1e-9, 2e-9, 0.5])))
+    assert len(set(merit(np.ones(3), np.array([1e-9, 2e-9, 0.5])).tolist())) == 3
 
 
 def test_cost_of_action_maps_through_log_bounds() -> None:

@@ -91,3 +91,15 @@ def test_feasible_candidate_always_outranks_an_infeasible_cheaper_one_in_the_rew
     s = gp.score(tuned, gp.draw(np.random.default_rng(0), 2))
     assert s.feasible.tolist() == [True, False]
     assert s.reward[0] > s.reward[1] and s.merit[0] < s.merit[1]
+
+
+def test_tune_of_a_process_gain_of_1e4_lands_on_the_boundary_not_at_ms_1_03():
+    """Regression: a load IAE of ~2.7e6 (K = 1e4 over 200 s) counted as divergence, so every candidate cost the
+    same, the search was blind and `tune` handed out a PASS at Ms 1.03 under a 1.4 limit, its response still 76 %
+    of its peak at the horizon. Now it answers the K = 1 problem's gains divided by 1e4, at its cost times 1e4."""
+    specs = [_spec([k], "100*s + 1", delay=100, dt=1.0, horizon=2000.0, budget=300) for k in (1, 1e4)]
+    a1, a2 = (tune(s) for s in specs)
+    assert a1.verdict == a2.verdict == "pass"
+    aim = specs[1].requirements.backoff.aim("ms_max", 1.4)
+    assert aim - 0.01 <= _ms(a2) <= aim + 1e-6 and _ms(a2) == pytest.approx(_ms(a1), abs=2e-3)
+    assert a2.cost == pytest.approx(1e4 * a1.cost, rel=1e-2)

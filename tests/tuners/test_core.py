@@ -249,3 +249,19 @@ def test_curve_points_draw_no_random_numbers_the_training_uses(tiny):
 def test_curve_every_below_one_is_refused_naming_it():
     with pytest.raises(SpecError, match="curve_every"):
         TrainSettings(curve_every=0)
+
+
+@pytest.mark.parametrize("params", [{"K": 1e8, "T": 1.0, "L": 1.0}, {"K": 1.0, "T": 1e7, "L": 1e7},
+                                    {"K": 1e4, "T": 100.0, "L": 100.0}, {"K": 1e-10, "T": 1e-9, "L": 1e-9}])
+def test_plants_far_from_the_unit_plant_get_the_unit_answer_scaled_and_verified(params):
+    """Regression: K = 1e8 or T = L = 1e7 s failed ("simulation diverged": a signal past the default divergence
+    bound of 1e6), and K = 1e4 passed with the cost 1e6 (a real cost called divergence). The family is
+    self-similar: the answer is the unit plant's, scaled, its cost scaled by K tc, and it passes."""
+    tuner = Tuner.load("fotd_pi_ms1.4")
+    unit = tuner.query({"K": 1.0, "T": 1.0, "L": 1.0})
+    a = tuner.query(params)
+    K, tc = params["K"], params["T"] + params["L"]
+    assert a.verdict == "pass"
+    assert a.gains["main"]["Kp"] == pytest.approx(unit.gains["main"]["Kp"] / K, rel=1e-6)
+    assert a.gains["main"]["Ki"] == pytest.approx(unit.gains["main"]["Ki"] * 2.0 / (K * tc), rel=1e-6)
+    assert a.cost == pytest.approx(unit.cost * K * tc / 2.0, rel=1e-6)
