@@ -57,8 +57,9 @@ def nonlinear_check(spec: TuningSpec, plant: Plant, layout: GainLayout, full_gai
     ``compute_delay``: samples of computation delay, simulated as that many samples of extra input delay.
     """
     full = np.atleast_2d(np.asarray(full_gains, dtype=float))
+    bound = float(spec.safety.divergence_bound)
     if sim is not None:
-        return _report(_run_all(sim, spec, full, compute_delay))
+        return _report(_run_all(sim, spec, full, compute_delay), bound)
     try:
         simmod = importlib.import_module("gaintune.sim")
         simulate = simmod.simulate
@@ -69,11 +70,12 @@ def nonlinear_check(spec: TuningSpec, plant: Plant, layout: GainLayout, full_gai
         results = _run_all(runner(spec, plant, layout), spec, full, compute_delay)
     else:
         results = simulate(spec, full, draws=None, traces=False)
-    return _report(results)
+    return _report(results, bound)
 
 
-def _report(results: Any) -> NonlinearReport:
-    """The check's verdict from the simulator's results (one per scenario, or one for all)."""
+def _report(results: Any, bound: float = 1e6) -> NonlinearReport:
+    """The check's verdict from the simulator's results (one per scenario, or one for all); ``bound`` is the
+    spec's ``safety.divergence_bound``, named in the note of a diverged run."""
     if not isinstance(results, (list, tuple)):
         results = [results]
     parts: dict[str, list[np.ndarray]] = {}
@@ -104,7 +106,9 @@ def _report(results: Any) -> NonlinearReport:
     elif tripped:
         note = "safety monitor tripped"
     elif diverged:
-        note = "simulation diverged"
+        # a plant whose signals are large in its own units passes a bound that suits a unit plant: say which
+        note = (f"simulation diverged (a signal passed safety.divergence_bound = {bound:g}, or became NaN or "
+                "inf); where the loop is stable and the plant's signals are this large, raise safety.divergence_bound")
     return NonlinearReport(ran=True, passed=passed, tripped=tripped, diverged=diverged, metrics=summary, note=note)
 
 

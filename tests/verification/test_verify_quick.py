@@ -138,3 +138,20 @@ def test_nonlinear_check_runs_the_simulator():
     bad = verify(tight, {"loop0": {"Kp": 1.14, "Ki": 0.454}})
     assert bad.nonlinear.tripped and bad.verdict == "fail"
     assert any("nonlinear" in r for r in bad.reasons)
+
+
+def test_a_stable_loop_past_the_divergence_bound_is_told_to_raise_safety_divergence_bound():
+    """A process gain of 1e7 takes the output past the default bound of 1e6 on a stable loop: the failure names
+    the field and its value, and the fix; with the bound raised the same gains pass."""
+    data = {"plant": {"tf": {"num": [1e7], "den": "100*s + 1"}, "delay": 100},
+            "loops": [{"name": "main", "type": "pi"}],
+            "scenarios": [{"name": "load", "reference": {"kind": "none"},
+                           "disturbance": {"kind": "step", "entry": "input", "amplitude": 1.0, "time": 0.0}}],
+            "objective": {"measure": "iae", "effort_weight": 0.0},
+            "requirements": {"gm_min_db": None, "pm_min_deg": None, "ms_max": 1.4}}
+    gains = {"main": {"Kp": 3.5e-8, "Ki": 3.6e-10}}  # the K = 1 answer divided by 1e7
+    report = verify(load_spec(data), gains)
+    assert report.verdict == "fail" and report.stability.stable
+    assert "safety.divergence_bound = 1e+06" in report.nonlinear.note and "raise safety.divergence_bound" in \
+        report.nonlinear.note
+    assert verify(load_spec({**data, "safety": {"divergence_bound": 1e13}}), gains).verdict == "pass"
