@@ -65,7 +65,10 @@ def _print_summary(result, console: Console | _Console = out) -> None:
         for sc, vals in result.metrics.items():
             mt.add_row(sc, *[_f(vals.get(k)) for k in keys])
         console.print(mt)
-    console.print(f"cost {_f(result.cost)} (plain objective) after {result.sims} simulations in "
+    from gaintune.evaluation.evaluator import DIVERGED_COST  # loaded already: the search ran
+
+    cost = "- (its simulation diverged)" if result.cost >= DIVERGED_COST else _f(result.cost)
+    console.print(f"cost {cost} (plain objective) after {result.sims} simulations in "
                   f"{result.wall_time:.1f} s ({result.algo}, stopped: {result.stopped})")
     if verdict == "pass":
         console.print("[bold green]verdict: PASS[/]")
