@@ -18,6 +18,7 @@ import pytest
 
 from gaintune.bench import compare as C
 from gaintune.bench import references as R
+from gaintune.evaluation.evaluator import DIVERGED_COST
 from gaintune.bench import search as S
 from gaintune.bench import suite as U
 
@@ -168,7 +169,7 @@ def test_stale_reference_is_recomputed(tmp_path, monkeypatch):
 def test_ratio_and_stats():
     assert C.ratio(3.0, 2.0) == 1.5
     assert C.ratio(None, 2.0) is None and C.ratio(1.0, None) is None and C.ratio(1.0, 0.0) is None
-    assert C.ratio(1e6, 1.0) == math.inf and C.ratio(math.inf, 1.0) == math.inf
+    assert C.ratio(DIVERGED_COST, 1.0) == math.inf and C.ratio(math.inf, 1.0) == math.inf
     s = C.stats([1.0, None, 3.0, 2.0, math.inf])
     assert s == {"n": 4, "median": 2.5, "worst": math.inf}
     assert C.stats([None]) == {"n": 0, "median": None, "worst": None}
@@ -204,7 +205,7 @@ def test_run_search_ratios_and_summary(tmp_path):
         ("q_lag2_pi", 0): (2.2, 2.0, 2.0, "pass"),
         ("q_lag2_pi", 1): (3.0, 2.1, 2.5, "fail"),
         ("q_delay_pi", 0): (4.0, 4.0, 5.0, "pass"),
-        ("q_delay_pi", 1): (1e6, 4.4, 4.0, "fail"),
+        ("q_delay_pi", 1): (DIVERGED_COST, 4.4, 4.0, "fail"),
     }
     res = S.run_search(probs, "quick", [0, 1], out_dir=tmp_path, runner=_search_runner(costs))
     rows = {(r["problem"], r["seed"]): r for r in res["rows"]}
@@ -253,7 +254,7 @@ def _compare_runner(table):
         cost, verdict = v
         return {"problem": problem.name, "method": method, "applicable": True, "reason": None, "cost": cost,
                 "perf": cost, "effort": 1.0, "overshoot": 5.0, "gm_db": 8.0, "pm_deg": 50.0, "ms": 1.5,
-                "verdict": verdict, "sims": 1, "wall_time": 0.01, "diverged": cost >= 1e6}
+                "verdict": verdict, "sims": 1, "wall_time": 0.01, "diverged": cost >= DIVERGED_COST}
 
     return run
 
@@ -262,7 +263,7 @@ def test_run_compare_na_ratios_and_summary(tmp_path):
     probs = U.get_suite("quick")
     _fake_cache(tmp_path, "quick", {"q_lag2_pi": 1.0, "q_delay_pi": 2.0, "q_lq_msd": 0.5})
     table = {
-        ("q_lag2_pi", "simc"): (1.5, "pass"), ("q_delay_pi", "simc"): (1e6, "fail"), ("q_lq_msd", "simc"): None,
+        ("q_lag2_pi", "simc"): (1.5, "pass"), ("q_delay_pi", "simc"): (DIVERGED_COST, "fail"), ("q_lq_msd", "simc"): None,
         ("q_lag2_pi", "cmaes"): (1.0, "pass"), ("q_delay_pi", "cmaes"): (2.2, "pass"), ("q_lq_msd", "cmaes"): (0.6, "fail"),
     }
     res = C.run_compare(probs, "quick", ["simc", "cmaes"], out_dir=tmp_path, runner=_compare_runner(table))
