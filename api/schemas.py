@@ -278,7 +278,8 @@ class TunerAnswerPublic(BaseModel):
     elapsed_ms: float = Field(description="The whole answer (policy, boundary move, refining, verification).")
     n_sims: int
     refined_sims: int
-    failures: list[Any] = Field(default_factory=list)
+    failures: list[str] = Field(default_factory=list,
+                                description="Why the verdict is fail (the verification's reasons); empty on pass.")
 
 
 class TunerTrainRequest(_In):

@@ -118,7 +118,9 @@ def observable_split(A: np.ndarray, C: np.ndarray, tol: float = 1e-9) -> tuple[n
     n = A.shape[0]
     scale = max(np.linalg.norm(A), 1e-300)
     Ah = A / scale
-    V = _orth(C.T, tol)
+    # C's own scale says nothing about which modes it sees: a sensor gain of 1e-9 (a slow integrating
+    # plant in small units) is a measurement, not the absence of one
+    V = _orth(C.T / max(np.linalg.norm(C), 1e-300), tol)
     for _ in range(n):
         W = _orth(np.hstack([V, Ah.T @ V]), tol)
         if W.shape[1] == V.shape[1]:

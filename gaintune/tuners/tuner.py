@@ -66,13 +66,14 @@ class TunerAnswer:
         return self.gains if self.verdict == "pass" else None
 
     def as_dict(self) -> dict[str, Any]:
-        """JSON-ready: parameters, context, gains, verdict, cost, timings, simulations, the verification summary."""
+        """JSON-ready: parameters, context, gains, verdict, cost, timings, simulations, and ``failures``: why the
+        verdict failed (the verification's reasons, binding requirement first; empty on pass)."""
         v = self.verification
         return {
             "params": self.params, "context": self.context, "gains": self.gains, "verdict": self.verdict,
             "accepted_gains": self.accepted_gains, "cost": self.cost, "policy_ms": self.policy_ms,
             "elapsed_ms": self.elapsed_ms, "n_sims": self.n_sims, "refined_sims": self.refined,
-            "failures": list(v.failures) if v is not None and hasattr(v, "failures") else [],
+            "failures": list(v.reasons) if v is not None else [],
         }
 
 

@@ -265,3 +265,23 @@ def test_plants_far_from_the_unit_plant_get_the_unit_answer_scaled_and_verified(
     assert a.gains["main"]["Kp"] == pytest.approx(unit.gains["main"]["Kp"] / K, rel=1e-6)
     assert a.gains["main"]["Ki"] == pytest.approx(unit.gains["main"]["Ki"] * 2.0 / (K * tc), rel=1e-6)
     assert a.cost == pytest.approx(unit.cost * K * tc / 2.0, rel=1e-6)
+
+
+def test_integrating_plant_with_a_small_velocity_gain_gets_the_unit_answer_scaled_and_passes():
+    """Regression: K = 1e-6 with T = L = 1e3 s gave a C row of 1e-9, the observability test called the
+    integrator unmeasured, and the stable answer failed as unstable (gaintune.lti.modes.observable_split)."""
+    tuner = Tuner.load("ipd_pi_ms1.4")
+    unit, a = tuner.query({"K": 1.0, "T": 1.0, "L": 1.0}), tuner.query({"K": 1e-6, "T": 1e3, "L": 1e3})
+    assert a.verdict == "pass"
+    # the integrating family's gain unit is K tc: 2 here against 2e-3 there
+    assert a.gains["main"]["Kp"] == pytest.approx(unit.gains["main"]["Kp"] * 2.0 / 2e-3, rel=1e-6)
+
+
+def test_a_failing_answer_says_why_in_its_json():
+    """Regression: ``failures`` read an attribute the report does not have, so it was always empty; a JSON
+    reader of a FAIL got no reason while the table printed one."""
+    tuner = Tuner.load("fotd_pi_ms1.4")
+    a = tuner.query({"K": 1.0, "T": 1.0, "L": 1.0})
+    assert a.as_dict()["failures"] == []
+    a.verdict, a.verification.reasons = "fail", ["closed loop unstable"]
+    assert a.as_dict()["failures"] == ["closed loop unstable"] and a.as_dict()["accepted_gains"] is None
