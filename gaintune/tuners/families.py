@@ -163,16 +163,18 @@ def _safety(fam: Family, v: Mapping[str, float]) -> dict[str, Any]:
     """The ``safety`` block of a plant whose signals outgrow the unit plant's: its divergence bound scaled.
 
     The simulator calls a run diverged when a signal passes ``safety.divergence_bound`` (1e6 by default). A
-    plant's output scales with its static gain and the integrals with its time scale too: with the default,
-    K = 1e8 or T = L = 1e7 s "diverged" on every run although the answer is the unit plant's, scaled
+    plant's output scales with its static gain, the controller's integral with the time scale too, and the
+    states of a second-order realisation with the time scale squared (the integrating plant's position state
+    is the integral of a lag's state): with the default, K = 1e8, T = L = 1e7 s, or an integrating plant with
+    T = L = 1e6 s "diverged" on every run although the answer is the unit plant's, scaled
     (``test_plants_far_from_the_unit_plant_get_the_unit_answer_scaled_and_verified``). The bound keeps the unit
-    plant's headroom: the default times max(1, static gain) times max(1, time scale). Plants within the unit
-    plant's scales keep the default, and their spec is unchanged.
+    plant's headroom: the default times max(1, static gain) times max(1, time scale) squared. Plants within the
+    unit plant's scales keep the default, and their spec is unchanged.
     """
     from gaintune.spec import SafetySpec
 
     tc = fam.time_scale(v)
-    scale = max(1.0, v["K"] * tc if fam.integrating else v["K"]) * max(1.0, tc)
+    scale = max(1.0, v["K"] * tc if fam.integrating else v["K"]) * max(1.0, tc) ** 2
     if scale == 1.0:
         return {}
     return {"safety": {"divergence_bound": float(SafetySpec.model_fields["divergence_bound"].default) * scale}}

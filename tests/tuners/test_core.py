@@ -267,6 +267,15 @@ def test_plants_far_from_the_unit_plant_get_the_unit_answer_scaled_and_verified(
     assert a.cost == pytest.approx(unit.cost * K * tc / 2.0, rel=1e-6)
 
 
+def test_integrating_plant_on_a_time_scale_of_days_keeps_its_states_inside_the_divergence_bound():
+    """Regression: an integrating plant's position state grows as the time scale squared; with T = L = 1e6 s
+    and K = 1e-8 it passed a bound scaled by the time scale only, and the stable answer "diverged"."""
+    tuner = Tuner.load("ipd_pi_ms1.4")
+    unit, a = tuner.query({"K": 1.0, "T": 1.0, "L": 1.0}), tuner.query({"K": 1e-8, "T": 1e6, "L": 1e6})
+    assert a.verdict == "pass", a.as_dict()["failures"]
+    assert a.gains["main"]["Kp"] == pytest.approx(unit.gains["main"]["Kp"] * 2.0 / (1e-8 * 2e6), rel=1e-6)
+
+
 def test_integrating_plant_with_a_small_velocity_gain_gets_the_unit_answer_scaled_and_passes():
     """Regression: K = 1e-6 with T = L = 1e3 s gave a C row of 1e-9, the observability test called the
     integrator unmeasured, and the stable answer failed as unstable (gaintune.lti.modes.observable_split)."""
