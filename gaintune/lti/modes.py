@@ -115,12 +115,19 @@ def observable_split(A: np.ndarray, C: np.ndarray, tol: float = 1e-9) -> tuple[n
     tol
         Relative singular-value threshold of the Krylov rank test.
     """
+    import scipy.linalg
+
     n = A.shape[0]
-    scale = max(np.linalg.norm(A), 1e-300)
-    Ah = A / scale
+    # The rank test runs on the balanced model: x = D x_b with D diagonal (powers of 2, exact) changes no
+    # mode's observability, and a companion form of lags of a microsecond (entries 1 and 3e12) otherwise
+    # makes the coupling it observes through look like rounding (test_modes.py).
+    Ab, D = scipy.linalg.matrix_balance(A, permute=False)
+    d = np.diag(D)
+    Cb = C * d[None, :]
+    Ah = Ab / max(np.linalg.norm(Ab), 1e-300)
     # C's own scale says nothing about which modes it sees: a sensor gain of 1e-9 (a slow integrating
     # plant in small units) is a measurement, not the absence of one
-    V = _orth(C.T / max(np.linalg.norm(C), 1e-300), tol)
+    V = _orth(Cb.T / max(np.linalg.norm(Cb), 1e-300), tol)
     for _ in range(n):
         W = _orth(np.hstack([V, Ah.T @ V]), tol)
         if W.shape[1] == V.shape[1]:
@@ -129,5 +136,6 @@ def observable_split(A: np.ndarray, C: np.ndarray, tol: float = 1e-9) -> tuple[n
     r = V.shape[1]
     if r == n:
         return None
-    U, _, _ = np.linalg.svd(V, full_matrices=True)
+    # back to the model's coordinates: the observable row space is D^-1 times the balanced one
+    U, _, _ = np.linalg.svd(V / d[:, None], full_matrices=True)
     return U[:, :r], U[:, r:]

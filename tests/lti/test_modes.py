@@ -25,3 +25,22 @@ def test_an_unmeasured_mode_is_split_off_whatever_the_sensor_scale():
         V1, V2 = split
         assert V1.shape == (2, 1) and np.allclose(np.linalg.eigvals(V2.T @ A @ V2), [0.0])
     assert observable_split(A, np.zeros((1, 2))) is not None  # nothing measured: nothing observable
+
+
+@pytest.mark.parametrize("s", [1.0, 1e-3, 1e-6])
+def test_a_companion_form_of_microsecond_lags_is_wholly_observable(s):
+    """Regression: the companion form of 1/((s_ T s + 1)(0.3 s_ T s + 1)) at T = 1 us has entries 1 and 3e12;
+    scaled by its norm, the coupling the output sees the second state through looked like rounding, the
+    lag was split off as unmeasured, and the verification called the stable loop unstable."""
+    a1, a0 = (1.3 * s) / (0.3 * s * s), 1.0 / (0.3 * s * s)
+    A = np.array([[-a1, -a0], [1.0, 0.0]])
+    assert observable_split(A, np.array([[0.0, a0]])) is None
+
+
+def test_the_unobservable_part_of_a_badly_scaled_model_is_still_found():
+    A = np.array([[-1e6, 0.0, 0.0], [1.0, -1e-3, 0.0], [0.0, 0.0, 0.0]])  # the third state is not measured
+    split = observable_split(A, np.array([[0.0, 1e6, 0.0]]))
+    assert split is not None
+    V1, V2 = split
+    assert V1.shape == (3, 2) and np.allclose(np.linalg.eigvals(V2.T @ A @ V2), [0.0])
+    assert np.allclose(V1.T @ V1, np.eye(2)) and np.allclose(V1.T @ V2, 0.0)

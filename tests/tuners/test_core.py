@@ -294,3 +294,13 @@ def test_a_failing_answer_says_why_in_its_json():
     assert a.as_dict()["failures"] == []
     a.verdict, a.verification.reasons = "fail", ["closed loop unstable"]
     assert a.as_dict()["failures"] == ["closed loop unstable"] and a.as_dict()["accepted_gains"] is None
+
+
+def test_second_order_plant_with_microsecond_lags_passes_with_the_unit_answer_scaled():
+    """Regression: at T1 = 1 us the companion form's coupling looked like rounding to the observability
+    test, a lag was split off as unmeasured and the stable answer failed as unstable."""
+    tuner = Tuner.load("sotd_pi_ms1.4")
+    unit = tuner.query({"K": 1.0, "T1": 1.0, "T2": 0.3, "L": 0.4})
+    a = tuner.query({"K": 1.0, "T1": 1e-6, "T2": 0.3e-6, "L": 0.4e-6})
+    assert a.verdict == "pass", a.as_dict()["failures"]
+    assert a.gains["main"]["Ki"] == pytest.approx(unit.gains["main"]["Ki"] * 1e6, rel=1e-6)
