@@ -73,9 +73,6 @@ DEFAULT_METHODS: tuple[str, ...] = (
     "zn_step", "zn_ultimate", "simc", "amigo", "imc", "random", "cmaes", "de", "nelder_mead", "rl", "reference",
 )
 
-#: Costs at or above this are divergence (:data:`gaintune.evaluation.evaluator.DIVERGED_COST`).
-DIVERGED = DIVERGED_COST
-
 
 # ------------------------------------------------------------------ helpers
 
@@ -84,7 +81,7 @@ def ratio(cost: float | None, ref: float | None) -> float | None:
     """cost / ref; ``inf`` for a diverged cost; None when either is missing or ref <= 0."""
     if cost is None or ref is None or not (ref > 0) or not math.isfinite(ref):
         return None
-    if not math.isfinite(cost) or cost >= DIVERGED:
+    if not math.isfinite(cost) or cost >= DIVERGED_COST:
         return math.inf
     return float(cost) / float(ref)
 
@@ -189,7 +186,7 @@ def gain_figures(problem_obj, gains: Gains, report: VerificationReport | None = 
         "measure": measure,
         "effort": None if diverged else effort,
         "overshoot": max(over) if over and not diverged else None,
-        "diverged": diverged or float(costs[0]) >= DIVERGED,
+        "diverged": diverged or float(costs[0]) >= DIVERGED_COST,
     }
     out.update(figures)
     return out

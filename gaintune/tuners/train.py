@@ -207,6 +207,7 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
     if not state["curve"]:  # where the run starts (a warm start's policy, or an untrained one)
         state["curve"].append({"episodes": 0, "sims": 0, "elapsed_s": 0.0, "reward": None,
                                "median_ratio": _curve_point(problem, from_sb3(agent), curve_set)})
+    watch = _CurveWatch(problem, curve_set, state, env, s.curve_every)
     t0, base = time.perf_counter(), float(state["elapsed_s"])
     while state["episodes"] < s.episodes:
         chunk = min(s.chunk, s.episodes - int(state["episodes"]))
@@ -216,7 +217,6 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
         if hasattr(agent, "policy_delay"):
             agent.policy_delay = 10**9 if state["episodes"] < warmup else 2
         _set_noise(agent, s, int(state["episodes"]))
-        watch = _CurveWatch(problem, curve_set, state, env, s.curve_every)
         agent.learn(chunk, reset_num_timesteps=False,
                     callback=_progress_callback(on_progress, state, env, s, (t0, base), watch))
         state.update(episodes=int(agent.num_timesteps), sims=env.n_sims, elapsed_s=base + time.perf_counter() - t0)
@@ -390,8 +390,9 @@ class _CurveWatch:
         return curve[-1]
 
     def passed(self, agent: Any, elapsed_s: float) -> None:
-        """Add a point when the episodes have crossed a multiple of ``curve_every`` since the last point."""
-        last = int(self.state["curve"][-1]["episodes"]) if self.state["curve"] else 0
+        """Add a point when the episodes have crossed a multiple of ``curve_every`` since the last point (the
+        curve always has one: the run's start, or the checkpoint's)."""
+        last = int(self.state["curve"][-1]["episodes"])
         if self.every and int(agent.num_timesteps) // self.every > last // self.every:
             self.add(agent, elapsed_s)
 

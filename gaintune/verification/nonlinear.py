@@ -73,7 +73,7 @@ def nonlinear_check(spec: TuningSpec, plant: Plant, layout: GainLayout, full_gai
     return _report(results, bound)
 
 
-def _report(results: Any, bound: float = 1e6) -> NonlinearReport:
+def _report(results: Any, bound: float) -> NonlinearReport:
     """The check's verdict from the simulator's results (one per scenario, or one for all); ``bound`` is the
     spec's ``safety.divergence_bound``, named in the note of a diverged run."""
     if not isinstance(results, (list, tuple)):
