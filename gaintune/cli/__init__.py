@@ -260,11 +260,20 @@ def plants(ctx: typer.Context) -> None:
 
 @plants_app.command("show")
 @handle_errors
-def plants_show(name: Annotated[str, typer.Argument(help="Model name, e.g. dc_motor.")]) -> None:
+def plants_show(name: Annotated[str, typer.Argument(help="Model name, e.g. dc_motor.")],
+                spec: Annotated[bool, typer.Option("--spec", help="Print only the example spec, as YAML (e.g. "
+                                                   "'gaintune plants show dc_motor --spec > spec.yaml').")] = False,
+                ) -> None:
     """Show one model: parameters with units, outputs and a ready-to-run example spec."""
     from gaintune.plants.library import load_model
 
-    _print_plant(load_model(name))
+    model = load_model(name)
+    if spec:
+        import yaml
+
+        sys.stdout.write(yaml.safe_dump(model.example_spec(), sort_keys=False, width=1000))
+        return
+    _print_plant(model)
 
 
 @app.command()

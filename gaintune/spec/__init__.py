@@ -426,4 +426,23 @@ def load_spec(source: str | Path | dict[str, Any]) -> TuningSpec:
             raise SpecError("spec", f"not valid YAML/JSON: {exc}") from None
     if not isinstance(data, dict):
         raise SpecError("spec", "must be a mapping with at least 'plant' and 'loops'")
+    _refuse_model_file(data)
     return TuningSpec.model_validate(data)
+
+
+#: Keys of a plant model file (models/*.yaml) that a tuning spec never has.
+_MODEL_FILE_KEYS = ("title", "parameters", "input", "inputs", "outputs", "example")
+
+
+def _refuse_model_file(data: dict[str, Any]) -> None:
+    """SpecError when ``data`` is a plant model file, not a spec.
+
+    Handing ``gaintune tune`` a file from ``models/`` is a newcomer's first mistake; field by field it
+    gave six unknown-key errors and none said what the file is or what to run instead.
+    """
+    if "loops" in data or "plant" not in data or not any(k in data for k in _MODEL_FILE_KEYS):
+        return
+    name = data.get("name") if isinstance(data.get("name"), str) else "NAME"
+    raise SpecError("spec", f"this is a plant model file (a models/ entry), not a tuning spec: it has no 'loops'. "
+                            f"'gaintune plants show {name} --spec > spec.yaml' writes a ready-to-run spec for it; a "
+                            f"spec of your own uses it as plant: {{model: {name}}} (docs/models.md)")

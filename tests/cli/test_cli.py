@@ -146,6 +146,22 @@ def test_plants_list_and_show() -> None:
     assert res.exit_code == 2 and "error: plant.model.name: unknown model 'warp_drive'" in res.stderr
 
 
+def test_plants_show_spec_prints_only_the_example_spec_which_loads(tmp_path: Path) -> None:
+    res = run("plants", "show", "dc_motor", "--spec")
+    assert res.exit_code == 0, res.output
+    spec = load_spec(yaml.safe_load(res.stdout))
+    assert spec.plant.model is not None and len(spec.loops) == 3
+
+
+def test_tuning_a_plant_model_file_says_it_is_one_and_what_to_run_instead(repo_root: Path) -> None:
+    # it gave six unknown-key errors (title, parameters, input, ...), none saying what the file is
+    res = run("tune", str(repo_root / "models" / "dc_motor.yaml"), "--quick")
+    assert res.exit_code == 2
+    assert res.stderr.count("error:") == 1, res.stderr
+    assert "error: spec: this is a plant model file" in res.stderr
+    assert "gaintune plants show dc_motor --spec > spec.yaml" in res.stderr
+
+
 # ------------------------------------------------------- export, report
 
 
