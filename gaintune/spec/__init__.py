@@ -147,6 +147,10 @@ __all__ = [
 ]
 
 
+#: Keys of a plant model file (models/*.yaml) that a tuning spec never has.
+_MODEL_FILE_KEYS = ("title", "parameters", "input", "inputs", "outputs", "example")
+
+
 class TuningSpec(_Model):
     """A complete gain-tuning problem."""
 
@@ -207,6 +211,19 @@ class TuningSpec(_Model):
         if problem is not None:
             raise PydanticCustomError("spec_name", "{problem}", {"problem": f"spec name {v!r} {problem}"})
         return v
+
+    @model_validator(mode="before")
+    @classmethod
+    def _not_a_model_file(cls, data: Any) -> Any:
+        # Handing `tune` a file from models/ is a newcomer's first mistake; field by field it gave six
+        # unknown-key errors (title, parameters, input, ...) and none said what the file is or what to run.
+        if (isinstance(data, dict) and "loops" not in data and "plant" in data
+                and any(k in data for k in _MODEL_FILE_KEYS)):
+            name = data["name"] if isinstance(data.get("name"), str) else "NAME"
+            raise ValueError(f"spec: this is a plant model file (a models/ entry), not a tuning spec: it has no "
+                             f"'loops'. 'gaintune plants show {name} --spec > spec.yaml' writes a ready-to-run spec "
+                             f"for it; a spec of your own uses it as plant: {{model: {name}}} (docs/models.md)")
+        return data
 
     @model_validator(mode="before")
     @classmethod
@@ -426,23 +443,5 @@ def load_spec(source: str | Path | dict[str, Any]) -> TuningSpec:
             raise SpecError("spec", f"not valid YAML/JSON: {exc}") from None
     if not isinstance(data, dict):
         raise SpecError("spec", "must be a mapping with at least 'plant' and 'loops'")
-    _refuse_model_file(data)
     return TuningSpec.model_validate(data)
 
-
-#: Keys of a plant model file (models/*.yaml) that a tuning spec never has.
-_MODEL_FILE_KEYS = ("title", "parameters", "input", "inputs", "outputs", "example")
-
-
-def _refuse_model_file(data: dict[str, Any]) -> None:
-    """SpecError when ``data`` is a plant model file, not a spec.
-
-    Handing ``gaintune tune`` a file from ``models/`` is a newcomer's first mistake; field by field it
-    gave six unknown-key errors and none said what the file is or what to run instead.
-    """
-    if "loops" in data or "plant" not in data or not any(k in data for k in _MODEL_FILE_KEYS):
-        return
-    name = data.get("name") if isinstance(data.get("name"), str) else "NAME"
-    raise SpecError("spec", f"this is a plant model file (a models/ entry), not a tuning spec: it has no 'loops'. "
-                            f"'gaintune plants show {name} --spec > spec.yaml' writes a ready-to-run spec for it; a "
-                            f"spec of your own uses it as plant: {{model: {name}}} (docs/models.md)")

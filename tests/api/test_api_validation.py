@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
+import yaml
 from fastapi.testclient import TestClient
 
 from gaintune_api.main import create_app
@@ -219,6 +220,15 @@ def test_lone_surrogate_in_spec_is_422_not_500(client, path: str) -> None:
     raw = json.dumps(body).replace('"SURROGATE"', '"\\ud800"').encode()
     problem = assert_problem(client.post(path, content=raw, headers={"content-type": "application/json"}), 422)
     assert "not valid Unicode" in json.dumps(problem["errors"]), problem
+
+
+@pytest.mark.parametrize("path", ["/v1/verify", "/v1/tune"])
+def test_a_plant_model_file_sent_as_the_spec_is_one_422_saying_what_it_is(client, path: str, repo_root) -> None:
+    model = yaml.safe_load((repo_root / "models" / "dc_motor.yaml").read_text())
+    body = model if path == "/v1/tune" else {"spec": model, "gains": {}}
+    problem = assert_problem(client.post(path, json=body), 422)
+    assert len(problem["errors"]) == 1 and "this is a plant model file" in problem["errors"][0]["msg"], problem
+    assert "gaintune plants show dc_motor --spec" in problem["errors"][0]["msg"]
 
 
 def test_tune_with_every_gain_fixed_is_422_not_accepted_then_failed(client) -> None:
