@@ -27,9 +27,11 @@ lint: $(STAMP)
 	$(PY) -m ruff check gaintune api
 	$(PY) -m mypy
 
-## Lint, types, then the whole default test suite (slow tests excluded; run `make test-all` for those too).
+## Lint, types, then the whole default test suite on two xdist workers (slow tests excluded; `make test-all` runs
+## those too). Not --dist loadgroup/loadscope: those key tests by node id, and schemathesis gives its 17 API
+## fuzz cases one id, so they ran 1 of the 17. The Ray tests take turns through a file lock (tests/conftest.py).
 test: lint
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2
 
 test-all: $(STAMP)
 	$(PY) -m pytest -q -m ""

@@ -81,14 +81,50 @@ def tank_spec() -> dict[str, Any]:
     return tank_family_spec()
 
 
+def _run_root(tmp_path_factory) -> Path:
+    """A folder shared by every xdist worker of this test run (the worker's own basetemp without xdist)."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the folder every worker's basetemp sits in
+    (root / "shared").mkdir(exist_ok=True)
+    return root / "shared"
+
+
+@pytest.fixture
+def one_ray_test_at_a_time(tmp_path_factory):
+    """Hold a run-wide lock for the test: the Ray tests share one 2-CPU cluster and kill its workers, so two
+    xdist workers never run them side by side (``make test`` runs two)."""
+    from filelock import FileLock
+
+    with FileLock(str(_run_root(tmp_path_factory) / "ray.lock")):
+        yield
+
+
+def _once_per_run(tmp_path_factory, name: str, build: Callable[[Path], Path]) -> Path:
+    """``build(folder)`` once per test run: the xdist workers (``make test`` runs two) share the first one's.
+
+    Each worker has its own session, so a session fixture alone trained every tiny tuner once per worker
+    (~25 s each). A file lock in the run's shared temporary folder makes the others wait and reuse it.
+    """
+    from filelock import FileLock
+
+    root = _run_root(tmp_path_factory)
+    folder, done = root / name, root / f"{name}.done"
+    with FileLock(str(root / f"{name}.lock")):
+        if not done.exists():
+            folder = build(folder)
+            done.write_text(str(folder))
+    return Path(done.read_text())
+
+
 @pytest.fixture(scope="session")
 def tiny_fotd_tuner(tmp_path_factory) -> Path:
-    """A FOTD PI tuner (Ms <= 1.4) trained for 512 episodes (about a minute on the 2-core machine)."""
+    """A FOTD PI tuner (Ms <= 1.4) trained for 512 episodes (about 25 s on the 2-core machine)."""
     from gaintune.tuners.problems import FamilyProblem
     from gaintune.tuners.train import TrainSettings, train
 
-    return train(FamilyProblem("fotd", "pi", 1.4), tmp_path_factory.mktemp("tuners") / "fotd_pi",
-                 TrainSettings(episodes=512, **tiny_training_settings()))
+    return _once_per_run(tmp_path_factory, "fotd_pi", lambda out: train(
+        FamilyProblem("fotd", "pi", 1.4), out, TrainSettings(episodes=512, **tiny_training_settings())))
 
 
 @pytest.fixture(scope="session")
@@ -98,5 +134,5 @@ def tiny_tank_tuner(tmp_path_factory) -> Path:
     from gaintune.tuners.problems import SpecProblem
     from gaintune.tuners.train import TrainSettings, train
 
-    return train(SpecProblem(load_spec(tank_family_spec())), tmp_path_factory.mktemp("tuners") / "tank_h0",
-                 TrainSettings(episodes=512, **tiny_training_settings()))
+    return _once_per_run(tmp_path_factory, "tank_h0", lambda out: train(
+        SpecProblem(load_spec(tank_family_spec())), out, TrainSettings(episodes=512, **tiny_training_settings())))

@@ -13,6 +13,9 @@ import signal
 import pytest
 from test_api_server import TINY, Server, pid_gone
 
+# the Ray tests run one at a time across the xdist workers: they share one 2-CPU cluster
+pytestmark = pytest.mark.usefixtures("one_ray_test_at_a_time")
+
 HOLD_JOB = {**TINY, "name": "on-ray", "search": {**TINY["search"], "budget": 300}}
 
 

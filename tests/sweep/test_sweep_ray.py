@@ -9,11 +9,15 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
 from sweep_fleets import grid_fleet
 
 from gaintune.sweep import SweepOptions, run_sweep
 from gaintune.sweep.store import SqliteStore
 from gaintune.sweep.worker import Hook, ledger_lines
+
+# the Ray tests run one at a time across the xdist workers: they share one 2-CPU cluster
+pytestmark = pytest.mark.usefixtures("one_ray_test_at_a_time")
 
 
 def _answers(out: Path) -> dict[str, tuple]:

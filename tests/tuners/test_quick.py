@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -21,7 +22,6 @@ from gaintune.errors import SpecError
 from gaintune.plants import build_plant
 from gaintune.spec import load_spec
 from gaintune.tuners.families import FAMILIES
-from gaintune.tuners.problems import FamilyProblem
 from gaintune.tuners.quick import quick_tune
 from gaintune.tuners.quick_model import (
     SOTD_MIN_RATIO,
@@ -31,7 +31,6 @@ from gaintune.tuners.quick_model import (
     loop_model,
     tuner_params,
 )
-from gaintune.tuners.train import TrainSettings, train
 from gaintune.tuners.tuner import Tuner
 
 runner = CliRunner()
@@ -56,12 +55,10 @@ def _spec(**changes):
 
 
 @pytest.fixture(scope="session")
-def tuners_dir(tmp_path_factory) -> Path:
+def tuners_dir(tmp_path_factory, tiny_fotd_tuner: Path) -> Path:
     """A folder holding one tiny trained FOTD PI tuner (Ms <= 1.4), as the shipped folder holds several."""
     root = tmp_path_factory.mktemp("tuners")
-    train(FamilyProblem("fotd", "pi", 1.4), root / "fotd_pi_ms1.4",
-          TrainSettings(episodes=512, n_envs=32, contexts_per_step=4, n_steps=4, batch_size=64, validation=2,
-                        curve_contexts=2))
+    shutil.copytree(tiny_fotd_tuner, root / "fotd_pi_ms1.4")
     return root
 
 
