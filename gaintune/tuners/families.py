@@ -26,7 +26,14 @@ from typing import Any
 from gaintune.errors import SpecError
 from gaintune.spec import TuningSpec, load_spec
 
-__all__ = ["Family", "FAMILIES", "problem_spec", "problem_data", "family"]
+__all__ = ["Family", "FAMILIES", "problem_spec", "problem_data", "family", "GAIN_RANGE", "TIME_RANGE"]
+
+#: The plant gains K (the integrating family's: its velocity gain) and the time scales (s) a family tuner
+#: answers for. Inside them the unit plant's answer, scaled, is verified on the plant itself
+#: (``tests/tuners/test_self_similarity.py`` probes their corners); far outside, the scaled costs, gains and
+#: divergence bound leave floating-point range (T = 1e200 s overflowed; K = 1e30 reported the diverged cost).
+GAIN_RANGE = (1e-10, 1e10)
+TIME_RANGE = (1e-6, 1e8)
 
 
 @dataclass(frozen=True)
@@ -115,7 +122,21 @@ class Family:
                 raise SpecError(f"params.{p}", f"must be >= 0, got {out[p]:g}")
         if self.time_scale(out) <= 0:
             raise SpecError("params", "the plant has no time scale (all lags and the delay are 0)")
+        self._check_scales(out)
         return out
+
+    def _check_scales(self, v: Mapping[str, float]) -> None:
+        """SpecError unless the plant's gain K and time scale lie in :data:`GAIN_RANGE` and :data:`TIME_RANGE`."""
+        tc = self.time_scale(v)
+        lags = " + ".join(["L"] + [p for p in self.params[1:] if p != "L"])
+        if not TIME_RANGE[0] <= tc <= TIME_RANGE[1]:
+            raise SpecError("params", f"the plant's time scale {lags} = {tc:g} s is outside the {TIME_RANGE[0]:g} to "
+                            f"{TIME_RANGE[1]:g} s a ready-made tuner answers for; give the times in other units "
+                            "(and scale the answer's Ki and Kd back), or use 'gaintune tune'")
+        if not GAIN_RANGE[0] <= v["K"] <= GAIN_RANGE[1]:
+            raise SpecError("params.K", f"the plant's gain K = {v['K']:g} is outside the {GAIN_RANGE[0]:g} to "
+                            f"{GAIN_RANGE[1]:g} a ready-made tuner answers for; express the output or the input "
+                            "in other units (kPa instead of Pa, say), or use 'gaintune tune'")
 
     def scale_gains(self, unit_gains: Mapping[str, float], values: Mapping[str, float]) -> dict[str, float]:
         """The unit plant's gains scaled to the plant with physical parameters ``values``."""

@@ -238,8 +238,12 @@ def tuner_start(spec: TuningSpec, plant: Plant, tuners_dir: str | Path | None = 
         return TunerStart(model, None, None, [f"no ready-made tuner for a {model.family.upper()} {ctype.upper()} "
                                               f"loop (tuners {where}: {have}): the answer starts from the rules"])
     tuner = Tuner.load(info.folder)
-    params, note = tuner_params(model, tuner.problem)
-    raw, _, _ = tuner.policy_gains(params)
+    try:
+        params, note = tuner_params(model, tuner.problem)
+        raw, _, _ = tuner.policy_gains(params)
+    except SpecError as exc:  # the model's gain or time scale lies outside what the family tuners answer for
+        return TunerStart(model, None, None, [f"the tuner {info.name} does not answer for this model "
+                                              f"({exc.message.split(';')[0]}): the answer starts from the rules"])
     gains = _loop_gains(spec, next(iter(raw.values())), loop_directions(spec, plant)[0])
     notes = _notes(spec, info) + ([note] if note else [])
     return TunerStart(model, info, gains, notes)

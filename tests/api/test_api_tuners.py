@@ -80,6 +80,9 @@ def test_tuner_query_route_unknown_tuner_is_404(client, shipped: Path, name: str
     ({"params": {**PLANT, "Z": 1}}, "params.Z", "not a parameter of the fotd family"),
     ({"params": {**PLANT, "L": 1000}}, "params.tau", "L/T = 16.7 is outside the family"),
     ({"params": {**PLANT, "K": -1}}, "params.K", "must be > 0"),
+    # test_a_time_scale_of_1e200_is_refused_not_an_overflow: it was an OverflowError's text
+    ({"params": {"K": 1, "T": 1e200, "L": 1e200}}, "params", "time scale L + T = 2e+200 s is outside"),
+    ({"params": {**PLANT, "K": 1e308}}, "params.K", "gain K = 1e+308 is outside the 1e-10 to 1e+10"),
     ({"params": PLANT, "refine": 10**6}, "refine", "exceeds this server's limit of 2000"),
     ({"params": {**PLANT, "K": "x"}}, "params.K", ""),
     ({"params": PLANT, "extra": 1}, "extra", ""),

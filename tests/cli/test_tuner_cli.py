@@ -112,6 +112,10 @@ def test_tuner_query_failing_verdict_exits_3_and_accepts_no_gains(tiny_fotd_tune
     (["-p", "K=2", "-p", "T=60", "-p", "L=10", "-p", "Z=1"], "error: params.Z: not a parameter of the fotd family"),
     (["-p", "K=2", "-p", "T=60"], "error: params.L: the fotd family needs K, T, L"),
     (["-p", "K=-2", "-p", "T=60", "-p", "L=10"], "error: params.K: must be > 0"),
+    # a time scale of 1e200 s ended in an OverflowError's traceback; K = 1e308 named internal spec fields
+    (["-p", "K=1", "-p", "T=1e200", "-p", "L=1e200"], "error: params: the plant's time scale L + T = 2e+200 s"),
+    (["-p", "K=1e308", "-p", "T=60", "-p", "L=10"], "error: params.K: the plant's gain K = 1e+308 is outside"),
+    (["-p", "K=2", "-p", "T=1e-9", "-p", "L=1e-9"], "give the times in other units"),
 ])
 def test_tuner_query_bad_parameter_exits_2_naming_it(tiny_fotd_tuner: Path, args: list[str], needle: str) -> None:
     res = run("tuner", "query", tiny_fotd_tuner, *args)

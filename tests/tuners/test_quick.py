@@ -182,6 +182,17 @@ def test_quick_without_a_tuner_of_the_family_starts_from_the_rules(tuners_dir) -
     assert "no ready-made tuner for a FOTD PID loop" in q.notes[0]
 
 
+def test_quick_of_a_plant_beyond_the_tuners_gain_range_starts_from_the_rules_and_says_why(tuners_dir) -> None:
+    """The tuner's refusal (params.K, outside GAIN_RANGE) ended --quick with exit 2 naming a field the spec
+    does not have; the quick answer starts from the rules instead, and says so."""
+    d = copy.deepcopy(FOTD)
+    d["plant"]["tf"]["num"] = [2e12]
+    d["safety"] = {"divergence_bound": 1e20}  # its signals are that large
+    q = quick_tune(load_spec(d), tuners_dir=tuners_dir)
+    assert q.tuner is None and q.source in ("amigo", "simc") and q.verdict == "pass"
+    assert "does not answer for this model (the plant's gain K = 2e+12 is outside" in q.notes[0]
+
+
 # ------------------------------------------------------------------ refusals
 
 

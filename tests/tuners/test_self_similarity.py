@@ -36,3 +36,45 @@ def test_every_time_scale_and_gain_over_fourteen_decades_gets_a_passing_answer(n
             if a.verdict != "pass":
                 failed.append((s, k, a.as_dict()["failures"][:1]))
     assert not failed, failed
+
+
+#: Two shapes per family at the ends of its training range, as functions of the time scale.
+EDGE_SHAPES = {
+    "fotd_pi_ms1.4": [lambda s: {"T": s / 1.05, "L": 0.05 * s / 1.05}, lambda s: {"T": s / 11, "L": 10 * s / 11}],
+    "fotd_pid_ms1.4": [lambda s: {"T": s / 1.05, "L": 0.05 * s / 1.05}, lambda s: {"T": s / 11, "L": 10 * s / 11}],
+    "sotd_pi_ms1.4": [lambda s: {"T1": s / 1.05 ** 2, "T2": 0.05 * s / 1.05 ** 2, "L": 0.05 * s / 1.05},
+                      lambda s: {"T1": s / 22, "T2": s / 22, "L": 10 * s / 11}],
+    "ipd_pi_ms1.4": [lambda s: {"T": s / 1.06, "L": 0.06 * s / 1.06}, lambda s: {"T": s / 20, "L": 19 * s / 20}],
+}
+
+
+@pytest.mark.parametrize("name", sorted(EDGE_SHAPES))
+def test_the_corners_of_the_supported_gains_and_time_scales_get_a_passing_answer(name):
+    """GAIN_RANGE x TIME_RANGE at both ends of each family's shape range: the range the tuners promise."""
+    from gaintune.tuners.families import GAIN_RANGE, TIME_RANGE
+
+    tuner = Tuner.load(name)
+    failed = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for k, s, shape in itertools.product(GAIN_RANGE, (TIME_RANGE[0], 0.999 * TIME_RANGE[1]), EDGE_SHAPES[name]):
+            a = tuner.query({"K": k, **shape(s)})
+            if a.verdict != "pass" or not a.cost < 1e29:  # the simulator's diverged cost is 1e30
+                failed.append((k, s, a.cost, a.as_dict()["failures"][:1]))
+    assert not failed, failed
+
+
+@pytest.mark.parametrize("params, field, needle", [
+    ({"K": 1.0, "T": 1e200, "L": 1e200}, "params", "time scale L + T = 2e+200 s is outside the 1e-06 to 1e+08 s"),
+    ({"K": 1.0, "T": 1e-9, "L": 1e-9}, "params", "time scale L + T = 2e-09 s is outside"),
+    ({"K": 1e30, "T": 1.0, "L": 1.0}, "params.K", "gain K = 1e+30 is outside the 1e-10 to 1e+10"),
+    ({"K": 1e-308, "T": 1.0, "L": 1.0}, "params.K", "express the output or the input in other units"),
+])
+def test_a_plant_beyond_the_supported_scales_is_refused_naming_the_parameter_and_the_fix(params, field, needle):
+    """Beyond them T = 1e200 s overflowed (a traceback), K = 1e308 named internal spec fields, K = 1e30 passed
+    with the simulator's diverged cost, and T = L = 1e-9 s on the integrating family was called unstable."""
+    from gaintune.errors import SpecError
+
+    with pytest.raises(SpecError) as exc:
+        Tuner.load("fotd_pi_ms1.4").query(params)
+    assert exc.value.field == field and needle in exc.value.message
