@@ -33,7 +33,7 @@ __all__ = ["Family", "FAMILIES", "problem_spec", "problem_data", "family", "GAIN
 #: (``tests/tuners/test_self_similarity.py`` probes their corners); far outside, the scaled costs, gains and
 #: divergence bound leave floating-point range (T = 1e200 s overflowed; K = 1e30 reported the diverged cost).
 GAIN_RANGE = (1e-10, 1e10)
-TIME_RANGE = (1e-6, 1e8)
+TIME_RANGE = (1e-9, 1e8)
 
 
 @dataclass(frozen=True)

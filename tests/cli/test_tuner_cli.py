@@ -115,7 +115,7 @@ def test_tuner_query_failing_verdict_exits_3_and_accepts_no_gains(tiny_fotd_tune
     # a time scale of 1e200 s ended in an OverflowError's traceback; K = 1e308 named internal spec fields
     (["-p", "K=1", "-p", "T=1e200", "-p", "L=1e200"], "error: params: the plant's time scale L + T = 2e+200 s"),
     (["-p", "K=1e308", "-p", "T=60", "-p", "L=10"], "error: params.K: the plant's gain K = 1e+308 is outside"),
-    (["-p", "K=2", "-p", "T=1e-9", "-p", "L=1e-9"], "give the times in other units"),
+    (["-p", "K=2", "-p", "T=1e-12", "-p", "L=1e-12"], "give the times in other units"),
 ])
 def test_tuner_query_bad_parameter_exits_2_naming_it(tiny_fotd_tuner: Path, args: list[str], needle: str) -> None:
     res = run("tuner", "query", tiny_fotd_tuner, *args)

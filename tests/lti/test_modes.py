@@ -44,3 +44,19 @@ def test_the_unobservable_part_of_a_badly_scaled_model_is_still_found():
     V1, V2 = split
     assert V1.shape == (3, 2) and np.allclose(np.linalg.eigvals(V2.T @ A @ V2), [0.0])
     assert np.allclose(V1.T @ V1, np.eye(2)) and np.allclose(V1.T @ V2, 0.0)
+
+
+@pytest.mark.parametrize("T", [1.0, 5e-10, 5e-12])
+def test_an_integrator_sees_its_nanosecond_lag_through_a_coupling_of_one(T):
+    """Regression: the companion form of 1/(s (T s + 1)) at T = 5e-10 s has the entries 1/T = 2e9 and 1 (the
+    integrator's input); scaled to norm 1 that coupling is 5e-10, below the rank test's 1e-9 against the
+    measured direction, so the lag was split off with B = 0 and the verification called the stable loop
+    unstable (the ready-made integrating tuner at a time scale of 1e-8 s, L/T = 19)."""
+    A = np.array([[-1.0 / T, 0.0], [1.0, 0.0]])
+    assert observable_split(A, np.array([[0.0, 1.0 / T]])) is None
+
+
+def test_a_mode_with_no_coupling_at_all_stays_unobservable_beside_a_fast_one():
+    A = np.array([[-2e9, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # the third state: no path to y
+    split = observable_split(A, np.array([[0.0, 2e9, 0.0]]))
+    assert split is not None and np.allclose(np.linalg.eigvals(split[1].T @ A @ split[1]), [-1.0])

@@ -252,7 +252,7 @@ def test_curve_every_below_one_is_refused_naming_it():
 
 
 @pytest.mark.parametrize("params", [{"K": 1e8, "T": 1.0, "L": 1.0}, {"K": 1.0, "T": 1e7, "L": 1e7},
-                                    {"K": 1e4, "T": 100.0, "L": 100.0}, {"K": 1e-10, "T": 1e-6, "L": 1e-6}])
+                                    {"K": 1e4, "T": 100.0, "L": 100.0}, {"K": 1e-10, "T": 1e-9, "L": 1e-9}])
 def test_plants_far_from_the_unit_plant_get_the_unit_answer_scaled_and_verified(params):
     """Regression: K = 1e8 or T = L = 1e7 s failed ("simulation diverged": a signal past the default divergence
     bound of 1e6), and K = 1e4 passed with the cost 1e6 (a real cost called divergence). The family is
