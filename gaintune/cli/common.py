@@ -83,8 +83,9 @@ class _Console:
         return self._real().__exit__(*exc)
 
 
-out = _Console()
-err = _Console(stderr=True, soft_wrap=True)
+# emoji off: rich turns ':b:' in echoed input ('a:b:c', a path, a spec name) into an emoji
+out = _Console(emoji=False)
+err = _Console(stderr=True, soft_wrap=True, emoji=False)
 
 
 class InputError(Exception):

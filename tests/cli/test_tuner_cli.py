@@ -123,6 +123,12 @@ def test_tuner_query_bad_parameter_exits_2_naming_it(tiny_fotd_tuner: Path, args
     assert "Traceback" not in res.output
 
 
+def test_an_error_echoes_the_input_as_typed_not_as_an_emoji(tiny_fotd_tuner: Path) -> None:
+    """Regression: rich read ':b:' in the echoed input as an emoji code ('a:b:c' printed as 'a\U0001f171c')."""
+    res = run("tuner", "query", tiny_fotd_tuner, "-p", "K=a:b:c", "-p", "T=60", "-p", "L=10")
+    assert res.exit_code == 2 and "got 'a:b:c'" in res.stderr, res.stderr
+
+
 def test_tuner_query_outside_the_family_is_refused_naming_l_over_t(tiny_fotd_tuner: Path,
                                                                     tiny_tank_tuner: Path) -> None:
     res = run("tuner", "query", tiny_fotd_tuner, "-p", "K=2", "-p", "T=60", "-p", "L=1000")
