@@ -258,12 +258,14 @@ class SpecProblem(TunerProblem):
         return {n: float(params[n]) if n in params else self._nominal(n) for n in names}
 
     def _nominal(self, name: str) -> float:
+        """The spec's nominal value of a context variable: from the built plant, so a parameter whose default
+        lives in a model file (the water tank's H0) and a delay given as an expression have one."""
         if name == "actuator_scale":
             return 1.0
-        if name == "delay":
-            d = self.spec.plant.delay
-            return float(d) if isinstance(d, (int, float)) else 0.0
-        return float(self.spec.plant.params[name])
+        from gaintune.plants import build_plant
+
+        plant = build_plant(self.spec.plant)
+        return float(plant.delay()) if name == "delay" else float(plant.params[name])
 
     def physical_spec(self, params: Mapping[str, float]) -> TuningSpec:
         return self.spec_at(self.context_of(params))

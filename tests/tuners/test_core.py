@@ -304,3 +304,12 @@ def test_second_order_plant_with_microsecond_lags_passes_with_the_unit_answer_sc
     a = tuner.query({"K": 1.0, "T1": 1e-6, "T2": 0.3e-6, "L": 0.4e-6})
     assert a.verdict == "pass", a.as_dict()["failures"]
     assert a.gains["main"]["Ki"] == pytest.approx(unit.gains["main"]["Ki"] * 1e6, rel=1e-6)
+
+
+def test_a_query_without_a_variable_whose_default_is_in_the_model_file_takes_that_default():
+    """Regression: ``gaintune tuner query water_tank_h0`` without ``-p H0=...`` ended in a KeyError traceback: the
+    nominal value was read from the spec's own plant params, and H0's (10 m) lives in models/water_tank.yaml."""
+    tuner = Tuner.load("water_tank_h0")
+    a = tuner.query({})
+    assert a.context == {"H0": 10.0} and a.verdict == "pass"
+    assert a.gains == tuner.query({"H0": 10.0}).gains
