@@ -54,6 +54,9 @@ DELAY_SAMPLES = 20
 MIN_STEPS = 2000
 #: Most samples per derived scenario (simulation cost); dt is raised above it.
 STEP_CAP = 20_000
+#: Least samples a derived horizon keeps after the scenario's last event: with fewer, the response to it is not
+#: simulated (a step at 1 s on a plant of 1e-12 s was simulated to 1 s exactly, and its cost 0 passed).
+MIN_WINDOW_STEPS = 50
 #: A nonlinear plant's dt stays below RK4_SPAN / |fastest pole| (accuracy of one RK4 step).
 RK4_SPAN = 0.5
 #: Least damping assumed of an oscillatory pole in closed loop (the scale of a path with no FOTD model).
@@ -223,10 +226,12 @@ def _fill(i: int, sc: ScenarioSpec, ps: PlantScale, t_event: float) -> tuple[Sce
             dt = max(dt, cap if ps.dt_max == math.inf else min(cap, _round_down(ps.dt_max)))
             notes.append(f"dt raised to keep horizon/dt <= {STEP_CAP} steps")
     if sc.horizon is None:
-        horizon = max(_round_up(horizon), 2 * dt)  # a given dt may be coarse: at least 2 samples
+        # rounding up keeps the window after the event (its 1e-9 guard rounded 1 + 1e-11 s down to 1 s)
+        horizon = max(_round_up(horizon), t_event + ps.horizon, 2 * dt)  # a given dt may be coarse: >= 2 samples
         if horizon / dt > MAX_STEPS:
             horizon = float(f"{MAX_STEPS * dt:.12g}")
             notes.append(f"horizon shortened to the limit of {MAX_STEPS} steps")
+        _check_window(i, t_event, horizon, dt, ps)
     elif horizon / dt < 2:
         raise SpecError(f"scenarios[{i}].horizon", f"{horizon:g} s is shorter than 2 samples of the dt derived from "
                         f"the plant ({dt:g} s); give a longer horizon, or a dt")
@@ -236,6 +241,17 @@ def _fill(i: int, sc: ScenarioSpec, ps: PlantScale, t_event: float) -> tuple[Sce
                           dt_from="spec" if sc.dt is not None else "plant",
                           horizon_from="spec" if sc.horizon is not None else "plant", reason=reason)
     return filled, rec
+
+
+def _check_window(i: int, t_event: float, horizon: float, dt: float, ps: PlantScale) -> None:
+    """SpecError naming the scenario when a derived horizon keeps fewer than :data:`MIN_WINDOW_STEPS` samples
+    after its last event (an event many settling windows after the start, with the step count capped)."""
+    if t_event <= 0 or (horizon - t_event) / dt >= MIN_WINDOW_STEPS:
+        return
+    raise SpecError(f"scenarios[{i}]", f"its last event at {t_event:g} s is {t_event / ps.horizon:.3g} times the "
+                    f"plant's settling window ({ps.horizon:.3g} s) after the start, and the derived horizon, at "
+                    f"most {STEP_CAP} steps, keeps {max(horizon - t_event, 0.0) / dt:.3g} samples after it; "
+                    "put the event nearer t = 0, or give the scenario's dt and horizon")
 
 
 def _event_time(spec: TuningSpec, sc: ScenarioSpec) -> float:

@@ -34,7 +34,8 @@ from gaintune.files import read_bytes_bounded, write_atomic
 from gaintune.tuners.mlp import NumpyPolicy
 from gaintune.tuners.problems import GainBox, TunerProblem, problem_from_dict
 
-__all__ = ["FORMAT", "VERSION", "Artefact", "save", "load", "critic_sha256", "SHIPPED_DIR", "shipped_names", "resolve"]
+__all__ = ["FORMAT", "VERSION", "Artefact", "check_out", "save", "load", "critic_sha256", "SHIPPED_DIR",
+           "shipped_names", "resolve"]
 
 FORMAT = "gaintune-tuner"
 #: Bumped when the folder's meaning changes; :func:`load` refuses other versions.
@@ -63,11 +64,26 @@ def _npz_bytes(policy: NumpyPolicy) -> bytes:
     return buf.getvalue()
 
 
-def save(out: str | Path, art: Artefact) -> Path:
-    """Write ``art`` as the folder ``out`` (atomically: built beside it, then renamed into place)."""
+def check_out(out: str | Path) -> Path:
+    """``out`` as a Path where a tuner may be written, else SpecError naming ``out``: a new folder, an empty one,
+    or a tuner folder (replaced). A folder holding anything else is refused, never emptied: the atomic
+    replace moves the old folder aside and deletes it, and a user's files there were lost."""
+    if not str(out).strip():
+        raise SpecError("out", "give a folder name for the tuner")
     out = Path(out)
     if out.is_symlink() or (out.exists() and not out.is_dir()):
         raise SpecError("out", f"{out} exists and is not a folder; give a folder for the tuner")
+    if out.is_dir() and not (out / "tuner.json").is_file() and any(out.iterdir()):
+        raise SpecError("out", f"{out} holds files and is not a tuner folder; give a new or empty folder (a tuner "
+                        "folder there is replaced, nothing else is)")
+    if out.resolve() == Path.cwd().resolve():
+        raise SpecError("out", "the tuner replaces its folder: give a folder below this one, not the current one")
+    return out
+
+
+def save(out: str | Path, art: Artefact) -> Path:
+    """Write ``art`` as the folder ``out`` (atomically: built beside it, then renamed into place)."""
+    out = check_out(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     assert art.problem.box is not None
     npz = _npz_bytes(art.policy)
@@ -86,6 +102,7 @@ def save(out: str | Path, art: Artefact) -> Path:
     if "critic.npz" in art.files:  # a TD3 tuner's critic: what 'tuner update' continues from (no torch agent)
         doc["critic"] = {"file": "critic.npz", "sha256": hashlib.sha256(art.files["critic.npz"]).hexdigest()}
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    tmp.chmod(0o755)  # mkdtemp makes it 0700: the folder it becomes is an ordinary one
     try:
         write_atomic(tmp / "policy.npz", npz)
         for fname, data in art.files.items():

@@ -199,7 +199,7 @@ def train(problem: TunerProblem, out: str | Path, settings: TrainSettings | None
     if warm_start is not None:  # the policy already answers: explore near it, learn more from each simulation
         s = dataclasses.replace(s, noise_start=min(s.noise_start, UPDATE_NOISE),
                                 gradient_steps=max(s.gradient_steps, UPDATE_GRADIENT_STEPS))
-    out = Path(out)
+    out = artefact.check_out(out)  # before the training: a folder it must not replace is refused now, not after
     env, agent, warmup = _setup(problem, s, warm_start)
     ckpt = _Checkpoint(out, s.key(problem))
     state = _start_state(ckpt, agent, env, s, resume)

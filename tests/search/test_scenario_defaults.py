@@ -96,6 +96,22 @@ def test_derived_horizon_starts_after_the_last_event():
     assert d.horizon == 750.0 and "after the last event at 50 s" in d.reason
 
 
+def test_a_step_far_beyond_the_plants_settling_window_is_refused_not_simulated_to_its_own_time():
+    """Regression: a step at 1 s on a plant of 1e-12 s got the horizon 1 s (rounding up to two digits swallowed the
+    1e-11 s window after it), so the step was never simulated and 'tune --quick' passed with cost 0."""
+    from gaintune.errors import SpecError
+
+    spec = load_spec({"plant": {"tf": {"num": [1], "den": "1e-12*s + 1"}}, "loops": [{"type": "pi"}],
+                      "scenarios": [{"name": "late", "reference": {"kind": "step", "amplitude": 1.0, "time": 1.0}}]})
+    with pytest.raises(SpecError) as e:
+        scenario_defaults(spec)
+    assert e.value.field == "scenarios[0]" and "put the event nearer t = 0" in e.value.message
+    near = spec.model_copy(update={"scenarios": [spec.scenarios[0].model_copy(
+        update={"reference": spec.scenarios[0].reference.model_copy(update={"time": 0.0})})]})
+    (sc,) = scenario_defaults(near)[0].scenarios
+    assert sc.horizon / sc.dt >= 50
+
+
 def test_unsettled_explicit_scenario_warns_naming_scenario_and_horizon():
     spec = load_spec({**FOTD, "scenario": {"name": "short", "dt": 0.1, "horizon": 20}, "search": SMALL})
     result = tune(spec)

@@ -75,6 +75,30 @@ def test_tuner_artefact_round_trip_and_query_determinism(tiny):
     assert doc["training"]["episodes"] == TINY.episodes and doc["validation"]["n"] == TINY.validation
 
 
+def test_training_into_a_folder_of_other_files_is_refused_before_it_starts_and_deletes_nothing(tmp_path):
+    """Regression: 'tuner train SPEC --out precious' replaced the folder atomically, moving the old one aside and
+    deleting it: the user's files in it were gone."""
+    precious = tmp_path / "precious"
+    precious.mkdir()
+    (precious / "notes.txt").write_text("mine")
+    for out in (precious, ""):
+        with pytest.raises(SpecError) as e:
+            train(FamilyProblem("fotd", "pi", 1.4), out, TINY)
+        assert e.value.field == "out"
+    assert (precious / "notes.txt").read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["precious"]
+
+
+def test_a_tuner_folder_is_an_ordinary_folder_and_is_replaced_by_a_new_save(tiny, tmp_path):
+    import shutil
+    import stat
+
+    copy = tmp_path / "copy"
+    shutil.copytree(tiny, copy)
+    artefact.save(copy, artefact.load(tiny))  # a tuner folder is replaced
+    assert stat.S_IMODE(copy.stat().st_mode) == 0o755 and (copy / "tuner.json").is_file()  # mkdtemp's was 0700
+    assert stat.S_IMODE(tiny.stat().st_mode) == 0o755
+
+
 def test_tuner_of_another_format_version_is_refused_naming_version(tiny, tmp_path):
     import shutil
 
