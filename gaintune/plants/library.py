@@ -14,12 +14,12 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from gaintune.errors import SpecError
 from gaintune.files import read_text_bounded
 from gaintune.spec import PlantSpec
+from gaintune.spec.yamlload import load_yaml
 
 __all__ = ["ParamDoc", "ModelDef", "models_dir", "list_models", "load_model"]
 
@@ -71,24 +71,90 @@ def models_dir() -> Path:
 
 
 def list_models() -> list[str]:
-    """Names (file stems) of the built-in models in :func:`models_dir`, sorted."""
-    return sorted(p.stem for p in models_dir().glob("*.yaml"))
+    """Names (file stems) of the built-in models in :func:`models_dir`, sorted.
+
+    Returns
+    -------
+    list[str]
+        Stems of the ``*.yaml`` files; empty when the folder is missing or holds none. A folder
+        named ``*.yaml`` is no model, so it is not listed.
+    """
+    return sorted(p.stem for p in models_dir().glob("*.yaml") if p.is_file())
+
+
+def _unknown_model(name: str) -> SpecError:
+    """The error for a model name with no file: the known models, or why there are none."""
+    folder = models_dir()
+    # a missing folder or an empty list must say so: "built-in models: " with nothing after it is no help
+    via = ", from GAINTUNE_MODELS," if os.environ.get("GAINTUNE_MODELS") else ""
+    fix = "point GAINTUNE_MODELS at a folder of model files (NAME.yaml) or unset it"
+    if not folder.is_dir():
+        what = "does not exist" if not folder.exists() else "is not a folder"
+        return SpecError("plant.model.name", f"unknown model {name!r}; built-in models: none (the models folder "
+                         f"{folder}{via} {what}); {fix}")
+    known = list_models()
+    if not known:
+        return SpecError("plant.model.name", f"unknown model {name!r}; built-in models: none (the models folder "
+                         f"{folder}{via} holds no NAME.yaml files); {fix}")
+    return SpecError("plant.model.name", f"unknown model {name!r}; built-in models: {', '.join(known)}")
 
 
 @lru_cache(maxsize=64)
 def load_model(name: str) -> ModelDef:
-    """Load a built-in model by file stem; unknown names raise SpecError listing the known ones."""
+    """Load a built-in model by its file stem.
+
+    Parameters
+    ----------
+    name
+        The model name: ``NAME.yaml`` in :func:`models_dir`.
+
+    Returns
+    -------
+    ModelDef
+        The validated model definition (cached: callers must not modify it).
+
+    Raises
+    ------
+    SpecError
+        Field ``plant.model.name`` for an invalid or unknown name (listing the known models);
+        field ``models/NAME.yaml`` when the file is not a regular file, too large, not UTF-8,
+        not valid YAML, not a YAML mapping, or not a valid model definition.
+    """
     if not name.replace("_", "").isalnum():
         raise SpecError("plant.model.name", f"invalid model name {name!r}")
     path = models_dir() / f"{name}.yaml"
+    field = f"models/{name}.yaml"
+    if not os.path.lexists(path):
+        raise _unknown_model(name)
     if not path.is_file():
-        raise SpecError("plant.model.name", f"unknown model {name!r}; built-in models: {', '.join(list_models())}")
-    data = yaml.safe_load(read_text_bounded(path, f"models/{name}.yaml"))
+        # it exists, so "unknown model" would contradict the list of models; read_text_bounded would
+        # refuse a pipe or device too, but a folder fails there with a bare IsADirectoryError
+        raise SpecError(field, f"{path} is not a file (a folder, a device, a pipe or a broken link); "
+                        "a model is a regular file NAME.yaml holding its YAML definition")
+    text = read_text_bounded(path, field)
+    try:
+        data = load_yaml(text)  # bounded alias expansion, as for specs
+    except ValueError as exc:
+        # the parser says where (line, column) in "<unicode string>": name the file instead
+        problem = str(exc).replace("<unicode string>", str(path))
+        raise SpecError(field, f"{path} is not valid YAML: {problem}") from None
+    except RecursionError:  # PyYAML composes nested nodes recursively
+        raise SpecError(field, f"{path} is nested too deeply (thousands of levels of lists or mappings); "
+                        "a model definition needs a few") from None
+    if not isinstance(data, dict):
+        got = "empty" if data is None else "a YAML list" if isinstance(data, list) else "a single YAML value"
+        raise SpecError(field, f"{path} is {got}; a model file must be a YAML mapping of a model definition "
+                        "(title, parameters, plant, ...), like the files in the repository's models/ folder")
     data.setdefault("name", name)
-    params = {k: (v["value"] if isinstance(v, dict) else v) for k, v in data.get("parameters", {}).items()}
-    data.setdefault("plant", {})
-    data["plant"] = dict(data["plant"], params={**params, **data["plant"].get("params", {})})
+    # the parameters' values become the plant's default params; malformed sections are left as they are
+    # for the schema below to report by field
+    raw_params = data.get("parameters")
+    params = ({k: (v["value"] if isinstance(v, dict) else v) for k, v in raw_params.items()
+               if not isinstance(v, dict) or "value" in v} if isinstance(raw_params, dict) else {})
+    plant = data.setdefault("plant", {})
+    if isinstance(plant, dict) and isinstance(plant.get("params", {}), dict):
+        data["plant"] = dict(plant, params={**params, **plant.get("params", {})})
     try:
         return ModelDef.model_validate(data)
     except ValidationError as exc:  # a broken model file is a packaging bug, but say where
-        raise SpecError(f"models/{name}.yaml", str(exc)) from None
+        raise SpecError(field, str(exc)) from None

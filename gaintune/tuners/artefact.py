@@ -149,6 +149,7 @@ def load(folder: str | Path) -> Artefact:
                                              str(pol.get("output", "clip")))
         box = GainBox.from_dict(doc["box"])
         problem = problem_from_dict(doc["problem"], box)
+        _check_slots(problem, box)
     except (ValueError, KeyError, TypeError) as exc:
         raise SpecError("tuner", f"{folder} is damaged ({exc}); retrain it") from None
     if policy.n_in != len(problem.variables) or policy.n_out != len(box.slots):
@@ -158,6 +159,23 @@ def load(folder: str | Path) -> Artefact:
             if k not in ("problem", "spec", "box", "context", "policy", "training", "validation", "critic")}
     return Artefact(str(doc.get("name") or folder.name), problem, policy, doc.get("training") or {},
                     doc.get("validation") or {}, meta)
+
+
+def _check_slots(problem: TunerProblem, box: GainBox) -> None:
+    """ValueError unless every slot of the box is a gain that the problem's spec tunes (a box naming a loop or a
+    gain the spec does not have answered with a KeyError traceback)."""
+    from gaintune.controllers.layout import GainLayout
+    from gaintune.plants import build_plant
+
+    spec = problem.spec_at(problem.centre())
+    plant = build_plant(spec.plant)
+    try:
+        tuned = {(s.loop_name, s.name) for s in GainLayout(spec, plant.states, plant=plant).tuned_slots}
+    except SpecError as exc:  # a gain the loop's form does not have
+        raise ValueError(exc.message) from None
+    stray = [s for s in box.slots if s not in tuned]
+    if stray:
+        raise ValueError(f"its gain box names {stray[0][0]}.{stray[0][1]}, which its spec does not tune")
 
 
 def critic_sha256(folder: str | Path) -> str | None:

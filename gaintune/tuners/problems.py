@@ -52,8 +52,8 @@ class ContextVar:
         return self.lo + u * (self.hi - self.lo)
 
     def contains(self, v: float, rtol: float = 1e-9) -> bool:
-        """Inside the training range (with a relative tolerance for rounding)."""
-        return self.lo * (1 - rtol) - rtol <= v <= self.hi * (1 + rtol) + rtol
+        """Inside the training range (with a relative tolerance for rounding, on either sign of the ends)."""
+        return self.lo - rtol * (abs(self.lo) + 1) <= v <= self.hi + rtol * (abs(self.hi) + 1)
 
 
 @dataclass(frozen=True)
@@ -100,9 +100,16 @@ class GainBox:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> GainBox:
+        """The box of a tuner.json (ValueError saying what is wrong: a damaged file must not crash its reader)."""
+        slots = tuple((str(a), str(b)) for a, b in d["slots"])
+        lo, hi = np.asarray(d["lo"], float), np.asarray(d["hi"], float)
         axis = d.get("scale_axis")
-        return cls(tuple((str(a), str(b)) for a, b in d["slots"]), np.log(np.asarray(d["lo"], float)),
-                   np.log(np.asarray(d["hi"], float)), None if axis is None else np.asarray(axis, float))
+        ax = None if axis is None else np.asarray(axis, float)
+        if not slots or any(x.shape != (len(slots),) for x in (lo, hi, *([] if ax is None else [ax]))):
+            raise ValueError(f"its gain box needs one lo, hi (and scale_axis) value per slot ({len(slots)} slots)")
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo > 0) and np.all(hi > lo)):
+            raise ValueError("its gain box bounds must be finite with 0 < lo < hi")
+        return cls(slots, np.log(lo), np.log(hi), ax)
 
 
 def _with_bounds(data: dict[str, Any], bounds: Mapping[tuple[str, str], tuple[float, float]]) -> dict[str, Any]:
@@ -226,6 +233,11 @@ class SpecProblem(TunerProblem):
         if not vs:
             raise SpecError("randomize.params", "a tuner needs a family: give the plant parameters that vary, e.g. "
                             "randomize: {params: {K: [0.5, 5]}}")
+        from gaintune.plants import build_plant
+        from gaintune.plants.checks import validate_against_plant
+
+        # as 'tune' checks it: a parameter the plant does not have trained a tuner over nothing
+        validate_against_plant(spec, build_plant(spec.plant))
         self.spec = spec
         self.variables = tuple(vs)
 

@@ -103,17 +103,22 @@ class Tuner:
         for v in self.problem.variables:
             x = ctx[v.name]
             if not v.contains(x):
-                raise OutsideFamilyError(f"params.{v.name}", self._outside_text(v.name, x, v.lo, v.hi))
+                raise OutsideFamilyError(f"params.{v.name}", self._outside_text(v.name, x, v.lo, v.hi, params))
         return ctx
 
-    def _outside_text(self, name: str, x: float, lo: float, hi: float) -> str:
+    def _outside_text(self, name: str, x: float, lo: float, hi: float, params: Mapping[str, float]) -> str:
         if isinstance(self.problem, FamilyProblem) and name == "tau":
             def ratio(t: float) -> float:
                 return t / (1.0 - t) if t < 1 else float("inf")
-            return (f"L/T = {ratio(x):.3g} is outside the family this tuner was trained on (L/T from {ratio(lo):.3g} "
-                    f"to {ratio(hi):.3g}); use 'gaintune tune' for this plant")
-        return (f"{name} = {x:g} is outside the family this tuner was trained on ({lo:g} to {hi:g}); "
-                "use 'gaintune tune' for this plant, or 'gaintune tuner update' with a wider range")
+
+            lags = sum(float(params[p]) for p in self.problem.family.params[1:] if p != "L")  # L/T from the params
+            value = float(params["L"]) / lags if lags > 0 else float("inf")
+            lo_r, hi_r = ratio(lo), ratio(hi)
+            return (f"L/T = {_apart(value, hi_r if value > hi_r else lo_r)} is outside the family this tuner was "
+                    f"trained on (L/T from {lo_r:.3g} to {hi_r:.3g}); use 'gaintune tune' for this plant")
+        return (f"{name} = {_apart(x, hi if x > hi else lo)} is outside the family this tuner was trained on "
+                f"({lo:g} to {hi:g}); use 'gaintune tune' for this plant, or 'gaintune tuner update' with a wider "
+                "range")
 
     def policy_gains(self, params: Mapping[str, float]) -> tuple[Gains, dict[str, float], float]:
         """The policy's raw gains for ``params`` (before the boundary move), the context, and the forward-pass ms."""
@@ -144,6 +149,16 @@ class Tuner:
                            verdict=report.verdict, cost=cost, policy_ms=policy_ms,
                            elapsed_ms=1e3 * (time.perf_counter() - t0), n_sims=ev.n_sims, refined=spent,
                            verification=report)
+
+
+def _apart(x: float, bound: float) -> str:
+    """``x`` with as many digits as it takes not to read as ``bound`` (L/T = 10.02 was printed as 10, beside
+    a range ending at 10)."""
+    for digits in range(3, 17):
+        text = f"{x:.{digits}g}"
+        if text != f"{bound:.{digits}g}":
+            return text
+    return repr(x)
 
 
 def evaluator_context(ev: Evaluator) -> SpecContext:
@@ -181,6 +196,8 @@ def _refine(ev: Evaluator, tuned: np.ndarray, merit: float, cost: float, budget:
     """CMA-ES from the answer with at most ``budget`` simulations, then the boundary move; the better answer."""
     from gaintune.baselines.optimizers import optimize
 
+    if budget < 2:  # one CMA-ES simulation and the move's evaluation of it need two: '--refine 1' spent 2
+        return tuned, cost, 0
     n0 = ev.n_sims
     # a few simulations stay for the boundary move of the refined point (it evaluates both sides once)
     res = optimize(ev, "cmaes", max(budget - 3, 1), seed=seed, x0=tuned, sigma0=0.05)

@@ -99,6 +99,28 @@ def test_a_tuner_folder_is_an_ordinary_folder_and_is_replaced_by_a_new_save(tiny
     assert stat.S_IMODE(tiny.stat().st_mode) == 0o755
 
 
+@pytest.mark.parametrize("key, value, needle", [
+    ("slots", [["nope", "Kp"], ["main", "Ki"]], "names nope.Kp, which its spec does not tune"),
+    ("slots", [["main", "Kp"], ["main", "Zz"]], "unknown gain(s) ['Zz']"),
+    ("lo", [0.1], "one lo, hi (and scale_axis) value per slot"),
+    ("lo", [[1, 2], [3, 4]], "one lo, hi (and scale_axis) value per slot"),
+    ("lo", [0.0, -1.0], "finite with 0 < lo < hi"),
+])
+def test_a_damaged_gain_box_is_refused_naming_the_tuner(tmp_path, key, value, needle):
+    """Regression: a tuner.json whose box named a gain its spec lacks, or had the wrong number of bounds, passed
+    the hash check (the box is not in policy.npz) and ended in a KeyError, zip or log traceback."""
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(artefact.resolve("fotd_pi_ms1.4"), bad)
+    doc = json.loads((bad / "tuner.json").read_text())
+    doc["box"][key] = value
+    (bad / "tuner.json").write_text(json.dumps(doc))
+    with pytest.raises(SpecError) as e:
+        Tuner.load(bad)
+    assert e.value.field == "tuner" and "is damaged" in e.value.message and needle in e.value.message
+
+
 def test_tuner_of_another_format_version_is_refused_naming_version(tiny, tmp_path):
     import shutil
 
@@ -217,6 +239,45 @@ def test_spec_without_randomize_cannot_train_a_tuner():
     with pytest.raises(SpecError) as e:
         SpecProblem(spec)
     assert e.value.field == "randomize.params"
+
+
+def test_a_spec_tuner_over_a_parameter_the_plant_does_not_have_is_refused_naming_it():
+    """Regression: 'tuner train' trained a tuner over randomize.params.Zq, which the plant does not have ('tune'
+    refused the same spec), and querying it ended in a KeyError traceback."""
+    from gaintune.spec import load_spec
+
+    spec = load_spec({"plant": {"tf": {"num": ["K"], "den": "s+1"}, "params": {"K": 1.0}}, "loops": [{"type": "pi"}],
+                      "randomize": {"params": {"Zq": [1.0, 2.0]}}})
+    with pytest.raises(SpecError) as e:
+        SpecProblem(spec)
+    assert e.value.field == "randomize.params.Zq"
+
+
+def test_a_context_range_with_a_negative_end_contains_both_its_ends():
+    """Regression: the rounding tolerance was relative with the wrong sign below zero: H0 = -5 was outside -5 to 20."""
+    from gaintune.tuners.problems import ContextVar
+
+    v = ContextVar("x", -5.0, 20.0, False)
+    assert v.contains(-5.0) and v.contains(20.0) and v.contains(0.0)
+    assert not v.contains(-5.01) and not v.contains(20.01)
+
+
+def test_refine_spends_at_most_n_simulations_and_none_when_n_is_1():
+    """Regression: '--refine 1' ran 2 simulations (one of CMA-ES, one of the move), although N is the most."""
+    tuner = Tuner.load("fotd_pi_ms1.4")
+    for n in (1, 2, 5, 40):
+        a = tuner.query({"K": 1.0, "T": 1.0, "L": 0.7}, refine=n)
+        assert a.refined <= n and (a.refined == 0) == (n == 1)
+
+
+def test_an_l_over_t_just_past_the_range_is_not_printed_as_the_ranges_end():
+    """Regression: L = 601 s, T = 60 s was refused as 'L/T = 10 is outside ... (L/T from 0.05 to 10)'."""
+    with pytest.raises(OutsideFamilyError) as e:
+        Tuner.load("fotd_pi_ms1.4").query({"K": 1.0, "T": 60.0, "L": 601.0})
+    assert "L/T = 10.02 is outside" in e.value.message
+    with pytest.raises(OutsideFamilyError) as e:
+        Tuner.load("fotd_pi_ms1.4").query({"K": 1.0, "T": 1e-300, "L": 10.0})
+    assert "L/T = 1e+301 is outside" in e.value.message  # it was inf: L/T was recovered from the rounded tau
 
 
 def test_unstable_gains_are_scaled_to_a_stable_start_and_moved_onto_the_boundary():
