@@ -101,11 +101,12 @@ def read_bytes_bounded(path: str | Path, field: str, limit: int = MAX_INPUT_BYTE
         raise SpecError(field, f"no file at {path}") from None
     except OSError as exc:
         raise SpecError(field, f"cannot read {path}: {exc.strerror}") from None
+    info = os.fstat(fd)
+    if not stat.S_ISREG(info.st_mode):  # before fdopen, which refuses a folder with a bare "[Errno 21] ...: 3"
+        os.close(fd)
+        raise SpecError(field, f"{path} is not a regular file; give a regular file of at most {_size(limit)}, "
+                        "not a device, pipe or folder")
     with os.fdopen(fd, "rb") as fh:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            raise SpecError(field, f"{path} is not a regular file; give a regular file of at most {_size(limit)}, "
-                            "not a device, pipe or folder")
         if info.st_size > limit:
             raise SpecError(field, f"{path} is {info.st_size:,} bytes; the limit is {_size(limit)}")
         data = fh.read(limit + 1)  # the file may have grown since fstat

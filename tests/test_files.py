@@ -56,3 +56,12 @@ def test_read_text_of_binary_is_a_spec_error(tmp_path):
     p.write_bytes(b"\xff\xfe\x00")
     with pytest.raises(SpecError, match="not UTF-8"):
         read_text_bounded(p, "gains")
+
+
+def test_a_folder_where_a_file_goes_is_named_as_one(tmp_path):
+    """Regression: a folder in a file's place (a tuner's policy.npz, a spec) gave "[Errno 21] Is a directory: 3"
+    (os.fdopen refused the folder's descriptor before the file-type check), and leaked the descriptor."""
+    (tmp_path / "policy.npz").mkdir()
+    with pytest.raises(SpecError) as e:
+        read_bytes_bounded(tmp_path / "policy.npz", "tuner")
+    assert e.value.field == "tuner" and "is not a regular file" in e.value.message

@@ -251,6 +251,7 @@ def report(
 
 
 @plants_app.callback()
+@handle_errors
 def plants(ctx: typer.Context) -> None:
     """List the built-in plant models (``gaintune plants show NAME`` for one)."""
     if ctx.invoked_subcommand is not None:

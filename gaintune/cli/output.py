@@ -265,15 +265,19 @@ def _print_plants() -> None:
     """The table of every built-in plant model."""
     from rich.table import Table  # deferred on purpose: `gaintune verify` prints no rich table
 
-    from gaintune.plants.library import list_models, load_model
+    from gaintune.plants.library import list_models, load_model, models_dir
 
+    names = list_models()
+    if not names:  # a GAINTUNE_MODELS folder that is missing or holds no model
+        out.print(f"no plant models in {models_dir()} (GAINTUNE_MODELS chooses the folder)", markup=False)
+        return
     t = Table(title="Built-in plant models (use in a spec as plant: {model: NAME})")
     # the name is what a spec needs: never truncated or wrapped; the other columns wrap instead
-    t.add_column("name", style="bold", no_wrap=True, overflow="fold", min_width=max(len(n) for n in list_models()))
+    t.add_column("name", style="bold", no_wrap=True, overflow="fold", min_width=max(len(n) for n in names))
     t.add_column("title", ratio=3, overflow="fold")
     t.add_column("parameters", ratio=2, overflow="fold")
     t.add_column("outputs", ratio=2, overflow="fold")
-    for name in list_models():
+    for name in names:
         m = load_model(name)
         t.add_row(name, m.title, ", ".join(m.parameters), ", ".join(m.outputs))
     out.print(t)

@@ -378,3 +378,14 @@ def test_plants_listing_never_truncates_a_name(monkeypatch) -> None:
     res = run("plants")
     assert res.exit_code == 0
     assert "mass_spring_damper" in res.output and "…" not in res.output
+
+
+def test_plants_listing_of_an_empty_or_a_bad_models_folder_exits_without_a_traceback(tmp_path, monkeypatch):
+    """Regression: 'gaintune plants' had no error handler (a bad model file printed a traceback) and took the max
+    of an empty list when GAINTUNE_MODELS held no model (ValueError)."""
+    monkeypatch.setenv("GAINTUNE_MODELS", str(tmp_path))
+    res = CliRunner().invoke(cli.app, ["plants"])
+    assert res.exit_code == 0 and "no plant models in" in res.output, res.output
+    (tmp_path / "bad.yaml").write_text("- 1\n")
+    res = CliRunner().invoke(cli.app, ["plants"])
+    assert res.exit_code == 2 and "error: models/bad.yaml:" in res.stderr and "Traceback" not in res.output
