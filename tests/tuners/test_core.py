@@ -280,6 +280,18 @@ def test_an_l_over_t_just_past_the_range_is_not_printed_as_the_ranges_end():
     assert "L/T = 1e+301 is outside" in e.value.message  # it was inf: L/T was recovered from the rounded tau
 
 
+def test_the_optimum_of_a_reverse_acting_context_comes_from_the_search_when_migo_has_none():
+    """Regression: 'tuner train' over K in [-5, -0.5] ended in MIGO's ValueError ('static gain must be positive')
+    while validating; the validation's reference is then the search's, as for any problem MIGO does not cover."""
+    from gaintune.spec import load_spec
+    from gaintune.tuners.validation import context_optimum
+
+    ev = Evaluator(load_spec({"plant": {"tf": {"num": [-2], "den": "5*s+1"}, "delay": 1}, "loops": [{"type": "pi"}],
+                              "requirements": {"ms_max": 1.4}}))
+    cost, how = context_optimum(ev)
+    assert how == "reference search" and 0 < cost < float("inf")
+
+
 def test_unstable_gains_are_scaled_to_a_stable_start_and_moved_onto_the_boundary():
     """onto_boundary_estimate leaves an unstable candidate as it is; a tuner's answer must not."""
     spec = problem_spec(family("fotd"), {"K": 1.0, "T": 1.0, "L": 0.5})
