@@ -76,8 +76,8 @@ app = GaintuneTyper(
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
 )
-plants_app = typer.Typer(help="Built-in plant models: list them, or show one.", invoke_without_command=True,
-                         epilog=EPILOG)
+plants_app = typer.Typer(help="Built-in plant models: 'gaintune plants' lists them, 'gaintune plants show NAME' "
+                         "shows one.", invoke_without_command=True, epilog=EPILOG)
 app.add_typer(plants_app, name="plants")
 app.add_typer(bench_app, name="bench")
 app.add_typer(tuner_app, name="tuner")

@@ -159,12 +159,17 @@ def check_out_dir(path: Path, field: str = "out") -> None:
 
     A tune writes its folder only at the end; without this check a file named like ``--out`` cost
     the whole search before the command failed."""
+    import tempfile
+
     for p in (path, *path.parents):
         if p.exists():
             if not p.is_dir():
                 raise InputError(field, f"{p} is a file, not a folder; give --out a folder path")
-            if not os.access(p, os.W_OK):
-                raise InputError(field, f"{p} is not writable; give --out a folder you can write to")
+            try:  # a real write: os.access says yes to root, and /proc is a folder nobody can write in
+                os.rmdir(tempfile.mkdtemp(prefix=".gaintune-probe-", dir=p))
+            except OSError as exc:
+                raise InputError(field, f"{p} is not writable ({exc.strerror}); give --out a folder you can write "
+                                 "to") from None
             return
 
 

@@ -150,8 +150,8 @@ def load(folder: str | Path) -> Artefact:
         box = GainBox.from_dict(doc["box"])
         problem = problem_from_dict(doc["problem"], box)
         _check_slots(problem, box)
-    except (ValueError, KeyError, TypeError) as exc:
-        raise SpecError("tuner", f"{folder} is damaged ({exc}); retrain it") from None
+    except (ValueError, KeyError, TypeError, SpecError) as exc:
+        raise SpecError("tuner", f"{folder} is damaged ({_why(exc)}); retrain it") from None
     if policy.n_in != len(problem.variables) or policy.n_out != len(box.slots):
         raise SpecError("tuner", f"{folder}: the policy maps {policy.n_in} -> {policy.n_out} values but the tuner has "
                         f"{len(problem.variables)} context values and {len(box.slots)} gains; retrain it")
@@ -159,6 +159,18 @@ def load(folder: str | Path) -> Artefact:
             if k not in ("problem", "spec", "box", "context", "policy", "training", "validation", "critic")}
     return Artefact(str(doc.get("name") or folder.name), problem, policy, doc.get("training") or {},
                     doc.get("validation") or {}, meta)
+
+
+def _why(exc: Exception) -> str:
+    """What is wrong, in one line: a damaged spec's first field and message, not pydantic's whole report."""
+    from pydantic import ValidationError
+
+    from gaintune.errors import problem_details
+
+    if isinstance(exc, (ValidationError, SpecError)):
+        first = problem_details(exc)[0]
+        return f"{first['loc']}: {first['msg']}" if first["loc"] else str(first["msg"])
+    return str(exc)
 
 
 def _check_slots(problem: TunerProblem, box: GainBox) -> None:

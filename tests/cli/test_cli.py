@@ -389,3 +389,13 @@ def test_plants_listing_of_an_empty_or_a_bad_models_folder_exits_without_a_trace
     (tmp_path / "bad.yaml").write_text("- 1\n")
     res = CliRunner().invoke(cli.app, ["plants"])
     assert res.exit_code == 2 and "error: models/bad.yaml:" in res.stderr and "Traceback" not in res.output
+
+
+def test_an_out_folder_nobody_can_write_is_refused_before_any_work_even_for_root():
+    """Regression: os.access says root may write anywhere, so '--out /proc/foo' passed the check and failed at the
+    end with a bare '[Errno 2] ...', after a whole training run for 'tuner train'."""
+    from gaintune.cli.common import InputError, check_out_dir
+
+    with pytest.raises(InputError) as e:
+        check_out_dir(Path("/proc/gaintune-out"))
+    assert e.value.field == "out" and "is not writable" in e.value.message

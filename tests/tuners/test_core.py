@@ -121,6 +121,21 @@ def test_a_damaged_gain_box_is_refused_naming_the_tuner(tmp_path, key, value, ne
     assert e.value.field == "tuner" and "is damaged" in e.value.message and needle in e.value.message
 
 
+def test_a_tuner_whose_spec_is_damaged_says_which_field_in_one_line(tmp_path):
+    """Regression: a reversed randomize range in tuner.json's spec printed pydantic's whole report, with its URL."""
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(artefact.resolve("water_tank_h0"), bad)
+    doc = json.loads((bad / "tuner.json").read_text())
+    doc["problem"]["spec"]["randomize"]["params"]["H0"] = {"dist": "uniform", "low": 20, "high": 2}
+    (bad / "tuner.json").write_text(json.dumps(doc))
+    with pytest.raises(SpecError) as e:
+        Tuner.load(bad)
+    assert e.value.field == "tuner" and "is damaged (randomize.params.H0: " in e.value.message
+    assert "\n" not in e.value.message and "errors.pydantic.dev" not in e.value.message
+
+
 def test_tuner_of_another_format_version_is_refused_naming_version(tiny, tmp_path):
     import shutil
 
