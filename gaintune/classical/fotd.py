@@ -195,6 +195,14 @@ def _dc_gain(sys) -> float:
     return float((D - C @ np.linalg.solve(A, B))[0, 0])
 
 
+def _dc_gain_scale(sys) -> float:
+    """The size the static gain's rounding is relative to: |C| |A^-1 B| + |D|. A gain below 1e-12 of it is a
+    zero at s = 0; the path's own units do not decide (a process gain of 1e-15 read as zero against 1e-12)."""
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (sys.A, sys.B, sys.C, sys.D))
+    lag = float(np.linalg.norm(C) * np.linalg.norm(np.linalg.solve(A, B))) if A.size else 0.0
+    return lag + float(np.abs(D).max(initial=0.0))
+
+
 def _remove_integrator(sys: StateSpace) -> tuple[float, StateSpace]:
     """(Kv, rest): the velocity gain Kv = lim s G(s) and a state space of s G(s), the path without its integrator."""
     num, den = ss_to_tf(sys)
@@ -394,7 +402,7 @@ def fit_fotd(sys, delay: float = 0.0, method: FitMethod = "auto") -> Fotd:
         m = _step_fit(rest, _dc_gain(rest), "step_fit" if method == "auto" else method)
         return Fotd(Kv, 0.0, delay + m.L + m.T / 2, True, m.method, T2=m.T, L2=delay + m.L, fit_error=m.fit_error)
     K = _dc_gain(sys)
-    if not math.isfinite(K) or abs(K) < 1e-12 * max(1.0, float(np.abs(np.asarray(sys.D)).max(initial=0.0))):
+    if not math.isfinite(K) or abs(K) <= 1e-12 * _dc_gain_scale(sys):
         raise NoModelError("fotd", "the path has zero static gain; an FOTD model does not apply")
     parts = _half_rule_parts(p, z, D)
     if method in ("auto", "half_rule") and parts is not None:

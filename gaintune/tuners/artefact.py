@@ -151,6 +151,8 @@ def load(folder: str | Path) -> Artefact:
         problem = problem_from_dict(doc["problem"], box)
         _check_slots(problem, box)
     except (ValueError, KeyError, TypeError, SpecError) as exc:
+        if isinstance(exc, SpecError) and exc.field.startswith("models/"):
+            raise  # a plant model file the tuner's spec names is bad, not the tuner: that file's error says so
         raise SpecError("tuner", f"{folder} is damaged ({_why(exc)}); retrain it") from None
     if policy.n_in != len(problem.variables) or policy.n_out != len(box.slots):
         raise SpecError("tuner", f"{folder}: the policy maps {policy.n_in} -> {policy.n_out} values but the tuner has "
