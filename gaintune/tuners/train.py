@@ -143,12 +143,36 @@ class _Checkpoint:
         self.dir = out.with_name(f".{out.name}.training")
         self.key = key
 
+    def damaged(self, why: str) -> SpecError:
+        """The error of a checkpoint that cannot be resumed: what is wrong, and the two ways out."""
+        return SpecError("resume", f"the checkpoint {self.dir} is damaged ({why}); delete that folder, or start "
+                         "afresh without resuming (gaintune tuner train --no-resume)")
+
     def load(self) -> dict[str, Any] | None:
-        try:
-            state = json.loads(read_text_bounded(self.dir / "state.json", "resume"))
-        except (SpecError, ValueError):
+        """The saved state of this run; None when there is none or it is another problem's or settings' run.
+
+        Raises
+        ------
+        SpecError
+            Naming ``resume``: the checkpoint is damaged (:meth:`damaged`).
+        """
+        path = self.dir / "state.json"
+        if not path.exists():  # no checkpoint yet (a run killed before its first state was written)
             return None
-        return state if isinstance(state, dict) and state.get("key") == self.key else None
+        try:
+            state = json.loads(read_text_bounded(path, "resume"))
+        except SpecError as exc:
+            raise self.damaged(exc.message) from None
+        except (ValueError, RecursionError):  # not JSON (RecursionError: nested too deep to read)
+            raise self.damaged("state.json is not JSON") from None
+        if not isinstance(state, dict) or not isinstance(state.get("key"), str):
+            raise self.damaged("state.json is not a training state: no run key")
+        if state["key"] != self.key:  # another run's: this one starts afresh and replaces it
+            return None
+        why = _state_problem(state)
+        if why:
+            raise self.damaged(f"state.json: {why}")
+        return state
 
     def save(self, agent: Any, state: dict[str, Any]) -> None:
         from gaintune.search.agent_file import save_agent
@@ -161,6 +185,38 @@ class _Checkpoint:
         import shutil
 
         shutil.rmtree(self.dir, ignore_errors=True)
+
+
+def _is_count(v: Any) -> bool:
+    """A whole number >= 0 (JSON's true and false are not counts)."""
+    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
+
+
+def _is_number(v: Any, finite: bool = True) -> bool:
+    """A JSON number, finite unless not ``finite`` (JSON's true and false are not numbers)."""
+    return isinstance(v, int | float) and not isinstance(v, bool) and (not finite or math.isfinite(v))
+
+
+def _state_problem(state: Mapping[str, Any]) -> str:
+    """What is wrong with a saved training state ('' when nothing): the fields a resumed run reads and records."""
+    missing = [k for k in ("episodes", "sims", "elapsed_s", "curve") if k not in state]
+    if missing:
+        return f"{missing[0]!r} is missing"
+    for name in ("episodes", "sims", "resumed"):
+        if not _is_count(state.get(name, 0)):
+            return f"{name!r} must be a whole number >= 0, got {state[name]!r:.60}"
+    if not (_is_number(state["elapsed_s"]) and state["elapsed_s"] >= 0):
+        return f"'elapsed_s' must be a number of seconds >= 0, got {state['elapsed_s']!r:.60}"
+    curve = state["curve"]
+    if not isinstance(curve, list):
+        return f"'curve' must be a list of training-curve points, got {curve!r:.60}"
+    for i, pt in enumerate(curve):  # each point is read back (its episodes) and written into tuner.json
+        ok = (isinstance(pt, dict) and _is_count(pt.get("episodes")) and _is_count(pt.get("sims"))
+              and _is_number(pt.get("elapsed_s"))  # the figures may be NaN or null: recorded, never computed with
+              and all(pt.get(k) is None or _is_number(pt[k], finite=False) for k in ("reward", "median_ratio")))
+        if not ok:
+            return f"curve point {i} is not {{episodes, sims, elapsed_s, reward, median_ratio}}, got {pt!r:.80}"
+    return ""
 
 
 def _curve_point(problem: TunerProblem, policy: NumpyPolicy, curve_set: list[tuple[dict[str, float], float]]
@@ -254,9 +310,14 @@ def _start_state(ckpt: _Checkpoint, agent: Any, env: Any, s: TrainSettings, resu
     """The run's state: a checkpoint's (its agent loaded, fresh contexts after its resume point) or a new one."""
     from gaintune.search.agents import load_weights
 
+    if ckpt.dir.exists() and not ckpt.dir.is_dir():  # with or without resuming: the checkpoint is saved there
+        raise SpecError("resume", f"{ckpt.dir} is not a folder, and the run saves its checkpoint there; delete it")
     state = ckpt.load() if resume else None
     if state is not None:
-        load_weights(agent, ckpt.dir / "agent.zip", field="resume")
+        try:
+            load_weights(agent, ckpt.dir / "agent.zip", field="resume")
+        except SpecError:  # its own advice (give the agent.zip a tune wrote) does not fit a checkpoint
+            raise ckpt.damaged("its agent.zip is missing or cannot be loaded as this run's agent") from None
         env.rng = np.random.default_rng([s.seed, int(state["episodes"])])  # fresh contexts after the resume point
         env.n_sims = int(state["sims"])
     state = state or {"episodes": 0, "sims": 0, "elapsed_s": 0.0, "curve": [], "resumed": 0}

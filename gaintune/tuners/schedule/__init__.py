@@ -15,7 +15,8 @@ operating level ``H0``, a speed, a load. The pieces, each a plain function the C
 * :mod:`~gaintune.tuners.schedule.fit`: :func:`fit_midpoints` (scale the gains next to a failing
   midpoint until the interpolated gains pass there);
 * :mod:`~gaintune.tuners.schedule.compare`: the best single fixed PI over the range
-  (:func:`best_fixed_pi`) and the level-step comparison (:func:`compare_fixed`).
+  (:func:`best_fixed_pi`) and the level-step comparison (:func:`compare_fixed`), of a nonlinear plant only
+  (:func:`require_nonlinear`).
 """
 
 from gaintune.tuners.schedule.check import PointCheck, ScheduleVerification, verify_schedule
@@ -27,6 +28,7 @@ from gaintune.tuners.schedule.compare import (
     cma_gains_at,
     compare_fixed,
     grid_and_midpoints,
+    require_nonlinear,
 )
 from gaintune.tuners.schedule.fit import fit_midpoints
 from gaintune.tuners.schedule.law import ScheduledPid, interp
@@ -47,4 +49,5 @@ __all__ = [
     "schedule_table", "spec_at", "ScheduledPid", "interp", "ScheduleModel", "SweepReport", "nonlinear_sweep",
     "PointCheck", "ScheduleVerification", "verify_schedule", "FixedDesign", "LevelComparison",
     "ScheduleComparison", "best_fixed_pi", "cma_gains_at", "compare_fixed", "grid_and_midpoints", "fit_midpoints",
+    "require_nonlinear",
 ]

@@ -35,14 +35,16 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, Field
 
+from gaintune.errors import SpecError
 from gaintune.export.schedule import ScheduleTable
+from gaintune.plants.plant import Plant
 from gaintune.spec import Gains, TuningSpec, load_spec
 from gaintune.tuners.schedule.law import ScheduledPid
 from gaintune.tuners.schedule.sweep import Run, ScheduleModel
 from gaintune.tuners.schedule.table import GainSchedule, spec_at
 
-__all__ = ["grid_and_midpoints", "level_step", "constant_table", "LevelComparison", "ScheduleComparison",
-           "compare_fixed", "FixedDesign", "robust_spec", "best_fixed_pi", "cma_gains_at"]
+__all__ = ["grid_and_midpoints", "require_nonlinear", "level_step", "constant_table", "LevelComparison",
+           "ScheduleComparison", "compare_fixed", "FixedDesign", "robust_spec", "best_fixed_pi", "cma_gains_at"]
 
 #: Per-point CMA-ES budget of :func:`cma_gains_at`, and per tested level of :func:`best_fixed_pi` (simulations).
 POINT_BUDGET = 600
@@ -51,6 +53,35 @@ POINT_BUDGET = 600
 def grid_and_midpoints(schedule: GainSchedule) -> list[tuple[float, str]]:
     """Every grid point and midpoint, ascending, each with its kind ("grid" or "midpoint")."""
     return sorted([(v, "grid") for v in schedule.grid] + [(v, "midpoint") for v in schedule.midpoints])
+
+
+def _refuse_unless_nonlinear(plant: Plant) -> None:
+    """SpecError naming ``compare`` unless ``plant`` is a nonlinear (ODE) model: its level steps step the ODE."""
+    kind = getattr(plant, "kind", None)
+    if kind != "nonlinear":
+        what = "an LTI model" if kind == "lti" else f"a {kind} plant"
+        raise SpecError("compare", f"the comparison with a fixed PI sweeps a nonlinear plant's operating range "
+                        f"(level steps on its ODE model), and this plant is {what}; for an LTI family use the "
+                        "schedule without --compare (or give a nonlinear model)")
+
+
+def require_nonlinear(spec: TuningSpec) -> None:
+    """Check that a schedule of ``spec`` can be compared with a fixed PI (:func:`best_fixed_pi`, :func:`compare_fixed`).
+
+    Parameters
+    ----------
+    spec
+        The schedule's spec (a spec tuner's own).
+
+    Raises
+    ------
+    SpecError
+        Naming ``compare``: the spec's plant is not a nonlinear (ODE) model, so it has no operating
+        range whose level steps the comparison could simulate.
+    """
+    from gaintune.plants import build_plant
+
+    _refuse_unless_nonlinear(build_plant(spec.plant))
 
 
 def _reference(model: ScheduleModel, y0: float, step: float | None) -> np.ndarray:
@@ -130,8 +161,14 @@ def compare_fixed(schedule: GainSchedule, fixed_gains: Gains | dict[str, float],
 
     ``fixed_gains``: the loop's gains, or ``{loop: gains}``. ``step``: a reference step amplitude
     instead of the first scenario's reference.
+
+    Raises
+    ------
+    SpecError
+        Naming ``compare``: the schedule's plant is not a nonlinear (ODE) model (:func:`require_nonlinear`).
     """
     model = model if model is not None else ScheduleModel(schedule)
+    _refuse_unless_nonlinear(model.plant)
     fixed = _loop_gains(fixed_gains, schedule.loop)
     fixed_table = constant_table(model.table, fixed)
     out = []
@@ -207,9 +244,16 @@ def best_fixed_pi(schedule: GainSchedule, levels: list[float] | None = None, *, 
 
     ``levels`` defaults to every grid point and midpoint; ``budget`` (simulations) to
     :data:`POINT_BUDGET` per level.
+
+    Raises
+    ------
+    SpecError
+        Naming ``compare``: the schedule's plant is not a nonlinear (ODE) model (:func:`require_nonlinear`);
+        refused before the search spends its budget.
     """
     from gaintune.baselines.run import run_baseline
 
+    require_nonlinear(schedule.tuning_spec)
     t0 = time.perf_counter()
     levels = levels if levels is not None else [v for v, _ in grid_and_midpoints(schedule)]
     ev = _levelwise_evaluator(schedule, levels)
