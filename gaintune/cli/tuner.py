@@ -301,8 +301,7 @@ def update_cmd(
     folder = artefact.resolve(tuner)
     if out_dir is None and folder.resolve().parent == artefact.SHIPPED_DIR:
         raise InputError("--out", "a ready-made tuner is not changed in place; give --out DIR")
-    if not (folder / "agent.zip").is_file():
-        raise InputError("tuner", f"{folder} has no agent.zip (the agent training continues from); retrain it")
+    # no agent.zip needed: the shipped tuners keep only policy.npz and critic.npz, which training continues from
     problem = SpecProblem(load_spec_file(spec_path))
     target = out_dir or folder
     check_out_dir(target)

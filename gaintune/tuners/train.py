@@ -405,15 +405,30 @@ def _warm_box(problem: TunerProblem, folder: str | Path) -> None:
     """Give ``problem`` the gain box of the tuner at ``folder`` (its policy's actions mean the same gains)."""
     old = artefact.load(artefact.resolve(folder))
     assert old.problem.box is not None
-    if len(old.problem.variables) != len(problem.variables):
-        raise SpecError("spec.randomize", f"the tuner at {folder} has {len(old.problem.variables)} context values, "
-                        f"this family {len(problem.variables)}; update needs the same varying parameters")
+    was, now = [v.name for v in old.problem.variables], [v.name for v in problem.variables]
+    if was != now:  # the same count was not enough: K swapped for tau trained the policy's K input on tau
+        raise SpecError("spec.randomize", f"the tuner at {folder} varies {', '.join(was)}, this family "
+                        f"{', '.join(now)}; update needs the same varying parameters, in that order")
     box = old.problem.box
+    slots = _tuned_slots(problem)
+    if set(slots) != set(box.slots):  # checked before the box is used: a PI box on a PID spec broke its shapes
+        raise SpecError("spec.loops", f"the tuner at {folder} tunes {', '.join(f'{lp}.{g}' for lp, g in box.slots)}; "
+                        f"this spec {', '.join(f'{lp}.{g}' for lp, g in slots)}")
     problem.box = box
-    probe = problem.spec_at(problem.centre())
-    slots = tuple((lp.name, g) for lp in probe.loops for g in lp.gains)
-    if set(slots) != set(box.slots):
-        raise SpecError("spec.loops", f"the tuner at {folder} tunes {list(box.slots)}; this spec {list(slots)}")
+
+
+def _tuned_slots(problem: TunerProblem) -> tuple[tuple[str, str], ...]:
+    """The (loop, gain) slots the problem's spec tunes, read from its gain layout (no box needed)."""
+    from gaintune.controllers.layout import GainLayout
+    from gaintune.plants import build_plant
+
+    box, problem.box = problem.box, None
+    try:
+        spec = problem.spec_at(problem.centre())
+    finally:
+        problem.box = box
+    plant = build_plant(spec.plant)
+    return tuple((s.loop_name, s.name) for s in GainLayout(spec, plant.states, plant=plant).tuned_slots)
 
 
 def _curve_set(problem: TunerProblem, s: TrainSettings) -> list[tuple[dict[str, float], float]]:

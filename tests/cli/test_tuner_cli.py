@@ -278,6 +278,38 @@ def test_tuner_update_to_another_number_of_varying_parameters_exits_2(tiny_tank_
     assert res.exit_code == 2 and "error: spec.randomize: " in res.stderr, res.output
 
 
+def test_tuner_update_to_other_varying_parameters_of_the_same_number_exits_2_naming_them(
+        tiny_tank_tuner: Path, tank_spec: dict, tmp_path: Path) -> None:
+    """Regression: update checked only how many parameters vary: H0 swapped for another one was accepted, and the
+    policy's H0 input was trained on the other."""
+    new = tank_spec
+    new["randomize"]["params"] = {"a": [1.8, 2.2]}
+    res = run("tuner", "update", tiny_tank_tuner, "--spec", _spec_file(tmp_path, new), "--out", tmp_path / "u")
+    assert res.exit_code == 2 and "error: spec.randomize: " in res.stderr and "varies H0, this family a" in res.stderr
+
+
+def test_tuner_update_with_a_pid_loop_on_a_pi_tuner_exits_2_naming_the_gains(tiny_tank_tuner: Path, tank_spec: dict,
+                                                                            tmp_path: Path) -> None:
+    """Regression: a PID spec on a PI tuner ended in numpy's broadcast error: the PI box was applied first."""
+    new = tank_spec
+    new["loops"][0]["type"] = "pid"
+    res = run("tuner", "update", tiny_tank_tuner, "--spec", _spec_file(tmp_path, new), "--out", tmp_path / "u")
+    assert res.exit_code == 2 and "error: spec.loops: " in res.stderr and "Kd" in res.stderr, res.output
+
+
+def test_tuner_update_of_a_tuner_kept_without_its_agent_continues_from_its_arrays(
+        tiny_settings, tiny_tank_tuner: Path, tank_spec: dict, tmp_path: Path) -> None:
+    """Regression: update refused a folder without agent.zip (every shipped tuner), although training continues
+    from policy.npz and critic.npz, and the query of one outside its range told the user to run update."""
+    bare = tmp_path / "bare"
+    shutil.copytree(tiny_tank_tuner, bare)
+    (bare / "agent.zip").unlink()
+    res = run("tuner", "update", bare, "--spec", _spec_file(tmp_path, tank_spec), "--out", tmp_path / "u",
+              "--episodes", 64)
+    assert res.exit_code == 0, res.output
+    assert json.loads((tmp_path / "u" / "tuner.json").read_text())["training"]["warm_start"] == str(bare)
+
+
 class _RunsCode:
     def __init__(self, marker: Path) -> None:
         self.marker = marker
