@@ -74,7 +74,8 @@ def _unknown_key(root: type[BaseModel], loc: tuple) -> str | None:
 
 def _union_line(loc: tuple, errs: list[dict[str, Any]]) -> str:
     field = ".".join(str(p) for p in loc)
-    if field.startswith("plant.tf.") and any(isinstance(e.get("input"), list) for e in errs):
+    if field.startswith("plant.tf.") and any(isinstance(e.get("input"), list)
+                                             and any(isinstance(x, list) for x in e["input"]) for e in errs):
         return ("a transfer-function matrix (a list of lists) is not supported: a plant has one actuator input; "
                 "give num and den each as one polynomial, a list of coefficients or a string such as '(s+1)^3'")
     return "fits none of the accepted forms: " + "; ".join(sorted({_first_line(e.get("msg")) for e in errs}))

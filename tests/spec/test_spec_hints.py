@@ -64,3 +64,22 @@ def test_api_names_the_valid_keys_for_tune_and_verify(tmp_path):
         r = c.post("/v1/verify", json={"spec": MATRIX, "gains": {"loop0": {"Kp": 1, "Ki": 1}}})
         assert r.status_code == 422
         assert [e["loc"] for e in r.json()["errors"]] == ["spec.plant.tf.num", "spec.plant.tf.den"]
+
+
+def test_a_nan_coefficient_is_not_called_a_transfer_function_matrix():
+    """Regression: num: [.nan] was explained as 'a transfer-function matrix (a list of lists) is not supported'
+    (any list input was read as a matrix); a real matrix still is."""
+    from pydantic import ValidationError
+
+    from gaintune.spec import load_spec
+    from gaintune.spec.hints import explain
+
+    def lines(num):
+        with pytest.raises(ValidationError) as e:
+            load_spec({"plant": {"tf": {"num": num, "den": "s+1"}}, "loops": [{"type": "pi"}]})
+        return [d["msg"] for d in explain(e.value.errors(include_url=False)) if d["loc"] == "plant.tf.num"]
+
+    (nan,) = lines([float("nan")])
+    assert "matrix" not in nan and "finite number" in nan
+    (matrix,) = lines([[1.0], [2.0]])
+    assert "a transfer-function matrix (a list of lists) is not supported" in matrix
