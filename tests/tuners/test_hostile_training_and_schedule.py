@@ -16,7 +16,6 @@ from typing import Any
 
 import pytest
 import yaml
-from conftest import tiny_training_settings
 from typer.testing import CliRunner
 
 from gaintune import cli
@@ -35,8 +34,9 @@ LAG2 = {"name": "lag2_family", "plant": {"tf": {"num": ["K"], "den": "(s+1)^2"},
 EPISODES = 1024
 
 
-def _settings(**changes: Any) -> TrainSettings:
-    return TrainSettings(**{**tiny_training_settings(), "episodes": EPISODES, **changes})
+def _settings(tiny: dict[str, Any], **changes: Any) -> TrainSettings:
+    """The tests' tiny training sizes (the session fixture ``tiny_training``), ``EPISODES`` long."""
+    return TrainSettings(**{**tiny, "episodes": EPISODES, **changes})
 
 
 class _Started(Exception):
@@ -48,7 +48,7 @@ def _stop_at_start(done: int, total: int, info: dict[str, Any]) -> None:
 
 
 @pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory) -> Path:
+def checkpoint(tmp_path_factory, tiny_training: dict) -> Path:
     """A run's checkpoint folder, left by a run stopped after its first checkpoint (a kill, for the code)."""
     out = tmp_path_factory.mktemp("ckpt") / "lag2"
     seen: list[int] = []
@@ -60,7 +60,7 @@ def checkpoint(tmp_path_factory) -> Path:
             seen.append(done)
 
     with pytest.raises(KeyboardInterrupt):
-        train(SpecProblem(load_spec(LAG2)), out, _settings(), on_progress=killed)
+        train(SpecProblem(load_spec(LAG2)), out, _settings(tiny_training), on_progress=killed)
     folder = out.with_name(f".{out.name}.training")
     assert seen and (folder / "state.json").is_file() and (folder / "agent.zip").is_file()
     return folder
@@ -104,24 +104,24 @@ def _assert_damaged_advice(exc: SpecError, folder: Path) -> None:
     _write_state("[1, 2, 3]"),
     _write_state("[" * 100_000),
 ], ids=["episodes-abc", "episodes-missing", "curve-point-bad", "not-json", "json-list", "nested-too-deep"])
-def test_damaged_checkpoint_state_crashed_the_resumed_run_in_start_state(damaged, harm) -> None:
+def test_damaged_checkpoint_state_crashed_the_resumed_run_in_start_state(damaged, harm, tiny_training: dict) -> None:
     """Before: 'episodes' as "abc" or missing crashed _start_state (ValueError, KeyError); a state.json that was
     no JSON or a JSON list was ignored, and the run silently started afresh over the checkpoint."""
     out = damaged(harm)
     problem = SpecProblem(load_spec(LAG2))
     with pytest.raises(SpecError) as e:
-        train(problem, out, _settings(), on_progress=_stop_at_start)
+        train(problem, out, _settings(tiny_training), on_progress=_stop_at_start)
     _assert_damaged_advice(e.value, out.with_name(".lag2.training"))
     with pytest.raises(_Started):  # the advice works: without resuming, the run starts
-        train(problem, out, _settings(), on_progress=_stop_at_start, resume=False)
+        train(problem, out, _settings(tiny_training), on_progress=_stop_at_start, resume=False)
 
 
-def test_corrupt_checkpoint_agent_zip_advised_giving_the_agent_zip_a_tune_wrote(damaged) -> None:
+def test_corrupt_checkpoint_agent_zip_advised_giving_the_agent_zip_a_tune_wrote(damaged, tiny_training: dict) -> None:
     """Before: random bytes as the checkpoint's agent.zip said "give the agent.zip a tune wrote with --out", advice
     about another command's file, instead of saying the checkpoint is damaged and how to start afresh."""
     out = damaged(lambda folder: (folder / "agent.zip").write_bytes(os.urandom(4096)))
     with pytest.raises(SpecError) as e:
-        train(SpecProblem(load_spec(LAG2)), out, _settings(), on_progress=_stop_at_start)
+        train(SpecProblem(load_spec(LAG2)), out, _settings(tiny_training), on_progress=_stop_at_start)
     _assert_damaged_advice(e.value, out.with_name(".lag2.training"))
     assert "a tune wrote" not in e.value.message and "agent.zip" in e.value.message
 
@@ -144,9 +144,10 @@ def test_damaged_checkpoint_crashed_tuner_train_with_a_traceback(damaged, monkey
 
 
 @pytest.fixture(scope="module")
-def lti_tuner(tmp_path_factory) -> Path:
+def lti_tuner(tmp_path_factory, tiny_training: dict) -> Path:
     """A spec tuner of the LTI family LAG2 over K, trained for one rollout (32 episodes)."""
-    return train(SpecProblem(load_spec(LAG2)), tmp_path_factory.mktemp("lti") / "lag2", _settings(episodes=32))
+    out = tmp_path_factory.mktemp("lti") / "lag2"
+    return train(SpecProblem(load_spec(LAG2)), out, _settings(tiny_training, episodes=32))
 
 
 def test_schedule_compare_on_an_lti_tuner_crashed_in_rk4(lti_tuner: Path, tmp_path: Path) -> None:
