@@ -226,8 +226,9 @@ def _fill(i: int, sc: ScenarioSpec, ps: PlantScale, t_event: float) -> tuple[Sce
             dt = max(dt, cap if ps.dt_max == math.inf else min(cap, _round_down(ps.dt_max)))
             notes.append(f"dt raised to keep horizon/dt <= {STEP_CAP} steps")
     if sc.horizon is None:
-        # rounding up keeps the window after the event (its 1e-9 guard rounded 1 + 1e-11 s down to 1 s)
-        horizon = max(_round_up(horizon), t_event + ps.horizon, 2 * dt)  # a given dt may be coarse: >= 2 samples
+        horizon = max(_round_up(horizon), 2 * dt)  # a given dt may be coarse: at least 2 samples
+        if horizon - t_event < (1 - 1e-6) * ps.horizon:  # rounding up to two digits (with its 1e-9 guard against
+            horizon = t_event + ps.horizon  # float fuzz) took 1 + 1e-11 s down to 1 s: the window after the event
         if horizon / dt > MAX_STEPS:
             horizon = float(f"{MAX_STEPS * dt:.12g}")
             notes.append(f"horizon shortened to the limit of {MAX_STEPS} steps")
