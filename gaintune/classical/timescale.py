@@ -245,13 +245,16 @@ def _fill(i: int, sc: ScenarioSpec, ps: PlantScale, t_event: float) -> tuple[Sce
 
 
 def _check_window(i: int, t_event: float, horizon: float, dt: float, ps: PlantScale) -> None:
-    """SpecError naming the scenario when a derived horizon keeps fewer than :data:`MIN_WINDOW_STEPS` samples
-    after its last event (an event many settling windows after the start, with the step count capped)."""
-    if t_event <= 0 or (horizon - t_event) / dt >= MIN_WINDOW_STEPS:
+    """SpecError naming the scenario when the derived horizon and dt leave the response to its last event fewer
+    than :data:`MIN_WINDOW_STEPS` samples: after the event, or across the plant's settling window (an event many
+    windows after the start, with the step count capped, raises dt past the loop's own time scale: a step at
+    1e9 s on a 1 s plant was simulated at dt = 51,000 s)."""
+    samples = min((horizon - t_event) / dt, ps.horizon / dt)
+    if t_event <= 0 or samples >= MIN_WINDOW_STEPS:
         return
     raise SpecError(f"scenarios[{i}]", f"its last event at {t_event:g} s is {t_event / ps.horizon:.3g} times the "
-                    f"plant's settling window ({ps.horizon:.3g} s) after the start, and the derived horizon, at "
-                    f"most {STEP_CAP} steps, keeps {max(horizon - t_event, 0.0) / dt:.3g} samples after it; "
+                    f"plant's settling window ({ps.horizon:.3g} s) after the start; simulated to it in at most "
+                    f"{STEP_CAP} steps (dt {dt:g} s), the response to it gets {max(samples, 0.0):.3g} samples; "
                     "put the event nearer t = 0, or give the scenario's dt and horizon")
 
 

@@ -112,6 +112,22 @@ def test_a_step_far_beyond_the_plants_settling_window_is_refused_not_simulated_t
     assert sc.horizon / sc.dt >= 50
 
 
+def test_a_late_step_that_would_raise_dt_past_the_loops_time_scale_is_refused():
+    """Regression: a step at 1e9 s on a 1 s plant got dt = 51,000 s (20,000 steps to reach it, the horizon rounded up
+    to 1.1e9 s so 1,960 samples followed it), and the loop was simulated and verified at that sample time."""
+    from gaintune.errors import SpecError
+
+    def spec(t):
+        return load_spec({"plant": {"tf": {"num": [1], "den": "s + 1"}}, "loops": [{"type": "pi"}],
+                          "scenarios": [{"name": "late", "reference": {"kind": "step", "amplitude": 1.0, "time": t}}]})
+
+    with pytest.raises(SpecError) as e:
+        scenario_defaults(spec(1e9))
+    assert e.value.field == "scenarios[0]" and "dt 51000 s" in e.value.message
+    (sc,) = scenario_defaults(spec(2e3))[0].scenarios  # 200 settling windows late: still resolved
+    assert 10.0 / sc.dt >= 50
+
+
 def test_unsettled_explicit_scenario_warns_naming_scenario_and_horizon():
     spec = load_spec({**FOTD, "scenario": {"name": "short", "dt": 0.1, "horizon": 20}, "search": SMALL})
     result = tune(spec)
