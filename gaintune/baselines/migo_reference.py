@@ -71,7 +71,7 @@ def migo_reference(problem: Any, evaluator: Any) -> dict[str, Any] | None:
     The loop is the one verification analyses: the plant's linearisation, its delay plus
     the dt/2 sample-and-hold delay, and C = kp + ki/s. Returns ``{"gains", "cost", "method",
     "migo": {...}, "feasible"}`` or None when the problem is not a single parallel PI loop
-    with an Ms limit.
+    with an Ms limit, or MIGO has no point for it (a reverse-acting plant, no stable PI under the limit).
     """
     from gaintune.classical.migo import boundary_optimum
 
@@ -95,7 +95,10 @@ def migo_reference(problem: Any, evaluator: Any) -> dict[str, Any] | None:
 
     if [sl.name for sl in evaluator.layout.tuned_slots] != ["Kp", "Ki"]:
         return None
-    migo, best = boundary_optimum(G, ms, w, cost)
+    try:
+        migo, best = boundary_optimum(G, ms, w, cost)
+    except ValueError:  # no MIGO point (a reverse-acting plant, no stable PI under the limit): it does not apply
+        return None
     gains = {loop.name: {"Kp": float(best.kp), "Ki": float(best.ki)}}
     s = evaluator.evaluate(np.array([[best.kp, best.ki]]))
     return {

@@ -96,7 +96,7 @@ def _as_json(schedule: GainSchedule, check: ScheduleVerification, notes: list[st
 def run_schedule(tuner: Tuner, var: str, grid: list[float], out_dir: Path | None, *, json_out: bool,
                  compare: bool) -> None:
     """Build, fit, verify, write and show ``tuner``'s schedule over ``grid`` of ``var``; exit 3 when it fails."""
-    from gaintune.tuners.schedule import verify_schedule
+    from gaintune.tuners.schedule import require_nonlinear, verify_schedule
     from gaintune.tuners.scheduling import schedule_from_tuner
     from gaintune.tuners.tuner import OutsideFamilyError
 
@@ -104,6 +104,8 @@ def run_schedule(tuner: Tuner, var: str, grid: list[float], out_dir: Path | None
         _, schedule, notes = schedule_from_tuner(tuner, var, grid)
     except OutsideFamilyError as exc:
         raise InputError(exc.field, exc.message) from None
+    if compare:  # refused before anything is verified or written: the comparison steps a nonlinear plant only
+        require_nonlinear(schedule.tuning_spec)
     check = verify_schedule(schedule)
     files = _write(schedule, check, out_dir) if out_dir is not None else None
     compared = _comparison(schedule) if compare else None

@@ -331,11 +331,4 @@ def schedule_cmd(
     values = parse_grid(grid)  # bad input exits before the tuner is loaded
     if out_dir is not None:
         check_out_dir(out_dir)
-    t = _load(tuner)
-    if compare:  # refused before the schedule is built and written: the comparison steps a nonlinear plant only
-        from gaintune.tuners.problems import SpecProblem
-        from gaintune.tuners.schedule import require_nonlinear
-
-        if isinstance(t.problem, SpecProblem):  # a family tuner: the schedule itself refuses it, naming tuner
-            require_nonlinear(t.problem.spec)
-    run_schedule(t, var, values, out_dir, json_out=json_out, compare=compare)
+    run_schedule(_load(tuner), var, values, out_dir, json_out=json_out, compare=compare)

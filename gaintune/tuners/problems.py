@@ -148,6 +148,16 @@ class TunerProblem:
         """The policy's gains for the plant a query names."""
         raise NotImplementedError
 
+    def tuned_slots(self) -> tuple[tuple[str, str], ...]:
+        """The (loop, gain) slots the central context's spec tunes, read from its gain layout (bounded by the
+        current box, if any). SpecError for a gain the loop's form does not have."""
+        from gaintune.controllers.layout import GainLayout
+        from gaintune.plants import build_plant
+
+        spec = self.spec_at(self.centre())
+        plant = build_plant(spec.plant)
+        return tuple((s.loop_name, s.name) for s in GainLayout(spec, plant.states, plant=plant).tuned_slots)
+
     def features(self, context: Mapping[str, float]) -> np.ndarray:
         """The policy's input for one context: each variable mapped to [-1, 1]."""
         return np.array([v.feature(float(context[v.name])) for v in self.variables], dtype=float)
@@ -236,8 +246,12 @@ class SpecProblem(TunerProblem):
         from gaintune.plants import build_plant
         from gaintune.plants.checks import validate_against_plant
 
+        plant = build_plant(spec.plant)
         # as 'tune' checks it: a parameter the plant does not have trained a tuner over nothing
-        validate_against_plant(spec, build_plant(spec.plant))
+        validate_against_plant(spec, plant)
+        # a query's unnamed variables take these: the built plant's, so a default that lives in a model file
+        # (the water tank's H0) and a delay given as an expression have one
+        self._nominal_params, self._nominal_delay = dict(plant.params), plant.delay()
         self.spec = spec
         self.variables = tuple(vs)
 
@@ -270,14 +284,10 @@ class SpecProblem(TunerProblem):
         return {n: float(params[n]) if n in params else self._nominal(n) for n in names}
 
     def _nominal(self, name: str) -> float:
-        """The spec's nominal value of a context variable: from the built plant, so a parameter whose default
-        lives in a model file (the water tank's H0) and a delay given as an expression have one."""
+        """The spec's nominal value of a context variable (see ``__init__``)."""
         if name == "actuator_scale":
             return 1.0
-        from gaintune.plants import build_plant
-
-        plant = build_plant(self.spec.plant)
-        return float(plant.delay()) if name == "delay" else float(plant.params[name])
+        return float(self._nominal_delay) if name == "delay" else float(self._nominal_params[name])
 
     def physical_spec(self, params: Mapping[str, float]) -> TuningSpec:
         return self.spec_at(self.context_of(params))

@@ -24,11 +24,12 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from gaintune.errors import SpecError
+from gaintune.errors import SpecError, problem_details
 from gaintune.files import read_text_bounded, write_atomic
 from gaintune.provenance import versions
 from gaintune.tuners import artefact
@@ -187,35 +188,39 @@ class _Checkpoint:
         shutil.rmtree(self.dir, ignore_errors=True)
 
 
-def _is_count(v: Any) -> bool:
-    """A whole number >= 0 (JSON's true and false are not counts)."""
-    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
+_Count = Annotated[int, Field(ge=0, strict=True)]  # strict: JSON's true and false are not counts
+_Number = Annotated[float, Field(strict=True)]  # a JSON number (an int too), not a bool or a string
 
 
-def _is_number(v: Any, finite: bool = True) -> bool:
-    """A JSON number, finite unless not ``finite`` (JSON's true and false are not numbers)."""
-    return isinstance(v, int | float) and not isinstance(v, bool) and (not finite or math.isfinite(v))
+class _SavedPoint(BaseModel):
+    """One training-curve point as a checkpoint saves it (its figures may be NaN or null: recorded only)."""
+
+    model_config = ConfigDict(extra="allow")
+    episodes: _Count
+    sims: _Count
+    elapsed_s: Annotated[_Number, Field(allow_inf_nan=False)]
+    reward: _Number | None = None
+    median_ratio: _Number | None = None
+
+
+class _SavedState(BaseModel):
+    """The fields of a checkpoint's state.json that a resumed run reads and records."""
+
+    model_config = ConfigDict(extra="allow")
+    episodes: _Count
+    sims: _Count
+    elapsed_s: Annotated[_Number, Field(ge=0, allow_inf_nan=False)]
+    resumed: _Count = 0
+    curve: list[_SavedPoint]
 
 
 def _state_problem(state: Mapping[str, Any]) -> str:
-    """What is wrong with a saved training state ('' when nothing): the fields a resumed run reads and records."""
-    missing = [k for k in ("episodes", "sims", "elapsed_s", "curve") if k not in state]
-    if missing:
-        return f"{missing[0]!r} is missing"
-    for name in ("episodes", "sims", "resumed"):
-        if not _is_count(state.get(name, 0)):
-            return f"{name!r} must be a whole number >= 0, got {state[name]!r:.60}"
-    if not (_is_number(state["elapsed_s"]) and state["elapsed_s"] >= 0):
-        return f"'elapsed_s' must be a number of seconds >= 0, got {state['elapsed_s']!r:.60}"
-    curve = state["curve"]
-    if not isinstance(curve, list):
-        return f"'curve' must be a list of training-curve points, got {curve!r:.60}"
-    for i, pt in enumerate(curve):  # each point is read back (its episodes) and written into tuner.json
-        ok = (isinstance(pt, dict) and _is_count(pt.get("episodes")) and _is_count(pt.get("sims"))
-              and _is_number(pt.get("elapsed_s"))  # the figures may be NaN or null: recorded, never computed with
-              and all(pt.get(k) is None or _is_number(pt[k], finite=False) for k in ("reward", "median_ratio")))
-        if not ok:
-            return f"curve point {i} is not {{episodes, sims, elapsed_s, reward, median_ratio}}, got {pt!r:.80}"
+    """What is wrong with a saved training state ('' when nothing): its first field that does not validate."""
+    try:
+        _SavedState.model_validate(state)
+    except ValidationError as exc:
+        first = problem_details(exc)[0]
+        return f"{first['loc']}: {first['msg']}"
     return ""
 
 
@@ -410,25 +415,13 @@ def _warm_box(problem: TunerProblem, folder: str | Path) -> None:
         raise SpecError("spec.randomize", f"the tuner at {folder} varies {', '.join(was)}, this family "
                         f"{', '.join(now)}; update needs the same varying parameters, in that order")
     box = old.problem.box
-    slots = _tuned_slots(problem)
+    problem.box = None  # the gains its own spec tunes, before the old box bounds them
+    slots = problem.tuned_slots()
     if set(slots) != set(box.slots):  # checked before the box is used: a PI box on a PID spec broke its shapes
         raise SpecError("spec.loops", f"the tuner at {folder} tunes {', '.join(f'{lp}.{g}' for lp, g in box.slots)}; "
                         f"this spec {', '.join(f'{lp}.{g}' for lp, g in slots)}")
     problem.box = box
 
-
-def _tuned_slots(problem: TunerProblem) -> tuple[tuple[str, str], ...]:
-    """The (loop, gain) slots the problem's spec tunes, read from its gain layout (no box needed)."""
-    from gaintune.controllers.layout import GainLayout
-    from gaintune.plants import build_plant
-
-    box, problem.box = problem.box, None
-    try:
-        spec = problem.spec_at(problem.centre())
-    finally:
-        problem.box = box
-    plant = build_plant(spec.plant)
-    return tuple((s.loop_name, s.name) for s in GainLayout(spec, plant.states, plant=plant).tuned_slots)
 
 
 def _curve_set(problem: TunerProblem, s: TrainSettings) -> list[tuple[dict[str, float], float]]:
