@@ -281,10 +281,13 @@ def _timing_rows(timing: Mapping[str, Any], refine: int | None) -> list[list[Any
         if fresh.get("cpu_median_s") is not None:
             rows.append(["fresh process, its CPU time (user + system), median / max",
                          f"{fmt(fresh['cpu_median_s'])} / {fmt(fresh['cpu_max_s'])}", "s"])
-        rows += _floor_rows(fresh)
+        rows += _floor_rows(fresh) + _jit_rows(fresh)
         rows += [
                  ["fresh-process answers that printed valid JSON", f"{fresh['json_ok']} / {fresh['ok']}", "-"],
                  ["torch imported by the query (same CLI path, in a child)", fmt(fresh["torch_imported"]), "-"]]
+        if "numba_imported" in fresh:  # results written before the kernel was compiled ahead of time have none
+            rows += [["numba imported by the query (same child)", fmt(fresh["numba_imported"]), "-"],
+                     ["single-lane kernel compiled ahead of time", fresh["aot_kernel"], "-"]]
         rows += [[f"failed run (exit {x['code']})", x["error"], "-"] for x in fresh["failures"][:3]]
     return rows
 
@@ -302,6 +305,19 @@ def _floor_rows(fresh: Mapping[str, Any]) -> list[list[Any]]:
     if fresh.get("median_s") is not None:
         rows.append(["fresh query minus those imports, median wall (gaintune's CLI, spec, modules and the answer)",
                      fmt(fresh["median_s"] - floor["median_s"]), "s"])
+    return rows
+
+
+def _jit_rows(fresh: Mapping[str, Any]) -> list[list[Any]]:
+    """The same query on numba's JIT kernel, timed beside it (what a query cost before the ahead-of-time module)."""
+    jit = fresh.get("jit")  # results written before the module have none
+    if not jit or jit.get("median_s") is None:
+        return []
+    rows = [[f"beside each: `{jit['command']}` (numba's JIT kernel, cache warm), median / max wall",
+             f"{fmt(jit['median_s'])} / {fmt(jit['max_s'])}", "s"]]
+    if fresh.get("median_s") is not None:
+        ratio = fresh["median_s"] / jit["median_s"]
+        rows.append(["fresh query / the same on the JIT kernel, median wall", fmt(ratio, 3), "-"])
     return rows
 
 

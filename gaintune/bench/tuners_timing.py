@@ -5,12 +5,15 @@ A fresh process runs ``gaintune tuner query NAME -p K=.. -p T=.. -p L=.. --json`
 numba's cache and the OS file cache, and with gaintune's bytecode compiled as an installation has
 it (:func:`gaintune.bench.startup.compile_bytecode`). A second child imports the CLI the way the
 script does, runs the same query in-process and prints whether ``torch`` is in ``sys.modules``
-afterwards: answering a query must not pay for the learner's import.
+afterwards: answering a query must not pay for the learner's import. It reports ``numba`` too: with the
+single-lane kernel compiled ahead of time (:mod:`gaintune.sim.kernel_aot`, built before the warm-up as a
+first tune builds it) a query does not import numba either.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -38,12 +41,13 @@ except Exception as exc:
     print(f"probe: the command raised {type(exc).__name__}: {exc}", file=sys.stderr)
 print()
 print("torch_imported=" + str("torch" in sys.modules))
+print("numba_imported=" + str("numba" in sys.modules))
 """
 
-#: The numeric libraries every answer runs on (the policy and the arrays, the simulator's compiled kernel, the
-#: discretisation and the verification's linear algebra): a fresh process that only imports them is the floor
-#: under a fresh query on this machine, timed beside it.
-FLOOR = "import numpy, numba, scipy.linalg"
+#: The numeric libraries every answer runs on (the policy and the arrays, the discretisation and the
+#: verification's linear algebra; the simulator's kernel is a compiled module that needs numpy only): a fresh
+#: process that only imports them is the floor under a fresh query on this machine, timed beside it.
+FLOOR = "import numpy, scipy.linalg"
 
 #: A fresh process that does not answer within this many seconds counts as failed.
 TIMEOUT_S = 600.0
@@ -95,12 +99,13 @@ def _children_cpu_s() -> float | None:
     return r.ru_utime + r.ru_stime
 
 
-def _run(argv: list[str], cwd: str) -> dict[str, Any]:
+def _run(argv: list[str], cwd: str, env: Mapping[str, str] | None = None) -> dict[str, Any]:
     """One fresh process: wall time, its CPU time (user + system; None where unknown), exit code (None on
-    timeout), stdout and the last stderr line."""
+    timeout), stdout and the last stderr line. ``env``: variables set on top of this process's."""
     t0, c0 = time.perf_counter(), _children_cpu_s()
     try:
-        p = subprocess.run(argv, capture_output=True, text=True, cwd=cwd, timeout=TIMEOUT_S, check=False)
+        p = subprocess.run(argv, capture_output=True, text=True, cwd=cwd, timeout=TIMEOUT_S, check=False,
+                           env=None if env is None else {**os.environ, **env})
     except subprocess.TimeoutExpired:
         return {"wall_s": time.perf_counter() - t0, "cpu_s": None, "code": None, "stdout": "",
                 "error": f"timeout {TIMEOUT_S:g} s"}
@@ -129,34 +134,51 @@ def _time_figures(runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
 
 
 def fresh_process_timing(name: str, plants: Sequence[Mapping[str, float]], runs: int) -> dict[str, Any]:
-    """``runs`` fresh ``gaintune tuner query`` processes (plants in turn), each followed by a fresh process
-    that only imports the numeric libraries (:data:`FLOOR`), and the torch probe.
+    """``runs`` fresh ``gaintune tuner query`` processes (plants in turn), each followed by the same query on
+    numba's JIT kernel (``GAINTUNE_KERNEL_AOT=0``, its cache warm: the query before the ahead-of-time module)
+    and by a fresh process that only imports the numeric libraries (:data:`FLOOR`), and the torch probe.
 
     Returns the wall times of the queries that exited 0, their median and max, the same of their CPU times
     (user + system: on a shared machine the load inflates the wall time far more), how many printed valid
     JSON, the failures (exit code and last stderr line), ``floor`` (the same figures of the import-only
-    processes, interleaved with the queries so that both see the same load) and ``torch_imported`` (None
-    when the probe printed no answer).
+    processes, interleaved with the queries so that both see the same load), ``jit`` (the same of the JIT
+    queries), ``torch_imported`` and ``numba_imported`` (None when the probe printed no answer) and
+    ``aot_kernel`` ("built", or why the build failed).
     """
     from gaintune.bench.startup import compile_bytecode
+    from gaintune.sim.kernel_aot import SWITCH, aot_missing
+    from gaintune.sim.precompile import build_single
 
     compile_bytecode()
+    aot = "built"
+    if aot_missing():  # what a fresh install's first tune leaves in place
+        try:
+            build_single()
+        except Exception as exc:  # noqa: BLE001 - reported: the queries then run numba's JIT variant
+            aot = f"failed: {type(exc).__name__}: {exc}"
     exe = _gaintune_command()
+    jit_env = {SWITCH: "0"}
     with tempfile.TemporaryDirectory() as tmp:  # an empty working folder: no local package shadows the install
         warm = _run([*exe, *query_argv(name, plants[0])], tmp)  # fills numba's cache and the OS file cache
-        done, floor = [], []
+        _run([*exe, *query_argv(name, plants[0])], tmp, jit_env)
+        done, jit, floor = [], [], []
         for i in range(runs):
-            done.append(_run([*exe, *query_argv(name, plants[i % len(plants)])], tmp))
+            argv = [*exe, *query_argv(name, plants[i % len(plants)])]
+            done.append(_run(argv, tmp))
+            jit.append(_run(argv, tmp, jit_env))
             floor.append(_run([sys.executable, "-c", FLOOR], tmp))
         probe = _run([sys.executable, "-c", TORCH_PROBE, *query_argv(name, plants[0])], tmp)
     ok = [d for d in done if d["code"] == 0]
     m = re.search(r"^torch_imported=(True|False)$", probe["stdout"], re.M)
+    nb = re.search(r"^numba_imported=(True|False)$", probe["stdout"], re.M)
     return {
         "command": " ".join(["gaintune", *query_argv(name, plants[0])]),
         "runs": runs, "ok": len(ok), "json_ok": sum(_is_json(d["stdout"]) for d in ok), **_time_figures(done),
         "floor": {"command": f'python -c "{FLOOR}"', **_time_figures(floor)},
+        "jit": {"command": f"{SWITCH}=0 gaintune {' '.join(query_argv(name, plants[0]))}", **_time_figures(jit)},
         "warm_up": {"code": warm["code"], "wall_s": warm["wall_s"]},
         "failures": [{"code": d["code"], "error": d["error"]} for d in done if d["code"] != 0],
         "torch_imported": None if m is None else m.group(1) == "True",
+        "numba_imported": None if nb is None else nb.group(1) == "True", "aot_kernel": aot,
         "probe_error": probe["error"] if m is None or probe["code"] != 0 else "",
     }

@@ -30,9 +30,10 @@ def compile_simulator(console: Any | None) -> list[str]:
     list[str]
         The variants that were compiled (empty when the cache had them all).
     """
+    from gaintune.sim.kernel_aot import AOT, aot_missing
     from gaintune.sim.precompile import missing, precompile
 
-    todo = missing()
+    todo = missing() + ([AOT] if aot_missing() else [])
     if not todo:
         return []
     if console is None:

@@ -20,19 +20,24 @@ Example
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
+import tempfile
 import threading
-from collections.abc import Callable, Sequence
+import warnings
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 from gaintune.provenance import cpus_here
 from gaintune.sim.kernel.drivers import COMPILED
+from gaintune.sim.kernel_aot import AOT, dirs, failed_note, load_single, module_file, module_name
 from gaintune.sim.simulator import Simulator
 from gaintune.spec import load_spec
 
-__all__ = ["missing", "precompile", "compile_here"]
+__all__ = ["missing", "precompile", "compile_here", "build_single"]
 
 #: The tiny problem whose record has the argument types of every call (one PI loop on 1/(s+1)).
 _SAMPLE = {"plant": {"tf": {"num": [1], "den": [1, 1]}}, "loops": [{"type": "pi"}],
@@ -80,7 +85,13 @@ def missing(variants: Sequence[str] = tuple(COMPILED)) -> list[str]:
 
 
 def compile_here(name: str) -> None:
-    """Compile (or load) variant ``name`` in this process; numba writes its on-disk cache."""
+    """Compile (or load) variant ``name`` in this process; numba writes its on-disk cache.
+
+    :data:`gaintune.sim.kernel_aot.AOT` builds the ahead-of-time single-lane module instead.
+    """
+    if name == AOT:
+        build_single()
+        return
     COMPILED[name](*_sample_args())
 
 
@@ -102,7 +113,8 @@ def precompile(variants: Sequence[str], on_progress: Callable[[int, int], None] 
     Parameters
     ----------
     variants
-        Names of :data:`~gaintune.sim.kernel.drivers.COMPILED`, e.g. from :func:`missing`.
+        Names of :data:`~gaintune.sim.kernel.drivers.COMPILED`, e.g. from :func:`missing`, or
+        :data:`~gaintune.sim.kernel_aot.AOT` (the ahead-of-time single-lane module).
     on_progress
         Called as ``on_progress(done, total)`` at the start and as each variant is compiled
         (from this thread or a thread waiting for a child).
@@ -131,6 +143,7 @@ def precompile(variants: Sequence[str], on_progress: Callable[[int, int], None] 
             t.join()
     finally:
         run.stop()
+        load_single.cache_clear()  # a child may have built the ahead-of-time module this process looked for
     return run.failed
 
 
@@ -171,3 +184,96 @@ class _Run:
             for p in self._children:
                 if p.poll() is None:
                     p.kill()
+
+
+# ------------------------------------------------------------------ the single-lane kernel ahead of time
+
+def _writable_dir() -> Path:
+    """The first folder of :func:`gaintune.sim.kernel_aot.dirs` this process can write to (created)."""
+    for folder in dirs():
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            probe = tempfile.NamedTemporaryFile(dir=folder)  # os.access says yes to root on read-only mounts
+            probe.close()
+            return folder
+        except OSError:
+            continue
+    raise OSError(f"no writable folder for the compiled kernel among {[str(d) for d in dirs()]}")
+
+
+def build_single() -> Path:
+    """Compile the single-lane kernel ahead of time (~17 s of CPU) and put it in place atomically
+    (:mod:`gaintune.sim.kernel_aot` says what it is and where it goes).
+
+    Returns the module's path. Raises ImportError where numba has no pycc, and the C compiler's
+    error where the build fails; the JIT variant is unaffected either way. Two processes building at
+    once wait for each other (a file lock), and the second finds the module built.
+    """
+    from filelock import FileLock
+
+    folder = _writable_dir()
+    target = module_file(folder)
+    with FileLock(str(folder / (module_name() + ".lock"))):
+        if target.is_file():
+            return target
+        with tempfile.TemporaryDirectory(dir=folder) as tmp:
+            try:
+                built = _compile(Path(tmp))
+            except Exception as exc:
+                failed_note(folder).write_text(f"{type(exc).__name__}: {exc}\n", encoding="utf-8")
+                raise
+            os.replace(built, target)
+    load_single.cache_clear()
+    return target
+
+
+@contextlib.contextmanager
+def _swapped(owner: Any, name: str, value: Any) -> Iterator[None]:
+    """``owner.name`` is ``value`` inside the block (put back after it, raised or not)."""
+    old = getattr(owner, name)
+    setattr(owner, name, value)
+    try:
+        yield
+    finally:
+        setattr(owner, name, old)
+
+
+def _compile(out_dir: Path) -> Path:
+    """pycc's compile of the JIT single-lane variant's source, with that variant's flags, pipeline and CPU."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # pycc's pending-deprecation warning: the JIT variant is the fallback
+        from numba.core.codegen import AOTCPUCodegen, JITCPUCodegen
+        from numba.core.compiler import Flags
+        from numba.pycc import CC
+        from numba.pycc import compiler as pycc_compiler
+
+    from gaintune.sim.kernel.pipeline import SerialKernelCompiler
+
+    jit = COMPILED["single"]
+    arg_types = tuple(jit.typeof_pyval(a) for a in _sample_args())
+    jit.compile(arg_types)
+    plain = pycc_compiler.compile_extra
+
+    def as_the_jit_variant(typingctx, targetctx, func, args, return_type, flags, locals, library=None, **_: Any):
+        # the JIT variant's flags (error model, fastmath contraction, ...) with pycc's own switches kept
+        ours = Flags()
+        jit._compiler.targetdescr.options.parse_as_flags(ours, jit.targetoptions)
+        for switch in ("no_compile", "nrt", "no_cpython_wrapper", "no_cfunc_wrapper"):
+            setattr(ours, switch, getattr(flags, switch))
+        return plain(typingctx, targetctx, func, args, return_type, ours, locals, library=library,
+                     pipeline_class=SerialKernelCompiler)
+
+    cc = CC(module_name())
+    cc.output_dir = str(out_dir)
+    cc.target_cpu = "host"
+    cc.verbose = False
+    cc.export("single", jit.overloads[arg_types].signature)(jit.py_func)
+    # pycc takes no pipeline, and selects ISA features by CPU model alone: a virtual machine can mask some of
+    # the model's (an illegal instruction at run time). Both are the JIT's for this build only.
+    with _swapped(pycc_compiler, "compile_extra", as_the_jit_variant), \
+            _swapped(AOTCPUCodegen, "_customize_tm_features", JITCPUCodegen._customize_tm_features):
+        cc.compile()
+    built = [p for p in out_dir.iterdir() if p.name.startswith(module_name()) and p.suffix in (".so", ".pyd")]
+    if not built:
+        raise OSError(f"pycc wrote no module to {out_dir}")
+    return built[0]

@@ -19,7 +19,7 @@ from numba.core.typed_passes import NopythonRewrites
 from rich.console import Console
 
 from gaintune.cli import compiling
-from gaintune.sim import precompile
+from gaintune.sim import kernel_aot, precompile
 from gaintune.sim.kernel import COMPILED, pipeline
 
 _SEEN: list[tuple[dict, dict]] = []
@@ -71,8 +71,12 @@ def test_shallow_copy_propagation_reaches_numbas_fixed_point() -> None:
     assert any(ours.values())  # the inlined stage's parameter copies are there to propagate
 
 
-def test_the_sample_signature_is_every_calls_signature() -> None:
-    """What is compiled ahead is what real calls need: nonlinear, randomised, traced, any batch."""
+def test_the_sample_signature_is_every_calls_signature(monkeypatch) -> None:
+    """What is compiled ahead is what real calls need: nonlinear, randomised, traced, any batch (a batch of one
+    on the JIT variant here: the ahead-of-time module is compiled for this same signature)."""
+    import gaintune.sim.kernel as kernel
+
+    monkeypatch.setattr(kernel, "load_single", lambda: None)
     from gaintune.plants.library import load_model
     from gaintune.sim import Simulator
     from gaintune.sim import draws as draws_mod
@@ -122,6 +126,7 @@ def _console() -> tuple[Console, io.StringIO]:
 def test_a_warm_cache_compiles_nothing_and_says_nothing() -> None:
     for fn in COMPILED.values():
         fn(*precompile._sample_args())
+    precompile.build_single()  # (a file lock: another worker may be building it)
     console, buf = _console()
     assert compiling.compile_simulator(console) == []
     assert buf.getvalue() == ""
@@ -135,6 +140,7 @@ def test_missing_variants_show_compiling_the_simulator_with_their_count(monkeypa
         return {}
 
     monkeypatch.setattr(precompile, "missing", lambda: ["single", "serial"])
+    monkeypatch.setattr(kernel_aot, "aot_missing", lambda: False)
     monkeypatch.setattr(precompile, "precompile", fake_precompile)
     console, buf = _console()
     assert compiling.compile_simulator(console) == ["single", "serial"]
@@ -142,15 +148,17 @@ def test_missing_variants_show_compiling_the_simulator_with_their_count(monkeypa
 
 
 def test_first_demo_on_a_cold_cache_says_compiling_the_simulator(tmp_path: Path) -> None:
-    """A real first run: empty numba cache, both variants compiled (side by side), the message on stderr."""
+    """A real first run: empty numba cache, both variants and the ahead-of-time module compiled (side by side),
+    the message on stderr."""
     cache = tmp_path / "numba"
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
     run = subprocess.run([sys.executable, "-m", "gaintune", "demo", "--budget", "10", "--out", str(tmp_path / "out")],
                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=900)
     assert run.returncode in (0, 3), run.stderr[-2000:]  # 3: a 10-simulation search may fail verification
-    assert "compiling the simulator (first run only)" in run.stderr and "2/2" in run.stderr
+    assert "compiling the simulator (first run only)" in run.stderr and "3/3" in run.stderr
     for name in COMPILED:
         assert list(cache.rglob(f"*simulate_kernel_{name}_*.nbi")), name
+    assert list(cache.rglob(f"{kernel_aot.module_name()}.*"))
     again = subprocess.run([sys.executable, "-c", "import json; from gaintune.sim.precompile import missing; "
                             "print(json.dumps(missing()))"], capture_output=True, text=True, env=env, check=True)
     assert json.loads(again.stdout) == []

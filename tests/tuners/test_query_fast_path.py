@@ -63,11 +63,29 @@ def test_boundary_move_scores_equal_a_fresh_evaluation_of_its_answer(scale):
     np.testing.assert_array_equal(move.scores.cost, fresh.cost)
 
 
-def test_query_loads_only_the_single_lane_kernel_variant(monkeypatch):
-    """A query's simulations (the move's two rows, the verification's runs) all run on the single-lane variant,
-    so a fresh process loads one compiled variant, not two."""
+@pytest.mark.parametrize("aot", [True, False], ids=["ahead_of_time", "jit"])
+def test_query_loads_only_the_single_lane_kernel_variant(monkeypatch, aot):
+    """A query's simulations (the move's two rows, the verification's runs) all run on the single-lane kernel:
+    the ahead-of-time module where it is built (no JIT variant called), else the JIT single-lane variant, so a
+    fresh process loads one compiled variant, not two."""
+    import gaintune.sim.kernel as kernel
     from gaintune.sim.kernel import drivers
+    from gaintune.sim.kernel_aot import load_single
+    from gaintune.sim.precompile import build_single
 
+    if aot:
+        build_single()
+        module = load_single()
+        assert module is not None
+        ran = []
+
+        def counted_aot(*args):
+            ran.append(1)
+            return module(*args)
+
+        monkeypatch.setattr(kernel, "load_single", lambda: counted_aot)
+    else:
+        monkeypatch.setattr(kernel, "load_single", lambda: None)
     calls = {"_single": 0, "_serial": 0}
     for name in calls:
         real = getattr(drivers, name)
@@ -79,7 +97,10 @@ def test_query_loads_only_the_single_lane_kernel_variant(monkeypatch):
         monkeypatch.setattr(drivers, name, counted)
     for name, params in PLANTS[:3]:
         assert Tuner.load(name).query(params).verdict == "pass"
-    assert calls["_serial"] == 0 and calls["_single"] > 0
+    if aot:
+        assert calls == {"_single": 0, "_serial": 0} and len(ran) > 0
+    else:
+        assert calls["_serial"] == 0 and calls["_single"] > 0
 
 
 @pytest.mark.parametrize(("name", "params"), PLANTS)

@@ -12,26 +12,75 @@
 * :mod:`.layout`, :mod:`.ops` - chunk state layout, metric rows, scalar primitives;
 * :mod:`.pipeline` - the numba compiler pipeline of the variants.
 
+Importing this package does not import numba: :func:`run_kernel` runs one candidate on the
+single-lane kernel compiled ahead of time (:mod:`gaintune.sim.kernel_aot`) where it is built, and
+imports :mod:`.drivers` (numba) for anything else. The other names of :mod:`.drivers` load it on
+first use.
+
 The stage modules are inlined into the one compiled function (numba
 ``inline="always"``). Its arguments are a :class:`gaintune.sim.kernel_args.KernelArgs`.
 """
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from gaintune.sim.kernel_aot import load_single
 from gaintune.sim.kernel_args import KernelArgs
 
-from .drivers import (
-    COMPILED,
-    VARIANTS,
-    run_kernel,
-    simulate_kernel,
-    simulate_kernel_parallel,
-    simulate_kernel_serial,
-    simulate_kernel_single,
-)
 from .layout import CHUNK, METRICS
+
+if TYPE_CHECKING:
+    from .drivers import (
+        COMPILED,
+        VARIANTS,
+        simulate_kernel,
+        simulate_kernel_parallel,
+        simulate_kernel_serial,
+        simulate_kernel_single,
+    )
 
 __all__ = [
     "KernelArgs", "run_kernel", "simulate_kernel", "simulate_kernel_parallel", "simulate_kernel_serial",
     "simulate_kernel_single", "VARIANTS", "COMPILED", "METRICS", "CHUNK",
 ]
+
+_FROM_DRIVERS = {"COMPILED", "VARIANTS", "simulate_kernel", "simulate_kernel_parallel", "simulate_kernel_serial",
+                 "simulate_kernel_single"}
+
+
+def run_kernel(args: KernelArgs, variant: str = "auto") -> np.ndarray:
+    """Run the compiled kernel on a record: :func:`gaintune.sim.kernel.drivers.run_kernel`, except that
+    ``"auto"`` runs one candidate on the ahead-of-time single-lane kernel where it is built (the same
+    numbers, bit for bit, without importing numba).
+
+    Parameters
+    ----------
+    args
+        The kernel's arguments, e.g. from :meth:`gaintune.sim.Simulator.kernel_args`.
+        Trace arrays in it are written in place when ``args.want_traces``.
+    variant
+        ``"auto"``, or one of the JIT :data:`VARIANTS` by name.
+
+    Returns
+    -------
+    np.ndarray
+        (16, B) metric rows, in the order of :data:`METRICS`.
+    """
+    if variant == "auto" and args.u_op.shape[0] == 1:
+        single = load_single()
+        if single is not None:
+            return single(*args, 0, 1)
+    from .drivers import run_kernel as run_jit
+
+    return run_jit(args, variant)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _FROM_DRIVERS:
+        from . import drivers
+
+        return getattr(drivers, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -58,18 +58,16 @@ instead of loading a stale cache.
 
 from __future__ import annotations
 
-import hashlib
 import os
 import queue
 import threading
 import types
 from concurrent.futures import Future
-from pathlib import Path
 
 import numba as nb
 import numpy as np
 
-from gaintune.sim import tape as T
+from gaintune.sim.kernel_aot import source_tag as _source_tag
 from gaintune.sim.kernel_args import KernelArgs
 from gaintune.sim.kernel_cache import use_kernel_cache
 from gaintune.sim.threads import sim_threads
@@ -283,15 +281,6 @@ def _kernel(
 _PARAMS = _kernel.__code__.co_varnames[: _kernel.__code__.co_argcount]
 if _PARAMS != KernelArgs._fields + ("chunk0", "chunk1"):
     raise ImportError(f"KernelArgs fields do not match the kernel's parameters: {KernelArgs._fields} != {_PARAMS}")
-
-
-def _source_tag(package: Path = Path(__file__).parent) -> str:
-    """Hash of every source file the kernel compiles from (the kernel package, and the tape op codes)."""
-    h = hashlib.blake2b(digest_size=6)
-    for path in sorted(package.glob("*.py")) + [Path(T.__file__)]:
-        h.update(path.name.encode())
-        h.update(path.read_bytes())
-    return h.hexdigest()
 
 
 _TAG = _source_tag()
