@@ -7,7 +7,7 @@ it (:func:`gaintune.bench.startup.compile_bytecode`). A second child imports the
 script does, runs the same query in-process and prints whether ``torch`` is in ``sys.modules``
 afterwards: answering a query must not pay for the learner's import. It reports ``numba`` too: with the
 single-lane kernel compiled ahead of time (:mod:`gaintune.sim.kernel_aot`, built before the warm-up as a
-first tune builds it) a query does not import numba either.
+first `gaintune tuner query` builds it) a query does not import numba either.
 """
 
 from __future__ import annotations
@@ -151,7 +151,7 @@ def fresh_process_timing(name: str, plants: Sequence[Mapping[str, float]], runs:
 
     compile_bytecode()
     aot = "built"
-    if aot_missing():  # what a fresh install's first tune leaves in place
+    if aot_missing():  # what a fresh install's first query builds
         try:
             build_single()
         except Exception as exc:  # noqa: BLE001 - reported: the queries then run numba's JIT variant

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["COMPILE_MESSAGE", "compile_simulator"]
+__all__ = ["COMPILE_MESSAGE", "compile_simulator", "compile_single_kernel"]
 
 #: What the progress display says while the kernel compiles.
 COMPILE_MESSAGE = "compiling the simulator (first run only)"
@@ -30,12 +30,32 @@ def compile_simulator(console: Any | None) -> list[str]:
     list[str]
         The variants that were compiled (empty when the cache had them all).
     """
-    from gaintune.sim.kernel_aot import AOT, aot_missing
-    from gaintune.sim.precompile import missing, precompile
+    from gaintune.sim.precompile import missing
 
-    todo = missing() + ([AOT] if aot_missing() else [])
+    return _compile(console, missing())
+
+
+def compile_single_kernel(console: Any | None) -> list[str]:
+    """Build the single-lane kernel compiled ahead of time where it is missing, with the same progress line.
+
+    For the commands that simulate one candidate at a time in a fresh process (``gaintune tuner query``):
+    their first run builds it (~17 s of CPU, beside numba's compile of the JIT single-lane variant, which a
+    cold cache needs anyway), and every later one loads it without numba. The other commands do not build it:
+    a first tune's compile stays the JIT variants'. A build that fails is noted and not tried again
+    (:func:`gaintune.sim.kernel_aot.aot_missing`); the query then runs on the JIT variant. Nothing imports
+    numba when the module is in place.
+    """
+    from gaintune.sim.kernel_aot import AOT, aot_missing
+
+    return _compile(console, [AOT] if aot_missing() else [])
+
+
+def _compile(console: Any | None, todo: list[str]) -> list[str]:
+    """:func:`gaintune.sim.precompile.precompile` of ``todo`` behind the progress line (none when empty)."""
     if not todo:
         return []
+    from gaintune.sim.precompile import precompile
+
     if console is None:
         precompile(todo)
         return todo

@@ -168,7 +168,10 @@ def query_cmd(
     """Verified gains for one plant: the policy's answer (NumPy), moved onto its boundary, verified. Exit 3 on FAIL."""
     params = parse_params(param or [])
     t = _load(tuner)
+    from gaintune.cli.compiling import compile_single_kernel
     from gaintune.tuners.tuner import OutsideFamilyError
+
+    compile_single_kernel(None if json_out else err)  # a first run only: later ones load it without numba
 
     try:
         answer = t.query(params, refine=refine)

@@ -6,13 +6,14 @@ and loading the cached machine code (~0.08 s), 40 % of the whole query. numba's 
 compiler (:mod:`numba.pycc`) compiles the same source into an extension module that carries its
 own copy of numba's runtime, so importing it needs numpy only.
 
-:func:`gaintune.sim.precompile.build_single` compiles :data:`gaintune.sim.kernel.drivers.COMPILED` ``["single"]`` with
-everything that sets its machine code taken from the JIT variant: its numba flags
-(``error_model="numpy"``, ``fastmath={"contract"}``), its compiler pipeline
-(:class:`gaintune.sim.kernel.pipeline.SerialKernelCompiler`), the host CPU, and the argument
-types of every call (:func:`gaintune.sim.precompile._sample_args`). The numbers are the JIT
-variant's, bit for bit (``tests/sim/test_kernel_aot.py``). :func:`gaintune.sim.precompile.precompile`
-builds it beside the JIT variants, so a fresh install's first tune leaves it in place.
+:func:`gaintune.sim.precompile.build_single` compiles the JIT single-lane variant's source
+(:data:`gaintune.sim.kernel.drivers.COMPILED` ``["single"]``) with everything that sets its machine
+code taken from that variant: its numba flags (``error_model="numpy"``, ``fastmath={"contract"}``),
+its compiler pipeline (:class:`gaintune.sim.kernel.pipeline.SerialKernelCompiler`), the host CPU and
+its features, and the argument types of every call (:func:`gaintune.sim.precompile._sample_args`).
+The numbers are the JIT variant's, bit for bit (``tests/sim/test_kernel_aot.py``).
+:func:`gaintune.cli.compiling.compile_single_kernel` builds it on the first ``gaintune tuner query``
+(a tune's first run compiles only the JIT variants).
 
 The module is named after the kernel's sources (:func:`source_tag`), the numba release and the CPU,
 and kept where numba keeps its cache: ``NUMBA_CACHE_DIR`` when set, else the kernel package's

@@ -125,8 +125,8 @@ def precompile(variants: Sequence[str], on_progress: Callable[[int, int], None] 
     Returns
     -------
     dict[str, str]
-        Variants whose child failed, with its last error line. They compile on first call
-        instead, as numba does without this.
+        Variants that failed to compile (here or in a child), with the last error line. They compile
+        on first call instead, as numba does without this (the ahead-of-time module: the JIT variant runs).
     """
     run = _Run(list(variants), on_progress)
     width = max(1, processes or cpus_here())
@@ -137,8 +137,12 @@ def precompile(variants: Sequence[str], on_progress: Callable[[int, int], None] 
         for t in waiters:
             t.start()
         for name in here:
-            compile_here(name)
-            run.finished(name, None)
+            try:
+                compile_here(name)
+            except Exception as exc:  # noqa: BLE001 - reported as a child's failure is: it compiles on first call
+                run.finished(name, f"{type(exc).__name__}: {exc}")
+            else:
+                run.finished(name, None)
         for t in waiters:
             t.join()
     finally:
