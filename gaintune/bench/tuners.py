@@ -398,7 +398,8 @@ def build_parser() -> BenchParser:
                     help="fresh `gaintune tuner query` processes timed (default 7; 0: none)")
     ap.add_argument("--rules-only", action="store_true", help="AMIGO and SIMC against the reference only")
     ap.add_argument("--update", action="store_true",
-                    help="instead: 'tuner update' vs a cold start on a changed family (writes tuners_update.*)")
+                    help="instead: 'tuner update' vs a cold start on a changed family (writes tuners_update.*, "
+                         "with --shipped-only tuners_update_shipped.*)")
     ap.add_argument("--update-episodes", type=int_range(1024, 1_000_000), default=8192,
                     help="training episodes of each --update run (default 8192)")
     ap.add_argument("--update-curve-every", type=int_range(16, 1_000_000), default=CURVE_EVERY,
@@ -462,7 +463,8 @@ def _main_update(args: Any, out: Path, command: str) -> int:
     r["loadavg"] = f"{load0} at the start, {[round(x, 2) for x in os.getloadavg()]} at the end"
     md = render_update(r, command)
     print(md)
-    _, mp = write_outputs(r, out, "tuners_update", md)
+    # a --shipped-only run measures less: it must not overwrite the full run's results
+    _, mp = write_outputs(r, out, "tuners_update_shipped" if args.shipped_only else "tuners_update", md)
     print(f"wrote {mp}")
     return 0
 

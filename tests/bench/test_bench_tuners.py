@@ -226,3 +226,23 @@ def test_algo_compare_render_gives_each_learners_held_out_ratios() -> None:
          "td3": row, "ppo": {**row, "median_ratio": 1.2363, "worst_ratio": 2.3129}}
     md = render_algo_compare(r, "gaintune bench tuners --algo-compare")
     assert "| td3 | 1.0034 | 1.0387 | 16/16 |" in md and "| ppo | 1.2363 | 2.3129 | 16/16 |" in md
+
+
+def test_a_shipped_only_update_run_does_not_overwrite_the_full_runs_results(monkeypatch, tmp_path) -> None:
+    """--shipped-only measures the cold start and the shipped tuner's update only: it writes tuners_update_shipped.*,
+    and the full run's tuners_update.* (with the agent's update and tune --warm-start) stays."""
+    import gaintune.bench.tuners as TB
+
+    def fake_measure(base, episodes, with_agent=True, curve_every=256):
+        return {"base": base, "episodes": episodes, "seed": 0, "lag": 0.2, "ms_max": 1.4, "curve_every": curve_every,
+                "chunk": 256, "cold": {"sims_to_target": 10, "wall_s": 1.0, "validation": {"median_ratio": 1.0,
+                                       "worst_ratio": 1.0}, "curve": []},
+                "update": {"sims_to_target": 1, "wall_s": 1.0, "validation": {"median_ratio": 1.0, "worst_ratio": 1.0},
+                           "curve": []}, "ratio_update": 10.0, "ratio": 10.0}
+
+    monkeypatch.setattr(TB, "measure_update", fake_measure)
+    monkeypatch.setattr(TB, "render_update", lambda r, command: "# rendered\n")
+    (tmp_path / "tuners_update.md").write_text("the full run\n")
+    assert TB.main(["--update", "--shipped-only", "--out", str(tmp_path)]) == 0
+    assert (tmp_path / "tuners_update.md").read_text() == "the full run\n"
+    assert (tmp_path / "tuners_update_shipped.md").read_text() == "# rendered\n"
