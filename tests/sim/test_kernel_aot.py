@@ -96,3 +96,16 @@ def test_the_module_name_follows_the_kernel_source_the_numba_release_and_the_cpu
     import numba
 
     assert numba.__version__.replace(".", "_") in name
+
+
+def test_the_compiled_module_runs_on_several_threads_at_once_with_each_calls_own_numbers(aot_single) -> None:
+    """It releases the GIL as the JIT variant does (the API's compute threads answer queries side by side); each
+    call allocates its own arrays, and numba's runtime counts references atomically."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    cases = _cases()
+    args = [sim.kernel_args(full[None, :] * scale) for _, sim, full in cases for scale in (0.8, 1.0, 1.2)]
+    alone = [aot_single(*a, 0, 1).tobytes() for a in args]
+    with ThreadPoolExecutor(4) as pool:
+        together = list(pool.map(lambda a: aot_single(*a, 0, 1).tobytes(), args * 8))
+    assert together == alone * 8
