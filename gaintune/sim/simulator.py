@@ -78,7 +78,7 @@ class Simulator:
         self.layout = layout or GainLayout(spec, self.plant.states)
         self.setup = SimSetup.build(spec, self.plant, self.layout)
         self._memo: dict = {}
-        self._single: dict = {}  # (draw set and scenario, gains) -> metrics of one untraced candidate
+        self._single: dict = {}  # (draw set and scenario, gains) -> kernel output of one untraced candidate
 
     def nominal_draws(self, n: int = 1) -> Draws:
         return draws_mod.nominal(self.spec, self.plant, n, seed=self.spec.search.seed)

@@ -1,7 +1,7 @@
 """The compiled (numba) closed-loop kernel, split by job:
 
 * :mod:`.drivers` - the time loop, its two compiled variants (``CHUNK`` lanes,
-  single lane), the threads over chunks and the dispatch: :func:`run_kernel`,
+  single lane), the threads over chunks and the JIT dispatch: :func:`.drivers.run_jit`,
   :func:`simulate_kernel`;
 * :mod:`.law` - the controller law and the actuator;
 * :mod:`.plant` - measured outputs, the delayed input, the state update (ZOH, RK4);
@@ -52,9 +52,7 @@ _FROM_DRIVERS = {"COMPILED", "VARIANTS", "simulate_kernel", "simulate_kernel_par
 
 
 def run_kernel(args: KernelArgs, variant: str = "auto") -> np.ndarray:
-    """Run the compiled kernel on a record: :func:`gaintune.sim.kernel.drivers.run_kernel`, except that
-    ``"auto"`` runs one candidate on the ahead-of-time single-lane kernel where it is built (the same
-    numbers, bit for bit, without importing numba).
+    """Run the compiled kernel on a record.
 
     Parameters
     ----------
@@ -62,18 +60,22 @@ def run_kernel(args: KernelArgs, variant: str = "auto") -> np.ndarray:
         The kernel's arguments, e.g. from :meth:`gaintune.sim.Simulator.kernel_args`.
         Trace arrays in it are written in place when ``args.want_traces``.
     variant
-        ``"auto"``, or one of the JIT :data:`VARIANTS` by name.
+        ``"auto"`` (what :meth:`~gaintune.sim.Simulator.run` uses): one candidate on the single-lane
+        kernel compiled ahead of time where it is built (:mod:`gaintune.sim.kernel_aot`: the same
+        numbers, bit for bit, without importing numba), else the JIT variant ``"single"``; one chunk on
+        ``"serial"``; more on ``"parallel"``. Or one of the JIT :data:`VARIANTS` by name. All variants
+        give the same numbers on a plant shared by a chunk.
 
     Returns
     -------
     np.ndarray
-        (16, B) metric rows, in the order of :data:`METRICS`.
+        (16, B) metric rows, in the order of :data:`METRICS` (diverged/tripped as 0/1 floats).
     """
     if variant == "auto" and args.u_op.shape[0] == 1:
         single = load_single()
         if single is not None:
             return single(*args, 0, 1)
-    from .drivers import run_kernel as run_jit
+    from .drivers import run_jit
 
     return run_jit(args, variant)
 

@@ -111,7 +111,7 @@ from .plant import (
 from .signals import fill_signals, hold_shared_signals, signals_shared
 
 __all__ = [
-    "simulate_kernel", "run_kernel", "simulate_kernel_parallel", "simulate_kernel_serial", "simulate_kernel_single",
+    "simulate_kernel", "run_jit", "simulate_kernel_parallel", "simulate_kernel_serial", "simulate_kernel_single",
     "VARIANTS", "COMPILED",
 ]
 
@@ -380,7 +380,7 @@ def simulate_kernel_parallel(*args) -> np.ndarray:
     return out
 
 
-#: The variants by name, for :func:`run_kernel`; each takes a :class:`KernelArgs` splatted.
+#: The variants by name, for :func:`run_jit`; each takes a :class:`KernelArgs` splatted.
 VARIANTS = {"parallel": simulate_kernel_parallel, "serial": simulate_kernel_serial, "single": simulate_kernel_single}
 
 
@@ -398,24 +398,8 @@ def simulate_kernel(*args) -> np.ndarray:
     return simulate_kernel_parallel(*args)
 
 
-def run_kernel(args: KernelArgs, variant: str = "auto") -> np.ndarray:
-    """Run the compiled kernel on a record.
-
-    Parameters
-    ----------
-    args
-        The kernel's arguments, e.g. from :meth:`gaintune.sim.Simulator.kernel_args`.
-        Trace arrays in it are written in place when ``args.want_traces``.
-    variant
-        ``"auto"`` (what :meth:`~gaintune.sim.Simulator.run` uses: ``"single"`` for
-        one candidate, ``"serial"`` for one chunk, else ``"parallel"``), or one of
-        :data:`VARIANTS`. All variants give the same numbers on a plant shared by a chunk.
-
-    Returns
-    -------
-    np.ndarray
-        (16, B) metric rows, in the order of :data:`METRICS` (diverged/tripped as 0/1 floats).
-    """
+def run_jit(args: KernelArgs, variant: str = "auto") -> np.ndarray:
+    """:func:`gaintune.sim.kernel.run_kernel` on the JIT variants alone (its parameters and return)."""
     if variant == "auto":
         return simulate_kernel(*args)
     try:
