@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from gaintune.lti.arrays import finite
 from gaintune.plants.plant import LinearModel, Plant
 from gaintune.provenance import cpus_here
 from gaintune.sim import SimResult, Simulator
@@ -87,6 +88,10 @@ def merit(cost: np.ndarray, violation: np.ndarray) -> np.ndarray:
     cost = np.asarray(cost, dtype=float)
     violation = np.asarray(violation, dtype=float)
     return np.where(violation > 0, INFEASIBLE_MERIT * (1.0 + violation), np.minimum(cost, DIVERGED_COST))
+
+
+#: What -inf becomes in a violation or shortfall (numpy.nan_to_num's default: the lowest float).
+_LOWEST = float(np.finfo(float).min)
 
 
 @dataclass
@@ -352,10 +357,9 @@ class Evaluator:
         full = self.layout.full(tuned)
         vs = [requirement_scores(self._aim_spec, self.plant, self.layout, full, lin, self._noise_limit, stability)
               for lin in self.constraint_models]
-        v = np.max([x[0] for x in vs], axis=0)
-        short = np.max([x[1] for x in vs], axis=0)
-        return (np.nan_to_num(v, nan=DIVERGED_VIOLATION, posinf=DIVERGED_VIOLATION),
-                np.nan_to_num(short, nan=DIVERGED_VIOLATION, posinf=DIVERGED_VIOLATION))
+        v, short = vs[0] if len(vs) == 1 else (np.max([x[0] for x in vs], axis=0), np.max([x[1] for x in vs], axis=0))
+        return (finite(v, DIVERGED_VIOLATION, DIVERGED_VIOLATION, _LOWEST),
+                finite(short, DIVERGED_VIOLATION, DIVERGED_VIOLATION, _LOWEST))
 
     @property
     def is_mimo(self) -> bool:

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gaintune.lti.mimo import TfMatrix
+from gaintune.lti.arrays import int_power
 from gaintune.verification.mimo_loop import MimoLoop, closed_loop_matrix, response, solve_points
 from gaintune.verification.mimo_products import BLOCK_MIN, block_eigvals, divergence_rate
 from gaintune.verification.mimo_sampled_terms import SampledTerms
@@ -68,7 +69,7 @@ class SampledCore:
         """sum_c (G0[:, c] + G1[:, c] z^-1) z^-d(c) per driven input: (len(z), rows of G0, n_in)."""
         one_hot = np.zeros((self.src.size, n_in))
         one_hot[np.arange(self.src.size), self.src] = 1.0
-        f = (1.0 / z)[:, None] ** self.d[None, :]  # (W, channels)
+        f = int_power((1.0 / z)[:, None], self.d[None, :])  # (W, channels)
         out = (G0[None] * f[:, None, :]) @ one_hot
         if np.any(G1):
             out = out + (G1[None] * (f / z[:, None])[:, None, :]) @ one_hot

@@ -22,6 +22,8 @@ from typing import Protocol
 
 import numpy as np
 
+from gaintune.lti.arrays import int_power
+
 __all__ = ["SampledTerms", "state_blocks"]
 
 class _Core(Protocol):
@@ -68,7 +70,7 @@ class _SolvedBlock:
         from gaintune.verification.mimo_loop import solve_points
 
         inv = 1.0 / z
-        f = inv[:, None] ** self.d[None, :]
+        f = int_power(inv[:, None], self.d[None, :])
         Bz = (self.G0[None] + self.G1[None] * inv[:, None, None]) * f[:, None, :]
         X = solve_points(z[:, None, None] * np.eye(self.A.shape[0]) - self.A[None], Bz)
         return self.C[None] @ X

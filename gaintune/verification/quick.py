@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gaintune.controllers.layout import GainLayout
+from gaintune.lti.arrays import finite
 from gaintune.lti.modes import plant_eigvals
 from gaintune.lti.pade import pade_response
 from gaintune.plants.noise_limit import noise_limits
@@ -98,7 +99,7 @@ def _parabolic_peak(V: np.ndarray) -> np.ndarray:
     V = V.reshape(-1, W)  # rows indexed directly: take_along_axis costs more than the arithmetic here
     rows = np.arange(V.shape[0])
     j = np.argmax(V, axis=-1)
-    jc = np.clip(j, 1, W - 2)
+    jc = np.minimum(np.maximum(j, 1), W - 2)  # np.clip's argument handling costs more than this
     a, b, c = V[rows, jc - 1], V[rows, jc], V[rows, jc + 1]
     den = a - 2 * b + c
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -391,11 +392,11 @@ def requirement_scores(
             has = np.isfinite(noise_limit)
             terms.append((q.mks[:, has] - noise_limit[has]) / noise_limit[has])
         for t in terms:
-            t = np.nan_to_num(t, nan=MAX_TERM, posinf=MAX_TERM, neginf=0.0).max(axis=-1)
+            t = finite(t, MAX_TERM, MAX_TERM, 0.0).max(axis=-1)
             t = t + FEASIBILITY_MARGIN  # met means at least FEASIBILITY_MARGIN inside the limit
             out += np.where(t <= 0.0, 0.0, np.minimum(t, MAX_TERM))
             short = np.maximum(short, np.minimum(t, MAX_TERM))
         w_ref = float(np.sqrt(q.omega[0] * q.omega[-1]))
-        grade = np.log1p(np.clip(np.nan_to_num(q.max_real, nan=1e300, posinf=1e300), 0.0, 1e300) / w_ref)
+        grade = np.log1p(np.minimum(finite(q.max_real, 1e300, 1e300, 0.0), 1e300) / w_ref)
     unstable = UNSTABLE_VIOLATION + np.minimum(grade, 100.0)
     return np.where(q.stable, out, unstable), np.where(q.stable, short, unstable)

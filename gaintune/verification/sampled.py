@@ -44,6 +44,7 @@ from collections.abc import Callable
 import numpy as np
 
 from gaintune.errors import SpecError
+from gaintune.lti.arrays import int_power
 from gaintune.plants.plant import LinearModel
 from gaintune.spec import check_delay_samples
 
@@ -195,7 +196,7 @@ class SampledPlant:
                 if i + 1 < n:
                     acc = acc + T[i, i + 1 :] @ x[i + 1 :]
                 x[i] = acc / (z - diag[i])
-            x = x * zi**self.d if self.d else x
+            x = x * int_power(zi, self.d) if self.d else x  # NumPy's ** is ~30x slower from d = 100
         return (Z @ x).T
 
     def responses(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -203,7 +204,7 @@ class SampledPlant:
         X = self.state_response(z)
         P = X @ self.C.T
         if self.has_D:
-            P = P + self.D[None, :] * (1.0 / np.asarray(z, dtype=complex)[:, None]) ** self.dD
+            P = P + self.D[None, :] * int_power(1.0 / np.asarray(z, dtype=complex)[:, None], self.dD)
         return X, P
 
 

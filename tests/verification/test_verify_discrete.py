@@ -505,3 +505,22 @@ def test_sampled_converges_to_continuous_as_dt_shrinks():
         c = fig(verify(cspec, g, nonlinear=False))
         errs.append(abs(s.pm_deg - c.pm_deg))
     assert errs[0] > errs[1] > errs[2] and errs[2] < 0.05
+
+
+def test_a_sampled_plant_with_a_buffer_past_100_samples_has_the_exact_delay_factor() -> None:
+    """NumPy's complex ``**`` leaves repeated multiplication at an exponent of 100; the sampled response
+    squares instead (gaintune.lti.arrays.int_power), and the factor z^-d must still be e^{-s d dt}."""
+    import dataclasses
+
+    from gaintune.verification.sampled import sample_plant
+
+    spec = load_spec({"plant": {"tf": {"num": [1.0], "den": [1.0, 1.0]}, "delay": 1.5},
+                      "loops": [{"type": "pi"}], "scenario": {"dt": 0.01, "horizon": 20.0}})
+    lin = build_plant(spec.plant).linearize()
+    sp = sample_plant(lin, 0.01, 0, False)
+    assert sp.d >= 100
+    w = np.linspace(0.01, sp.nyquist, 997)
+    z = np.exp(1j * w * sp.dt)
+    shifted = sample_plant(dataclasses.replace(lin, delay=0.0), 0.01, 0, False)
+    expect = shifted.state_response(z) * np.exp(-1j * w * sp.dt * sp.d)[:, None]
+    assert np.allclose(sp.state_response(z), expect, rtol=1e-11, atol=1e-13)
