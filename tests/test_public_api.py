@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 
-
 def test_public_names_import_from_the_top_level():
     from gaintune import TuneResult, VerificationReport, load_spec, tune, verify, versions
 

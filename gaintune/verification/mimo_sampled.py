@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gaintune.lti.mimo import TfMatrix
 from gaintune.lti.arrays import int_power
+from gaintune.lti.mimo import TfMatrix
 from gaintune.verification.mimo_loop import MimoLoop, closed_loop_matrix, response, solve_points
 from gaintune.verification.mimo_products import BLOCK_MIN, block_eigvals, divergence_rate
 from gaintune.verification.mimo_sampled_terms import SampledTerms

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from gaintune.baselines import METHODS, run_baseline
+from gaintune.baselines.optimizers import optimize
 from gaintune.classical import NoModelError, auto_bounds, fit_fotd, rule_candidates, tune_classical
-from gaintune.evaluation.search_box import search_box, search_layout
 from gaintune.classical import rules as R
 from gaintune.classical.fotd import Fotd
-from gaintune.baselines.optimizers import optimize
 from gaintune.controllers.layout import GainLayout
+from gaintune.evaluation.search_box import search_box, search_layout
 from gaintune.plants import build_plant
 from gaintune.spec import load_spec
 

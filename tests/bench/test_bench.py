@@ -18,9 +18,9 @@ import pytest
 
 from gaintune.bench import compare as C
 from gaintune.bench import references as R
-from gaintune.evaluation.evaluator import DIVERGED_COST
 from gaintune.bench import search as S
 from gaintune.bench import suite as U
+from gaintune.evaluation.evaluator import DIVERGED_COST
 
 
 @pytest.fixture(autouse=True)

@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from gaintune.lti import pade, statespace
 from gaintune.bench.suite import get_suite
 from gaintune.classical import fit_fotd, rule_candidates, tune_classical
 from gaintune.classical import fotd as F
@@ -23,6 +22,7 @@ from gaintune.classical import tuning as TU
 from gaintune.classical.fotd import path_poles_zeros, siso_minreal
 from gaintune.classical.rules import ultimate_gain
 from gaintune.classical.tuning import CLASSICAL_METHODS
+from gaintune.lti import pade, statespace
 from gaintune.plants import build_plant
 from gaintune.spec import load_spec
 

@@ -227,7 +227,7 @@ def test_tune_overrides_and_writes_everything(spec_file: Path, tmp_path: Path, f
     assert res.exit_code == 0, res.output
     spec = fake_tune["spec"]
     assert (spec.search.algo, spec.search.budget, spec.search.seed, spec.search.n_envs) == ("sac", 200, 7, 4)
-    assert fake_tune["out_dir"] == str(out) 
+    assert fake_tune["out_dir"] == str(out)
     assert fake_tune["command"] == f"gaintune tune {spec_file} --algo sac --budget 200 --seed 7 --workers 4"
     for name in ("result.json", "report.html", "gains.json", "gains.yaml", "gains.h", "gains.m"):
         assert (out / name).stat().st_size > 0, name

@@ -9,9 +9,9 @@ from pydantic import ValidationError
 from gaintune.classical import auto_bounds, tune_classical
 from gaintune.controllers.direction import loop_directions, resolve_directions
 from gaintune.controllers.layout import GainLayout
-from gaintune.evaluation.search_box import search_box, search_layout
 from gaintune.controllers.pid import pid_params
 from gaintune.errors import GainError, SpecError
+from gaintune.evaluation.search_box import search_box, search_layout
 from gaintune.plants import build_plant
 from gaintune.sim import Simulator
 from gaintune.spec import load_spec

@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 
 from gaintune.baselines import run_baseline
-from gaintune.evaluation.boundary_exact import onto_boundary_exact
 from gaintune.envs.problem import GainProblem
+from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
+from gaintune.evaluation.boundary_exact import onto_boundary_exact
+from gaintune.evaluation.search_box import make_evaluator
 from gaintune.export.verdict import result_verdict_at_dt, verdict_at_dt
 from gaintune.plants.library import load_model
-from gaintune.evaluation.boundary_estimate import onto_boundary_estimate
 from gaintune.search import tune
-from gaintune.evaluation.search_box import make_evaluator
 from gaintune.spec import load_spec
 from gaintune.verification import verify
 

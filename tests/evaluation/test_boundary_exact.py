@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gaintune.evaluation.boundary_exact import ALPHA_TOL, normalised_margin, onto_boundary_exact
 from gaintune.envs.problem import GainProblem
+from gaintune.evaluation.boundary_exact import ALPHA_TOL, normalised_margin, onto_boundary_exact
 from gaintune.spec import load_spec
 from gaintune.verification import verify
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gaintune.plants import build_plant
 from gaintune.evaluation.search_box import GRID_POINTS, ZOOM_POINTS, ZOOM_STAGES, ZOOM_STARTS, search_box
+from gaintune.plants import build_plant
 from gaintune.spec import load_spec
 
 UNSTABLE = {"plant": {"tf": {"num": [1], "den": [1, -1]}, "delay": 0.1}, "loops": [{"name": "main", "type": "pid"}],

@@ -16,10 +16,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from agent_forgery import RunsCode, pickled_code_in_data, rewrite, torch_saved
 from stable_baselines3.common.save_util import recursive_getattr
 from stable_baselines3.common.vec_env import DummyVecEnv
-
-from agent_forgery import RunsCode, pickled_code_in_data, rewrite, torch_saved
 
 from gaintune.errors import SpecError
 from gaintune.search.agent_file import read_agent_file, save_agent

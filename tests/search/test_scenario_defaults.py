@@ -13,7 +13,6 @@ from gaintune.search.diagnosis import integral_time_hints
 from gaintune.sim import Simulator
 from gaintune.sim.settling import unsettled_scenarios
 from gaintune.spec import load_spec
-from gaintune.verification import verify
 
 #: The README's minimal spec on the FOTD 2 e^{-10 s}/(60 s + 1): no scenario given.
 FOTD = {"plant": {"tf": {"num": [2], "den": "60*s + 1"}, "delay": 10}, "loops": [{"type": "pi"}]}
