@@ -94,8 +94,29 @@ def _g(x: float) -> str:
     return f"{x:.3g}"
 
 
+def _one_lag(sys: StateSpace) -> float | None:
+    """The time constant of a path that is one stable lag with a static gain (one state, no feedthrough),
+    else None.
+
+    For such a path :func:`~gaintune.classical.fotd.fit_fotd`'s half rule gives T = -1/a and L = the delay;
+    it reaches them through a minimal realisation and the zeros' pencil, ~0.4 ms (a twentieth of a tuner's
+    answer, whose FOTD plants are all this case). The bounds are fit_fotd's: a pole within 1e-9 of the
+    origin is an integrator, and a gain the realisation would cancel is none.
+    """
+    A, B, C, D = sys.A, sys.B, sys.C, sys.D
+    if A.shape != (1, 1) or D[0, 0] != 0.0:
+        return None
+    a, bc = float(A[0, 0]), float(B[0, 0] * C[0, 0])
+    if not (math.isfinite(a) and math.isfinite(bc)) or -a <= 1e-9 * max(1.0, abs(a)) or abs(bc) <= 1e-9 * abs(a):
+        return None
+    return -1.0 / a
+
+
 def _path_scale(name: str, sys: StateSpace, delay: float) -> LoopScale:
     """Settling and fast scales of one SISO path (delay-free part ``sys`` plus ``delay`` s)."""
+    lag = _one_lag(sys)
+    if lag is not None:  # fit_fotd's model, read directly
+        return LoopScale(name, lag + delay, delay, f"FOTD T {_g(lag)} s, L {_g(delay)} s, S = T + L")
     try:
         m = fit_fotd(sys, delay)
     except (NoModelError, ValueError, ArithmeticError, np.linalg.LinAlgError):
