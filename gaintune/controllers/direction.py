@@ -134,6 +134,9 @@ def path_gain(A: np.ndarray, b: np.ndarray, c: np.ndarray, d: float) -> PathGain
     n = A.shape[0]
     if n == 0:
         return PathGain(0, d, 0) if d != 0 else None
+    if n == 1 and d == 0.0 and A[0, 0] < 0.0 and abs(b[0] * c[0]) > 1e-9 * abs(A[0, 0]) and np.isfinite(A).all():
+        # one stable lag: the expansion below reads order 0 and takes the exact static gain (~0.2 ms saved)
+        return PathGain(0, float(d - c @ np.linalg.solve(A, b)), 0)
     path = StateSpace(A, b[:, None], c[None, :], np.array([[d]]))
     poles = path.poles()
     with np.errstate(all="ignore"):
