@@ -189,6 +189,18 @@ class _Landing:
     v_given: np.ndarray  # (B,) full estimate's violation at the given gains (NaN where not kept)
 
 
+def _full_violation(ev: Evaluator, rows: np.ndarray, margins_hold: np.ndarray) -> np.ndarray:
+    """The full estimate's violation of ``rows``; where ``margins_hold`` (a feasible scan point or bracket end:
+    every margin holds, so its violation is 0 unless the loop is unstable) the stability check alone gives it."""
+    if ev.is_mimo or not margins_hold.any():
+        return ev.requirement_scores(rows)[0]
+    v = np.empty(len(rows))
+    v[margins_hold] = ev.unstable_violation(rows[margins_hold])
+    if not margins_hold.all():
+        v[~margins_hold] = ev.requirement_scores(rows[~margins_hold])[0]
+    return v
+
+
 def _landing(ev: Evaluator, given: np.ndarray, d: np.ndarray) -> _Landing:
     """The scan, each start point's bracket closed by regula falsi, and the full estimate's check of every
     landing point (where it refuses one, the largest scan point at or below it that it takes)."""
@@ -209,7 +221,8 @@ def _landing(ev: Evaluator, given: np.ndarray, d: np.ndarray) -> _Landing:
     # the full estimate (stability included) decides. The given gains that may stay (feasible in the scan)
     # are checked in the same call: the caller's cost comparison needs their violation (the estimate is
     # row by row, so batching changes nothing).
-    v = ev.requirement_scores(np.vstack([given[row] * np.exp(x)[:, None] ** d, given[keep]]))[0]
+    v = _full_violation(ev, np.vstack([given[row] * np.exp(x)[:, None] ** d, given[keep]]),
+                        np.concatenate([[e is not None for e in end], np.ones(int(keep.sum()), dtype=bool)]))
     C = row.size
     v_land, v_given = v[:C].copy(), np.full(B, np.nan)
     v_given[keep] = v[C:]

@@ -361,6 +361,19 @@ class Evaluator:
         return (finite(v, DIVERGED_VIOLATION, DIVERGED_VIOLATION, _LOWEST),
                 finite(short, DIVERGED_VIOLATION, DIVERGED_VIOLATION, _LOWEST))
 
+    def unstable_violation(self, tuned: np.ndarray) -> np.ndarray:
+        """(B,) the requirement violation of gain sets whose margins are known to hold (a single-loop spec):
+        0 where the estimate's closed loop is stable on every constraint model, else the unstable grade that
+        :meth:`requirement_scores` gives them. The stability check alone: a boundary move's landing points
+        sit inside every margin already."""
+        from gaintune.verification.quick import unstable_violation
+
+        if is_mimo_sim(self.sim):
+            raise ValueError("unstable_violation: a single-loop estimate (MIMO: requirement_scores)")
+        full = self.layout.full(np.atleast_2d(np.asarray(tuned, dtype=float)))
+        vs = [unstable_violation(self._aim_spec, self.plant, self.layout, full, lin) for lin in self.constraint_models]
+        return vs[0] if len(vs) == 1 else np.max(vs, axis=0)
+
     @property
     def is_mimo(self) -> bool:
         """Whether this evaluator's simulator is the MIMO one (several inputs, or a loop graph)."""

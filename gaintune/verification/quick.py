@@ -31,8 +31,8 @@ from gaintune.verification.cascade import Cascade, build_cascade
 from gaintune.verification.sampled import SampledPlant, sample_plant
 from gaintune.verification.stability import observable_part, sampled_stability
 
-__all__ = ["QuickMargins", "quick_margins", "requirement_violation", "requirement_scores", "noise_limit_array",
-           "margin_terms", "sampled_grid", "UNSTABLE_VIOLATION", "FEASIBILITY_MARGIN", "MAX_TERM"]
+__all__ = ["QuickMargins", "quick_margins", "requirement_violation", "requirement_scores", "unstable_violation",
+           "noise_limit_array", "margin_terms", "sampled_grid", "UNSTABLE_VIOLATION", "FEASIBILITY_MARGIN", "MAX_TERM"]
 
 #: Violation of an unstable closed loop, plus a grade that grows with the largest real pole.
 UNSTABLE_VIOLATION = 10.0
@@ -250,6 +250,50 @@ def _with_plant_input(x: np.ndarray) -> np.ndarray:
     return out.transpose(*range(1, out.ndim), 0)
 
 
+def _setup(spec: TuningSpec, plant: Plant, layout: GainLayout, full: np.ndarray, lin: LinearModel, n_freq: int
+           ) -> tuple[Cascade, SampledPlant | None, float, np.ndarray, np.ndarray, np.ndarray]:
+    """(cascade, sampled plant or None, total delay T, grid w, s, delay factor) of an estimate."""
+    vs = spec.verify
+    dt = analysis_dt(spec)
+    sp = sample_plant(lin, dt, vs.compute_delay, plant.kind == "nonlinear") if vs.sampled else None
+    T = sp.total_delay if sp is not None else lin.delay + sampling_delay(spec) + vs.compute_delay * dt
+    cas = build_cascade(spec, layout, full, lin)
+    w, s, dly = _frequencies(lin, T, n_freq, sp, vs.pade_order)
+    return cas, sp, T, w, s, dly
+
+
+def _stability(cas: Cascade, lin: LinearModel, w: np.ndarray, T: float, sp: SampledPlant | None,
+               order: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """(stable (B,), max real pole (B,)) of the closed loop the estimate judges: the sampled loop's |z| < 1,
+    or the continuous loop's eigenvalues."""
+    if sp is not None:
+        return sampled_stability(cas, lin, sp, float(w[0]))
+    return _continuous_stability(cas, lin, w, T, order)
+
+
+def _unstable_grade(max_real: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The violation of an unstable loop: ``UNSTABLE_VIOLATION + log1p(max Re pole / w_ref)``, the log capped at 100."""
+    w_ref = float(np.sqrt(w[0] * w[-1]))
+    with np.errstate(all="ignore"):
+        grade = np.log1p(np.minimum(finite(max_real, 1e300, 1e300, 0.0), 1e300) / w_ref)
+    return UNSTABLE_VIOLATION + np.minimum(grade, 100.0)
+
+
+def unstable_violation(spec: TuningSpec, plant: Plant, layout: GainLayout, full_gains: np.ndarray,
+                       lin: LinearModel | None = None, n_freq: int = 320) -> np.ndarray:
+    """(B,): 0 where the estimate's closed loop is stable, else the violation :func:`requirement_scores` gives
+    an unstable loop (>= UNSTABLE_VIOLATION).
+
+    For a caller that knows the margins hold (their violation is 0): the full violation is then this, at
+    the cost of the stability check alone.
+    """
+    full = np.atleast_2d(np.asarray(full_gains, dtype=float))
+    lin = lin if lin is not None else plant.linearize()
+    cas, sp, T, w, _, _ = _setup(spec, plant, layout, full, lin, n_freq)
+    stable, max_re = _stability(cas, lin, w, T, sp, spec.verify.pade_order)
+    return np.where(stable, 0.0, _unstable_grade(max_re, w))
+
+
 def quick_margins(
     spec: TuningSpec,
     plant: Plant,
@@ -275,13 +319,8 @@ def quick_margins(
     """
     full = np.atleast_2d(np.asarray(full_gains, dtype=float))
     lin = lin if lin is not None else plant.linearize()
-    vs = spec.verify
-    dt = analysis_dt(spec)
-    sp = sample_plant(lin, dt, vs.compute_delay, plant.kind == "nonlinear") if vs.sampled else None
-    T = sp.total_delay if sp is not None else lin.delay + sampling_delay(spec) + vs.compute_delay * dt
-    cas = build_cascade(spec, layout, full, lin)
+    cas, sp, T, w, s, dly = _setup(spec, plant, layout, full, lin, n_freq)
     order = spec.verify.pade_order
-    w, s, dly = _frequencies(lin, T, n_freq, sp, order)
     R, B = len(cas.loops), full.shape[0]
     with np.errstate(all="ignore"):
         L, L0, mks = _responses(cas, lin, s, dly, sp, peaks)
@@ -296,10 +335,8 @@ def quick_margins(
             pm_b = wc_b = dm_b = gm_b = np.full((R, B), np.nan)
     if not stability:  # the caller checks stability elsewhere (gaintune.evaluation.boundary_estimate's final check)
         stable, max_re = np.ones(B, dtype=bool), np.full(B, -np.inf)
-    elif sp is not None:  # closed-loop stability of the sampled loop: |z| < 1
-        stable, max_re = sampled_stability(cas, lin, sp, float(w[0]))
     else:
-        stable, max_re = _continuous_stability(cas, lin, w, T, order)
+        stable, max_re = _stability(cas, lin, w, T, sp, order)
     tr = _with_plant_input
     return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), np.moveaxis(mks, 0, -1), tr(wc_b), stable,
                         max_re, w, cas.break_names)
@@ -396,7 +433,5 @@ def requirement_scores(
             t = t + FEASIBILITY_MARGIN  # met means at least FEASIBILITY_MARGIN inside the limit
             out += np.where(t <= 0.0, 0.0, np.minimum(t, MAX_TERM))
             short = np.maximum(short, np.minimum(t, MAX_TERM))
-        w_ref = float(np.sqrt(q.omega[0] * q.omega[-1]))
-        grade = np.log1p(np.minimum(finite(q.max_real, 1e300, 1e300, 0.0), 1e300) / w_ref)
-    unstable = UNSTABLE_VIOLATION + np.minimum(grade, 100.0)
+    unstable = _unstable_grade(q.max_real, q.omega)
     return np.where(q.stable, out, unstable), np.where(q.stable, short, unstable)

@@ -44,3 +44,19 @@ def test_move_finds_the_high_gain_island_of_a_lag_dominant_pid():
     assert move.scores.cost[0] < ev.evaluate(low).cost[0] / 10
     lay = ev.layout
     assert verify(ev.spec, lay.to_dict(lay.full(move.tuned[0])), cache=False).verdict == "pass"
+
+
+def test_the_landing_check_of_points_whose_margins_hold_is_the_full_estimate() -> None:
+    """The move checks its landing points (feasible scan points and bracket ends) for stability alone: for any
+    gain set, the full estimate's violation is the unstable grade where the loop is unstable, and the
+    margins' violation where it is stable."""
+    for ctype, context, given in [("pi", {"tau": 0.3}, [0.8, 1.1]), ("pid", {"tau": 0.048}, [1.2087, 7.5664, 0.024223]),
+                                  ("pi", {"tau": 0.8}, [0.2, 0.15])]:
+        ev = Evaluator(FamilyProblem("fotd", ctype, 1.4).spec_at(context))
+        g = np.asarray(given)
+        rows = g[None, :] * np.geomspace(1e-2, 1e2, 25)[:, None] ** loop_gain_exponents(ev)
+        full = ev.requirement_scores(rows)[0]
+        margins = ev.requirement_scores(rows, stability=False)[0]
+        unstable = ev.unstable_violation(rows)
+        assert (unstable > 0).any() and (unstable == 0).any() and (margins == 0).any()
+        assert np.array_equal(full, np.where(unstable > 0, unstable, margins))
