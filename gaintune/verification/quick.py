@@ -331,15 +331,17 @@ def quick_margins(
         if crossings:
             pm_b, wc_b, dm_b = _gain_crossings(L, aL, w)
             gm_b = _gain_margin(L, aL, L0, sp is not None)
-        else:
-            pm_b = wc_b = dm_b = gm_b = np.full((R, B), np.nan)
+
     if not stability:  # the caller checks stability elsewhere (gaintune.evaluation.boundary_estimate's final check)
         stable, max_re = np.ones(B, dtype=bool), np.full(B, -np.inf)
     else:
         stable, max_re = _stability(cas, lin, w, T, sp, order)
     tr = _with_plant_input
-    return QuickMargins(tr(gm_b), tr(pm_b), tr(dm_b), tr(ms), tr(mt), np.moveaxis(mks, 0, -1), tr(wc_b), stable,
-                        max_re, w, cas.break_names)
+    if crossings:
+        gm, pm, dm, wc = tr(gm_b), tr(pm_b), tr(dm_b), tr(wc_b)
+    else:  # not asked for: NaN, without transposing four NaN arrays
+        gm, pm, dm, wc = (np.full((B, R + 1), np.nan) for _ in range(4))
+    return QuickMargins(gm, pm, dm, tr(ms), tr(mt), np.moveaxis(mks, 0, -1), wc, stable, max_re, w, cas.break_names)
 
 
 def noise_limit_array(spec: TuningSpec, plant: Plant) -> np.ndarray:
@@ -416,8 +418,9 @@ def requirement_scores(
     if noise_limit is None:
         noise_limit = noise_limit_array(spec, plant)
     req = spec.requirements
+    has_mks = np.isfinite(noise_limit)
     peaks = tuple(name for name, needed in (("ms", req.ms_max is not None), ("mt", req.mt_max is not None),
-                                             ("mks", bool(np.any(np.isfinite(noise_limit))))) if needed)
+                                             ("mks", bool(has_mks.any()))) if needed)
     crossings = any(x is not None for x in (req.gm_min_db, req.pm_min_deg, req.dm_min, req.wc_min, req.wc_max))
     q = quick_margins(spec, plant, layout, full_gains, lin, stability=stability, peaks=peaks, crossings=crossings)
     B = q.stable.shape[0]
@@ -425,13 +428,14 @@ def requirement_scores(
     short = np.full(B, -np.inf)
     with np.errstate(all="ignore"):
         terms = margin_terms(req, q)
-        if np.any(np.isfinite(noise_limit)):
-            has = np.isfinite(noise_limit)
-            terms.append((q.mks[:, has] - noise_limit[has]) / noise_limit[has])
+        if has_mks.any():
+            terms.append((q.mks[:, has_mks] - noise_limit[has_mks]) / noise_limit[has_mks])
         for t in terms:
             t = finite(t, MAX_TERM, MAX_TERM, 0.0).max(axis=-1)
             t = t + FEASIBILITY_MARGIN  # met means at least FEASIBILITY_MARGIN inside the limit
             out += np.where(t <= 0.0, 0.0, np.minimum(t, MAX_TERM))
             short = np.maximum(short, np.minimum(t, MAX_TERM))
+    if q.stable.all():  # the grade of no row (the root find's margins-only estimates)
+        return out, short
     unstable = _unstable_grade(q.max_real, q.omega)
     return np.where(q.stable, out, unstable), np.where(q.stable, short, unstable)
