@@ -31,6 +31,8 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from gaintune.bench.arguments import BenchParser, add_out_argument, fail, int_range, resolve_out, seed_int
 from gaintune.bench.compare import fmt_ratio, md_table, ratio, stats, write_outputs
 from gaintune.bench.references import RESCORE_RTOL
@@ -93,19 +95,40 @@ def _close(a: Any, b: Any) -> bool:
         return False
 
 
-def tuner_answer(tuner: Any, case: Case, ref_cost: float | None, refine: int) -> dict[str, Any]:
-    """One query, judged here: the bench's own cost and verdict beside the ones the tuner reports."""
+#: Runs of each plant's zero-shot query timed (the first is the one judged): its time is their median.
+TIMING_REPEATS = 3
+
+
+def _timed_query(tuner: Any, case: Case, refine: int) -> tuple[Any, float]:
+    """One query and its process CPU time in ms (beside the answer's wall time: a shared machine's load
+    inflates both)."""
+    c0 = time.process_time()
+    a = tuner.query(dict(case.values), refine=refine)
+    return a, 1e3 * (time.process_time() - c0)
+
+
+def tuner_answer(tuner: Any, case: Case, ref_cost: float | None, refine: int, repeats: int = 1) -> dict[str, Any]:
+    """One query, judged here: the bench's own cost and verdict beside the ones the tuner reports.
+
+    ``repeats`` > 1 runs the same query again that many times in all: ``elapsed_ms`` and ``cpu_ms`` are then the
+    median over the runs (``first_elapsed_ms`` and ``first_cpu_ms`` the first run's), so one interruption by
+    another process on a shared machine does not set the plant's figure; ``same_answer`` says whether every
+    run gave the first run's gains (a query is deterministic).
+    """
     try:
-        c0 = time.process_time()
-        a = tuner.query(dict(case.values), refine=refine)
-        cpu_ms = 1e3 * (time.process_time() - c0)  # beside the wall time: the load of a shared machine inflates it
+        a, cpu_ms = _timed_query(tuner, case, refine)
         out = judge(case, a.gains, ref_cost)
+        again = [_timed_query(tuner, case, refine) for _ in range(repeats - 1)]
     except Exception as exc:  # a tuner defect is a row of the table, not the end of the benchmark
         return {"gains": None, "cost": None, "ratio": None, "verdict": "error", "ms": None,
                 "error": f"{type(exc).__name__}: {exc}"}
+    walls, cpus = [a.elapsed_ms] + [b.elapsed_ms for b, _ in again], [cpu_ms] + [c for _, c in again]
     out.update(tuner_cost=a.cost, tuner_verdict=a.verdict, cost_agrees=_close(a.cost, out["cost"]),
-               verdict_agrees=a.verdict == out["verdict"], policy_ms=a.policy_ms, elapsed_ms=a.elapsed_ms,
-               cpu_ms=cpu_ms, n_sims=a.n_sims)
+               verdict_agrees=a.verdict == out["verdict"], policy_ms=a.policy_ms,
+               elapsed_ms=float(np.median(walls)), cpu_ms=float(np.median(cpus)), n_sims=a.n_sims)
+    if repeats > 1:
+        out.update(first_elapsed_ms=a.elapsed_ms, first_cpu_ms=cpu_ms, repeats=repeats,
+                   same_answer=all(b.gains == a.gains for b, _ in again))
     return out
 
 
@@ -127,7 +150,7 @@ def measure_plant(case: Case, out_dir: Path, tuner: Any, refine: int,
     for name, r in rules.items():
         row[name] = {**r, "ratio": ratio(r["cost"], ref["cost"])}
     if tuner is not None:
-        row["tuner"] = tuner_answer(tuner, case, ref["cost"], 0)
+        row["tuner"] = tuner_answer(tuner, case, ref["cost"], 0, TIMING_REPEATS)
         row["refine"] = tuner_answer(tuner, case, ref["cost"], refine)
     return row
 
@@ -261,7 +284,9 @@ def _reference_text(result: Mapping[str, Any]) -> str:
 
 #: The in-process answer times of the timing table: key in ``in_process[mode]``, and its name.
 TIMED = (("policy_ms", "policy forward pass"), ("elapsed_ms", "whole answer (repair, verification), wall"),
-         ("cpu_ms", "whole answer, process CPU time"))
+         ("cpu_ms", "whole answer, process CPU time"),
+         ("first_elapsed_ms", "whole answer, wall, the first run alone"),
+         ("first_cpu_ms", "whole answer, process CPU time, the first run alone"))
 
 
 def _timing_rows(timing: Mapping[str, Any], refine: int | None) -> list[list[Any]]:
@@ -271,9 +296,13 @@ def _timing_rows(timing: Mapping[str, Any], refine: int | None) -> list[list[Any
     for mode, label in (("tuner", "zero-shot"), ("refine", f"refine {refine}")):
         t = timing["in_process"][mode]
         for what, name in TIMED:
-            if what in t:  # results written before the CPU time was measured have no cpu_ms
-                rows.append([f"{label}: {name}, p50 / p95 over {t[what]['n']} plants",
+            if what in t and t[what]["n"]:  # results written before a figure was measured have none
+                each = f", each the median of {t['repeats']} runs" if t.get("repeats", 1) > 1 and what in (
+                    "elapsed_ms", "cpu_ms") else ""
+                rows.append([f"{label}: {name}{each}, p50 / p95 over {t[what]['n']} plants",
                              f"{fmt(t[what]['p50'])} / {fmt(t[what]['p95'])}", "ms"])
+        if t.get("same_answer") is not None:
+            rows.append([f"{label}: plants whose repeated runs gave the first run's gains", t["same_answer"], "-"])
     fresh = timing.get("fresh_process")
     if fresh:
         rows += [[f"fresh process `{fresh['command']}`, median / max of {fresh['ok']} of {fresh['runs']} runs",

@@ -72,11 +72,17 @@ def percentiles(values: Sequence[float]) -> dict[str, float | None]:
 
 def in_process_timing(rows: Sequence[Mapping[str, Any]], modes: Sequence[str]) -> dict[str, Any]:
     """Per mode: percentiles of the answers' ``policy_ms``, ``elapsed_ms`` (wall) and ``cpu_ms`` (process CPU
-    time) over the plants."""
+    time) over the plants, each plant's time the median of its repeated runs (``repeats``; the first run's
+    alone as ``first_elapsed_ms`` and ``first_cpu_ms``), and how many plants' repeats gave the same gains."""
     out: dict[str, Any] = {}
     for mode in modes:
         answers = [r[mode] for r in rows if mode in r and r[mode].get("elapsed_ms") is not None]
-        out[mode] = {k: percentiles([a.get(k) for a in answers]) for k in ("policy_ms", "elapsed_ms", "cpu_ms")}
+        out[mode] = {k: percentiles([a.get(k) for a in answers])
+                     for k in ("policy_ms", "elapsed_ms", "cpu_ms", "first_elapsed_ms", "first_cpu_ms")}
+        repeats = {int(a.get("repeats", 1)) for a in answers}
+        out[mode]["repeats"] = max(repeats) if repeats else 1
+        if any("same_answer" in a for a in answers):
+            out[mode]["same_answer"] = f"{sum(bool(a.get('same_answer')) for a in answers)} / {len(answers)}"
     return out
 
 

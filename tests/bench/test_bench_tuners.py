@@ -15,7 +15,7 @@ import pytest
 
 from gaintune.bench import tuners as TB
 from gaintune.bench import tuners_refs as R
-from gaintune.bench.tuners_timing import fresh_process_timing, query_argv
+from gaintune.bench.tuners_timing import fresh_process_timing, in_process_timing, query_argv
 
 PLANT = {"K": 2.0, "T": 10.0, "L": 1.0}  # L/T = 0.1: AMIGO passes, SIMC (tau_c = L) exceeds Ms 1.4
 
@@ -105,6 +105,31 @@ def test_fake_tuner_rows_give_amigos_ratios_and_flag_a_misreported_cost(tmp_path
     assert "| tuner + refine |" in text and "## Plants where the tuner does not beat a passing rule" in text
     refine_row = next(line for line in text.splitlines() if line.startswith("| tuner + refine |"))
     assert "| 0/2 | 2/2 |" in refine_row  # its costs disagree with the bench's, its verdicts agree
+
+
+class SlowOnceTuner(AmigoTuner):
+    """AMIGO's gains, answered in 5 ms except every third call, which another process held up to 40 ms."""
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def query(self, values, refine=0):
+        self.calls += 1
+        a = super().query(values, refine)
+        a.elapsed_ms = 40.0 if self.calls % 3 == 1 else 5.0
+        return a
+
+
+def test_each_plants_zero_shot_time_is_the_median_of_its_repeated_runs(tmp_path) -> None:
+    """A shared machine's interruption of one run must not set the plant's figure: the same query runs
+    TIMING_REPEATS times, the median is its time, and the first run's figures are kept beside it."""
+    tuner = SlowOnceTuner()
+    row = TB.tuner_answer(tuner, R.make_case(0, R.held_out_plants(1)[0], "pi", 1.4), None, 0, 3)
+    assert tuner.calls == 3 and row["elapsed_ms"] == 5.0 and row["first_elapsed_ms"] == 40.0
+    assert row["repeats"] == 3 and row["same_answer"] is True
+    timing = in_process_timing([{"tuner": row}], ["tuner"])["tuner"]
+    assert timing["elapsed_ms"]["p50"] == 5.0 and timing["first_elapsed_ms"]["p50"] == 40.0
+    assert timing["repeats"] == 3 and timing["same_answer"] == "1 / 1"
 
 
 def test_tuner_that_raises_on_a_plant_gives_an_error_row_not_a_crash(tmp_path) -> None:
