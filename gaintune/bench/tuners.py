@@ -47,14 +47,7 @@ from gaintune.bench.tuners_refs import (
     rule_gains,
 )
 from gaintune.bench.tuners_timing import fresh_process_timing, in_process_timing
-from gaintune.bench.tuners_update import (
-    CHUNK,
-    CURVE_EVERY,
-    measure_update,
-    measure_warm_start,
-    render_update,
-    training_figures,
-)
+from gaintune.bench.tuners_update import CHUNK, CURVE_EVERY, training_figures
 from gaintune.fmt import fmt
 
 __all__ = ["DEFAULT_TUNER", "MS_MAX", "TunerUnavailable", "load_tuner", "measure", "render", "main"]
@@ -445,6 +438,11 @@ def build_parser() -> BenchParser:
                     help="family of --algo-compare (default fotd; controller --ctype, Ms <= 1.4)")
     ap.add_argument("--algo-contexts", type=int_range(1, 1000), default=16,
                     help="held-out contexts each --algo-compare tuner is scored on (default 16)")
+    ap.add_argument("--before", type=Path, default=None,
+                    help="instead: time the zero-shot answers of this checkout beside an older one (DIR), alternated "
+                         "in one run (writes tuners_before.*)")
+    ap.add_argument("--rounds", type=int_range(1, 100), default=3,
+                    help="rounds per checkout of --before (default 3)")
     add_out_argument(ap)
     return ap
 
@@ -459,9 +457,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     name = None if args.rules_only else (args.tuner or DEFAULT_TUNER[args.ctype])
     command = shlex.join(["gaintune", "bench", "tuners", *argv])
     if args.update:
-        return _main_update(args, out, command)
+        from gaintune.bench.tuners_update import main_update
+
+        return main_update(args, args.tuner or DEFAULT_TUNER["pi"], out, command)
     if args.algo_compare:
-        return _main_algo(args, out, command)
+        from gaintune.bench.tuners_algo import main_algo
+
+        return main_algo(args, out, command)
+    if args.before is not None:
+        from gaintune.bench.tuners_before import check_tree, main_before
+
+        if name is None or (why := check_tree(args.before)) is not None:
+            fail("--before", "--rules-only times no tuner" if name is None else str(why))
+        return main_before(args, name, held_out_plants(args.plants, args.seed), TIMING_REPEATS, out, command)
     load0 = [round(x, 2) for x in os.getloadavg()]
     try:
         result = measure(held_out_plants(args.plants, args.seed), out, ctype=args.ctype, tuner_name=name,
@@ -477,39 +485,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     md = render(result, command)
     print(md)
     _, mp = write_outputs(result, out, "tuners", md)
-    print(f"wrote {mp}")
-    return 0
-
-
-def _main_update(args: Any, out: Path, command: str) -> int:
-    """``--update``: the learning-on figure alone (two trainings)."""
-    load0 = [round(x, 2) for x in os.getloadavg()]
-    r = measure_update(args.tuner or DEFAULT_TUNER["pi"], args.update_episodes, with_agent=not args.shipped_only,
-                       curve_every=args.update_curve_every)
-    if not args.shipped_only:
-        r["warm_start"] = measure_warm_start()
-    r["command"] = command
-    r["loadavg"] = f"{load0} at the start, {[round(x, 2) for x in os.getloadavg()]} at the end"
-    md = render_update(r, command)
-    print(md)
-    # a --shipped-only run measures less: it must not overwrite the full run's results
-    _, mp = write_outputs(r, out, "tuners_update_shipped" if args.shipped_only else "tuners_update", md)
-    print(f"wrote {mp}")
-    return 0
-
-
-def _main_algo(args: Any, out: Path, command: str) -> int:
-    """``--algo-compare``: TD3 vs PPO at equal episodes on one family."""
-    from gaintune.bench.tuners_algo import measure_algo_compare, render_algo_compare
-
-    load0 = [round(x, 2) for x in os.getloadavg()]
-    r = measure_algo_compare(args.algo_family, args.ctype, 1.4, args.algo_episodes, args.algo_contexts,
-                             log=lambda m: print(m, file=sys.stderr, flush=True))
-    r["command"] = command
-    r["loadavg"] = f"{load0} at the start, {[round(x, 2) for x in os.getloadavg()]} at the end"
-    md = render_algo_compare(r, command)
-    print(md)
-    _, mp = write_outputs(r, out, "tuners_algo", md)
     print(f"wrote {mp}")
     return 0
 

@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ALGOS", "measure_algo_compare", "render_algo_compare"]
+__all__ = ["ALGOS", "measure_algo_compare", "render_algo_compare", "main_algo"]
 
 #: The learners compared, the default first.
 ALGOS = ("td3", "ppo")
@@ -65,3 +65,22 @@ def render_algo_compare(r: dict[str, Any], command: str) -> str:
         + (f" Load average: {r['loadavg']}." if r.get("loadavg") else ""), "",
         md_table(["algo", "held-out median", "held-out worst", "pass", "training sims", "wall s"], rows), "",
     ]) + "\n"
+
+
+def main_algo(args: Any, out: Path, command: str) -> int:
+    """``gaintune bench tuners --algo-compare``: TD3 vs PPO at equal episodes on one family."""
+    import os
+    import sys
+
+    from gaintune.bench.compare import write_outputs
+
+    load0 = [round(x, 2) for x in os.getloadavg()]
+    r = measure_algo_compare(args.algo_family, args.ctype, 1.4, args.algo_episodes, args.algo_contexts,
+                             log=lambda m: print(m, file=sys.stderr, flush=True))
+    r["command"] = command
+    r["loadavg"] = f"{load0} at the start, {[round(x, 2) for x in os.getloadavg()]} at the end"
+    md = render_algo_compare(r, command)
+    print(md)
+    _, mp = write_outputs(r, out, "tuners_algo", md)
+    print(f"wrote {mp}")
+    return 0

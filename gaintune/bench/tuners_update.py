@@ -17,7 +17,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-__all__ = ["LAG", "TARGET", "CURVE_EVERY", "CHUNK", "changed_spec", "sims_to", "measure_update"]
+__all__ = ["LAG", "TARGET", "CURVE_EVERY", "CHUNK", "changed_spec", "sims_to", "measure_update",
+           "main_update"]
 
 #: The added sensor lag, in units of L + T.
 LAG = 0.2
@@ -215,3 +216,24 @@ def measure_warm_start(tau: float = 0.3, budget: int = 3000, seed: int = 0) -> d
     c, w = out["cold"]["sims_to_target"], out["warm_start"]["sims_to_target"]
     out["ratio"] = c / w if c and w else None
     return out
+
+
+def main_update(args: Any, base: str, out: Path, command: str) -> int:
+    """``gaintune bench tuners --update``: the learning-on figure alone (two trainings)."""
+    import os
+
+    from gaintune.bench.compare import write_outputs
+
+    load0 = [round(x, 2) for x in os.getloadavg()]
+    r = measure_update(base, args.update_episodes, with_agent=not args.shipped_only,
+                       curve_every=args.update_curve_every)
+    if not args.shipped_only:
+        r["warm_start"] = measure_warm_start()
+    r["command"] = command
+    r["loadavg"] = f"{load0} at the start, {[round(x, 2) for x in os.getloadavg()]} at the end"
+    md = render_update(r, command)
+    print(md)
+    # a --shipped-only run measures less: it must not overwrite the full run's results
+    _, mp = write_outputs(r, out, "tuners_update_shipped" if args.shipped_only else "tuners_update", md)
+    print(f"wrote {mp}")
+    return 0

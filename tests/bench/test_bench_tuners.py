@@ -220,7 +220,9 @@ def test_update_curve_every_reaches_the_training_settings(monkeypatch, tmp_path)
         seen.update(base=base, episodes=episodes, curve_every=curve_every)
         raise SystemExit(0)
 
-    monkeypatch.setattr(TB, "measure_update", fake_measure)
+    import gaintune.bench.tuners_update as TU
+
+    monkeypatch.setattr(TU, "measure_update", fake_measure)
     with pytest.raises(SystemExit):
         TB.main(["--update", "--shipped-only", "--update-curve-every", "32", "--out", str(tmp_path)])
     assert seen == {"base": "fotd_pi_ms1.4", "episodes": 8192, "curve_every": 32}
@@ -265,8 +267,10 @@ def test_a_shipped_only_update_run_does_not_overwrite_the_full_runs_results(monk
                 "update": {"sims_to_target": 1, "wall_s": 1.0, "validation": {"median_ratio": 1.0, "worst_ratio": 1.0},
                            "curve": []}, "ratio_update": 10.0, "ratio": 10.0}
 
-    monkeypatch.setattr(TB, "measure_update", fake_measure)
-    monkeypatch.setattr(TB, "render_update", lambda r, command: "# rendered\n")
+    import gaintune.bench.tuners_update as TU
+
+    monkeypatch.setattr(TU, "measure_update", fake_measure)
+    monkeypatch.setattr(TU, "render_update", lambda r, command: "# rendered\n")
     (tmp_path / "tuners_update.md").write_text("the full run\n")
     assert TB.main(["--update", "--shipped-only", "--out", str(tmp_path)]) == 0
     assert (tmp_path / "tuners_update.md").read_text() == "the full run\n"
