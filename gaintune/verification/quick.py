@@ -272,10 +272,13 @@ def _stability(cas: Cascade, lin: LinearModel, w: np.ndarray, T: float, sp: Samp
 
 
 def _unstable_grade(max_real: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """The violation of an unstable loop: ``UNSTABLE_VIOLATION + log1p(max Re pole / w_ref)``, the log capped at 100."""
+    """The violation of an unstable loop: ``UNSTABLE_VIOLATION + log1p(max Re pole / w_ref)``, the log capped at 100.
+
+    A negative max Re pole counts as 0 (a loop unstable through a mode no loop measures, whose measured part
+    is stable: the grade is UNSTABLE_VIOLATION itself); NaN and +inf as 1e300."""
     w_ref = float(np.sqrt(w[0] * w[-1]))
     with np.errstate(all="ignore"):
-        grade = np.log1p(np.minimum(finite(max_real, 1e300, 1e300, 0.0), 1e300) / w_ref)
+        grade = np.log1p(np.minimum(np.maximum(finite(max_real, 1e300, 1e300, 0.0), 0.0), 1e300) / w_ref)
     return UNSTABLE_VIOLATION + np.minimum(grade, 100.0)
 
 

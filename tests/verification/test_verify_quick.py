@@ -155,3 +155,18 @@ def test_a_stable_loop_past_the_divergence_bound_is_told_to_raise_safety_diverge
     assert "safety.divergence_bound = 1e+06" in report.nonlinear.note and "raise safety.divergence_bound" in \
         report.nonlinear.note
     assert verify(load_spec({**data, "safety": {"divergence_bound": 1e13}}), gains).verdict == "pass"
+
+
+def test_the_unstable_grade_counts_a_negative_max_pole_as_zero_and_nan_as_huge() -> None:
+    """Regression: the grade once took a negative max Re pole as it came (a loop unstable through a mode no
+    loop measures has a stable measured part): log1p of a value below -1 is NaN, and the violation of that
+    unstable loop fell below UNSTABLE_VIOLATION. It is np.clip's grade: the max pole clipped to [0, 1e300]."""
+    from gaintune.verification.quick import UNSTABLE_VIOLATION, _unstable_grade
+
+    w = np.array([1e-3, 1.0, 1e3])
+    max_re = np.array([-5.0, -1e-9, 0.0, 2.0, np.nan, np.inf, -np.inf])
+    expect = UNSTABLE_VIOLATION + np.minimum(np.log1p(np.clip(np.nan_to_num(max_re, nan=1e300, posinf=1e300),
+                                                             0.0, 1e300) / 1.0), 100.0)
+    got = _unstable_grade(max_re, w)
+    assert np.array_equal(got, expect)
+    assert got[0] == got[1] == got[2] == UNSTABLE_VIOLATION and got[4] == got[5] == UNSTABLE_VIOLATION + 100.0
