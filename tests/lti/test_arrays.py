@@ -45,3 +45,22 @@ def test_finite_gives_nan_to_nums_values_and_a_copy() -> None:
     out = finite(clean, 0.0, 0.0, 0.0)
     out[0] = 3.0
     assert clean[0] == 1.0
+
+
+def test_below_numpys_threshold_int_power_is_numpys_power_to_the_bit() -> None:
+    """Below an exponent of 100 NumPy multiplies repeatedly and is as fast: its values are kept, so a loop
+    whose delay buffer is shorter than 100 samples is analysed as before to the last bit."""
+    z = np.exp((-1e-3 + 1j) * np.linspace(0.0, np.pi, 777))
+    for n in (0, 1, 7, 36, 99):
+        assert int_power(z, n).tobytes() == (z**n).tobytes()
+    d = np.array([[0, 3, 12, 99]])
+    assert int_power(z[:, None], d).tobytes() == (z[:, None] ** d).tobytes()
+
+
+def test_mixed_exponents_keep_numpys_values_below_100_and_square_above() -> None:
+    z = np.exp((-1e-3 + 1j) * np.linspace(0.0, np.pi, 301))[:, None]
+    d = np.array([[5, 150, 5, 99, 230]])
+    out = int_power(z, d)
+    small = np.array([0, 2, 3])
+    assert out[:, small].tobytes() == (z ** d[:, small]).tobytes()
+    assert np.allclose(out[:, [1, 4]], np.exp(d[0, [1, 4]] * np.log(z)), rtol=0.0, atol=1e-12)
