@@ -140,13 +140,17 @@ def render_before(result: dict[str, Any], command: str) -> str:
 
 
 def _commit(tree: Path) -> str:
-    """The checkout's short commit (with "+changes" when its tree differs from it), or "unknown"."""
+    """The checkout's short commit (with "+changes" when its gaintune package differs from it: the code a round
+    runs; a benchmark's own results written into the tree are not a change of it), or "unknown"."""
     def git(*a: str) -> str:
         p = subprocess.run(["git", "-C", str(tree), *a], capture_output=True, text=True, check=False)
         return p.stdout.strip() if p.returncode == 0 else ""
 
     rev = git("rev-parse", "--short", "HEAD")
-    return (rev + ("+changes" if git("status", "--porcelain", "--untracked-files=no") else "")) if rev else "unknown"
+    if not rev:
+        return "unknown"
+    changed = git("status", "--porcelain", "--untracked-files=no", "--", "gaintune")
+    return rev + ("+changes" if changed else "")
 
 
 def main_before(args: Any, name: str, plants: Sequence[dict[str, float]], repeats: int, out: Path,
