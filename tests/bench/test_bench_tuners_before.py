@@ -59,3 +59,9 @@ def test_before_that_is_no_checkout_exits_2_naming_the_option(tmp_path, capsys) 
     with pytest.raises(SystemExit) as exc:
         TB.main(["--before", str(tmp_path), "--out", str(tmp_path / "out")])
     assert exc.value.code == 2 and "--before" in capsys.readouterr().err
+
+
+def test_the_child_sets_the_collector_threshold_the_gaintune_command_sets() -> None:
+    from gaintune.cli.entry import GC_THRESHOLD0
+
+    assert f"gc.set_threshold({GC_THRESHOLD0:_}," in TBB.CHILD
