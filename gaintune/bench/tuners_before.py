@@ -4,9 +4,10 @@ The machine is shared, and its speed moves from one hour to the next by more tha
 runs of ``gaintune bench tuners`` at different times do not tell whether a change made the answer faster.
 This mode times the same answers in both checkouts in one run, alternated round by round (this tree,
 then DIR, then this tree ...), each round a fresh process with ``PYTHONPATH`` set to its tree (and its
-compiled kernels where that tree keeps them, built by its first round when missing) and the cyclic
-collector's threshold the ``gaintune`` command sets (``gaintune.cli.entry.GC_THRESHOLD0``), as the
-benchmark's own in-process figures have it. A round loads the
+compiled kernels where that tree keeps them, built by its first round when missing) and the process
+settings the ``gaintune`` command makes (the cyclic collector's threshold and glibc's malloc thresholds,
+:mod:`gaintune.cli.entry`), as the benchmark's own in-process figures have them; an older tree gets them
+too, so the ratio measures the code. A round loads the
 tuner, answers the first plant once (a warm-up), then answers every held-out plant
 :data:`~gaintune.bench.tuners.TIMING_REPEATS` times; a plant's figure is the median process CPU time of its
 runs. The table gives each round's p50 and p95 over the plants, their median over the rounds, the ratio
@@ -38,6 +39,12 @@ import gc, json, sys, time
 import numpy as np
 name, repeats, plants = sys.argv[1], int(sys.argv[2]), json.loads(sys.argv[3])
 gc.set_threshold(250_000, *gc.get_threshold()[1:])  # the collector's threshold the gaintune command sets
+try:  # and its malloc thresholds (gaintune.cli.entry.keep_heap), in either tree: the ratio measures the code
+    import ctypes
+    ctypes.CDLL(None).mallopt(-3, 32 << 20)
+    ctypes.CDLL(None).mallopt(-1, 64 << 20)
+except (OSError, AttributeError):
+    pass
 try:  # a tree with the single-lane kernel compiled ahead of time answers on it, as a user's query does
     from gaintune.sim.kernel_aot import AOT, aot_missing
     from gaintune.sim.precompile import compile_here

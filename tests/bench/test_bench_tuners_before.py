@@ -65,3 +65,10 @@ def test_the_child_sets_the_collector_threshold_the_gaintune_command_sets() -> N
     from gaintune.cli.entry import GC_THRESHOLD0
 
     assert f"gc.set_threshold({GC_THRESHOLD0:_}," in TBB.CHILD
+
+
+def test_the_child_sets_the_malloc_thresholds_the_gaintune_command_sets() -> None:
+    from gaintune.cli.entry import MMAP_THRESHOLD, TRIM_THRESHOLD
+
+    assert MMAP_THRESHOLD == 32 << 20 and TRIM_THRESHOLD == 64 << 20
+    assert "mallopt(-3, 32 << 20)" in TBB.CHILD and "mallopt(-1, 64 << 20)" in TBB.CHILD

@@ -138,3 +138,46 @@ def test_a_fresh_tuner_query_runs_no_cyclic_collection_at_the_raised_threshold()
     res = run_main(code)
     assert res.returncode == 0, res.stderr
     assert res.stdout.rstrip().endswith("collections 0"), res.stdout[-200:]
+
+
+def test_the_program_keeps_freed_memory_in_the_heap_and_an_embedding_caller_keeps_its_allocator() -> None:
+    """A command run as the program sets glibc's mmap and trim thresholds (keep_heap): an answer's temporaries
+    were otherwise mapped and handed back time and again (~160 page faults per tuner answer, 14 with them)."""
+    spy = ("import atexit\nimport gaintune.cli.entry as e\ncalls = []\nreal = e.keep_heap\n"
+           "e.keep_heap = lambda: calls.append(real()) or calls[-1]\n"
+           "atexit.register(lambda: print('keep_heap', calls))\n")
+    res = run_main(spy + "from gaintune.cli import app\napp(['--help'])")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.rstrip().endswith("keep_heap [True]" if sys.platform.startswith("linux") else "keep_heap [False]")
+    embedded = (spy + "from gaintune.cli import app\n"
+                "try:\n    exec(\"app(['--help'])\", {'__name__': 'embedder', 'app': app})\nexcept SystemExit:\n    pass\n")
+    res = subprocess.run([sys.executable, "-c", embedded], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.rstrip().endswith("keep_heap []")
+
+
+def test_keep_heap_sets_both_thresholds_and_leaves_a_users_setting(monkeypatch) -> None:
+    import ctypes
+
+    calls = []
+
+    class FakeLibc:
+        def __init__(self, _name) -> None:
+            self.mallopt = self
+
+        def __call__(self, param, value):
+            calls.append((param, value))
+            return 1
+
+    monkeypatch.setattr(ctypes, "CDLL", FakeLibc)
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.delenv("MALLOC_MMAP_THRESHOLD_", raising=False)
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
+    assert entry.keep_heap() is True
+    assert calls == [(-3, entry.MMAP_THRESHOLD), (-1, entry.TRIM_THRESHOLD)]
+    calls.clear()
+    monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "131072")
+    assert entry.keep_heap() is False and calls == []
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_")
+    monkeypatch.setattr(sys, "platform", "darwin")
+    assert entry.keep_heap() is False and calls == []
