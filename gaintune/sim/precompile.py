@@ -218,15 +218,15 @@ def build_single() -> Path:
     folder = _writable_dir()
     target = module_file(folder)
     with FileLock(str(folder / (module_name() + ".lock"))):
-        if target.is_file():
-            return target
-        with tempfile.TemporaryDirectory(dir=folder) as tmp:
-            try:
-                built = _compile(Path(tmp))
-            except Exception as exc:
-                failed_note(folder).write_text(f"{type(exc).__name__}: {exc}\n", encoding="utf-8")
-                raise
-            os.replace(built, target)
+        if not target.is_file():
+            with tempfile.TemporaryDirectory(dir=folder) as tmp:
+                try:
+                    built = _compile(Path(tmp))
+                except Exception as exc:
+                    failed_note(folder).write_text(f"{type(exc).__name__}: {exc}\n", encoding="utf-8")
+                    raise
+                os.replace(built, target)
+    # built here or, meanwhile, by another process: a load that found nothing before must look again
     load_single.cache_clear()
     return target
 

@@ -109,3 +109,16 @@ def test_the_compiled_module_runs_on_several_threads_at_once_with_each_calls_own
     with ThreadPoolExecutor(4) as pool:
         together = list(pool.map(lambda a: aot_single(*a, 0, 1).tobytes(), args * 8))
     assert together == alone * 8
+
+
+def test_a_module_another_process_built_meanwhile_is_loaded_by_a_process_that_looked_before(tmp_path: Path,
+                                                                                            monkeypatch) -> None:
+    """Regression (CI, two pytest workers): a process that looked for the module before it existed kept that
+    answer (load_single is read once per process), and build_single, finding the module another process had
+    built meanwhile, returned without telling it: the process ran on the JIT variant for good."""
+    monkeypatch.setattr(precompile, "_writable_dir", lambda: tmp_path)
+    kernel_aot.load_single()  # this process looks (and remembers)
+    assert kernel_aot.load_single.cache_info().currsize == 1
+    precompile.module_file(tmp_path).write_bytes(b"built by another process")
+    assert build_single() == precompile.module_file(tmp_path)
+    assert kernel_aot.load_single.cache_info().currsize == 0  # the next load looks again
