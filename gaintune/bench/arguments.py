@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 import sys
 import tempfile
@@ -42,6 +43,8 @@ __all__ = [
     "add_out_argument",
     "resolve_out",
     "select_problems",
+    "load_now",
+    "load_span",
 ]
 
 #: Exit code of invalid input (docs/cli.md; 1 means a component is missing).
@@ -206,3 +209,13 @@ def select_problems(suite: str, names: list[str] | None) -> list:
         return select(get_suite(suite), list(names) if names else None)
     except ValueError as exc:
         fail("--problems", str(exc))
+
+
+def load_now() -> list[float]:
+    """This machine's 1, 5 and 15-minute load averages, to two decimals (a benchmark records them)."""
+    return [round(x, 2) for x in os.getloadavg()]
+
+
+def load_span(start: list[float]) -> str:
+    """``start`` (:func:`load_now` when the benchmark began) and the load averages now, as the results say them."""
+    return f"{start} at the start, {load_now()} at the end"

@@ -415,6 +415,14 @@ def write_outputs(result: dict[str, Any], out_dir: Path, stem: str, markdown: st
     return jp, mp
 
 
+def publish(result: dict[str, Any], out_dir: Path, stem: str, markdown: str) -> int:
+    """Print ``markdown``, write ``<stem>.json`` and ``<stem>.md`` (:func:`write_outputs`), say where; returns 0."""
+    print(markdown)
+    _, mp = write_outputs(result, out_dir, stem, markdown)
+    print(f"wrote {mp}")
+    return 0
+
+
 def set_threads(n: int | None) -> None:
     """Limit torch's intra-op threads (small MLPs on a busy machine run far faster on one thread)."""
     if n is None or n <= 0:

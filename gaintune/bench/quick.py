@@ -32,8 +32,17 @@ from typing import Any
 
 import numpy as np
 
-from gaintune.bench.arguments import BenchParser, add_out_argument, fail, int_range, resolve_out, select_problems
-from gaintune.bench.compare import fmt_ratio, md_table, ratio, stats, write_outputs
+from gaintune.bench.arguments import (
+    BenchParser,
+    add_out_argument,
+    fail,
+    int_range,
+    load_now,
+    load_span,
+    resolve_out,
+    select_problems,
+)
+from gaintune.bench.compare import fmt_ratio, md_table, publish, ratio, stats
 from gaintune.bench.references import reference_for
 from gaintune.bench.suite import BenchCase
 from gaintune.errors import GaintuneError
@@ -219,16 +228,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         fail("--tuners", f"{args.tuners} is not a folder; give a folder of tuner folders (each with tuner.json)")
     out = resolve_out(args.out)
     command = shlex.join(["gaintune", "bench", "quick", *argv])
-    load0 = [round(x, 2) for x in os.getloadavg()]
+    load0 = load_now()
     result = measure(siso_problems(args.problems), out, args.tuners, args.refine,
                      log=lambda m: print(m, file=sys.stderr, flush=True))
-    result["loadavg"] = f"{load0} at the start, {[round(x, 2) for x in os.getloadavg()]} at the end"
+    result["loadavg"] = load_span(load0)
     result["command"] = command
-    md = render(result, command)
-    print(md)
-    _, mp = write_outputs(result, out, "quick", md)
-    print(f"wrote {mp}")
-    return 0
+    return publish(result, out, "quick", render(result, command))
 
 
 if __name__ == "__main__":

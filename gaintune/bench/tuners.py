@@ -33,8 +33,17 @@ from typing import Any
 
 import numpy as np
 
-from gaintune.bench.arguments import BenchParser, add_out_argument, fail, int_range, resolve_out, seed_int
-from gaintune.bench.compare import fmt_ratio, md_table, ratio, stats, write_outputs
+from gaintune.bench.arguments import (
+    BenchParser,
+    add_out_argument,
+    fail,
+    int_range,
+    load_now,
+    load_span,
+    resolve_out,
+    seed_int,
+)
+from gaintune.bench.compare import fmt_ratio, md_table, publish, ratio, stats
 from gaintune.bench.references import RESCORE_RTOL
 from gaintune.bench.tuners_refs import (
     HELD_OUT_SEED,
@@ -470,23 +479,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         if name is None or (why := check_tree(args.before)) is not None:
             fail("--before", "--rules-only times no tuner" if name is None else str(why))
         return main_before(args, name, held_out_plants(args.plants, args.seed), TIMING_REPEATS, out, command)
-    load0 = [round(x, 2) for x in os.getloadavg()]
+    load0 = load_now()
     try:
         result = measure(held_out_plants(args.plants, args.seed), out, ctype=args.ctype, tuner_name=name,
                          refine=args.refine, fresh_runs=args.fresh_runs,
                          log=lambda m: print(m, file=sys.stderr, flush=True))
     except TunerUnavailable as exc:
         fail("--tuner", str(exc))
-    result["loadavg"] = f"{load0} at the start, {[round(x, 2) for x in os.getloadavg()]} at the end"
+    result["loadavg"] = load_span(load0)
     if name is not None:
         result["training"] = training_figures(name)
     result["command"] = command
     result["settings"]["seed"] = args.seed
-    md = render(result, command)
-    print(md)
-    _, mp = write_outputs(result, out, "tuners", md)
-    print(f"wrote {mp}")
-    return 0
+    return publish(result, out, "tuners", render(result, command))
 
 
 if __name__ == "__main__":

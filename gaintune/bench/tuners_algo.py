@@ -69,18 +69,14 @@ def render_algo_compare(r: dict[str, Any], command: str) -> str:
 
 def main_algo(args: Any, out: Path, command: str) -> int:
     """``gaintune bench tuners --algo-compare``: TD3 vs PPO at equal episodes on one family."""
-    import os
     import sys
 
-    from gaintune.bench.compare import write_outputs
+    from gaintune.bench.arguments import load_now, load_span
+    from gaintune.bench.compare import publish
 
-    load0 = [round(x, 2) for x in os.getloadavg()]
+    load0 = load_now()
     r = measure_algo_compare(args.algo_family, args.ctype, 1.4, args.algo_episodes, args.algo_contexts,
                              log=lambda m: print(m, file=sys.stderr, flush=True))
     r["command"] = command
-    r["loadavg"] = f"{load0} at the start, {[round(x, 2) for x in os.getloadavg()]} at the end"
-    md = render_algo_compare(r, command)
-    print(md)
-    _, mp = write_outputs(r, out, "tuners_algo", md)
-    print(f"wrote {mp}")
-    return 0
+    r["loadavg"] = load_span(load0)
+    return publish(r, out, "tuners_algo", render_algo_compare(r, command))

@@ -166,15 +166,13 @@ def _commit(tree: Path) -> str:
 def main_before(args: Any, name: str, plants: Sequence[dict[str, float]], repeats: int, out: Path,
                 command: str) -> int:
     """``--before DIR``: the side-by-side timing alone; writes ``tuners_before.*``."""
-    from gaintune.bench.compare import write_outputs
+    from gaintune.bench.arguments import load_now, load_span
+    from gaintune.bench.compare import publish
 
-    load0 = [round(x, 2) for x in os.getloadavg()]
+    load0 = load_now()
     r = measure_before(args.before, name, plants, args.rounds, repeats)
     r.update(name=name, plants=len(plants), repeats=repeats, n_rounds=args.rounds, command=command,
              commits={k: _commit(Path(v)) for k, v in r["trees"].items()},
-             loadavg=f"{load0} at the start, {[round(x, 2) for x in os.getloadavg()]} at the end")
-    md = render_before(r, command)
-    print(md)
-    _, mp = write_outputs(r, out, "tuners_before", md)
-    print(f"wrote {mp}")
+             loadavg=load_span(load0))
+    publish(r, out, "tuners_before", render_before(r, command))
     return 0 if not r["errors"] else 1

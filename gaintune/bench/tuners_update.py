@@ -220,20 +220,16 @@ def measure_warm_start(tau: float = 0.3, budget: int = 3000, seed: int = 0) -> d
 
 def main_update(args: Any, base: str, out: Path, command: str) -> int:
     """``gaintune bench tuners --update``: the learning-on figure alone (two trainings)."""
-    import os
+    from gaintune.bench.arguments import load_now, load_span
+    from gaintune.bench.compare import publish
 
-    from gaintune.bench.compare import write_outputs
-
-    load0 = [round(x, 2) for x in os.getloadavg()]
+    load0 = load_now()
     r = measure_update(base, args.update_episodes, with_agent=not args.shipped_only,
                        curve_every=args.update_curve_every)
     if not args.shipped_only:
         r["warm_start"] = measure_warm_start()
     r["command"] = command
-    r["loadavg"] = f"{load0} at the start, {[round(x, 2) for x in os.getloadavg()]} at the end"
-    md = render_update(r, command)
-    print(md)
+    r["loadavg"] = load_span(load0)
     # a --shipped-only run measures less: it must not overwrite the full run's results
-    _, mp = write_outputs(r, out, "tuners_update_shipped" if args.shipped_only else "tuners_update", md)
-    print(f"wrote {mp}")
-    return 0
+    return publish(r, out, "tuners_update_shipped" if args.shipped_only else "tuners_update",
+                   render_update(r, command))

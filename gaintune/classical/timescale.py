@@ -39,7 +39,7 @@ import numpy as np
 from gaintune.classical.fotd import NoModelError, fit_fotd, path_poles_zeros, siso_minreal
 from gaintune.controllers.direction import measured_indices
 from gaintune.errors import SpecError
-from gaintune.lti.statespace import StateSpace
+from gaintune.lti.statespace import StateSpace, one_stable_lag
 from gaintune.plants.plant import Plant, build_plant, is_mimo_plant
 from gaintune.spec import MAX_STEPS, ScenarioDefault, ScenarioSpec, TuningSpec
 
@@ -95,21 +95,10 @@ def _g(x: float) -> str:
 
 
 def _one_lag(sys: StateSpace) -> float | None:
-    """The time constant of a path that is one stable lag with a static gain (one state, no feedthrough),
-    else None.
-
-    For such a path :func:`~gaintune.classical.fotd.fit_fotd`'s half rule gives T = -1/a and L = the delay;
-    it reaches them through a minimal realisation and the zeros' pencil, ~0.4 ms (a twentieth of a tuner's
-    answer, whose FOTD plants are all this case). The bounds are fit_fotd's: a pole within 1e-9 of the
-    origin is an integrator, and a gain the realisation would cancel is none.
-    """
-    A, B, C, D = sys.A, sys.B, sys.C, sys.D
-    if A.shape != (1, 1) or D[0, 0] != 0.0:
-        return None
-    a, bc = float(A[0, 0]), float(B[0, 0] * C[0, 0])
-    if not (math.isfinite(a) and math.isfinite(bc)) or -a <= 1e-9 * max(1.0, abs(a)) or abs(bc) <= 1e-9 * abs(a):
-        return None
-    return -1.0 / a
+    """The time constant T = -1/a of a path that is one stable lag (:func:`gaintune.lti.statespace.one_stable_lag`),
+    with L = the delay what :func:`~gaintune.classical.fotd.fit_fotd`'s half rule gives it; else None."""
+    a = one_stable_lag(sys.A, sys.B, sys.C, sys.D)
+    return None if a is None else -1.0 / a
 
 
 def _path_scale(name: str, sys: StateSpace, delay: float) -> LoopScale:

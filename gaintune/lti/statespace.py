@@ -26,7 +26,7 @@ import numpy as np
 from gaintune.lti.pade import canonical_form, pade_monic
 
 __all__ = ["StateSpace", "as_state_space", "ss_to_tf", "tf_to_ss", "tf_minreal", "series", "with_input_delay",
-           "step_response", "pade_state_space"]
+           "step_response", "pade_state_space", "one_stable_lag"]
 
 
 def _mat(x: Any) -> np.ndarray:
@@ -135,6 +135,25 @@ def as_state_space(sys: Any) -> StateSpace:
 
     ss = control.ss(sys)
     return StateSpace(ss.A, ss.B, ss.C, ss.D)
+
+
+def one_stable_lag(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray) -> float | None:
+    """The pole ``a`` of a SISO path that is one stable lag with a readable gain, else None.
+
+    One state, no feedthrough, ``a`` clear of the origin (more than 1e-9 of max(1, |a|) to its left:
+    closer, the FOTD fit reads an integrator) and a gain ``bc`` above 1e-9 |a| (below, a minimal
+    realisation may cancel the state). For such a path the classical rules' general machinery (minimal
+    realisation, zeros' pencil, low-frequency expansion) gives what ``a`` and ``bc`` give directly: its
+    time scale (:mod:`gaintune.classical.timescale`) and its loop sign (:mod:`gaintune.controllers.direction`)
+    read them without it.
+    """
+    A, B, C, D = (np.asarray(x, dtype=float) for x in (A, B, C, D))
+    if A.shape != (1, 1) or D.size != 1 or D.ravel()[0] != 0.0:
+        return None
+    a, bc = float(A[0, 0]), float(B.ravel()[0] * C.ravel()[0])
+    if not (math.isfinite(a) and math.isfinite(bc)) or -a <= 1e-9 * max(1.0, abs(a)) or abs(bc) <= 1e-9 * abs(a):
+        return None
+    return a
 
 
 def _tf_clean(num: Any, den: Any) -> tuple[np.ndarray, np.ndarray]:
